@@ -1,0 +1,7 @@
+"""oslbench: a benchmark suite for observer-based control of Lipschitz and one-sided Lipschitz systems.
+
+Run ``python -m bench run`` to produce ``reports/REPORT.md``; ``python -m bench list`` lists
+the registered plants and designs.
+"""
+
+__version__ = "0.1.0"

@@ -1,0 +1,126 @@
+"""Command line: ``python -m bench run`` and ``python -m bench list``.
+
+Exit codes: 0 success, 1 a run that could not write its report, 2 bad usage (unknown id,
+bad option value).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+
+from bench.registry import DESIGNS, PLANTS, UnknownIdError
+
+__all__ = ["main"]
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # exit 2 with a one-line message, argparse-style
+        self.print_usage(sys.stderr)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (v > 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return v
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return v
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="python -m bench", description="oslbench: observer-based control of OSL/Lipschitz systems")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    r = sub.add_parser("run", help="run (plant, design) pairs and write the report")
+    r.add_argument("--plant", action="append", metavar="GLOB", help="plant id or glob (repeatable; default all)")
+    r.add_argument("--design", action="append", metavar="GLOB", help="design id or glob (repeatable; default all)")
+    r.add_argument("--out", default="reports", metavar="DIR", help="report folder (default: reports)")
+    r.add_argument("--seed", type=_nonneg_int, default=0, help="seed of the constants sampler (default 0)")
+    r.add_argument("--claimed-constants", action="store_true",
+                   help="design with the constants the sources claim (the certificate still uses valid ones)")
+    r.add_argument("--t-final", type=_positive_float, default=None, metavar="SECONDS",
+                   help="simulation horizon (default: each plant's)")
+    r.add_argument("--no-figures", action="store_true", help="skip the figures")
+    r.add_argument("--fail-fast", action="store_true", help="stop at the first exception (for debugging)")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    sub.add_parser("list", help="list plants and designs")
+    return p
+
+
+def _cmd_list() -> int:
+    print("plants:")
+    for pid in PLANTS.ids():
+        print(f"  {pid:<24} {PLANTS[pid].summary}")
+    print("designs:")
+    for did in DESIGNS.ids():
+        print(f"  {did:<24} {DESIGNS[did].summary}")
+    return 0
+
+
+def _cmd_run(args, argv: list[str]) -> int:
+    try:
+        plant_ids = PLANTS.select(args.plant)
+        design_ids = DESIGNS.select(args.design)
+    except UnknownIdError as exc:
+        print(f"python -m bench run: error: {exc}", file=sys.stderr)
+        return 2
+    from bench.harness import RunOptions, run, stderr_progress
+    from bench.report import write_report
+
+    options = RunOptions(seed=args.seed, use_claimed=args.claimed_constants, fail_fast=args.fail_fast,
+                         t_final=args.t_final)
+    t0 = time.perf_counter()
+    progress = None if args.quiet else stderr_progress
+    if progress:
+        progress(f"running {len(plant_ids)} plant(s) x {len(design_ids)} design(s)")
+    result = run(plant_ids, design_ids, options, progress=progress)
+    info = {"command": "python -m bench " + shlex.join(argv), "plants": plant_ids, "designs": design_ids}
+    try:
+        path = write_report(result, args.out, info, figures=not args.no_figures)
+    except Exception as exc:  # the previous report stays intact (atomic write)
+        print(f"python -m bench run: error: could not write the report to {args.out!r} "
+              f"({type(exc).__name__}: {exc}); the previous report, if any, is unchanged", file=sys.stderr)
+        return 1
+    df = result.frame()
+    if not args.quiet:
+        n_feas = int(df["feasible"].sum())
+        n_cert = int(df["certified"].sum())
+        n_conv = int(df["converged"].sum())
+        n_err = int((df["status"] == "error").sum())
+        print(f"{len(df)} pairs: {n_feas} feasible, {n_cert} certified, {n_conv} converged, {n_err} errors; "
+              f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)
+        print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments without the program name (default ``sys.argv[1:]``).
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = _build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    if args.command == "list":
+        return _cmd_list()
+    return _cmd_run(args, argv)

@@ -1,0 +1,245 @@
+"""The harness: for every (plant, design) pair, design -> verify -> certify -> simulate -> metrics.
+
+Each pair becomes one flat record with a fixed set of columns (:data:`COLUMNS`), NaN where a
+value does not apply. An exception inside one pair becomes a row with status ``error`` and the
+message; the run goes on (``fail_fast=True`` re-raises instead).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from bench.certify import certify
+from bench.constants import ConstantsReport, compute_constants, resolve_constants
+from bench.metrics import trajectory_metrics
+from bench.registry import DESIGNS, PLANTS
+from bench.simulate import SimOptions, Trajectory, simulate
+from designs._core import DesignResult
+from plants._core import Plant
+
+__all__ = ["COLUMNS", "PairOutcome", "RunOptions", "RunResult", "run", "run_pair"]
+
+#: Columns of every record, in order.
+COLUMNS = [
+    "plant", "design", "status", "reason", "feasible", "stabilizing", "certified", "converged",
+    "decay_rate", "cert_margin", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves",
+    "compile_s", "solve_s", "design_s", "cert_s", "sim_s", "max_re_eig_x", "max_re_eig_e",
+    "sim_status", "settling_x_s", "settling_e_s", "final_x", "final_e", "iae_e", "peak_u",
+    "norm_K", "norm_F", "constants", "params",
+]
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunOptions:
+    """Options of a run.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the constants sampler (the only randomness of a default run).
+    use_claimed : bool
+        Design with the constants the source claims instead of the valid ones (the
+        certificate always uses the valid ones).
+    n_samples : int
+        Random pairs for the sampled constants.
+    sim : SimOptions
+    fail_fast : bool
+        Re-raise the first exception instead of recording an ``error`` row.
+    t_final : float, optional
+        Simulation horizon for every plant (default: each plant's own ``t_final``).
+    """
+
+    seed: int = 0
+    use_claimed: bool = False
+    n_samples: int = 20000
+    sim: SimOptions = field(default_factory=SimOptions)
+    fail_fast: bool = False
+    t_final: float | None = None
+
+
+@dataclass
+class PairOutcome:
+    """One pair's record plus what the report needs beyond the table."""
+
+    record: dict
+    result: DesignResult | None = None
+    trajectory: Trajectory | None = None
+    plant: Plant | None = None
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced."""
+
+    outcomes: list[PairOutcome]
+    constants: dict[str, ConstantsReport]
+    constants_errors: dict[str, str]
+    options: RunOptions
+    wall_s: float
+
+    def frame(self):
+        """The records as a pandas DataFrame with columns :data:`COLUMNS`."""
+        import pandas as pd
+
+        return pd.DataFrame([o.record for o in self.outcomes], columns=COLUMNS)
+
+
+def _blank(plant_id: str, design_id: str) -> dict:
+    rec = {c: math.nan for c in COLUMNS}
+    rec.update(plant=plant_id, design=design_id, status="", reason="", solver="", solver_status="",
+               sim_status="", constants="", params="", feasible=False, stabilizing=False, certified=False,
+               converged=False)
+    return rec
+
+
+def _jsonable(d: dict) -> str:
+    def conv(v):
+        if isinstance(v, (np.floating, float)):
+            return None if not math.isfinite(float(v)) else float(v)
+        if isinstance(v, (np.integer,)):
+            return int(v)
+        return v
+
+    return json.dumps({k: conv(v) for k, v in d.items()}, sort_keys=True)
+
+
+def run_pair(plant: Plant, design_id: str, report: ConstantsReport, options: RunOptions) -> PairOutcome:
+    """Run one (plant, design) pair; never raises unless ``options.fail_fast``.
+
+    Parameters
+    ----------
+    plant : Plant
+    design_id : str
+    report : ConstantsReport
+        The plant's constants (computed once per plant).
+    options : RunOptions
+
+    Returns
+    -------
+    PairOutcome
+    """
+    rec = _blank(plant.id, design_id)
+    out = PairOutcome(rec, plant=plant)
+    try:
+        design = DESIGNS.create(design_id)
+        consts = resolve_constants(report, use_claimed=options.use_claimed)
+        rec["constants"] = "claimed" if options.use_claimed else "valid"
+        why = design.applicable(plant, consts)
+        if why is not None:
+            rec.update(status="inapplicable", reason=why)
+            return out
+        t0 = time.perf_counter()
+        res = design.design(plant, consts)
+        rec["design_s"] = time.perf_counter() - t0
+        out.result = res
+        rec.update(
+            status=res.status, reason=res.reason, feasible=res.status == "feasible", lmi_margin=res.margin,
+            lmi_size=res.lmi_size or math.nan, solver=res.solver or "", solver_status=res.solver_status or "",
+            n_solves=res.n_solves, compile_s=res.compile_s, solve_s=res.solve_s, params=_jsonable(res.params),
+        )
+        if not res.has_gains:
+            return out
+        K, F = np.asarray(res.K, dtype=float), np.asarray(res.F, dtype=float)
+        if K.shape != (plant.n, plant.p) or F.shape != (plant.m, plant.n):
+            raise ValueError(f"design {design_id!r} returned K {K.shape} and F {F.shape}; expected "
+                             f"({plant.n}, {plant.p}) and ({plant.m}, {plant.n})")
+        ex = float(np.linalg.eigvals(plant.A + plant.B @ F).real.max())
+        ee = float(np.linalg.eigvals(plant.A - K @ plant.C).real.max())
+        rec.update(max_re_eig_x=ex, max_re_eig_e=ee, stabilizing=bool(ex < 0 and ee < 0),
+                   norm_K=float(np.linalg.norm(K, 2)), norm_F=float(np.linalg.norm(F, 2)))
+        t0 = time.perf_counter()
+        cert = certify(plant, K, F, report.valid)
+        rec["cert_s"] = time.perf_counter() - t0
+        rec.update(certified=cert.certified, cert_margin=cert.margin, decay_rate=cert.decay_rate)
+        if not cert.certified and not rec["reason"]:
+            rec["reason"] = f"certificate: {cert.reason}"
+        traj = simulate(plant, K, F, t_final=options.t_final, options=options.sim)
+        out.trajectory = traj
+        rec["sim_s"] = traj.wall_s
+        rec["sim_status"] = traj.status
+        m = trajectory_metrics(traj.t, traj.x, traj.x_hat, traj.u, finished=traj.status == "ok")
+        rec.update(m)
+        if traj.status != "ok":
+            rec["reason"] = (rec["reason"] + "; " if rec["reason"] else "") + f"simulation {traj.status}: {traj.message}"
+    except Exception as exc:  # one failing pair never kills a run
+        if options.fail_fast:
+            raise
+        rec.update(status="error", reason=f"{type(exc).__name__}: {exc}", feasible=False, certified=False,
+                   converged=False, stabilizing=False)
+        rec["params"] = rec["params"] or ""
+        tb = traceback.extract_tb(exc.__traceback__)
+        if tb:
+            frame = tb[-1]
+            rec["reason"] += f" (at {frame.filename.rsplit('/', 1)[-1]}:{frame.lineno})"
+    return out
+
+
+def run(
+    plant_ids: list[str],
+    design_ids: list[str],
+    options: RunOptions = RunOptions(),
+    *,
+    progress: Callable[[str], None] | None = None,
+) -> RunResult:
+    """Run every (plant, design) pair.
+
+    Parameters
+    ----------
+    plant_ids, design_ids : list of str
+        Registry ids (already resolved from globs).
+    options : RunOptions
+    progress : callable, optional
+        Called with one line per finished pair (e.g. ``print`` to stderr).
+
+    Returns
+    -------
+    RunResult
+    """
+    t_start = time.perf_counter()
+    outcomes: list[PairOutcome] = []
+    constants: dict[str, ConstantsReport] = {}
+    cerrors: dict[str, str] = {}
+    total = len(plant_ids) * len(design_ids)
+    k = 0
+    for pid in plant_ids:
+        try:
+            plant = PLANTS.create(pid)
+            constants[pid] = compute_constants(plant, seed=options.seed, n_samples=options.n_samples)
+        except Exception as exc:
+            if options.fail_fast:
+                raise
+            cerrors[pid] = f"{type(exc).__name__}: {exc}"
+            for did in design_ids:
+                k += 1
+                rec = _blank(pid, did)
+                rec.update(status="error", reason=f"plant {pid!r}: {cerrors[pid]}")
+                outcomes.append(PairOutcome(rec))
+                if progress:
+                    progress(f"[{k}/{total}] {pid} x {did}: error ({cerrors[pid]})")
+            continue
+        for did in design_ids:
+            k += 1
+            t0 = time.perf_counter()
+            o = run_pair(plant, did, constants[pid], options)
+            outcomes.append(o)
+            if progress:
+                r = o.record
+                flags = [r["status"]]
+                if r["status"] == "feasible":
+                    flags.append("certified" if r["certified"] else "not certified")
+                    flags.append("converged" if r["converged"] else f"not converged ({r['sim_status']})")
+                progress(f"[{k}/{total}] {pid} x {did}: {', '.join(flags)} ({time.perf_counter() - t0:.2f} s)")
+    return RunResult(outcomes, constants, cerrors, options, time.perf_counter() - t_start)
+
+
+def stderr_progress(line: str) -> None:
+    """Progress printer used by the CLI."""
+    print(line, file=sys.stderr, flush=True)

@@ -1,0 +1,184 @@
+"""Registries of plants and designs: a decorator registers a factory under an id.
+
+Modules of the ``plants`` and ``designs`` packages are discovered by walking the packages
+(modules whose name starts with ``_`` are skipped), so adding a plant or a design is adding
+one file. Unknown ids raise :class:`UnknownIdError` with a "did you mean" suggestion.
+"""
+
+from __future__ import annotations
+
+import difflib
+import fnmatch
+import importlib
+import pkgutil
+from dataclasses import dataclass
+from typing import Any, Callable
+
+__all__ = [
+    "DESIGNS",
+    "PLANTS",
+    "Entry",
+    "Registry",
+    "RegistryError",
+    "UnknownIdError",
+    "register_design",
+    "register_plant",
+]
+
+
+class RegistryError(ValueError):
+    """A registration problem (duplicate id, bad id)."""
+
+
+class UnknownIdError(KeyError):
+    """An id or glob that matches nothing in a registry."""
+
+    def __init__(self, kind: str, pattern: str, suggestions: list[str]):
+        self.kind = kind
+        self.pattern = pattern
+        self.suggestions = suggestions
+        hint = f"; did you mean {' or '.join(repr(s) for s in suggestions)}?" if suggestions else ""
+        super().__init__(f"unknown {kind} {pattern!r}{hint}")
+
+    def __str__(self) -> str:  # KeyError quotes its message otherwise
+        return self.args[0]
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A registered factory with its id, one-line summary and defining module."""
+
+    id: str
+    factory: Callable[..., Any]
+    summary: str
+    module: str
+
+    def create(self, **overrides: Any) -> Any:
+        """Call the factory (keyword-only overrides)."""
+        return self.factory(**overrides)
+
+
+def _first_line(obj: Any) -> str:
+    doc = (getattr(obj, "__doc__", None) or "").strip()
+    return doc.splitlines()[0].strip() if doc else ""
+
+
+class Registry:
+    """An ordered mapping from id to :class:`Entry`, filled by modules of one package.
+
+    Parameters
+    ----------
+    kind : str
+        ``"plant"`` or ``"design"`` (used in messages).
+    package : str
+        The package whose modules are imported by :meth:`discover`.
+    """
+
+    def __init__(self, kind: str, package: str):
+        self.kind = kind
+        self.package = package
+        self._entries: dict[str, Entry] = {}
+        self._discovered = False
+
+    def register(self, id: str, factory: Callable[..., Any], summary: str | None = None) -> None:
+        """Register ``factory`` under ``id``; a duplicate id raises :class:`RegistryError`."""
+        if not isinstance(id, str) or not id or any(c in id for c in "*?[] "):
+            raise RegistryError(f"{self.kind} id {id!r}: must be a non-empty string without spaces or glob characters")
+        if id in self._entries:
+            other = self._entries[id].module
+            raise RegistryError(f"duplicate {self.kind} id {id!r} (already registered by {other})")
+        module = getattr(factory, "__module__", "?")
+        self._entries[id] = Entry(id, factory, summary or _first_line(factory), module)
+
+    def unregister(self, id: str) -> None:
+        """Remove an id (used by plugin loading on failure and by tests)."""
+        self._entries.pop(id, None)
+
+    def discover(self) -> "Registry":
+        """Import every public module of the package once, so their decorators run."""
+        if not self._discovered:
+            self._discovered = True
+            pkg = importlib.import_module(self.package)
+            for info in pkgutil.iter_modules(pkg.__path__):
+                if not info.name.startswith("_"):
+                    importlib.import_module(f"{self.package}.{info.name}")
+        return self
+
+    def ids(self) -> list[str]:
+        """All registered ids, in registration order."""
+        self.discover()
+        return list(self._entries)
+
+    def __contains__(self, id: str) -> bool:
+        self.discover()
+        return id in self._entries
+
+    def __getitem__(self, id: str) -> Entry:
+        self.discover()
+        try:
+            return self._entries[id]
+        except KeyError:
+            raise UnknownIdError(self.kind, id, self.suggest(id)) from None
+
+    def suggest(self, pattern: str) -> list[str]:
+        """Close matches for a mistyped id."""
+        return difflib.get_close_matches(pattern, self.ids(), n=2, cutoff=0.5)
+
+    def select(self, patterns: list[str] | None) -> list[str]:
+        """Ids matching any of the glob ``patterns`` (all ids if None or empty).
+
+        Raises
+        ------
+        UnknownIdError
+            If one pattern matches nothing.
+        """
+        ids = self.ids()
+        if not patterns:
+            return ids
+        chosen: list[str] = []
+        for pat in patterns:
+            hits = [i for i in ids if fnmatch.fnmatchcase(i, pat)]
+            if not hits:
+                raise UnknownIdError(self.kind, pat, self.suggest(pat))
+            chosen.extend(h for h in hits if h not in chosen)
+        return [i for i in ids if i in chosen]
+
+    def create(self, id: str, **overrides: Any) -> Any:
+        """Build the registered object ``id``."""
+        return self[id].create(**overrides)
+
+
+PLANTS = Registry("plant", "plants")
+DESIGNS = Registry("design", "designs")
+
+
+def register_plant(id: str, summary: str | None = None):
+    """Decorator registering a keyword-only plant factory under ``id``."""
+
+    def deco(factory):
+        PLANTS.register(id, factory, summary)
+        return factory
+
+    return deco
+
+
+def register_design(id: str, summary: str | None = None, **fixed: Any):
+    """Decorator registering a design class (or factory) under ``id``.
+
+    Keyword arguments are bound as defaults, so one class can be registered under several
+    ids with different parameters (e.g. an estimator/feedback pairing).
+    """
+
+    def deco(cls):
+        if fixed:
+            def factory(**overrides: Any):
+                return cls(**{**fixed, **overrides})
+
+            factory.__doc__ = cls.__doc__
+            factory.__module__ = cls.__module__
+            DESIGNS.register(id, factory, summary)
+        else:
+            DESIGNS.register(id, cls, summary)
+        return cls
+
+    return deco

@@ -1,0 +1,292 @@
+"""Reports: markdown tables and figures rendered from a run's records, written atomically.
+
+``write_report`` renders everything into a temporary folder next to the destination and only
+then moves the files into place (``os.replace``), REPORT.md last: an exception while rendering
+leaves the previous report untouched.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import shutil
+import sys
+import tempfile
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from bench.harness import RunResult
+
+__all__ = ["package_versions", "render_markdown", "write_report"]
+
+_PACKAGES = ("numpy", "scipy", "cvxpy", "clarabel", "control", "filterpy", "pandas", "matplotlib", "tabulate")
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of Python and of the packages a run depends on."""
+    out = {"python": platform.python_version()}
+    for name in _PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        return "" if not math.isfinite(float(v)) else f"{float(v):.3g}"
+    return str(v).replace("|", "\\|")
+
+
+def _table(df, columns: list[str], headers: list[str] | None = None) -> str:
+    rows = [[_fmt(v) for v in row] for row in df[columns].itertuples(index=False)]
+    headers = headers or columns
+    out = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
+    out += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def _cell(rec) -> str:
+    s = rec["status"]
+    if s == "feasible":
+        tags = ["cert" if rec["certified"] else "not cert", "conv" if rec["converged"] else "no conv"]
+        return f"feasible ({', '.join(tags)})"
+    return s
+
+
+def _feasibility(df) -> str:
+    plants = list(dict.fromkeys(df["plant"]))
+    designs = list(dict.fromkeys(df["design"]))
+    lines = ["| plant | " + " | ".join(designs) + " |", "|---|" + "|".join("---" for _ in designs) + "|"]
+    for p in plants:
+        sub = df[df["plant"] == p].set_index("design")
+        cells = [_cell(sub.loc[d]) if d in sub.index else "" for d in designs]
+        lines.append(f"| {p} | " + " | ".join(cells) + " |")
+    reasons = df[(df["reason"] != "") & df["reason"].notna()]
+    if len(reasons):
+        lines += ["", "Reasons:", ""]
+        for r in reasons.itertuples(index=False):
+            lines.append(f"- **{r.plant} x {r.design}** ({r.status}): {_fmt(r.reason)}")
+    return "\n".join(lines)
+
+
+def _constants_table(result: RunResult) -> str:
+    lines = [
+        "| plant | constant | claimed | analytic | sampled (lower bound) | used | flag |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for pid, rep in result.constants.items():
+        for name in ("alpha", "rho", "beta", "gamma"):
+            claimed = getattr(rep.claimed, name)
+            analytic = getattr(rep.analytic, name) if rep.analytic is not None else None
+            sampled = getattr(rep.sampled, name)
+            used = getattr(rep.valid, name)
+            src = rep.source.get(name, "") if name != "gamma" else ""
+            v = rep.violated(name)
+            flag = f"VIOLATED: {v.describe()}" if v else ""
+            if name == "gamma":
+                sampled_s = f"{_fmt(sampled)} (fixed)"
+            else:
+                sampled_s = _fmt(sampled)
+            lines.append(
+                f"| {pid} | {name} | {_fmt(claimed)} | {_fmt(analytic)} | {sampled_s} | "
+                f"{_fmt(used)}{f' ({src})' if src else ''} | {flag} |"
+            )
+        radius = rep.valid.radius
+        if radius is not None:
+            lines.append(f"| {pid} | region | | | | ||x|| <= {radius:g} | |")
+    for pid, err in result.constants_errors.items():
+        lines.append(f"| {pid} | (error) | | | | | {_fmt(err)} |")
+    return "\n".join(lines)
+
+
+def _figures(result: RunResult, figdir: Path) -> list[tuple[str, str]]:
+    """Draw the figures; return (caption, relative path) pairs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    made: list[tuple[str, str]] = []
+    by_plant: dict[str, list] = {}
+    for o in result.outcomes:
+        if o.trajectory is not None and o.record["converged"] and o.plant is not None:
+            by_plant.setdefault(o.plant.id, []).append(o)
+    for pid, outs in by_plant.items():
+        # comparison of norms across designs
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
+        for o in outs:
+            tr = o.trajectory
+            axes[0].semilogy(tr.t, np.maximum(np.linalg.norm(tr.x, axis=0), 1e-16), label=o.record["design"])
+            axes[1].semilogy(tr.t, np.maximum(np.linalg.norm(tr.e, axis=0), 1e-16), label=o.record["design"])
+        axes[0].set(title=f"{pid}: ||x(t)||", xlabel="t [s]")
+        axes[1].set(title=f"{pid}: ||e(t)|| = ||x - x_hat||", xlabel="t [s]")
+        for ax in axes:
+            ax.grid(True, which="both", alpha=0.3)
+        axes[0].legend(fontsize=8)
+        name = f"{pid}__norms.png"
+        fig.savefig(figdir / name, dpi=110)
+        plt.close(fig)
+        made.append((f"{pid}: state and error norms of every converging design (log scale)", f"figures/{name}"))
+        if outs[0].plant.family != "flexible_link":
+            continue
+        for o in outs:
+            tr, did = o.trajectory, o.record["design"]
+            n = tr.x.shape[0]
+            fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), constrained_layout=True, squeeze=False)
+            for i in range(n):
+                ax = axes[0, i]
+                ax.plot(tr.t, tr.x[i], label=f"x{i + 1}")
+                ax.plot(tr.t, tr.x_hat[i], "--", label=f"x_hat{i + 1}")
+                ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]")
+                ax.legend(fontsize=8)
+                ax.grid(True, alpha=0.3)
+                ax = axes[1, i]
+                ax.plot(tr.t, tr.e[i], color="C3")
+                ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]")
+                ax.grid(True, alpha=0.3)
+            fig.suptitle(f"{pid} with {did} (cf. the paper's Figures 2-5)")
+            name = f"{pid}__{did}.png"
+            fig.savefig(figdir / name, dpi=100)
+            plt.close(fig)
+            made.append((f"{pid} with {did}: states, estimates (dashed) and estimation errors", f"figures/{name}"))
+    return made
+
+
+def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info: dict) -> str:
+    """The REPORT.md text (tables from the DataFrame only, no timestamps in table bodies)."""
+    df = result.frame()
+    o = result.options
+    conv_cols = ["plant", "design", "stabilizing", "max_re_eig_x", "max_re_eig_e", "certified", "decay_rate",
+                 "converged", "sim_status", "settling_x_s", "settling_e_s", "final_x", "final_e", "iae_e", "peak_u"]
+    time_cols = ["plant", "design", "solver", "solver_status", "n_solves", "lmi_size", "lmi_margin", "compile_s",
+                 "solve_s", "design_s", "cert_s", "sim_s"]
+    with_gains = df[df["stabilizing"] | df["max_re_eig_x"].notna()]
+    parts = [
+        "# oslbench report",
+        "",
+        f"Command: `{run_info['command']}`. Seed {o.seed}; constants used by designs: "
+        f"{'claimed by the sources' if o.use_claimed else 'valid (analytic where known, else sampled)'}; "
+        f"{len(df)} pairs. Package versions and settings are in `run.json`; one row per pair in "
+        "`results.csv`; gains in `gains.json`.",
+        "",
+        "Observer gain K (n x p), feedback F (m x n), u = F x_hat. *Stabilizing*: A+BF and A-KC Hurwitz. "
+        "*Certified*: the analysis LMI of the paper's (20) with K, F fixed has a verified negative margin with "
+        "the valid constants; *decay_rate*: the largest certified lambda with V' <= -2 lambda V (bisection). "
+        "*Converged*: the nonlinear closed loop (plant + observer (6)) from the plant's initial conditions ends "
+        "with ||x|| and ||e|| below 1e-3 of their peaks. Settling times are 2 % of the peak norm. "
+        "*lmi_margin* is the largest eigenvalue of the design LMI recomputed with numpy (negative = strictly "
+        "feasible).",
+        "",
+        "## Feasibility",
+        "",
+        _feasibility(df),
+        "",
+        "## Convergence",
+        "",
+        _table(with_gains, conv_cols) if len(with_gains) else "No design produced gains.",
+        "",
+        "## Timing (seconds)",
+        "",
+        _table(df, time_cols),
+        "",
+        "## Constants",
+        "",
+        "Sampled values are lower bounds from seeded random pairs refined by local optimisation; a claimed "
+        "constant that a sample exceeds is flagged with the violating pair. Beta is sampled at the gamma in use.",
+        "",
+        _constants_table(result),
+        "",
+        "## Figures",
+        "",
+    ]
+    if figures:
+        for caption, path in figures:
+            parts += [f"![{caption}]({path})", "", f"*{caption}*", ""]
+    else:
+        parts.append("No converging pair to plot.")
+    return "\n".join(parts).rstrip() + "\n"
+
+
+def _gains(result: RunResult) -> list[dict]:
+    out = []
+    for o in result.outcomes:
+        r = o.result
+        if r is not None and r.has_gains:
+            dr = o.record["decay_rate"]
+            out.append({
+                "plant": o.record["plant"],
+                "design": o.record["design"],
+                "K": np.asarray(r.K).tolist(),
+                "F": np.asarray(r.F).tolist(),
+                "certified": bool(o.record["certified"]),
+                "decay_rate": None if not math.isfinite(dr) else float(dr),
+            })
+    return out
+
+
+def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, *, figures: bool = True) -> Path:
+    """Write REPORT.md, results.csv, gains.json, run.json and figures/ into ``out_dir``, atomically.
+
+    Parameters
+    ----------
+    result : RunResult
+    out_dir : path
+    run_info : dict
+        Must hold ``command``; extended with versions and settings into run.json.
+    figures : bool
+        Draw the figures.
+
+    Returns
+    -------
+    Path
+        The REPORT.md path.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=out))
+    try:
+        (tmp / "figures").mkdir()
+        figs = _figures(result, tmp / "figures") if figures else []
+        md = render_markdown(result, figs, run_info)
+        (tmp / "REPORT.md").write_text(md, encoding="utf-8")
+        result.frame().to_csv(tmp / "results.csv", index=False)
+        (tmp / "gains.json").write_text(json.dumps(_gains(result), indent=1) + "\n", encoding="utf-8")
+        info = {
+            **run_info,
+            "seed": result.options.seed,
+            "use_claimed_constants": result.options.use_claimed,
+            "n_samples_constants": result.options.n_samples,
+            "t_final_override": result.options.t_final,
+            "sim": {k: getattr(result.options.sim, k) for k in ("method", "rtol", "atol", "n_points", "blowup")},
+            "versions": package_versions(),
+            "platform": platform.platform(),
+            "executable": sys.executable,
+            "wall_s": round(result.wall_s, 3),
+        }
+        (tmp / "run.json").write_text(json.dumps(info, indent=1, default=str) + "\n", encoding="utf-8")
+        # everything rendered: move into place, REPORT.md last
+        figdir = out / "figures"
+        figdir.mkdir(exist_ok=True)
+        new = {p.name for p in (tmp / "figures").iterdir()}
+        for p in (tmp / "figures").iterdir():
+            os.replace(p, figdir / p.name)
+        for old in figdir.glob("*.png"):
+            if old.name not in new:
+                old.unlink()
+        for name in ("results.csv", "gains.json", "run.json", "REPORT.md"):
+            os.replace(tmp / name, out / name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return out / "REPORT.md"

@@ -1,0 +1,293 @@
+"""Helpers shared by the LMI designs: timed solves, numeric verification, scalar searches.
+
+Conventions (see ``../shared/design/MATH.md``):
+
+- every LMI is solved with Clarabel explicitly (cvxpy would send SDPs to SCS);
+- strict inequalities are written as a *margin* ``t``: ``M << -t I``, ``Q >> t I``, ...,
+  and ``t`` is maximised under a normalisation ``Q << cap I``, ``R << cap I``, ``t <= 1``
+  (the LMIs contain constant identity blocks, so their feasibility depends on the scale of the
+  decision variables: a trace equality would cut off feasible points, an upper cap does not
+  for a large enough cap);
+- a status is never trusted alone: the numeric LMI matrix is rebuilt at the solution and its
+  largest eigenvalue (the *verified margin*) must be negative, the decision matrices positive.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+__all__ = [
+    "MARGIN_TOL",
+    "SolveOutcome",
+    "log_search",
+    "max_eig",
+    "min_eig",
+    "solve_timed",
+    "sym",
+    "verify_tol",
+]
+
+#: Relative tolerance: a verified margin must be below ``-MARGIN_TOL * max(1, ||M||)``.
+MARGIN_TOL = 1e-9
+
+
+def sym(M):
+    """Symmetric part of a cvxpy expression or array (so ``<<`` sees a symmetric matrix)."""
+    return (M + M.T) / 2
+
+
+def max_eig(M: np.ndarray) -> float:
+    """Largest eigenvalue of the symmetric part of ``M``."""
+    M = np.asarray(M, dtype=float)
+    if not np.all(np.isfinite(M)):
+        return float("nan")
+    return float(np.linalg.eigvalsh((M + M.T) / 2)[-1])
+
+
+def min_eig(M: np.ndarray) -> float:
+    """Smallest eigenvalue of the symmetric part of ``M``."""
+    M = np.asarray(M, dtype=float)
+    if not np.all(np.isfinite(M)):
+        return float("nan")
+    return float(np.linalg.eigvalsh((M + M.T) / 2)[0])
+
+
+def verify_tol(M: np.ndarray) -> float:
+    """The threshold a verified margin of ``M`` must be below to count as strictly negative."""
+    return -MARGIN_TOL * max(1.0, float(np.max(np.abs(M))))
+
+
+@dataclass
+class SolveOutcome:
+    """The outcome of one cvxpy solve."""
+
+    status: str
+    compile_s: float
+    solve_s: float
+    error: str = ""
+    value: float = float("nan")
+
+    @property
+    def solved(self) -> bool:
+        """True when the solver returned an optimal (or optimal-inaccurate) point."""
+        return self.status in ("optimal", "optimal_inaccurate")
+
+
+def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
+    """Solve a cvxpy problem, splitting wall time into compile and solve seconds.
+
+    Solver failures become a status (``"solver_error"``), never an exception.
+    """
+    import cvxpy as cp
+
+    import warnings
+
+    t0 = time.perf_counter()
+    try:
+        with warnings.catch_warnings():  # the status carries "inaccurate"; no stray warnings
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=solver, **opts)
+        status = str(problem.status)
+        err = ""
+    except cp.error.SolverError as exc:
+        status, err = "solver_error", str(exc).splitlines()[0] if str(exc) else "solver failed"
+    wall = time.perf_counter() - t0
+    comp = float(getattr(problem, "compilation_time", None) or 0.0)
+    comp = min(comp, wall)
+    val = problem.value if status in ("optimal", "optimal_inaccurate") else float("nan")
+    return SolveOutcome(status, comp, wall - comp, err, float(val) if val is not None else float("nan"))
+
+
+@dataclass
+class SearchTrace:
+    """Values tried by :func:`log_search` and the objective at each."""
+
+    points: list[tuple[float, float]] = field(default_factory=list)
+
+
+def log_search(
+    objective: Callable[[float], float],
+    lo: float,
+    hi: float,
+    *,
+    n_grid: int = 9,
+    n_refine: int = 5,
+) -> tuple[float, float, SearchTrace]:
+    """Maximise ``objective`` over ``[lo, hi]`` on a log grid, then golden-section refine.
+
+    Returns ``(best_x, best_value, trace)``; NaN objective values count as ``-inf``.
+    """
+    trace = SearchTrace()
+
+    def ev(x: float) -> float:
+        v = objective(x)
+        v = -math.inf if v is None or not math.isfinite(v) else float(v)
+        trace.points.append((x, v))
+        return v
+
+    grid = np.logspace(math.log10(lo), math.log10(hi), n_grid)
+    vals = [ev(float(x)) for x in grid]
+    k = int(np.argmax(vals))
+    if n_refine > 0 and math.isfinite(vals[k]):
+        a = math.log10(grid[max(k - 1, 0)])
+        b = math.log10(grid[min(k + 1, n_grid - 1)])
+        g = (math.sqrt(5) - 1) / 2
+        c, d = b - g * (b - a), a + g * (b - a)
+        fc, fd = ev(10**c), ev(10**d)
+        for _ in range(max(n_refine - 2, 0)):
+            if fc >= fd:
+                b, d, fd = d, c, fc
+                c = b - g * (b - a)
+                fc = ev(10**c)
+            else:
+                a, c, fc = c, d, fd
+                d = a + g * (b - a)
+                fd = ev(10**d)
+    x_best, v_best = max(trace.points, key=lambda p: p[1])
+    return x_best, v_best, trace
+
+
+def assemble(blocks_fn: Callable[[dict], list], values: dict, *, numeric: bool):
+    """Build a block matrix from ``blocks_fn(values)`` with cvxpy (``numeric=False``) or numpy."""
+    rows = blocks_fn(values)
+    if numeric:
+        return np.block([[np.asarray(b, dtype=float) for b in row] for row in rows])
+    import cvxpy as cp
+
+    return cp.bmat(rows)
+
+
+@dataclass
+class Program:
+    """A margin-maximisation LMI program with parameters (compiled once, solved many times).
+
+    Attributes
+    ----------
+    problem : cvxpy.Problem
+    variables : dict
+        cvxpy variables by name (``t`` is the margin).
+    parameters : dict
+        cvxpy parameters by name.
+    blocks : callable
+        ``blocks(values) -> list of lists`` building the LMI matrix from a dict of values.
+    positive : tuple of str
+        Names of decision matrices that must be positive definite.
+    """
+
+    problem: object
+    variables: dict
+    parameters: dict
+    blocks: Callable[[dict], list]
+    positive: tuple[str, ...]
+    compile_s: float = 0.0
+    solve_s: float = 0.0
+    n_solves: int = 0
+    last_status: str = ""
+    last_error: str = ""
+
+    def set(self, **params: float) -> None:
+        """Set parameter values."""
+        for k, v in params.items():
+            self.parameters[k].value = v
+
+    def solve(self, **params: float) -> float:
+        """Solve at the given parameter values; return the margin t (NaN if not solved)."""
+        self.set(**params)
+        out = solve_timed(self.problem)
+        self.compile_s += out.compile_s
+        self.solve_s += out.solve_s
+        self.n_solves += 1
+        self.last_status, self.last_error = out.status, out.error
+        return out.value if out.solved else float("nan")
+
+    def values(self) -> dict:
+        """Numeric values of all variables and parameters at the last solve."""
+        vals = {k: (None if v.value is None else np.array(v.value, dtype=float)) for k, v in self.variables.items()}
+        vals.update({k: float(p.value) for k, p in self.parameters.items()})
+        return vals
+
+    def numeric_matrix(self) -> np.ndarray | None:
+        """The LMI matrix rebuilt with numpy from the last solution (None if unsolved)."""
+        vals = self.values()
+        if any(v is None for v in vals.values()):
+            return None
+        return assemble(self.blocks, vals, numeric=True)
+
+
+def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple[str, ...],
+                   extra: Callable[[dict], list] | None = None, *, cap: float = 1e3) -> Program:
+    """Build ``max t s.t. M(v) << -t I, X >> t I (X in positive), X << cap I, t <= 1``.
+
+    Parameters
+    ----------
+    blocks_fn : callable
+        Builds the blocks of M from a dict of values (cvxpy or numpy).
+    variables, parameters : dict
+        cvxpy variables (must include scalar ``t``) and parameters.
+    positive : tuple of str
+        Decision matrices constrained ``>> t I`` and ``<< cap I``.
+    extra : callable, optional
+        ``extra(vars_and_params) -> list of constraints``.
+    cap : float
+        Normalisation cap on the decision matrices.
+    """
+    import cvxpy as cp
+
+    allv = {**variables, **parameters}
+    M = sym(assemble(blocks_fn, allv, numeric=False))
+    N = M.shape[0]
+    t = variables["t"]
+    cons = [M << -t * np.eye(N), t <= 1]
+    for name in positive:
+        X = variables[name]
+        k = X.shape[0]
+        cons += [X >> t * np.eye(k), X << cap * np.eye(k)]
+    if extra is not None:
+        cons += extra(allv)
+    problem = cp.Problem(cp.Maximize(t), cons)
+    return Program(problem, variables, parameters, blocks_fn, positive)
+
+
+def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> dict:
+    """Turn the last solve of ``prog`` into status, reason and evidence.
+
+    Returns a dict with keys ``status``, ``reason``, ``margin``, ``min_eig``, ``lmi_size``,
+    ``solver_status``, ``t``.
+    """
+    out: dict = {"solver_status": prog.last_status, "min_eig": {}, "margin": float("nan"), "lmi_size": 0}
+    if prog.last_status not in ("optimal", "optimal_inaccurate"):
+        msg = f": {prog.last_error}" if prog.last_error else ""
+        out.update(status="undecided", reason=f"solver status {prog.last_status!r}{msg} ({searched})")
+        return out
+    M = prog.numeric_matrix()
+    vals = prog.values()
+    t = float(vals["t"])
+    out["t"] = t
+    out["lmi_size"] = int(M.shape[0])
+    out["margin"] = max_eig(M)
+    out["min_eig"] = {k: min_eig(vals[k]) for k in prog.positive}
+    ok_pos = all(v > 0 for v in out["min_eig"].values())
+    if out["margin"] < verify_tol(M) and ok_pos:
+        out.update(status="feasible", reason="")
+    elif t <= 0:
+        out.update(
+            status="infeasible",
+            reason=(
+                f"{what}: no strictly feasible point; best margin t = {t:.3g} "
+                f"(max eig of the LMI = {out['margin']:.3g}) {searched}, under {normalisation}"
+            ),
+        )
+    else:
+        out.update(
+            status="undecided",
+            reason=(
+                f"{what}: solver reported margin t = {t:.3g} > 0 but the recomputed LMI has max eig "
+                f"{out['margin']:.3g} and min eig of decision matrices {out['min_eig']}"
+            ),
+        )
+    return out

@@ -1,0 +1,209 @@
+"""Corollary 1 of the paper (Lipschitz f): as printed (Remarks 2-3) and corrected.
+
+References
+----------
+Observer-based stabilization of one-sided Lipschitz systems with application to flexible link
+manipulator, Corollary 1, eqs. (27)-(32), Remarks 2-3. Corrections: ``../shared/design/MATH.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.registry import register_design
+from designs import _lmi
+from designs._core import Design, DesignError, DesignResult, check_positive
+from designs.thm1 import _result, _scalar, _variables
+from plants._core import Constants, Plant
+
+__all__ = ["Cor1", "Cor1Printed"]
+
+
+@register_design("cor1")
+@dataclass(frozen=True, kw_only=True)
+class Cor1(Design):
+    """Corollary 1, corrected (kappa = 1/mu1 exact, MATH.md); Young weight phi2 searched.
+
+    The 6n x 6n LMI, for fixed phi2, in Q, R, Fh, Kh, kappa, mu2 ::
+
+        [ S11+kappa I  0     0      Q                  B Fh'    0        ]
+        [ 0            W22   R      0                  0        I        ]
+        [ 0            R     -mu2 I 0                  0        0        ]
+        [ Q            0     0      -(kappa/alpha^2) I 0        0        ]
+        [ Fh B'        0     0      0                  -Q/phi2  0        ]
+        [ 0            I     0      0                  0        -phi2 Q  ]
+
+    with ``S11 = AQ + QA' + B Fh' + Fh B'`` and
+    ``W22 = A'R + RA - C'Kh - Kh'C + mu2 alpha^2 I``; ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
+    For alpha = 0 (linear plant) the Schur column is dropped. phi2 is searched as Theorem 1's
+    phi1 (log grid, then golden refinement, maximising the normalised margin).
+
+    Parameters
+    ----------
+    phi2 : float, optional
+        Fixed Young weight; None (default) searches ``phi2_range``.
+    phi2_range : tuple of float
+        Search interval.
+    n_grid, n_refine : int
+        Search effort.
+    cap : float
+        Normalisation ``Q, R << cap I``, margin ``t <= 1``.
+    """
+
+    phi2: float | None = None
+    phi2_range: tuple[float, float] = (1e-4, 10.0)
+    n_grid: int = 7
+    n_refine: int = 5
+    cap: float = 1e3
+
+    needs = ("alpha",)
+
+    def __post_init__(self) -> None:
+        if self.phi2 is not None:
+            check_positive("phi2", self.phi2)
+        lo, hi = (check_positive("phi2_range", v) for v in self.phi2_range)
+        if lo >= hi:
+            raise DesignError(f"phi2_range: must be (lo, hi) with lo < hi, got {self.phi2_range}")
+        check_positive("cap", self.cap)
+        if int(self.n_grid) < 2:
+            raise DesignError(f"n_grid: must be >= 2, got {self.n_grid}")
+
+    def _program(self, plant: Plant, alpha: float) -> _lmi.Program:
+        import cvxpy as cp
+
+        A, B, C = plant.A, plant.B, plant.C
+        n, m, p = plant.n, plant.m, plant.p
+        I, Z = np.eye(n), np.zeros((n, n))
+        a2 = alpha**2
+        v = _variables(n, m, p, ("kappa", "mu2"))
+        prm = {"phi": cp.Parameter(nonneg=True, name="phi2"), "iphi": cp.Parameter(nonneg=True, name="inv_phi2")}
+
+        def blocks(d):
+            Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
+            S11 = A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
+            W22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * a2 * I
+            rows = [
+                [S11, Z, Z, B @ Fh.T, Z],
+                [Z, W22, R, Z, I],
+                [Z, R, -d["mu2"] * I, Z, Z],
+                [Fh @ B.T, Z, Z, -d["iphi"] * Q, Z],
+                [Z, I, Z, Z, -d["phi"] * Q],
+            ]
+            if a2 > 0:
+                for row, blk in zip(rows, (Q, Z, Z, Z, Z)):
+                    row.append(blk)
+                rows.append([Q, Z, Z, Z, Z, -(d["kappa"] / a2) * I])
+            return rows
+
+        def extra(d):
+            return [d["kappa"] >= 0, d["mu2"] >= 0]
+
+        return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+    def design(self, plant: Plant, constants: Constants) -> DesignResult:
+        """Solve the corrected Corollary 1 for ``plant`` with Lipschitz constant ``constants.alpha``."""
+        alpha = constants.alpha
+        prog = self._program(plant, alpha)
+
+        def obj(phi):
+            return prog.solve(phi=phi, iphi=1 / phi)
+
+        lo, hi = self.phi2_range
+        if self.phi2 is None:
+            phi, _, _ = _lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
+            searched = f"over phi2 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
+        else:
+            phi, searched = self.phi2, f"at phi2 = {self.phi2:g}"
+        obj(phi)
+        concl = _lmi.conclude(prog, what="corrected Corollary 1",
+                              normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1", searched=searched)
+        vals = prog.values()
+        kappa = _scalar(vals, "kappa")
+        params = {"phi2": phi, "kappa": kappa, "mu1": 1 / kappa if kappa > 0 else float("nan"),
+                  "mu2": _scalar(vals, "mu2"), "alpha": alpha, "cap": self.cap}
+        return _result(prog, concl, params)
+
+
+@register_design("cor1_printed")
+@dataclass(frozen=True, kw_only=True)
+class Cor1Printed(Design):
+    """Corollary 1 as printed, (27)-(32), with Remarks 2-3; xi searched on a grid in (0, 1).
+
+    Remark 2 replaces ``-Q/phi2`` and ``-phi2 Q`` by ``-(2 alpha2 - beta2) I`` and ``-beta2 I``
+    with ``Q > alpha2 I`` (alpha2, beta2 decision scalars, ``2 alpha2 - beta2 > 0``,
+    ``beta2 > 0``); Remark 3 replaces ``-I/(mu1 alpha^2)`` by ``-xi I / alpha^2`` with a fixed
+    ``0 < xi < 1`` and ``0 < mu1 < min(1, 1/xi)``. The 7n x 7n matrix W of (27)-(30) is then an
+    LMI in Q, R, Fh, Kh, mu1, mu2, alpha2, beta2 for each xi in ``xis``.
+    """
+
+    xis: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9)
+    cap: float = 1e3
+
+    needs = ("alpha",)
+
+    def __post_init__(self) -> None:
+        if not self.xis:
+            raise DesignError("xis: at least one value is needed")
+        for x in self.xis:
+            if not 0 < float(x) < 1:
+                raise DesignError(f"xis: each xi must be in (0, 1) (Remark 3), got {x!r}")
+        check_positive("cap", self.cap)
+
+    def applicable(self, plant: Plant, constants: Constants) -> str | None:
+        why = super().applicable(plant, constants)
+        if why is None and constants.alpha == 0:
+            return "alpha = 0: the block -I/(mu1 alpha^2) of (30) is undefined"
+        return why
+
+    def design(self, plant: Plant, constants: Constants) -> DesignResult:
+        """Solve Corollary 1 as printed for each xi; report the best margin."""
+        import cvxpy as cp
+
+        A, B, C = plant.A, plant.B, plant.C
+        n, m, p = plant.n, plant.m, plant.p
+        I, Z = np.eye(n), np.zeros((n, n))
+        a2 = constants.alpha**2
+        v = _variables(n, m, p, ("mu1", "mu2", "alpha2", "beta2"))
+        prm = {"xi_a2": cp.Parameter(nonneg=True, name="xi_over_alpha2"),
+               "mu1_max": cp.Parameter(nonneg=True, name="mu1_max")}
+
+        def blocks(d):
+            Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
+            W11 = Q @ A.T + A @ Q + Fh @ B.T + B @ Fh.T
+            W22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * a2 * I
+            BF = -B @ Fh.T
+            return [
+                # W1                                          | W2
+                [W11, Z, I, Z, Q, BF, Z],
+                [Z, W22, Z, R, Z, Z, I],
+                [I, Z, -d["mu1"] * I, Z, Z, Z, Z],
+                [Z, R, Z, -d["mu2"] * I, Z, Z, Z],
+                # W2'                                         | W3 (Remarks 2-3)
+                [Q, Z, Z, Z, -d["xi_a2"] * I, Z, Z],
+                [BF.T, Z, Z, Z, Z, -(2 * d["alpha2"] - d["beta2"]) * I, Z],
+                [Z, I, Z, Z, Z, Z, -d["beta2"] * I],
+            ]
+
+        def extra(d):
+            t = d["t"]
+            return [d["Q"] >> d["alpha2"] * I, d["alpha2"] >= t, d["beta2"] >= t,
+                    2 * d["alpha2"] - d["beta2"] >= t, d["mu1"] >= t, d["mu1"] <= d["mu1_max"] - t,
+                    d["mu2"] >= t]
+
+        prog = _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+        def obj(xi):
+            return prog.solve(xi_a2=xi / a2, mu1_max=min(1.0, 1.0 / xi))
+
+        vals = [(obj(float(x)), float(x)) for x in self.xis]
+        best_xi = max(vals, key=lambda vx: np.nan_to_num(vx[0], nan=-np.inf))[1]
+        obj(best_xi)
+        concl = _lmi.conclude(prog, what="Corollary 1 as printed (Remarks 2-3)",
+                              normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1",
+                              searched=f"over xi in {tuple(self.xis)}")
+        sv = prog.values()
+        params = {"xi": best_xi, "alpha": constants.alpha, "cap": self.cap,
+                  **{k: _scalar(sv, k) for k in ("mu1", "mu2", "alpha2", "beta2")}}
+        return _result(prog, concl, params)

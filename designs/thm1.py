@@ -1,0 +1,397 @@
+"""Theorem 1 of the paper: as printed (with Remark 1) and in the corrected convex form.
+
+References
+----------
+Observer-based stabilization of one-sided Lipschitz systems with application to flexible link
+manipulator, Theorem 1, eqs. (12)-(15), Remark 1. Corrections: ``../shared/design/MATH.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.registry import register_design
+from designs import _lmi
+from designs._core import Design, DesignError, DesignResult, check_positive
+from plants._core import Constants, Plant
+
+__all__ = ["Thm1", "Thm1Printed"]
+
+
+def _variables(n: int, m: int, p: int, scalars: tuple[str, ...]) -> dict:
+    import cvxpy as cp
+
+    v = {
+        "Q": cp.Variable((n, n), symmetric=True, name="Q"),
+        "R": cp.Variable((n, n), symmetric=True, name="R"),
+        "Fh": cp.Variable((n, m), name="Fhat"),
+        "Kh": cp.Variable((p, n), name="Khat"),
+        "t": cp.Variable(name="t"),
+    }
+    for s in scalars:
+        v[s] = cp.Variable(name=s)
+    return v
+
+
+def _gains(vals: dict) -> tuple[np.ndarray, np.ndarray]:
+    """K = R^{-1} Khat', F = Fhat' Q^{-1} (the paper's recovery, correct as printed)."""
+    K = np.linalg.solve(vals["R"], vals["Kh"].T)
+    F = np.linalg.solve(vals["Q"], vals["Fh"]).T  # Q symmetric: Fh' Q^-1 = (Q^-1 Fh)'
+    return K, F
+
+
+def _result(prog: _lmi.Program, concl: dict, params: dict) -> DesignResult:
+    K = F = None
+    if concl["status"] == "feasible":
+        K, F = _gains(prog.values())
+    return DesignResult(
+        status=concl["status"],
+        reason=concl["reason"],
+        K=K,
+        F=F,
+        solver="CLARABEL",
+        solver_status=concl["solver_status"],
+        compile_s=prog.compile_s,
+        solve_s=prog.solve_s,
+        n_solves=prog.n_solves,
+        margin=concl["margin"],
+        lmi_size=concl["lmi_size"],
+        min_eig=concl["min_eig"],
+        params={**params, "margin_t": concl.get("t", float("nan"))},
+    )
+
+
+@register_design("thm1")
+@dataclass(frozen=True, kw_only=True)
+class Thm1(Design):
+    """Theorem 1, corrected convex form (MATH.md); Young weight phi1 searched on a log grid.
+
+    For ``gamma >= 0`` the OSL multiplier is tied to the QIB one, ``eps1 = gamma eps2`` (so the
+    missing condition ``eta2 = 0`` holds), ``kappa = 1 / (2 eps2)`` and
+    ``beta_eff = beta + gamma rho``; for a fixed Young weight ``phi1`` the 6n x 6n matrix ::
+
+        [ S11+kappa I  0        0        B Fh'    0        Q                   ]
+        [ 0            S22      R+eta3 I 0        I        0                   ]
+        [ 0            *        -2eps4 I 0        0        0                   ]
+        [ Fh B'        0        0        -Q/phi1  0        0                   ]
+        [ 0            I        0        0        -phi1 Q  0                   ]
+        [ Q            0        0        0        0        -(kappa/beta_eff) I ]
+
+    is an LMI in Q, R, Fh, Kh, kappa, eps3, eps4, with ``S11 = AQ + QA' + B Fh' + Fh B'``,
+    ``S22 = A'R + RA - C'Kh - Kh'C + 2(eps3 rho + eps4 beta) I``, ``eta3 = eps4 gamma - eps3``.
+    For ``gamma < 0`` the multipliers eps1 >= 0, eps2 > 0 are fixed and the 7n x 7n form with
+    the exact (1,3) block ``I + eta2 Q`` and the Schur column ``Q`` / ``-(1/eta1) I``
+    (``eta1 = 2(eps1 rho + eps2 beta)``, dropped when ``eta1 <= 0``) is used; eps2 is then
+    searched on a log grid jointly with phi1. Gains: ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
+
+    Parameters
+    ----------
+    phi1 : float, optional
+        Fixed Young weight; None (default) searches ``phi1_range``.
+    phi1_range : tuple of float
+        Search interval for phi1 (log grid of ``n_grid`` points, then ``n_refine`` golden steps
+        on log10 phi1 around the best grid point), maximising the normalised margin t.
+    n_grid, n_refine : int
+        Search effort.
+    cap : float
+        Normalisation ``Q, R << cap I``; the margin t (<= 1) is maximised under it.
+    eps1 : float
+        OSL multiplier for the ``gamma < 0`` form.
+    eps2_range : tuple of float
+        Grid (5 log-spaced points) of the QIB multiplier for the ``gamma < 0`` form.
+    """
+
+    phi1: float | None = None
+    phi1_range: tuple[float, float] = (1e-4, 10.0)
+    n_grid: int = 7
+    n_refine: int = 5
+    cap: float = 1e3
+    eps1: float = 0.0
+    eps2_range: tuple[float, float] = (1e-2, 1e2)
+
+    needs = ("rho", "beta", "gamma")
+
+    def __post_init__(self) -> None:
+        if self.phi1 is not None:
+            check_positive("phi1", self.phi1)
+        lo, hi = (check_positive("phi1_range", v) for v in self.phi1_range)
+        if lo >= hi:
+            raise DesignError(f"phi1_range: must be (lo, hi) with lo < hi, got {self.phi1_range}")
+        check_positive("cap", self.cap)
+        check_positive("eps1", self.eps1, allow_zero=True)
+        if int(self.n_grid) < 2:
+            raise DesignError(f"n_grid: must be >= 2, got {self.n_grid}")
+
+    # -- gamma >= 0: convex form -------------------------------------------------------------
+    def _program_convex(self, plant: Plant, c: Constants) -> _lmi.Program:
+        import cvxpy as cp
+
+        A, B, C = plant.A, plant.B, plant.C
+        n, m, p = plant.n, plant.m, plant.p
+        I, Z = np.eye(n), np.zeros((n, n))
+        rho, beta, gamma = c.rho, c.beta, c.gamma
+        beff = beta + gamma * rho
+        v = _variables(n, m, p, ("kappa", "eps3", "eps4"))
+        prm = {"phi": cp.Parameter(nonneg=True, name="phi1"), "iphi": cp.Parameter(nonneg=True, name="inv_phi1")}
+        schur = beff > 0
+
+        def blocks(d):
+            Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
+            S11 = A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
+            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * rho + d["eps4"] * beta) * I
+            X = R + (d["eps4"] * gamma - d["eps3"]) * I
+            rows = [
+                [S11, Z, Z, B @ Fh.T, Z],
+                [Z, S22, X, Z, I],
+                [Z, X.T, -2 * d["eps4"] * I, Z, Z],
+                [Fh @ B.T, Z, Z, -d["iphi"] * Q, Z],
+                [Z, I, Z, Z, -d["phi"] * Q],
+            ]
+            if schur:
+                for row, blk in zip(rows, (Q, Z, Z, Z, Z)):
+                    row.append(blk)
+                rows.append([Q, Z, Z, Z, Z, -(d["kappa"] / beff) * I])
+            return rows
+
+        def extra(d):
+            return [d["kappa"] >= 0, d["eps3"] >= 0, d["eps4"] >= 0]
+
+        return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+    # -- gamma < 0: fixed multipliers eps1, eps2 ----------------------------------------------
+    def _program_fixed_eps(self, plant: Plant, c: Constants) -> _lmi.Program:
+        import cvxpy as cp
+
+        A, B, C = plant.A, plant.B, plant.C
+        n, m, p = plant.n, plant.m, plant.p
+        I, Z = np.eye(n), np.zeros((n, n))
+        rho, beta, gamma = c.rho, c.beta, c.gamma
+        v = _variables(n, m, p, ("eps3", "eps4"))
+        prm = {
+            "phi": cp.Parameter(nonneg=True, name="phi1"),
+            "iphi": cp.Parameter(nonneg=True, name="inv_phi1"),
+            "eta2": cp.Parameter(name="eta2"),
+            "two_eps2": cp.Parameter(nonneg=True, name="two_eps2"),
+            "inv_eta1": cp.Parameter(nonneg=True, name="inv_eta1"),
+        }
+        # eta1 = 2 (eps1 rho + eps2 beta) has the sign of rho*eps1 + beta*eps2: decided per eps2
+        self._schur_sign = None
+
+        def blocks(d):
+            Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
+            S11 = A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T
+            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * rho + d["eps4"] * beta) * I
+            X = R + (d["eps4"] * gamma - d["eps3"]) * I
+            Y = I + d["eta2"] * Q
+            return [
+                [S11, Z, Y, Z, B @ Fh.T, Z, Q],
+                [Z, S22, Z, X, Z, I, Z],
+                [Y.T, Z, -d["two_eps2"] * I, Z, Z, Z, Z],
+                [Z, X.T, Z, -2 * d["eps4"] * I, Z, Z, Z],
+                [Fh @ B.T, Z, Z, Z, -d["iphi"] * Q, Z, Z],
+                [Z, I, Z, Z, Z, -d["phi"] * Q, Z],
+                # Schur column for eta1 Q Q; inv_eta1 = 1/eta1, or a huge weight (term ~ 0) when eta1 <= 0
+                [Q, Z, Z, Z, Z, Z, -d["inv_eta1"] * I],
+            ]
+
+        def extra(d):
+            return [d["eps3"] >= 0, d["eps4"] >= 0]
+
+        return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+    def design(self, plant: Plant, constants: Constants) -> DesignResult:
+        """Solve the corrected Theorem 1 for ``plant`` with ``constants``."""
+        c = constants
+        lo, hi = self.phi1_range
+        norm = f"the normalisation Q, R << {self.cap:g} I, t <= 1"
+        if c.gamma >= 0:
+            prog = self._program_convex(plant, c)
+
+            def obj(phi):
+                return prog.solve(phi=phi, iphi=1 / phi)
+
+            if self.phi1 is None:
+                phi, _, _ = _lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
+                searched = f"over phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
+            else:
+                phi, searched = self.phi1, f"at phi1 = {self.phi1:g}"
+            obj(phi)
+            concl = _lmi.conclude(prog, what="corrected Theorem 1", normalisation=norm, searched=searched)
+            vals = prog.values()
+            kappa = float(vals["kappa"]) if vals["kappa"] is not None else float("nan")
+            params = {
+                "form": "convex (eps1 = gamma eps2)",
+                "phi1": phi,
+                "kappa": kappa,
+                "eps2": 1 / (2 * kappa) if kappa > 0 else float("nan"),
+                "eps1": c.gamma / (2 * kappa) if kappa > 0 else float("nan"),
+                "eps3": _scalar(vals, "eps3"),
+                "eps4": _scalar(vals, "eps4"),
+                "rho": c.rho,
+                "beta": c.beta,
+                "gamma": c.gamma,
+                "cap": self.cap,
+            }
+            return _result(prog, concl, params)
+
+        # gamma < 0: grid over eps2, search phi1 at each
+        prog = self._program_fixed_eps(plant, c)
+        eps1 = float(self.eps1)
+        best = (-np.inf, None, None)
+        for eps2 in np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), 5):
+            eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
+            fixed = dict(eta2=eps2 * c.gamma - eps1, two_eps2=2 * eps2, inv_eta1=1 / eta1 if eta1 > 0 else 1e12)
+
+            def obj(phi, fixed=fixed):
+                return prog.solve(phi=phi, iphi=1 / phi, **fixed)
+
+            if self.phi1 is None:
+                phi, val, _ = _lmi.log_search(obj, lo, hi, n_grid=7, n_refine=3)
+            else:
+                phi, val = self.phi1, obj(self.phi1)
+            if val > best[0]:
+                best = (val, eps2, phi)
+        _, eps2, phi = best
+        if eps2 is None:
+            eps2, phi = self.eps2_range[0], self.phi1 or lo
+        eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
+        prog.solve(phi=phi, iphi=1 / phi, eta2=eps2 * c.gamma - eps1, two_eps2=2 * eps2,
+                   inv_eta1=1 / eta1 if eta1 > 0 else 1e12)
+        searched = f"over eps2 in {self.eps2_range} x phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
+        concl = _lmi.conclude(prog, what="corrected Theorem 1 (fixed eps, gamma < 0)", normalisation=norm,
+                              searched=searched)
+        vals = prog.values()
+        params = {
+            "form": "fixed eps (gamma < 0)",
+            "phi1": phi,
+            "eps1": eps1,
+            "eps2": eps2,
+            "eta1": eta1,
+            "eta2": eps2 * c.gamma - eps1,
+            "eps3": _scalar(vals, "eps3"),
+            "eps4": _scalar(vals, "eps4"),
+            "rho": c.rho,
+            "beta": c.beta,
+            "gamma": c.gamma,
+            "cap": self.cap,
+        }
+        return _result(prog, concl, params)
+
+
+def _scalar(vals: dict, k: str) -> float:
+    v = vals.get(k)
+    return float(v) if v is not None else float("nan")
+
+
+@register_design("thm1_printed")
+@dataclass(frozen=True, kw_only=True)
+class Thm1Printed(Design):
+    """Theorem 1 exactly as printed, (12)-(15), with Remark 1; eps1, eps2 fixed on a grid.
+
+    psi = 1/((2 rho - 1) eps1 + (2 beta + gamma) eps2) and zeta = 1/(eps2 gamma - eps1) are
+    reciprocals of the multipliers, so (12) is an LMI only for fixed eps1, eps2. Remark 1
+    replaces ``-Q/phi1`` and ``-phi1 Q`` in S3 by ``-(2 alpha1 - beta1) I`` and ``-beta1 I`` with
+    ``Q > alpha1 I``, ``2 alpha1 - beta1 > 0``, ``beta1 > 0`` (alpha1, beta1 decision scalars).
+
+    The statement needs ``psi > 0`` and ``zeta > 0`` (otherwise a diagonal block of S3 is
+    positive and ``S < 0`` is impossible): ``zeta > 0`` requires ``gamma > eps1 / eps2 > 0``. For
+    ``gamma <= 0`` (the flexible link has gamma = 0) no eps1, eps2 > 0 qualify and the design is
+    reported infeasible with that reason, without calling a solver. For ``gamma > 0`` it searches
+    eps2 on a log grid of ``n_eps2`` points in ``eps2_range`` and eps1 = r gamma eps2 for r in
+    ``ratios``, keeping combinations with psi > 0, and reports the best margin.
+    """
+
+    eps2_range: tuple[float, float] = (1e-2, 1e2)
+    n_eps2: int = 5
+    ratios: tuple[float, ...] = (0.25, 0.5, 0.75)
+    cap: float = 1e3
+
+    needs = ("rho", "beta", "gamma")
+
+    def __post_init__(self) -> None:
+        lo, hi = (check_positive("eps2_range", v) for v in self.eps2_range)
+        if lo > hi:
+            raise DesignError(f"eps2_range: must be (lo, hi) with lo <= hi, got {self.eps2_range}")
+        for r in self.ratios:
+            if not 0 < float(r) < 1:
+                raise DesignError(f"ratios: each must be in (0, 1), got {r!r}")
+        check_positive("cap", self.cap)
+
+    def _program(self, plant: Plant, c: Constants) -> _lmi.Program:
+        import cvxpy as cp
+
+        A, B, C = plant.A, plant.B, plant.C
+        n, m, p = plant.n, plant.m, plant.p
+        I, Z = np.eye(n), np.zeros((n, n))
+        rho, beta, gamma = c.rho, c.beta, c.gamma
+        v = _variables(n, m, p, ("eps3", "eps4", "alpha1", "beta1"))
+        prm = {"psi": cp.Parameter(nonneg=True, name="psi"), "zeta": cp.Parameter(nonneg=True, name="zeta"),
+               "two_eps2": cp.Parameter(nonneg=True, name="two_eps2")}
+
+        def blocks(d):
+            Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
+            S11 = Q @ A.T + A @ Q + Fh @ B.T + B @ Fh.T
+            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * rho + d["eps4"] * beta) * I
+            X = R + (d["eps4"] * gamma - d["eps3"]) * I
+            BF = -B @ Fh.T
+            return [
+                # S1                                                  | S2
+                [S11, Z, I, Z, BF, Z, Q, Z],
+                [Z, S22, Z, X, Z, I, Z, Z],
+                [I, Z, -d["two_eps2"] * I, Z, Z, Z, Z, I],
+                [Z, X.T, Z, -2 * d["eps4"] * I, Z, Z, Z, Z],
+                # S2'                                                 | S3 (Remark 1)
+                [BF.T, Z, Z, Z, -(2 * d["alpha1"] - d["beta1"]) * I, Z, Z, Z],
+                [Z, I, Z, Z, Z, -d["beta1"] * I, Z, Z],
+                [Q, Z, Z, Z, Z, Z, -d["psi"] * I, Z],
+                [Z, Z, I, Z, Z, Z, Z, -d["zeta"] * I],
+            ]
+
+        def extra(d):
+            t = d["t"]
+            return [d["Q"] >> d["alpha1"] * I, d["alpha1"] >= t, d["beta1"] >= t,
+                    2 * d["alpha1"] - d["beta1"] >= t, d["eps3"] >= 0, d["eps4"] >= 0]
+
+        return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+    def design(self, plant: Plant, constants: Constants) -> DesignResult:
+        """Solve Theorem 1 as printed, or explain why it cannot be satisfied."""
+        c = constants
+        params = {"rho": c.rho, "beta": c.beta, "gamma": c.gamma}
+        if c.gamma <= 0:
+            return DesignResult(
+                status="infeasible",
+                reason=(
+                    f"as printed, S3 holds -zeta I with zeta = 1/(eps2 gamma - eps1); with gamma = {c.gamma:g} <= 0, "
+                    "eps2 gamma - eps1 < 0 for every eps1, eps2 > 0, so -zeta I is positive definite and S < 0 "
+                    "is impossible (the proof needs eta2 = eps2 gamma - eps1 > 0, which the statement omits)"
+                ),
+                params=params,
+            )
+        combos = []
+        for eps2 in np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), int(self.n_eps2)):
+            for r in self.ratios:
+                eps1 = r * c.gamma * eps2
+                den = (2 * c.rho - 1) * eps1 + (2 * c.beta + c.gamma) * eps2
+                if den > 0:
+                    combos.append((eps1, eps2, 1 / den, 1 / (eps2 * c.gamma - eps1)))
+        if not combos:
+            return DesignResult(
+                status="infeasible",
+                reason="as printed, psi = 1/((2 rho - 1) eps1 + (2 beta + gamma) eps2) <= 0 on the whole eps grid",
+                params=params,
+            )
+        prog = self._program(plant, c)
+        best = max(combos, key=lambda cb: np.nan_to_num(prog.solve(psi=cb[2], zeta=cb[3], two_eps2=2 * cb[1]), nan=-np.inf))
+        eps1, eps2, psi, zeta = best
+        prog.solve(psi=psi, zeta=zeta, two_eps2=2 * eps2)
+        concl = _lmi.conclude(prog, what="Theorem 1 as printed (Remark 1)",
+                              normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1",
+                              searched=f"over {len(combos)} (eps1, eps2) pairs")
+        vals = prog.values()
+        params.update(eps1=eps1, eps2=eps2, psi=psi, zeta=zeta, cap=self.cap,
+                      alpha1=_scalar(vals, "alpha1"), beta1=_scalar(vals, "beta1"),
+                      eps3=_scalar(vals, "eps3"), eps4=_scalar(vals, "eps4"))
+        return _result(prog, concl, params)

@@ -1,0 +1,84 @@
+"""The one-link flexible-joint manipulator of the paper, eqs. (34)-(38).
+
+State ``x = (theta_m, omega_m, theta_l, omega_l / 10)``; A, B, C from (35)-(36). Table I of the
+paper does not reproduce A (C_vf / I_m = 12.4, not 1.26, and the height h is missing), so A is
+taken from (35) as printed. The nonlinearity is ``f4 = -c sin(x_i)`` with c = 0.333: the model
+(34) and the classic sources (Raghavan & Hedrick 1994; Rajamani 1998) put gravity on the link
+angle x3 (the default plant); the paper prints sin(x1) in (36) (the ``_printed`` variant).
+
+Constants of ``f = (0, 0, 0, -c sin(x_i))``, i in {1, 3} (analytic, global):
+alpha = c; rho = c / 2 (|c (sin a - sin b) d4| <= c |d_i| |d4| <= c/2 (d_i^2 + d4^2));
+(beta, gamma) = (c^2, 0). The paper claims rho = beta = 0.1109 and gamma = 0: its rho is c^2,
+which is wrong (the pair dx = (0, 0, -d, d) gives a ratio -> c/2 = 0.1665); its beta is right.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.registry import register_plant
+from plants._core import Constants, Plant
+
+SOURCE = (
+    "Observer-based stabilization of one-sided Lipschitz systems with application to flexible "
+    "link manipulator, eqs. (34)-(38)"
+)
+
+A = np.array(
+    [[0.0, 1.0, 0.0, 0.0], [-48.6, -1.26, 48.6, 0.0], [0.0, 0.0, 0.0, 10.0], [1.95, 0.0, -1.95, 0.0]]
+)
+B = np.array([[0.0], [21.6], [0.0], [0.0]])
+C = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]])
+X0 = np.array([-2.0, -2.0, -1.5, 2.0])
+X_HAT0 = np.array([0.5, 1.0, 1.0, -1.0])
+
+#: Gains printed in (37)-(38), in the paper's notation (u = F x_hat).
+PAPER_K = np.array([[1.2907, -24.3525], [-23.0311, 2.6718], [1.3713, 53.2993], [5.8967, 6.7679]])
+PAPER_F = np.array([[-11.7561, -1.8562, 6.4643, -14.2175]])
+
+#: The constants the paper claims below (36).
+PAPER_CLAIMED = Constants(rho=0.1109, beta=0.1109, gamma=0.0, alpha=0.333)
+
+
+def _make(pid: str, c: float, index: int, t_final: float, notes: str) -> Plant:
+    def f(x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        out = np.zeros_like(x)
+        out[3] = -c * np.sin(x[index])
+        return out
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        J = np.zeros((4, 4))
+        J[3, index] = -c * np.cos(float(np.asarray(x)[index]))
+        return J
+
+    c_abs = abs(float(c))
+    return Plant(
+        id=pid,
+        A=A,
+        B=B,
+        C=C,
+        f=f,
+        jacobian=jacobian,
+        x0=X0,
+        x_hat0=X_HAT0,
+        claimed=PAPER_CLAIMED,
+        bounds=Constants(alpha=c_abs, rho=c_abs / 2, beta=c_abs**2, gamma=0.0),
+        t_final=t_final,
+        family="flexible_link",
+        params={"c": float(c)},
+        source=SOURCE,
+        notes=notes,
+    )
+
+
+@register_plant("flexible_link")
+def flexible_link(*, c: float = 0.333, t_final: float = 20.0) -> Plant:
+    """Flexible link manipulator (35)-(36), gravity on the link angle: f4 = -c sin(x3)."""
+    return _make("flexible_link", c, 2, t_final, "f4 = -c sin(x3), as in model (34)")
+
+
+@register_plant("flexible_link_printed")
+def flexible_link_printed(*, c: float = 0.333, t_final: float = 20.0) -> Plant:
+    """Flexible link manipulator as printed in (36): f4 = -c sin(x1)."""
+    return _make("flexible_link_printed", c, 0, t_final, "f4 = -c sin(x1), as printed in (36)")
