@@ -32,6 +32,16 @@ def _positive_float(text: str) -> float:
     return v
 
 
+def _nonneg_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (v >= 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v
+
+
 def _nonneg_int(text: str) -> int:
     try:
         v = int(text)
@@ -54,6 +64,8 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="design with the constants the sources claim (the certificate still uses valid ones)")
     r.add_argument("--t-final", type=_positive_float, default=None, metavar="SECONDS",
                    help="simulation horizon (default: each plant's)")
+    r.add_argument("--noise", type=_nonneg_float, default=0.0, metavar="SIGMA",
+                   help="standard deviation of a seeded Gaussian measurement noise (default 0)")
     r.add_argument("--no-figures", action="store_true", help="skip the figures")
     r.add_argument("--fail-fast", action="store_true", help="stop at the first exception (for debugging)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
@@ -82,7 +94,7 @@ def _cmd_run(args, argv: list[str]) -> int:
     from bench.report import write_report
 
     options = RunOptions(seed=args.seed, use_claimed=args.claimed_constants, fail_fast=args.fail_fast,
-                         t_final=args.t_final)
+                         t_final=args.t_final, noise=args.noise)
     t0 = time.perf_counter()
     progress = None if args.quiet else stderr_progress
     if progress:

@@ -21,7 +21,7 @@ from bench.certify import certify
 from bench.constants import ConstantsReport, compute_constants, resolve_constants
 from bench.metrics import trajectory_metrics
 from bench.registry import DESIGNS, PLANTS
-from bench.simulate import SimOptions, Trajectory, simulate
+from bench.simulate import SimOptions, Trajectory, simulate, simulate_sampled
 from designs._core import DesignResult
 from plants._core import Plant
 
@@ -32,8 +32,8 @@ COLUMNS = [
     "plant", "design", "status", "reason", "feasible", "stabilizing", "certified", "converged",
     "decay_rate", "cert_margin", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves",
     "compile_s", "solve_s", "design_s", "cert_s", "sim_s", "max_re_eig_x", "max_re_eig_e",
-    "sim_status", "settling_x_s", "settling_e_s", "final_x", "final_e", "iae_e", "peak_u",
-    "norm_K", "norm_F", "constants", "params",
+    "sim_status", "settling_x_s", "settling_e_s", "final_x", "final_e", "iae_e", "rms_e", "peak_u",
+    "noise", "norm_K", "norm_F", "constants", "params",
 ]
 
 
@@ -55,6 +55,12 @@ class RunOptions:
         Re-raise the first exception instead of recording an ``error`` row.
     t_final : float, optional
         Simulation horizon for every plant (default: each plant's own ``t_final``).
+    noise : float
+        Standard deviation of a seeded Gaussian measurement noise (0: noise-free). With noise,
+        fixed-gain observers are simulated with the noise held over ``noise_dt`` intervals
+        (:func:`bench.simulate.simulate_sampled`), and the EKF at its own sample time.
+    noise_dt : float
+        Sample period of the noise for fixed-gain observers.
     """
 
     seed: int = 0
@@ -63,6 +69,18 @@ class RunOptions:
     sim: SimOptions = field(default_factory=SimOptions)
     fail_fast: bool = False
     t_final: float | None = None
+    noise: float = 0.0
+    noise_dt: float = 0.01
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.noise) and self.noise >= 0):
+            raise ValueError(f"noise: must be finite and >= 0, got {self.noise!r}")
+        if not (math.isfinite(self.noise_dt) and self.noise_dt > 0):
+            raise ValueError(f"noise_dt: must be finite and > 0, got {self.noise_dt!r}")
+        if self.t_final is not None and not (math.isfinite(self.t_final) and self.t_final > 0):
+            raise ValueError(f"t_final: must be finite and > 0, got {self.t_final!r}")
+        if self.n_samples < 1:
+            raise ValueError(f"n_samples: must be >= 1, got {self.n_samples!r}")
 
 
 @dataclass
@@ -145,27 +163,48 @@ def run_pair(plant: Plant, design_id: str, report: ConstantsReport, options: Run
             lmi_size=res.lmi_size or math.nan, solver=res.solver or "", solver_status=res.solver_status or "",
             n_solves=res.n_solves, compile_s=res.compile_s, solve_s=res.solve_s, params=_jsonable(res.params),
         )
-        if not res.has_gains:
+        if not res.has_controller:
             return out
-        K, F = np.asarray(res.K, dtype=float), np.asarray(res.F, dtype=float)
-        if K.shape != (plant.n, plant.p) or F.shape != (plant.m, plant.n):
-            raise ValueError(f"design {design_id!r} returned K {K.shape} and F {F.shape}; expected "
-                             f"({plant.n}, {plant.p}) and ({plant.m}, {plant.n})")
+        F = np.asarray(res.F, dtype=float)
+        if F.shape != (plant.m, plant.n):
+            raise ValueError(f"design {design_id!r} returned F of shape {F.shape}; expected ({plant.m}, {plant.n})")
         ex = float(np.linalg.eigvals(plant.A + plant.B @ F).real.max())
-        ee = float(np.linalg.eigvals(plant.A - K @ plant.C).real.max())
-        rec.update(max_re_eig_x=ex, max_re_eig_e=ee, stabilizing=bool(ex < 0 and ee < 0),
-                   norm_K=float(np.linalg.norm(K, 2)), norm_F=float(np.linalg.norm(F, 2)))
-        t0 = time.perf_counter()
-        cert = certify(plant, K, F, report.valid)
-        rec["cert_s"] = time.perf_counter() - t0
-        rec.update(certified=cert.certified, cert_margin=cert.margin, decay_rate=cert.decay_rate)
-        if not cert.certified and not rec["reason"]:
-            rec["reason"] = f"certificate: {cert.reason}"
-        traj = simulate(plant, K, F, t_final=options.t_final, options=options.sim)
+        rec.update(max_re_eig_x=ex, norm_F=float(np.linalg.norm(F, 2)), noise=options.noise)
+        T = options.t_final if options.t_final is not None else plant.t_final
+        if res.estimator is not None:  # a run-time estimator (EKF): sampled time, no fixed K
+            from bench.estimators import ContinuousDiscreteEKF
+
+            spec = res.estimator
+            spec.check_horizon(T)
+            rec.update(stabilizing=bool(ex < 0), certified=False)
+            note = ("no fixed observer gain: the EKF is time-varying, so the quadratic certificate of (20) does "
+                    "not apply; stabilizing refers to A+BF only")
+            rec["reason"] = (rec["reason"] + "; " if rec["reason"] else "") + note
+            ekf = ContinuousDiscreteEKF(plant, spec, plant.x_hat0, rtol=options.sim.rtol, atol=options.sim.atol)
+            traj = simulate_sampled(plant, F, ekf=ekf, dt=spec.dt, t_final=T, noise=options.noise,
+                                    seed=options.seed, options=options.sim)
+        else:
+            K = np.asarray(res.K, dtype=float)
+            if K.shape != (plant.n, plant.p):
+                raise ValueError(f"design {design_id!r} returned K of shape {K.shape}; expected ({plant.n}, {plant.p})")
+            ee = float(np.linalg.eigvals(plant.A - K @ plant.C).real.max())
+            rec.update(max_re_eig_e=ee, stabilizing=bool(ex < 0 and ee < 0), norm_K=float(np.linalg.norm(K, 2)))
+            t0 = time.perf_counter()
+            cert = certify(plant, K, F, report.valid)
+            rec["cert_s"] = time.perf_counter() - t0
+            rec.update(certified=cert.certified, cert_margin=cert.margin, decay_rate=cert.decay_rate)
+            if not cert.certified:
+                rec["reason"] = (rec["reason"] + "; " if rec["reason"] else "") + f"certificate: {cert.reason}"
+            if options.noise > 0:
+                traj = simulate_sampled(plant, F, K=K, dt=options.noise_dt, t_final=T, noise=options.noise,
+                                        seed=options.seed, options=options.sim)
+            else:
+                traj = simulate(plant, K, F, t_final=T, options=options.sim)
         out.trajectory = traj
         rec["sim_s"] = traj.wall_s
         rec["sim_status"] = traj.status
-        m = trajectory_metrics(traj.t, traj.x, traj.x_hat, traj.u, finished=traj.status == "ok")
+        m = trajectory_metrics(traj.t, traj.x, traj.x_hat, traj.u, finished=traj.status == "ok",
+                               noisy=options.noise > 0)
         rec.update(m)
         if traj.status != "ok":
             rec["reason"] = (rec["reason"] + "; " if rec["reason"] else "") + f"simulation {traj.status}: {traj.message}"

@@ -4,7 +4,10 @@
   ``s`` stays at or below 2 % of its peak over the run (NaN if it never does by the end);
 - ``converged``: the run finished and both ``||x||`` and ``||e||`` at the end are at most
   ``CONVERGED_RATIO`` (1e-3) times their peaks;
-- IAE of ``||e||`` by the trapezoid rule; peak ``|u|`` over all inputs and times.
+- with measurement noise (``noisy=True``) the norms cannot shrink by 1e-3, so ``converged``
+  means the run finished and both norms settled (finite 2 % settling times);
+- IAE of ``||e||`` by the trapezoid rule; ``rms_e``, the RMS of ``||e||`` over the second half of
+  the horizon (the steady state, where noise dominates); peak ``|u|`` over all inputs and times.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ def settling_time(t: np.ndarray, s: np.ndarray, fraction: float = SETTLING_FRACT
     return float(t[last + 1])
 
 
-def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True) -> dict[str, float | bool]:
+def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True, noisy: bool = False) -> dict[str, float | bool]:
     """Metrics of one trajectory.
 
     Parameters
@@ -47,12 +50,14 @@ def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True) -> dict[str, fl
     u : ndarray (m, N)
     finished : bool
         False when the simulation stopped early (diverged): then ``converged`` is False.
+    noisy : bool
+        The run had measurement noise (changes the meaning of ``converged``, see above).
 
     Returns
     -------
     dict
         ``converged``, ``settling_x_s``, ``settling_e_s``, ``final_x``, ``final_e``,
-        ``iae_e``, ``peak_u``.
+        ``iae_e``, ``rms_e``, ``peak_u``.
     """
     t = np.asarray(t, dtype=float)
     nx = np.linalg.norm(np.asarray(x, dtype=float), axis=0)
@@ -65,12 +70,19 @@ def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True) -> dict[str, fl
         and final_e <= CONVERGED_RATIO * max(float(ne.max()), 1e-300)
     )
     iae = float(np.sum((ne[1:] + ne[:-1]) * np.diff(t)) / 2) if t.size > 1 else 0.0
+    sx = settling_time(t, nx) if ok else math.nan
+    se = settling_time(t, ne) if ok else math.nan
+    if noisy:
+        conv = bool(ok and math.isfinite(sx) and math.isfinite(se))
+    tail = t >= t[0] + (t[-1] - t[0]) / 2
+    rms = float(np.sqrt(np.mean(ne[tail] ** 2))) if ok else math.nan
     return {
         "converged": conv,
-        "settling_x_s": settling_time(t, nx) if ok else math.nan,
-        "settling_e_s": settling_time(t, ne) if ok else math.nan,
+        "settling_x_s": sx,
+        "settling_e_s": se,
         "final_x": final_x,
         "final_e": final_e,
         "iae_e": iae,
+        "rms_e": rms,
         "peak_u": float(np.max(np.abs(u))) if np.size(u) else math.nan,
     }

@@ -52,6 +52,7 @@ class Entry:
     factory: Callable[..., Any]
     summary: str
     module: str
+    order: int = 100
 
     def create(self, **overrides: Any) -> Any:
         """Call the factory (keyword-only overrides)."""
@@ -80,15 +81,18 @@ class Registry:
         self._entries: dict[str, Entry] = {}
         self._discovered = False
 
-    def register(self, id: str, factory: Callable[..., Any], summary: str | None = None) -> None:
-        """Register ``factory`` under ``id``; a duplicate id raises :class:`RegistryError`."""
+    def register(self, id: str, factory: Callable[..., Any], summary: str | None = None, *, order: int = 100) -> None:
+        """Register ``factory`` under ``id``; a duplicate id raises :class:`RegistryError`.
+
+        ``order`` sorts listings and tables (then the id), whatever the import order.
+        """
         if not isinstance(id, str) or not id or any(c in id for c in "*?[] "):
             raise RegistryError(f"{self.kind} id {id!r}: must be a non-empty string without spaces or glob characters")
         if id in self._entries:
             other = self._entries[id].module
             raise RegistryError(f"duplicate {self.kind} id {id!r} (already registered by {other})")
         module = getattr(factory, "__module__", "?")
-        self._entries[id] = Entry(id, factory, summary or _first_line(factory), module)
+        self._entries[id] = Entry(id, factory, summary or _first_line(factory), module, order)
 
     def unregister(self, id: str) -> None:
         """Remove an id (used by plugin loading on failure and by tests)."""
@@ -105,9 +109,9 @@ class Registry:
         return self
 
     def ids(self) -> list[str]:
-        """All registered ids, in registration order."""
+        """All registered ids, sorted by (order, id)."""
         self.discover()
-        return list(self._entries)
+        return [e.id for e in sorted(self._entries.values(), key=lambda e: (e.order, e.id))]
 
     def __contains__(self, id: str) -> bool:
         self.discover()
@@ -152,17 +156,17 @@ PLANTS = Registry("plant", "plants")
 DESIGNS = Registry("design", "designs")
 
 
-def register_plant(id: str, summary: str | None = None):
+def register_plant(id: str, summary: str | None = None, *, order: int = 100):
     """Decorator registering a keyword-only plant factory under ``id``."""
 
     def deco(factory):
-        PLANTS.register(id, factory, summary)
+        PLANTS.register(id, factory, summary, order=order)
         return factory
 
     return deco
 
 
-def register_design(id: str, summary: str | None = None, **fixed: Any):
+def register_design(id: str, summary: str | None = None, *, order: int = 100, **fixed: Any):
     """Decorator registering a design class (or factory) under ``id``.
 
     Keyword arguments are bound as defaults, so one class can be registered under several
@@ -176,9 +180,9 @@ def register_design(id: str, summary: str | None = None, **fixed: Any):
 
             factory.__doc__ = cls.__doc__
             factory.__module__ = cls.__module__
-            DESIGNS.register(id, factory, summary)
+            DESIGNS.register(id, factory, summary, order=order)
         else:
-            DESIGNS.register(id, cls, summary)
+            DESIGNS.register(id, cls, summary, order=order)
         return cls
 
     return deco

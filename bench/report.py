@@ -169,10 +169,11 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
     df = result.frame()
     o = result.options
     conv_cols = ["plant", "design", "stabilizing", "max_re_eig_x", "max_re_eig_e", "certified", "decay_rate",
-                 "converged", "sim_status", "settling_x_s", "settling_e_s", "final_x", "final_e", "iae_e", "peak_u"]
+                 "converged", "sim_status", "settling_x_s", "settling_e_s", "final_x", "final_e", "iae_e", "rms_e",
+                 "peak_u"]
     time_cols = ["plant", "design", "solver", "solver_status", "n_solves", "lmi_size", "lmi_margin", "compile_s",
                  "solve_s", "design_s", "cert_s", "sim_s"]
-    with_gains = df[df["stabilizing"] | df["max_re_eig_x"].notna()]
+    with_gains = df[df["max_re_eig_x"].notna()]
     parts = [
         "# oslbench report",
         "",
@@ -223,13 +224,14 @@ def _gains(result: RunResult) -> list[dict]:
     out = []
     for o in result.outcomes:
         r = o.result
-        if r is not None and r.has_gains:
+        if r is not None and r.has_controller:
             dr = o.record["decay_rate"]
             out.append({
                 "plant": o.record["plant"],
                 "design": o.record["design"],
-                "K": np.asarray(r.K).tolist(),
+                "K": None if r.K is None else np.asarray(r.K).tolist(),
                 "F": np.asarray(r.F).tolist(),
+                "estimator": None if r.estimator is None else repr(r.estimator),
                 "certified": bool(o.record["certified"]),
                 "decay_rate": None if not math.isfinite(dr) else float(dr),
             })
@@ -269,6 +271,8 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
             "use_claimed_constants": result.options.use_claimed,
             "n_samples_constants": result.options.n_samples,
             "t_final_override": result.options.t_final,
+            "noise": result.options.noise,
+            "noise_dt": result.options.noise_dt,
             "sim": {k: getattr(result.options.sim, k) for k in ("method", "rtol", "atol", "n_points", "blowup")},
             "versions": package_versions(),
             "platform": platform.platform(),

@@ -62,6 +62,9 @@ class DesignResult:
         Smallest eigenvalues of the decision matrices (e.g. ``{"Q": .., "R": ..}``).
     params : dict
         Every scalar the design used (fixed, searched or solved for).
+    estimator : object, optional
+        A run-time estimator specification (e.g. :class:`designs.ekf.EKFSpec`) for designs whose
+        estimator is not a fixed gain K; the harness simulates it in sampled time.
     """
 
     status: str
@@ -77,6 +80,7 @@ class DesignResult:
     lmi_size: int = 0
     min_eig: dict[str, float] = field(default_factory=dict)
     params: dict[str, float] = field(default_factory=dict)
+    estimator: Any = None
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -86,6 +90,11 @@ class DesignResult:
     def has_gains(self) -> bool:
         """True when both K and F are present."""
         return self.K is not None and self.F is not None
+
+    @property
+    def has_controller(self) -> bool:
+        """True when there is a feedback F and an estimator (a gain K or a run-time estimator)."""
+        return self.F is not None and (self.K is not None or self.estimator is not None)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -121,6 +130,7 @@ class Design:
 def result_dict(res: DesignResult) -> dict[str, Any]:
     """A JSON-friendly dict of a result (arrays as nested lists)."""
     d = asdict(res)
+    d["estimator"] = repr(res.estimator) if res.estimator is not None else None
     for k in ("K", "F"):
         if d[k] is not None:
             d[k] = np.asarray(d[k]).tolist()

@@ -21,7 +21,7 @@ from plants._core import Constants, Plant
 __all__ = ["Cor1", "Cor1Printed"]
 
 
-@register_design("cor1")
+@register_design("cor1", order=12)
 @dataclass(frozen=True, kw_only=True)
 class Cor1(Design):
     """Corollary 1, corrected (kappa = 1/mu1 exact, MATH.md); Young weight phi2 searched.
@@ -126,7 +126,7 @@ class Cor1(Design):
         return _result(prog, concl, params)
 
 
-@register_design("cor1_printed")
+@register_design("cor1_printed", order=13)
 @dataclass(frozen=True, kw_only=True)
 class Cor1Printed(Design):
     """Corollary 1 as printed, (27)-(32), with Remarks 2-3; xi searched on a grid in (0, 1).

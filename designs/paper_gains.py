@@ -18,7 +18,7 @@ from plants.flexible_link import PAPER_F, PAPER_K
 __all__ = ["PaperGains"]
 
 
-@register_design("paper_gains")
+@register_design("paper_gains", order=14)
 @dataclass(frozen=True, kw_only=True)
 class PaperGains(Design):
     """The paper's printed gains K (37) and F (38); flexible link plants only."""

@@ -63,7 +63,7 @@ def _result(prog: _lmi.Program, concl: dict, params: dict) -> DesignResult:
     )
 
 
-@register_design("thm1")
+@register_design("thm1", order=10)
 @dataclass(frozen=True, kw_only=True)
 class Thm1(Design):
     """Theorem 1, corrected convex form (MATH.md); Young weight phi1 searched on a log grid.
@@ -285,7 +285,7 @@ def _scalar(vals: dict, k: str) -> float:
     return float(v) if v is not None else float("nan")
 
 
-@register_design("thm1_printed")
+@register_design("thm1_printed", order=11)
 @dataclass(frozen=True, kw_only=True)
 class Thm1Printed(Design):
     """Theorem 1 exactly as printed, (12)-(15), with Remark 1; eps1, eps2 fixed on a grid.

@@ -72,13 +72,13 @@ def _make(pid: str, c: float, index: int, t_final: float, notes: str) -> Plant:
     )
 
 
-@register_plant("flexible_link")
+@register_plant("flexible_link", order=0)
 def flexible_link(*, c: float = 0.333, t_final: float = 20.0) -> Plant:
     """Flexible link manipulator (35)-(36), gravity on the link angle: f4 = -c sin(x3)."""
     return _make("flexible_link", c, 2, t_final, "f4 = -c sin(x3), as in model (34)")
 
 
-@register_plant("flexible_link_printed")
+@register_plant("flexible_link_printed", order=1)
 def flexible_link_printed(*, c: float = 0.333, t_final: float = 20.0) -> Plant:
     """Flexible link manipulator as printed in (36): f4 = -c sin(x1)."""
     return _make("flexible_link_printed", c, 0, t_final, "f4 = -c sin(x1), as printed in (36)")

@@ -1,0 +1,191 @@
+"""Observer-based controllers composed of a feedback part (F) and an estimator part (K or EKF).
+
+A *part* is a frozen dataclass of hyperparameters with ``compute(plant, constants)`` returning
+a :class:`PartResult`. A *pairing* ``"feedback+estimator"`` is registered as a design with one
+line, :func:`register_pairing`; the composed design runs both parts and merges their evidence,
+so every pairing goes through the same harness, certificate and tables as Theorem 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bench.registry import DESIGNS, Registry
+from designs._core import Design, DesignError, DesignResult
+from plants._core import Constants, Plant
+
+__all__ = [
+    "ESTIMATORS",
+    "FEEDBACKS",
+    "Composite",
+    "Part",
+    "PartResult",
+    "check_weight",
+    "register_estimator",
+    "register_feedback",
+    "register_pairing",
+]
+
+FEEDBACKS = Registry("feedback part", "designs")
+ESTIMATORS = Registry("estimator part", "designs")
+
+
+@dataclass
+class PartResult:
+    """What one part produced: a gain (F or K) or a run-time estimator, and its evidence."""
+
+    status: str
+    reason: str = ""
+    gain: np.ndarray | None = None
+    estimator: Any = None
+    solver: str | None = None
+    solver_status: str | None = None
+    compile_s: float = 0.0
+    solve_s: float = 0.0
+    n_solves: int = 0
+    margin: float = float("nan")
+    lmi_size: int = 0
+    min_eig: dict[str, float] = field(default_factory=dict)
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Part:
+    """Base of feedback and estimator parts; subclasses set ``needs`` and implement ``compute``."""
+
+    needs = ()
+
+    def applicable(self, plant: Plant, constants: Constants) -> str | None:
+        """None if the part applies, else the reason."""
+        missing = [k for k in self.needs if getattr(constants, k) is None]
+        if missing:
+            return f"needs the constant(s) {', '.join(missing)}, which the plant does not provide"
+        return None
+
+    def compute(self, plant: Plant, constants: Constants) -> PartResult:  # pragma: no cover
+        """Compute the part for ``plant``."""
+        raise NotImplementedError
+
+
+def check_weight(name: str, W, size: int, *, definite: bool) -> np.ndarray:
+    """Validate a weight matrix: shape (size, size), finite, symmetric, PSD (or PD).
+
+    ``None`` means the identity. Raises :class:`DesignError` naming ``name``.
+    """
+    if W is None:
+        return np.eye(size)
+    try:
+        M = np.atleast_2d(np.array(W, dtype=float))
+    except (TypeError, ValueError):
+        raise DesignError(f"{name}: not a numeric matrix") from None
+    if M.shape == (1, 1) and size > 1:
+        M = M[0, 0] * np.eye(size)  # a scalar weight means scalar * I
+    if M.shape != (size, size):
+        raise DesignError(f"{name}: expected shape ({size}, {size}), got {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise DesignError(f"{name}: entries must be finite")
+    if not np.allclose(M, M.T, rtol=1e-10, atol=1e-12):
+        raise DesignError(f"{name}: must be symmetric")
+    lo = float(np.linalg.eigvalsh(M)[0])
+    tol = 1e-12 * max(1.0, float(np.abs(M).max()))
+    if definite and lo <= tol:
+        raise DesignError(f"{name}: must be positive definite (smallest eigenvalue {lo:.3g})")
+    if not definite and lo < -tol:
+        raise DesignError(f"{name}: must be positive semidefinite (smallest eigenvalue {lo:.3g})")
+    return M
+
+
+def register_feedback(id: str):
+    """Decorator registering a feedback part class under ``id``."""
+
+    def deco(cls):
+        FEEDBACKS.register(id, cls)
+        return cls
+
+    return deco
+
+
+def register_estimator(id: str):
+    """Decorator registering an estimator part class under ``id``."""
+
+    def deco(cls):
+        ESTIMATORS.register(id, cls)
+        return cls
+
+    return deco
+
+
+@dataclass(frozen=True, kw_only=True)
+class Composite(Design):
+    """An observer-based controller: a feedback part (F) paired with an estimator part (K or EKF)."""
+
+    feedback: Part
+    estimator: Part
+
+    def applicable(self, plant: Plant, constants: Constants) -> str | None:
+        for role, part in (("feedback", self.feedback), ("estimator", self.estimator)):
+            why = part.applicable(plant, constants)
+            if why is not None:
+                return f"{role} part {type(part).__name__}: {why}"
+        return None
+
+    def design(self, plant: Plant, constants: Constants) -> DesignResult:
+        """Compute both parts and merge their evidence (timings add up, the LMI margin is the worst)."""
+        fb = self.feedback.compute(plant, constants)
+        es = self.estimator.compute(plant, constants)
+        parts = (("feedback", fb), ("estimator", es))
+        bad = [(role, r) for role, r in parts if r.status != "feasible"]
+        order = ("error", "undecided", "inapplicable", "infeasible")
+        status = min((r.status for _, r in bad), key=order.index) if bad else "feasible"
+        reason = "; ".join(f"{role}: {r.reason}" for role, r in bad)
+        margins = [r.margin for _, r in parts if math.isfinite(r.margin)]
+        solvers = [r.solver for _, r in parts if r.solver]
+        sstat = [f"{r.solver_status}" for _, r in parts if r.solver_status]
+        params: dict[str, Any] = {}
+        for role, r in parts:
+            params.update({f"{role}.{k}": v for k, v in r.params.items()})
+        min_eig = {}
+        for role, r in parts:
+            min_eig.update({f"{role}.{k}": v for k, v in r.min_eig.items()})
+        ok = status == "feasible"
+        return DesignResult(
+            status=status,
+            reason=reason,
+            K=es.gain if ok else None,
+            F=fb.gain if ok else None,
+            estimator=es.estimator if ok else None,
+            solver="+".join(dict.fromkeys(solvers)) or None,
+            solver_status="+".join(sstat) or None,
+            compile_s=fb.compile_s + es.compile_s,
+            solve_s=fb.solve_s + es.solve_s,
+            n_solves=fb.n_solves + es.n_solves,
+            margin=max(margins) if margins else float("nan"),
+            lmi_size=max(fb.lmi_size, es.lmi_size),
+            min_eig=min_eig,
+            params=params,
+        )
+
+
+def register_pairing(feedback: str, estimator: str, *, summary: str | None = None) -> str:
+    """Register the design ``"feedback+estimator"``; returns its id.
+
+    Keyword overrides of the design factory: ``feedback_params`` and ``estimator_params``
+    (dicts of the parts' hyperparameters).
+    """
+    did = f"{feedback}+{estimator}"
+
+    def factory(*, feedback_params: dict | None = None, estimator_params: dict | None = None) -> Composite:
+        fb = FEEDBACKS.create(feedback, **(feedback_params or {}))
+        es = ESTIMATORS.create(estimator, **(estimator_params or {}))
+        return Composite(feedback=fb, estimator=es)
+
+    factory.__module__ = "designs.pairings"
+    if summary is None:
+        summary = f"observer-based controller: {feedback} feedback with the {estimator} estimator"
+    factory.__doc__ = summary
+    DESIGNS.register(did, factory, summary, order=50)
+    return did

@@ -1,0 +1,134 @@
+"""LMI observers for Lipschitz (Rajamani-style) and OSL/QIB (Zhang et al. 2012) systems.
+
+Both solve a 2n x 2n LMI with cvxpy + Clarabel, maximising a margin t under the normalisation
+``P << cap I`` (these LMIs are homogeneous in their variables, so the cap only fixes the scale),
+and are verified like every LMI of the suite: the matrix is rebuilt with numpy at the solution
+and its largest eigenvalue must be negative.
+
+References
+----------
+R. Rajamani, "Observers for Lipschitz nonlinear systems", IEEE TAC 43(3), 1998 (LMI form as in
+Rajamani & Cho 1998). W. Zhang, H. Su, H. Wang and Z. Han, "Full-order and reduced-order
+observers for one-sided Lipschitz nonlinear systems using Riccati equations", Commun. Nonlinear
+Sci. Numer. Simul. 17(12), 2012, and the LMI form of Abbaszadeh & Marquez (ACC 2010).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from designs import _lmi
+from designs._core import check_positive
+from designs._parts import Part, PartResult, register_estimator
+from plants._core import Constants, Plant
+
+__all__ = ["RajamaniLMI", "ZhangOSL"]
+
+
+def _part_from(prog: _lmi.Program, concl: dict, K, params: dict) -> PartResult:
+    return PartResult(status=concl["status"], reason=concl["reason"], gain=K if concl["status"] == "feasible" else None,
+                      solver="CLARABEL", solver_status=concl["solver_status"], compile_s=prog.compile_s,
+                      solve_s=prog.solve_s, n_solves=prog.n_solves, margin=concl["margin"],
+                      lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
+                      params={**params, "margin_t": concl.get("t", float("nan"))})
+
+
+@register_estimator("rajamani")
+@dataclass(frozen=True, kw_only=True)
+class RajamaniLMI(Part):
+    """Lipschitz LMI observer: [(A-KC)'P + P(A-KC) + eps alpha^2 I + 2 lam P, P; P, -eps I] < 0.
+
+    With ``W = P K`` this is an LMI in (P, W, eps) (V = e'Pe, Young's inequality on
+    2 e'P (f - f_hat)); ``K = P^{-1} W``. ``decay`` (lam >= 0) asks for ``V' <= -2 lam V``.
+    """
+
+    decay: float = 0.0
+    cap: float = 1e3
+
+    needs = ("alpha",)
+
+    def __post_init__(self) -> None:
+        check_positive("decay", self.decay, allow_zero=True)
+        check_positive("cap", self.cap)
+
+    def compute(self, plant: Plant, constants: Constants) -> PartResult:
+        """Solve the LMI and return K."""
+        import cvxpy as cp
+
+        A, C = plant.A, plant.C
+        n, p = plant.n, plant.p
+        a2, lam = float(constants.alpha) ** 2, float(self.decay)
+        I = np.eye(n)
+        v = {"P": cp.Variable((n, n), symmetric=True), "W": cp.Variable((n, p)), "eps": cp.Variable(),
+             "t": cp.Variable()}
+
+        def blocks(d):
+            P, W = d["P"], d["W"]
+            S = A.T @ P + P @ A - C.T @ W.T - W @ C + d["eps"] * a2 * I + 2 * lam * P
+            return [[S, P], [P, -d["eps"] * I]]
+
+        prog = _lmi.margin_program(blocks, v, {}, ("P",), lambda d: [d["eps"] >= 0], cap=self.cap)
+        prog.solve()
+        concl = _lmi.conclude(prog, what="Rajamani LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
+                              searched=f"with decay {lam:g}")
+        vals = prog.values()
+        K = np.linalg.solve(vals["P"], vals["W"]) if concl["status"] == "feasible" else None
+        eps = vals["eps"]
+        return _part_from(prog, concl, K, {"alpha": constants.alpha, "decay": lam,
+                                           "eps": float(eps) if eps is not None else float("nan")})
+
+
+@register_estimator("zhang_osl")
+@dataclass(frozen=True, kw_only=True)
+class ZhangOSL(Part):
+    """OSL/QIB LMI observer (Zhang et al. 2012): K = (sigma/2) P^{-1} C'.
+
+    The LMI, in (P, sigma, eps1, eps2) ::
+
+        [ A'P + PA + (eps1 rho + eps2 beta) I - sigma C'C + 2 lam P   P + ((gamma eps2 - eps1)/2) I ]
+        [ *                                                           -eps2 I                       ]  < 0
+
+    is the S-procedure on V = e'Pe with the OSL and QIB inequalities for ``f - f_hat``.
+    ``decay`` (lam >= 0) asks for ``V' <= -2 lam V``.
+    """
+
+    decay: float = 0.0
+    cap: float = 1e3
+
+    needs = ("rho", "beta", "gamma")
+
+    def __post_init__(self) -> None:
+        check_positive("decay", self.decay, allow_zero=True)
+        check_positive("cap", self.cap)
+
+    def compute(self, plant: Plant, constants: Constants) -> PartResult:
+        """Solve the LMI and return K."""
+        import cvxpy as cp
+
+        A, C = plant.A, plant.C
+        n = plant.n
+        rho, beta, gamma = constants.rho, constants.beta, constants.gamma
+        lam = float(self.decay)
+        I = np.eye(n)
+        v = {"P": cp.Variable((n, n), symmetric=True), "sigma": cp.Variable(), "eps1": cp.Variable(),
+             "eps2": cp.Variable(), "t": cp.Variable()}
+
+        def blocks(d):
+            P = d["P"]
+            S = A.T @ P + P @ A + (d["eps1"] * rho + d["eps2"] * beta) * I - d["sigma"] * (C.T @ C) + 2 * lam * P
+            X = P + ((gamma * d["eps2"] - d["eps1"]) / 2) * I
+            return [[S, X], [X.T, -d["eps2"] * I]]
+
+        prog = _lmi.margin_program(blocks, v, {}, ("P",),
+                                   lambda d: [d["sigma"] >= 0, d["eps1"] >= 0, d["eps2"] >= 0], cap=self.cap)
+        prog.solve()
+        concl = _lmi.conclude(prog, what="Zhang OSL LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
+                              searched=f"with decay {lam:g}")
+        vals = prog.values()
+        K = None
+        if concl["status"] == "feasible":
+            K = (float(vals["sigma"]) / 2) * np.linalg.solve(vals["P"], C.T)
+        sc = {k: (float(vals[k]) if vals[k] is not None else float("nan")) for k in ("sigma", "eps1", "eps2")}
+        return _part_from(prog, concl, K, {"rho": rho, "beta": beta, "gamma": gamma, "decay": lam, **sc})

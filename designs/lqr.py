@@ -1,0 +1,102 @@
+"""LQR state feedback and the Kalman-gain (LQE) observer, both from python-control.
+
+python-control's ``lqr`` returns K_lqr with ``u = -K_lqr x``; the paper's notation is
+``u = F x_hat``, so ``F = -K_lqr`` (converted here, once). ``lqe`` returns the observer gain L of
+``x_hat' = A x_hat + B u + L (y - C x_hat)``, which is the paper's K as it stands.
+``method="scipy"`` is passed so results do not depend on whether slycot is installed.
+
+References
+----------
+B. D. O. Anderson and J. B. Moore, *Optimal Control: Linear Quadratic Methods*, 1990.
+python-control, ``control.lqr`` and ``control.lqe``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from designs._core import DesignError
+from designs._parts import Part, PartResult, check_weight, register_estimator, register_feedback
+from plants._core import Constants, Plant
+
+__all__ = ["LQEObserver", "LQRFeedback"]
+
+
+def _prevalidate(name: str, W: Any, *, definite: bool) -> None:
+    if W is not None:
+        M = np.atleast_2d(np.asarray(W, dtype=float)) if np.size(W) else None
+        if M is None:
+            raise DesignError(f"{name}: empty weight")
+        check_weight(name, M, M.shape[0], definite=definite)
+
+
+@register_feedback("lqr")
+@dataclass(frozen=True, kw_only=True)
+class LQRFeedback(Part):
+    """LQR state feedback F = -K_lqr from ``control.lqr(A, B, Q, R, method="scipy")``.
+
+    Minimises the integral of ``x'Qx + u'Ru`` for the linear part. ``Q`` (n x n, symmetric
+    PSD) defaults to I_n and ``R`` (m x m, symmetric PD) to I_m; a scalar means scalar * I.
+    The Riccati residual ``A'S + SA - S B R^{-1} B' S + Q`` is recorded as evidence.
+    """
+
+    Q: Any = None
+    R: Any = None
+
+    def __post_init__(self) -> None:
+        _prevalidate("Q", self.Q, definite=False)
+        _prevalidate("R", self.R, definite=True)
+
+    def compute(self, plant: Plant, constants: Constants) -> PartResult:
+        """F = -K_lqr for ``plant``'s (A, B)."""
+        import control
+
+        A, B = plant.A, plant.B
+        Q = check_weight("Q", self.Q, plant.n, definite=False)
+        R = check_weight("R", self.R, plant.m, definite=True)
+        try:
+            K_lqr, S, _ = control.lqr(A, B, Q, R, method="scipy")
+        except Exception as exc:  # not stabilizable, Hamiltonian on the axis, ...
+            return PartResult(status="infeasible", reason=f"control.lqr failed: {exc}", solver="control.lqr",
+                              solver_status="failed")
+        K_lqr = np.asarray(K_lqr, dtype=float)
+        S = np.asarray(S, dtype=float)
+        res = A.T @ S + S @ A - S @ B @ np.linalg.solve(R, B.T) @ S + Q
+        return PartResult(status="feasible", gain=-K_lqr, solver="control.lqr", solver_status="solved",
+                          params={"riccati_residual": float(np.abs(res).max()), "Q": "I" if self.Q is None else "set",
+                                  "R": "I" if self.R is None else "set"})
+
+
+@register_estimator("lqe")
+@dataclass(frozen=True, kw_only=True)
+class LQEObserver(Part):
+    """Kalman-gain observer K = L from ``control.lqe(A, I, C, QN, RN, method="scipy")``.
+
+    ``QN`` (n x n, process noise, symmetric PSD) defaults to I_n and ``RN`` (p x p,
+    measurement noise, symmetric PD) to I_p; a scalar means scalar * I. The nonlinearity is
+    ignored by the design (it is linear), which is exactly what the benchmark tests.
+    """
+
+    QN: Any = None
+    RN: Any = None
+
+    def __post_init__(self) -> None:
+        _prevalidate("QN", self.QN, definite=False)
+        _prevalidate("RN", self.RN, definite=True)
+
+    def compute(self, plant: Plant, constants: Constants) -> PartResult:
+        """K = L for ``plant``'s (A, C)."""
+        import control
+
+        QN = check_weight("QN", self.QN, plant.n, definite=False)
+        RN = check_weight("RN", self.RN, plant.p, definite=True)
+        try:
+            L, _, _ = control.lqe(plant.A, np.eye(plant.n), plant.C, QN, RN, method="scipy")
+        except Exception as exc:
+            return PartResult(status="infeasible", reason=f"control.lqe failed: {exc}", solver="control.lqe",
+                              solver_status="failed")
+        return PartResult(status="feasible", gain=np.asarray(L, dtype=float), solver="control.lqe",
+                          solver_status="solved")
