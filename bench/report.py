@@ -144,24 +144,37 @@ def _figures(result: RunResult, figdir: Path) -> list[tuple[str, str]]:
         for o in outs:
             tr, did = o.trajectory, o.record["design"]
             n = tr.x.shape[0]
+            settle = [o.record["settling_x_s"], o.record["settling_e_s"]]
+            settle = [s for s in settle if isinstance(s, float) and math.isfinite(s)]
+            t_show = min(float(tr.t[-1]), max(1.0, 2.0 * max(settle))) if settle else float(tr.t[-1])
             fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), constrained_layout=True, squeeze=False)
             for i in range(n):
                 ax = axes[0, i]
                 ax.plot(tr.t, tr.x[i], label=f"x{i + 1}")
                 ax.plot(tr.t, tr.x_hat[i], "--", label=f"x_hat{i + 1}")
-                ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]")
+                ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", xlim=(0, t_show))
                 ax.legend(fontsize=8)
                 ax.grid(True, alpha=0.3)
                 ax = axes[1, i]
                 ax.plot(tr.t, tr.e[i], color="C3")
-                ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]")
+                ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", xlim=(0, t_show))
                 ax.grid(True, alpha=0.3)
-            fig.suptitle(f"{pid} with {did} (cf. the paper's Figures 2-5)")
+            fig.suptitle(f"{pid} with {did} (cf. the paper's Figures 2-5; first {t_show:.3g} s of {tr.t[-1]:.3g} s)")
             name = f"{pid}__{did}.png"
             fig.savefig(figdir / name, dpi=100)
             plt.close(fig)
             made.append((f"{pid} with {did}: states, estimates (dashed) and estimation errors", f"figures/{name}"))
     return made
+
+
+def _uncertified(df) -> str:
+    sub = df[df["converged"] & ~df["certified"]]
+    if not len(sub):
+        return "Every converging pair is also certified."
+    pairs = ", ".join(f"{r.plant} x {r.design}" for r in sub.itertuples(index=False))
+    return (f"**Converge without a certificate** ({len(sub)}): {pairs}. Simulation from one initial condition "
+            "is evidence, not proof: these gains have no quadratic certificate of (20) with the valid constants "
+            "(or, for the EKF, none applies).")
 
 
 def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info: dict) -> str:
@@ -177,7 +190,8 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
     parts = [
         "# oslbench report",
         "",
-        f"Command: `{run_info['command']}`. Seed {o.seed}; constants used by designs: "
+        f"Command: `{run_info['command']}`. Seed {o.seed}; measurement noise sigma = {o.noise:g}; "
+        "constants used by designs: "
         f"{'claimed by the sources' if o.use_claimed else 'valid (analytic where known, else sampled)'}; "
         f"{len(df)} pairs. Package versions and settings are in `run.json`; one row per pair in "
         "`results.csv`; gains in `gains.json`.",
@@ -197,6 +211,8 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         "## Convergence",
         "",
         _table(with_gains, conv_cols) if len(with_gains) else "No design produced gains.",
+        "",
+        _uncertified(df),
         "",
         "## Timing (seconds)",
         "",

@@ -189,6 +189,7 @@ class Program:
     n_solves: int = 0
     last_status: str = ""
     last_error: str = ""
+    best: tuple | None = None
 
     def set(self, **params: float) -> None:
         """Set parameter values."""
@@ -203,7 +204,26 @@ class Program:
         self.solve_s += out.solve_s
         self.n_solves += 1
         self.last_status, self.last_error = out.status, out.error
+        if out.solved and (self.best is None or out.value > self.best[0]):
+            snap = {k: (None if v.value is None else np.array(v.value)) for k, v in self.variables.items()}
+            pars = {k: p.value for k, p in self.parameters.items()}
+            self.best = (out.value, snap, pars, out.status)
         return out.value if out.solved else float("nan")
+
+    def restore_best(self) -> bool:
+        """Put the best solution seen so far back into the variables and parameters.
+
+        Returns False (and changes nothing) when no solve succeeded.
+        """
+        if self.best is None:
+            return False
+        _, snap, pars, status = self.best
+        for k, v in snap.items():
+            self.variables[k].value = v
+        for k, v in pars.items():
+            self.parameters[k].value = v
+        self.last_status, self.last_error = status, ""
+        return True
 
     def values(self) -> dict:
         """Numeric values of all variables and parameters at the last solve."""

@@ -114,9 +114,10 @@ class Cor1(Design):
         if self.phi2 is None:
             phi, _, _ = _lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
             searched = f"over phi2 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
+            prog.restore_best()
         else:
             phi, searched = self.phi2, f"at phi2 = {self.phi2:g}"
-        obj(phi)
+            obj(phi)
         concl = _lmi.conclude(prog, what="corrected Corollary 1",
                               normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1", searched=searched)
         vals = prog.values()
@@ -199,7 +200,7 @@ class Cor1Printed(Design):
 
         vals = [(obj(float(x)), float(x)) for x in self.xis]
         best_xi = max(vals, key=lambda vx: np.nan_to_num(vx[0], nan=-np.inf))[1]
-        obj(best_xi)
+        prog.restore_best()
         concl = _lmi.conclude(prog, what="Corollary 1 as printed (Remarks 2-3)",
                               normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1",
                               searched=f"over xi in {tuple(self.xis)}")

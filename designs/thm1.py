@@ -215,9 +215,10 @@ class Thm1(Design):
             if self.phi1 is None:
                 phi, _, _ = _lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
                 searched = f"over phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
+                prog.restore_best()
             else:
                 phi, searched = self.phi1, f"at phi1 = {self.phi1:g}"
-            obj(phi)
+                obj(phi)
             concl = _lmi.conclude(prog, what="corrected Theorem 1", normalisation=norm, searched=searched)
             vals = prog.values()
             kappa = float(vals["kappa"]) if vals["kappa"] is not None else float("nan")
@@ -257,8 +258,7 @@ class Thm1(Design):
         if eps2 is None:
             eps2, phi = self.eps2_range[0], self.phi1 or lo
         eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
-        prog.solve(phi=phi, iphi=1 / phi, eta2=eps2 * c.gamma - eps1, two_eps2=2 * eps2,
-                   inv_eta1=1 / eta1 if eta1 > 0 else 1e12)
+        prog.restore_best()
         searched = f"over eps2 in {self.eps2_range} x phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
         concl = _lmi.conclude(prog, what="corrected Theorem 1 (fixed eps, gamma < 0)", normalisation=norm,
                               searched=searched)
@@ -386,7 +386,7 @@ class Thm1Printed(Design):
         prog = self._program(plant, c)
         best = max(combos, key=lambda cb: np.nan_to_num(prog.solve(psi=cb[2], zeta=cb[3], two_eps2=2 * cb[1]), nan=-np.inf))
         eps1, eps2, psi, zeta = best
-        prog.solve(psi=psi, zeta=zeta, two_eps2=2 * eps2)
+        prog.restore_best()
         concl = _lmi.conclude(prog, what="Theorem 1 as printed (Remark 1)",
                               normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1",
                               searched=f"over {len(combos)} (eps1, eps2) pairs")

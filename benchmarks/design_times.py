@@ -1,0 +1,42 @@
+"""Print per-design compile and solve times on a plant (a benchmark that prints figures).
+
+Usage: ``python benchmarks/design_times.py [plant_id] [repeats]`` (defaults: flexible_link, 5).
+Each design is built and solved ``repeats`` times in a warm process (imports excluded); the
+median wall, compile and solve seconds are printed.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+
+from bench.constants import compute_constants
+from bench.registry import DESIGNS, PLANTS
+
+
+def main() -> None:
+    pid = sys.argv[1] if len(sys.argv) > 1 else "flexible_link"
+    reps = int(sys.argv[2]) if len(sys.argv) > 2 else 5
+    plant = PLANTS.create(pid)
+    consts = compute_constants(plant).valid
+    import cvxpy  # noqa: F401  (warm imports)
+
+    print(f"{'design':<16} {'status':<12} {'solves':>6} {'wall_s':>8} {'compile_s':>10} {'solve_s':>8}")
+    for did in DESIGNS.ids():
+        d = DESIGNS.create(did)
+        if d.applicable(plant, consts) is not None:
+            continue
+        walls, comps, sols = [], [], []
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            r = d.design(plant, consts)
+            walls.append(time.perf_counter() - t0)
+            comps.append(r.compile_s)
+            sols.append(r.solve_s)
+        med = statistics.median
+        print(f"{did:<16} {r.status:<12} {r.n_solves:>6} {med(walls):>8.4f} {med(comps):>10.4f} {med(sols):>8.4f}")
+
+
+if __name__ == "__main__":
+    main()
