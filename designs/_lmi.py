@@ -190,16 +190,18 @@ class Program:
     last_status: str = ""
     last_error: str = ""
     best: tuple | None = None
+    solver: str = "CLARABEL"
 
     def set(self, **params: float) -> None:
         """Set parameter values."""
         for k, v in params.items():
             self.parameters[k].value = v
 
-    def solve(self, **params: float) -> float:
+    def solve(self, *, solver: str = "CLARABEL", solver_opts: dict | None = None, **params: float) -> float:
         """Solve at the given parameter values; return the margin t (NaN if not solved)."""
         self.set(**params)
-        out = solve_timed(self.problem)
+        out = solve_timed(self.problem, solver, **(solver_opts or {}))
+        self.solver = solver
         self.compile_s += out.compile_s
         self.solve_s += out.solve_s
         self.n_solves += 1
@@ -230,6 +232,16 @@ class Program:
         vals = {k: (None if v.value is None else np.array(v.value, dtype=float)) for k, v in self.variables.items()}
         vals.update({k: float(p.value) for k, p in self.parameters.items()})
         return vals
+
+    def verified(self) -> bool:
+        """True when the last solution has a verified negative margin and positive decision matrices."""
+        if self.last_status not in ("optimal", "optimal_inaccurate"):
+            return False
+        M = self.numeric_matrix()
+        if M is None:
+            return False
+        vals = self.values()
+        return max_eig(M) < verify_tol(M) and all(min_eig(vals[k]) > 0 for k in self.positive)
 
     def numeric_matrix(self) -> np.ndarray | None:
         """The LMI matrix rebuilt with numpy from the last solution (None if unsolved)."""

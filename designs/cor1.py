@@ -15,12 +15,13 @@ import numpy as np
 from bench.registry import register_design
 from designs import _lmi
 from designs._core import Design, DesignError, DesignResult, check_positive
-from designs.thm1 import _result, _scalar, _variables
+from designs.thm1 import _gains, _result, _scalar, _variables
 from plants._core import Constants, Plant
 
 __all__ = ["Cor1", "Cor1Printed"]
 
 
+@register_design("cor1_sep", order=16, method="separated")
 @register_design("cor1", order=12)
 @dataclass(frozen=True, kw_only=True)
 class Cor1(Design):
@@ -50,6 +51,11 @@ class Cor1(Design):
         Search effort.
     cap : float
         Normalisation ``Q, R << cap I``, margin ``t <= 1``.
+    method : {"joint", "separated"}
+        ``"separated"`` (registered as ``cor1_sep``) solves the x-side and e-side 2n x 2n LMIs apart
+        and rebuilds a verified joint certificate (:mod:`designs._separated`).
+    solver : {"auto", "CLARABEL", "SCS"}
+        As for :class:`designs.thm1.Thm1`.
     """
 
     phi2: float | None = None
@@ -57,10 +63,20 @@ class Cor1(Design):
     n_grid: int = 7
     n_refine: int = 5
     cap: float = 1e3
+    method: str = "joint"
+    solver: str = "auto"
 
     needs = ("alpha",)
 
+    @property
+    def _joint_solver(self) -> str:
+        return "CLARABEL" if self.solver == "auto" else self.solver
+
     def __post_init__(self) -> None:
+        if self.solver not in ("auto", "CLARABEL", "SCS"):
+            raise DesignError(f"solver: must be 'auto', 'CLARABEL' or 'SCS', got {self.solver!r}")
+        if self.method not in ("joint", "separated"):
+            raise DesignError(f"method: must be 'joint' or 'separated', got {self.method!r}")
         if self.phi2 is not None:
             check_positive("phi2", self.phi2)
         lo, hi = (check_positive("phi2_range", v) for v in self.phi2_range)
@@ -70,23 +86,27 @@ class Cor1(Design):
         if int(self.n_grid) < 2:
             raise DesignError(f"n_grid: must be >= 2, got {self.n_grid}")
 
-    def _program(self, plant: Plant, alpha: float) -> _lmi.Program:
-        import cvxpy as cp
-
+    @staticmethod
+    def _blocks(plant: Plant, alpha: float):
+        """Blocks of the joint 6n LMI (5n when alpha = 0) and of its x-side and e-side."""
         A, B, C = plant.A, plant.B, plant.C
-        n, m, p = plant.n, plant.m, plant.p
+        n = plant.n
         I, Z = np.eye(n), np.zeros((n, n))
         a2 = alpha**2
-        v = _variables(n, m, p, ("kappa", "mu2"))
-        prm = {"phi": cp.Parameter(nonneg=True, name="phi2"), "iphi": cp.Parameter(nonneg=True, name="inv_phi2")}
 
-        def blocks(d):
-            Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
-            S11 = A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
-            W22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * a2 * I
+        def s11(d):
+            Q, Fh = d["Q"], d["Fh"]
+            return A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
+
+        def w22(d):
+            R, Kh = d["R"], d["Kh"]
+            return A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * a2 * I
+
+        def joint(d):
+            Q, R, Fh = d["Q"], d["R"], d["Fh"]
             rows = [
-                [S11, Z, Z, B @ Fh.T, Z],
-                [Z, W22, R, Z, I],
+                [s11(d), Z, Z, B @ Fh.T, Z],
+                [Z, w22(d), R, Z, I],
                 [Z, R, -d["mu2"] * I, Z, Z],
                 [Fh @ B.T, Z, Z, -d["iphi"] * Q, Z],
                 [Z, I, Z, Z, -d["phi"] * Q],
@@ -97,18 +117,72 @@ class Cor1(Design):
                 rows.append([Q, Z, Z, Z, Z, -(d["kappa"] / a2) * I])
             return rows
 
+        def xside(d):
+            if a2 == 0:
+                return [[s11(d)]]
+            return [[s11(d), d["Q"]], [d["Q"], -(d["kappa"] / a2) * I]]
+
+        def eside(d):
+            return [[w22(d), d["R"]], [d["R"], -d["mu2"] * I]]
+
+        return joint, xside, eside
+
+    def _program(self, plant: Plant, alpha: float) -> _lmi.Program:
+        import cvxpy as cp
+
+        v = _variables(plant.n, plant.m, plant.p, ("kappa", "mu2"))
+        prm = {"phi": cp.Parameter(nonneg=True, name="phi2"), "iphi": cp.Parameter(nonneg=True, name="inv_phi2")}
+        joint, _, _ = self._blocks(plant, alpha)
+
         def extra(d):
             return [d["kappa"] >= 0, d["mu2"] >= 0]
 
-        return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+        return _lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+    def _design_separated(self, plant: Plant, alpha: float) -> DesignResult:
+        """x-side and e-side solved apart (two 2n LMIs), joint certificate rebuilt and verified."""
+        import cvxpy as cp
+
+        from designs._separated import recombine
+
+        n, m, p = plant.n, plant.m, plant.p
+        joint, xside, eside = self._blocks(plant, alpha)
+        xv = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
+              "t": cp.Variable()}
+        ev = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "mu2": cp.Variable(),
+              "t": cp.Variable()}
+        xprog = _lmi.margin_program(xside, xv, {}, ("Q",), lambda d: [d["kappa"] >= 0], cap=self.cap)
+        eprog = _lmi.margin_program(eside, ev, {}, ("R",), lambda d: [d["mu2"] >= 0], cap=self.cap)
+        from designs._separated import solve_side
+
+        xlog = solve_side(xprog, self.solver)
+        elog = solve_side(eprog, self.solver)
+        rc = recombine(plant.B, xprog, eprog, ("R", "Kh", "mu2"), joint)
+        K = F = None
+        if rc["status"] == "feasible":
+            K, F = _gains(rc["values"])
+        vals = rc["values"] or {}
+        kappa = _scalar(vals, "kappa")
+        return DesignResult(
+            status=rc["status"], reason=rc["reason"] and f"corrected Corollary 1 (separated): {rc['reason']}",
+            K=K, F=F, solver=self.solver, solver_status=f"x {xlog}; e {elog}",
+            compile_s=xprog.compile_s + eprog.compile_s, solve_s=xprog.solve_s + eprog.solve_s,
+            n_solves=2, margin=rc["margin"], lmi_size=rc["lmi_size"], min_eig=rc["min_eig"],
+            params={"form": "separated (x-side and e-side apart, joint certificate rebuilt)", "phi2": rc["phi"],
+                    "e_scale": rc["scale"], "x_margin": rc["x_margin"], "e_margin": rc["e_margin"],
+                    "raw_joint_margin": rc.get("raw_margin", float("nan")), "kappa": kappa,
+                    "mu1": 1 / kappa if kappa > 0 else float("nan"), "mu2": _scalar(vals, "mu2"),
+                    "alpha": alpha, "cap": self.cap})
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the corrected Corollary 1 for ``plant`` with Lipschitz constant ``constants.alpha``."""
         alpha = constants.alpha
+        if self.method == "separated":
+            return self._design_separated(plant, alpha)
         prog = self._program(plant, alpha)
 
         def obj(phi):
-            return prog.solve(phi=phi, iphi=1 / phi)
+            return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi)
 
         lo, hi = self.phi2_range
         if self.phi2 is None:

@@ -63,6 +63,7 @@ def _result(prog: _lmi.Program, concl: dict, params: dict) -> DesignResult:
     )
 
 
+@register_design("thm1_sep", order=15, method="separated")
 @register_design("thm1", order=10)
 @dataclass(frozen=True, kw_only=True)
 class Thm1(Design):
@@ -101,6 +102,15 @@ class Thm1(Design):
         OSL multiplier for the ``gamma < 0`` form.
     eps2_range : tuple of float
         Grid (5 log-spaced points) of the QIB multiplier for the ``gamma < 0`` form.
+    method : {"joint", "separated"}
+        ``"joint"`` solves the 6n x 6n LMI; ``"separated"`` (registered as ``thm1_sep``) solves
+        the x-side and e-side 2n x 2n LMIs apart and rebuilds a verified joint certificate
+        (:mod:`designs._separated`); phi1 is then chosen by the recombination, not searched.
+        For ``gamma < 0`` the separated method falls back to the joint fixed-eps form.
+    solver : {"auto", "CLARABEL", "SCS"}
+        ``"auto"``: Clarabel for the joint LMI (SCS is inaccurate there); for the separated sides
+        SCS first (much faster from n ~ 16 on), its point verified with numpy, and Clarabel if it
+        does not verify.
     """
 
     phi1: float | None = None
@@ -110,10 +120,20 @@ class Thm1(Design):
     cap: float = 1e3
     eps1: float = 0.0
     eps2_range: tuple[float, float] = (1e-2, 1e2)
+    method: str = "joint"
+    solver: str = "auto"
 
     needs = ("rho", "beta", "gamma")
 
+    @property
+    def _joint_solver(self) -> str:
+        return "CLARABEL" if self.solver == "auto" else self.solver
+
     def __post_init__(self) -> None:
+        if self.solver not in ("auto", "CLARABEL", "SCS"):
+            raise DesignError(f"solver: must be 'auto', 'CLARABEL' or 'SCS', got {self.solver!r}")
+        if self.method not in ("joint", "separated"):
+            raise DesignError(f"method: must be 'joint' or 'separated', got {self.method!r}")
         if self.phi1 is not None:
             check_positive("phi1", self.phi1)
         lo, hi = (check_positive("phi1_range", v) for v in self.phi1_range)
@@ -125,26 +145,33 @@ class Thm1(Design):
             raise DesignError(f"n_grid: must be >= 2, got {self.n_grid}")
 
     # -- gamma >= 0: convex form -------------------------------------------------------------
-    def _program_convex(self, plant: Plant, c: Constants) -> _lmi.Program:
-        import cvxpy as cp
-
+    @staticmethod
+    def _convex_blocks(plant: Plant, c: Constants):
+        """Blocks of the joint 6n LMI (5n when beta_eff <= 0) and of its x-side and e-side."""
         A, B, C = plant.A, plant.B, plant.C
-        n, m, p = plant.n, plant.m, plant.p
+        n = plant.n
         I, Z = np.eye(n), np.zeros((n, n))
         rho, beta, gamma = c.rho, c.beta, c.gamma
         beff = beta + gamma * rho
-        v = _variables(n, m, p, ("kappa", "eps3", "eps4"))
-        prm = {"phi": cp.Parameter(nonneg=True, name="phi1"), "iphi": cp.Parameter(nonneg=True, name="inv_phi1")}
         schur = beff > 0
 
-        def blocks(d):
-            Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
-            S11 = A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
-            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * rho + d["eps4"] * beta) * I
-            X = R + (d["eps4"] * gamma - d["eps3"]) * I
+        def s11(d):
+            Q, Fh = d["Q"], d["Fh"]
+            return A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
+
+        def s22(d):
+            R, Kh = d["R"], d["Kh"]
+            return A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * rho + d["eps4"] * beta) * I
+
+        def xr(d):
+            return d["R"] + (d["eps4"] * gamma - d["eps3"]) * I
+
+        def joint(d):
+            Q, Fh = d["Q"], d["Fh"]
+            X = xr(d)
             rows = [
-                [S11, Z, Z, B @ Fh.T, Z],
-                [Z, S22, X, Z, I],
+                [s11(d), Z, Z, B @ Fh.T, Z],
+                [Z, s22(d), X, Z, I],
                 [Z, X.T, -2 * d["eps4"] * I, Z, Z],
                 [Fh @ B.T, Z, Z, -d["iphi"] * Q, Z],
                 [Z, I, Z, Z, -d["phi"] * Q],
@@ -155,10 +182,63 @@ class Thm1(Design):
                 rows.append([Q, Z, Z, Z, Z, -(d["kappa"] / beff) * I])
             return rows
 
+        def xside(d):
+            if not schur:
+                return [[s11(d)]]
+            return [[s11(d), d["Q"]], [d["Q"], -(d["kappa"] / beff) * I]]
+
+        def eside(d):
+            X = xr(d)
+            return [[s22(d), X], [X.T, -2 * d["eps4"] * I]]
+
+        return joint, xside, eside
+
+    def _program_convex(self, plant: Plant, c: Constants) -> _lmi.Program:
+        import cvxpy as cp
+
+        v = _variables(plant.n, plant.m, plant.p, ("kappa", "eps3", "eps4"))
+        prm = {"phi": cp.Parameter(nonneg=True, name="phi1"), "iphi": cp.Parameter(nonneg=True, name="inv_phi1")}
+        joint, _, _ = self._convex_blocks(plant, c)
+
         def extra(d):
             return [d["kappa"] >= 0, d["eps3"] >= 0, d["eps4"] >= 0]
 
-        return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+        return _lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+    def _design_separated(self, plant: Plant, c: Constants) -> DesignResult:
+        """x-side and e-side solved apart (two 2n LMIs), joint certificate rebuilt and verified."""
+        import cvxpy as cp
+
+        from designs._separated import recombine
+
+        n, m, p = plant.n, plant.m, plant.p
+        joint, xside, eside = self._convex_blocks(plant, c)
+        xv = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
+              "t": cp.Variable()}
+        ev = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "eps3": cp.Variable(),
+              "eps4": cp.Variable(), "t": cp.Variable()}
+        xprog = _lmi.margin_program(xside, xv, {}, ("Q",), lambda d: [d["kappa"] >= 0], cap=self.cap)
+        eprog = _lmi.margin_program(eside, ev, {}, ("R",), lambda d: [d["eps3"] >= 0, d["eps4"] >= 0], cap=self.cap)
+        from designs._separated import solve_side
+
+        xlog = solve_side(xprog, self.solver)
+        elog = solve_side(eprog, self.solver)
+        rc = recombine(plant.B, xprog, eprog, ("R", "Kh", "eps3", "eps4"), joint)
+        K = F = None
+        if rc["status"] == "feasible":
+            K, F = _gains(rc["values"])
+        vals = rc["values"] or {}
+        kappa = float(vals["kappa"]) if vals.get("kappa") is not None else float("nan")
+        return DesignResult(
+            status=rc["status"], reason=rc["reason"] and f"corrected Theorem 1 (separated): {rc['reason']}",
+            K=K, F=F, solver=self.solver, solver_status=f"x {xlog}; e {elog}",
+            compile_s=xprog.compile_s + eprog.compile_s, solve_s=xprog.solve_s + eprog.solve_s,
+            n_solves=2, margin=rc["margin"], lmi_size=rc["lmi_size"], min_eig=rc["min_eig"],
+            params={"form": "separated (x-side and e-side apart, joint certificate rebuilt)", "phi1": rc["phi"],
+                    "e_scale": rc["scale"], "x_margin": rc["x_margin"], "e_margin": rc["e_margin"],
+                    "raw_joint_margin": rc.get("raw_margin", float("nan")),
+                    "kappa": kappa, "eps3": _scalar(vals, "eps3"), "eps4": _scalar(vals, "eps4"),
+                    "rho": c.rho, "beta": c.beta, "gamma": c.gamma, "cap": self.cap})
 
     # -- gamma < 0: fixed multipliers eps1, eps2 ----------------------------------------------
     def _program_fixed_eps(self, plant: Plant, c: Constants) -> _lmi.Program:
@@ -206,11 +286,13 @@ class Thm1(Design):
         c = constants
         lo, hi = self.phi1_range
         norm = f"the normalisation Q, R << {self.cap:g} I, t <= 1"
+        if c.gamma >= 0 and self.method == "separated":
+            return self._design_separated(plant, c)
         if c.gamma >= 0:
             prog = self._program_convex(plant, c)
 
             def obj(phi):
-                return prog.solve(phi=phi, iphi=1 / phi)
+                return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi)
 
             if self.phi1 is None:
                 phi, _, _ = _lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
@@ -246,7 +328,7 @@ class Thm1(Design):
             fixed = dict(eta2=eps2 * c.gamma - eps1, two_eps2=2 * eps2, inv_eta1=1 / eta1 if eta1 > 0 else 1e12)
 
             def obj(phi, fixed=fixed):
-                return prog.solve(phi=phi, iphi=1 / phi, **fixed)
+                return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi, **fixed)
 
             if self.phi1 is None:
                 phi, val, _ = _lmi.log_search(obj, lo, hi, n_grid=7, n_refine=3)

@@ -1,0 +1,127 @@
+"""Separated solves: the x-side and e-side LMIs alone, then a joint certificate rebuilt from them.
+
+Without the Young coupling the corrected Theorem 1 (and Corollary 1) LMI splits into an x-side
+LMI in (Q, Fh, kappa) and an e-side LMI in (R, Kh, multipliers), each 2n x 2n. The joint LMI
+is feasible iff both are (MATH.md): given strictly feasible sides with margins ``X < 0`` and
+``E < 0``, Schur complements on the Young blocks ``-Q/phi`` and ``-phi Q`` show that the joint
+matrix is negative definite iff
+
+- x-side: ``X + diag(phi B Fh' Q^{-1} Fh B', 0) < 0``, true for
+  ``phi = 0.5 |lmax(X)| / lmax(B Fh' Q^{-1} Fh B')``, and
+- e-side: ``s E + diag(Q^{-1} / phi, 0) < 0`` with the e-variables scaled by s > 0 (the e-side
+  is homogeneous in them, and K = R^{-1} Kh' does not change), true for
+  ``s = 2 / (phi lmin(Q) |lmax(E)|)``.
+
+The joint matrix is then rebuilt with numpy at (Q, Fh, kappa, sR, sKh, s eps..., phi). Its
+entries span many orders of magnitude (phi can be tiny and s large), so it is verified after
+the congruence ``D M D`` with ``D = diag(|M_ii|^{-1/2})`` (Jacobi equilibration): by Sylvester's
+law of inertia ``D M D < 0`` iff ``M < 0``, and the equilibrated matrix has a unit diagonal
+scale, so its largest eigenvalue (the reported margin) is a well-conditioned test. The raw
+largest eigenvalue is reported too. An interior-point
+solver's cost grows roughly with the cube of the PSD cone's size, so two 2n cones are much
+cheaper than one 6n cone.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from designs import _lmi
+
+__all__ = ["SCS_OPTS", "recombine", "solve_side"]
+
+#: SCS settings for the separated sides (measured: n = 32 sides in ~0.15 s each vs ~3 s with
+#: Clarabel; every point is verified with numpy, and a point that fails falls back to Clarabel).
+SCS_OPTS = {"eps_abs": 1e-6, "eps_rel": 1e-6, "max_iters": 100_000}
+
+
+def solve_side(prog: _lmi.Program, solver: str = "auto") -> str:
+    """Solve one side; ``"auto"`` tries SCS, verifies, and falls back to Clarabel. Returns the log."""
+    if solver == "auto":
+        prog.solve(solver="SCS", solver_opts=SCS_OPTS)
+        if prog.verified():
+            return f"SCS:{prog.last_status}"
+        first = f"SCS:{prog.last_status} (not verified)"
+        prog.solve(solver="CLARABEL")
+        return f"{first} -> CLARABEL:{prog.last_status}"
+    prog.solve(solver=solver, solver_opts=SCS_OPTS if solver == "SCS" else None)
+    return f"{solver}:{prog.last_status}"
+
+
+def recombine(
+    B: np.ndarray,
+    xprog: _lmi.Program,
+    eprog: _lmi.Program,
+    e_keys: tuple[str, ...],
+    joint_blocks: Callable[[dict], list],
+) -> dict:
+    """Rebuild and verify the joint certificate from solved x-side and e-side programs.
+
+    Parameters
+    ----------
+    B : ndarray
+    xprog, eprog : Program
+        Solved (restored to their best point) x-side and e-side programs; the x-side holds
+        ``Q`` and ``Fh``.
+    e_keys : tuple of str
+        The e-side variables, all scaled by s.
+    joint_blocks : callable
+        Blocks of the joint LMI, taking the values of both sides plus ``phi`` and ``iphi``.
+
+    Returns
+    -------
+    dict
+        ``status`` (feasible / infeasible / undecided), ``reason``, ``margin`` (largest eigenvalue of
+        the equilibrated joint matrix, verified), ``raw_margin`` (of the joint matrix itself),
+        ``lmi_size``, ``min_eig``, ``phi``, ``scale``, ``x_margin``, ``e_margin``, ``values``.
+    """
+    out: dict = {"margin": float("nan"), "lmi_size": 0, "min_eig": {}, "phi": float("nan"),
+                 "scale": float("nan"), "x_margin": float("nan"), "e_margin": float("nan"), "values": None}
+    for side, prog in (("x-side", xprog), ("e-side", eprog)):
+        if prog.last_status not in ("optimal", "optimal_inaccurate"):
+            out.update(status="undecided", reason=f"{side} solver status {prog.last_status!r} {prog.last_error}".strip())
+            return out
+    X, E = xprog.numeric_matrix(), eprog.numeric_matrix()
+    xv, ev = xprog.values(), eprog.values()
+    lx, le = _lmi.max_eig(X), _lmi.max_eig(E)
+    out.update(x_margin=lx, e_margin=le)
+    qmin = _lmi.min_eig(xv["Q"])
+    bad = [name for name, val, M in (("x-side", lx, X), ("e-side", le, E)) if not val < _lmi.verify_tol(M)]
+    if qmin <= 0:
+        bad.append("x-side (Q not positive definite)")
+    if bad:
+        out.update(status="infeasible", reason=(
+            f"no strictly feasible point on the {' and '.join(bad)} (max eig x-side {lx:.3g}, e-side {le:.3g}); "
+            "the joint LMI is feasible iff both sides are"))
+        return out
+    Q, Fh = xv["Q"], xv["Fh"]
+    BF = B @ np.linalg.solve(Q, Fh).T  # B Fh' Q^{-1}
+    G = BF @ Q @ BF.T  # = B Fh' Q^{-1} Fh B'
+    gmax = _lmi.max_eig(G)
+    phi = 0.5 * abs(lx) / gmax if gmax > 0 else 1.0
+    s = 2.0 / (phi * qmin * abs(le))
+    vals = {**xv, **ev}
+    for k in e_keys:
+        vals[k] = ev[k] * s
+    vals.update(phi=phi, iphi=1.0 / phi)
+    M = _lmi.assemble(joint_blocks, vals, numeric=True)
+    M = (M + M.T) / 2
+    diag = np.diag(M)
+    raw = _lmi.max_eig(M)
+    if np.all(diag < 0):
+        d = 1.0 / np.sqrt(-diag)
+        margin = _lmi.max_eig(M * d[:, None] * d[None, :])
+    else:
+        margin = float("inf")  # a nonnegative diagonal entry: not negative definite
+    min_eig = {"Q": qmin, "R": _lmi.min_eig(vals["R"])}
+    out.update(margin=margin, raw_margin=raw, lmi_size=int(M.shape[0]), min_eig=min_eig, phi=phi, scale=s,
+               values=vals)
+    if margin < -_lmi.MARGIN_TOL * 1e3 and min(min_eig.values()) > 0:
+        out.update(status="feasible", reason="")
+    else:
+        out.update(status="undecided", reason=(
+            f"both sides are strictly feasible (max eig {lx:.3g}, {le:.3g}) but the rebuilt joint matrix has max eig "
+            f"{raw:.3g} (equilibrated {margin:.3g}; phi1 = {phi:.3g}, e-scale {s:.3g}): numerical range exceeded"))
+    return out
