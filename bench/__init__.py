@@ -4,4 +4,6 @@ Run ``python -m bench run`` to produce ``reports/REPORT.md``; ``python -m bench 
 the registered plants and designs.
 """
 
+from bench import _env  # noqa: F401  (BLAS threads, before numpy)
+
 __version__ = "0.1.0"

@@ -42,6 +42,16 @@ def _nonneg_float(text: str) -> float:
     return v
 
 
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return v
+
+
 def _nonneg_int(text: str) -> int:
     try:
         v = int(text)
@@ -68,8 +78,15 @@ def _build_parser() -> argparse.ArgumentParser:
                    help="standard deviation of a seeded Gaussian measurement noise (default 0)")
     r.add_argument("--no-figures", action="store_true", help="skip the figures")
     r.add_argument("--fail-fast", action="store_true", help="stop at the first exception (for debugging)")
-    r.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
-    sub.add_parser("list", help="list plants and designs")
+    r.add_argument("-j", "--jobs", type=_positive_int, default=None, metavar="N",
+                   help="local worker processes (default: all cores; 1 = serial)")
+    r.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run on a Dask distributed cluster (pip install '.[dist]')")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+    ls = sub.add_parser("list", help="list plants and designs")
+    for sp in (r, ls):
+        sp.add_argument("--plugin", action="append", metavar="PATH",
+                        help="a Python file registering your own plants or designs (repeatable)")
     return p
 
 
@@ -90,17 +107,25 @@ def _cmd_run(args, argv: list[str]) -> int:
     except UnknownIdError as exc:
         print(f"python -m bench run: error: {exc}", file=sys.stderr)
         return 2
-    from bench.harness import RunOptions, run, stderr_progress
+    from bench.executors import ExecutorError, default_jobs
+    from bench.harness import ProgressBar, RunOptions, run
     from bench.report import write_report
 
     options = RunOptions(seed=args.seed, use_claimed=args.claimed_constants, fail_fast=args.fail_fast,
                          t_final=args.t_final, noise=args.noise)
     t0 = time.perf_counter()
-    progress = None if args.quiet else stderr_progress
-    if progress:
-        progress(f"running {len(plant_ids)} plant(s) x {len(design_ids)} design(s)")
-    result = run(plant_ids, design_ids, options, progress=progress)
-    info = {"command": "python -m bench " + shlex.join(argv), "plants": plant_ids, "designs": design_ids}
+    jobs = args.jobs or default_jobs()
+    bar = None if args.quiet else ProgressBar()
+    try:
+        result = run(plant_ids, design_ids, options, progress=bar, jobs=jobs, scheduler=args.scheduler)
+    except ExecutorError as exc:
+        print(f"python -m bench run: error: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        if bar is not None:
+            bar.close()
+    info = {"command": "python -m bench " + shlex.join(argv), "plants": plant_ids, "designs": design_ids,
+            "jobs": jobs, "scheduler": args.scheduler}
     try:
         path = write_report(result, args.out, info, figures=not args.no_figures)
     except Exception as exc:  # the previous report stays intact (atomic write)
@@ -133,6 +158,14 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
+    if getattr(args, "plugin", None):
+        from bench.plugins import PluginError, load_plugins
+
+        try:
+            load_plugins(args.plugin)
+        except PluginError as exc:
+            print(f"python -m bench {args.command}: error: {exc}", file=sys.stderr)
+            return 2
     if args.command == "list":
         return _cmd_list()
     return _cmd_run(args, argv)

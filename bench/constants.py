@@ -10,6 +10,8 @@ Each supremum is estimated from seeded random pairs (points at several scales, d
 from 1e-4 to 10 times the point scale; inside the ball ``||x|| <= radius`` when the constants
 are local) followed by a local optimisation (L-BFGS-B) from the best pairs. A sampled value is
 a *lower bound* on the true constant: it can prove a claimed constant wrong, never right.
+Claimed constants are checked on the region they are claimed for (``claimed.radius``; None =
+everywhere), with pairs of their own when that region differs from the analytic one.
 """
 
 from __future__ import annotations
@@ -84,12 +86,13 @@ class ConstantsReport:
 def _ratios(f: Callable, x1: np.ndarray, x2: np.ndarray, gamma: float):
     """alpha, rho and beta(gamma) ratios for batches of pairs, shape (n, N) each."""
     dx = x1 - x2
-    df = np.asarray(f(x1), dtype=float) - np.asarray(f(x2), dtype=float)
-    nx2 = np.sum(dx * dx, axis=0)
-    nx2 = np.where(nx2 > 0, nx2, np.nan)
-    inner = np.sum(dx * df, axis=0)
-    nf2 = np.sum(df * df, axis=0)
-    return np.sqrt(nf2 / nx2), inner / nx2, (nf2 - gamma * inner) / nx2
+    with np.errstate(over="ignore", invalid="ignore"):  # a superlinear f sampled globally overflows: inf
+        df = np.asarray(f(x1), dtype=float) - np.asarray(f(x2), dtype=float)
+        nx2 = np.sum(dx * dx, axis=0)
+        nx2 = np.where(nx2 > 0, nx2, np.nan)
+        inner = np.sum(dx * df, axis=0)
+        nf2 = np.sum(df * df, axis=0)
+        return np.sqrt(nf2 / nx2), inner / nx2, (nf2 - gamma * inner) / nx2
 
 
 def _project(x: np.ndarray, radius: float | None) -> np.ndarray:
@@ -132,13 +135,32 @@ def _local_max(f, which: int, gamma: float, x1, x2, radius, n):
         return -val if np.isfinite(val) else 0.0
 
     z0 = np.concatenate([x1, x2 - x1])
+    # globally, keep the search in a (generous) box: an unbounded ratio (e.g. the Lipschitz
+    # ratio of a cubic f) would otherwise run to overflow; the claim is violated long before
+    box = None if radius is not None else [(-b, b) for b in [1e3 * max(1.0, float(np.abs(z0).max()))] * (2 * n)]
     try:
-        res = minimize(neg, z0, method="L-BFGS-B", options={"maxiter": 200})
+        res = minimize(neg, z0, method="L-BFGS-B", bounds=box, options={"maxiter": 200})
         z = res.x
     except Exception:  # a user f that fails away from the samples: keep the sample
         z = z0
     a, b = unpack(z)
     return a[:, 0], b[:, 0], -neg(z)
+
+
+def _best_pairs(f, x1, x2, gamma, radius, n, n_refine) -> dict[str, tuple[float, np.ndarray, np.ndarray]]:
+    """For alpha, rho and beta(gamma): the largest ratio over the pairs, refined locally."""
+    ratios = _ratios(f, x1, x2, gamma)
+    best: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
+    for which, name in enumerate(("alpha", "rho", "beta")):
+        r = np.where(np.isfinite(ratios[which]), ratios[which], -np.inf)
+        order = np.argsort(r)[::-1][:n_refine]
+        top = (float(r[order[0]]), x1[:, order[0]], x2[:, order[0]])
+        for k in order:
+            a, b, val = _local_max(f, which, gamma, x1[:, k], x2[:, k], radius, n)
+            if val > top[0]:
+                top = (float(val), a, b)
+        best[name] = top
+    return best
 
 
 def compute_constants(
@@ -154,7 +176,9 @@ def compute_constants(
     ----------
     plant : Plant
         The plant; ``plant.bounds`` supplies analytic constants if known, and
-        ``plant.claimed.radius`` (or ``plant.bounds.radius``) the region for local constants.
+        ``plant.bounds.radius`` (or, without it, ``plant.claimed.radius``) the region where the
+        sampled and valid constants hold. Claimed constants are checked on the claimed region
+        ``plant.claimed.radius`` (None = everywhere), sampled separately when it differs.
     seed : int
         Seed of the sampler (results are reproducible for a given seed).
     n_samples : int
@@ -180,24 +204,20 @@ def compute_constants(
         gamma = 0.0
 
     x1, x2 = _random_pairs(rng, n, n_samples, radius)
-    ratios = _ratios(plant.f, x1, x2, gamma)
-    best: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
-    for which, name in enumerate(("alpha", "rho", "beta")):
-        r = np.where(np.isfinite(ratios[which]), ratios[which], -np.inf)
-        order = np.argsort(r)[::-1][:n_refine]
-        top = (float(r[order[0]]), x1[:, order[0]], x2[:, order[0]])
-        for k in order:
-            a, b, val = _local_max(plant.f, which, gamma, x1[:, k], x2[:, k], radius, n)
-            if val > top[0]:
-                top = (float(val), a, b)
-        best[name] = top
+    best = _best_pairs(plant.f, x1, x2, gamma, radius, n, n_refine)
     sampled = Constants(
         alpha=max(best["alpha"][0], 0.0), rho=best["rho"][0], beta=best["beta"][0], gamma=gamma, radius=radius
     )
 
-    # claimed constants: flag any a sample violates, with the violating pair
+    # claimed constants: flag any a sample violates, with the violating pair. They are checked
+    # on the region the source claims them for (which may differ from the analytic region).
     violations: list[Violation] = []
     claimed = plant.claimed
+    c_radius = claimed.radius
+    if c_radius != radius and any(getattr(claimed, k) is not None for k in ("alpha", "rho", "beta")):
+        crng = np.random.default_rng([seed, 1])
+        x1, x2 = _random_pairs(crng, n, n_samples, c_radius)
+        best = _best_pairs(plant.f, x1, x2, gamma, c_radius, n, n_refine)
     for name in ("alpha", "rho"):
         cval = getattr(claimed, name)
         if cval is not None:
@@ -212,7 +232,7 @@ def compute_constants(
             r = _ratios(plant.f, x1, x2, claimed.gamma)[2]
             r = np.where(np.isfinite(r), r, -np.inf)
             k = int(np.argmax(r))
-            a, b, val = _local_max(plant.f, 2, claimed.gamma, x1[:, k], x2[:, k], radius, n)
+            a, b, val = _local_max(plant.f, 2, claimed.gamma, x1[:, k], x2[:, k], c_radius, n)
         if val > claimed.beta + _REL_TOL * max(1.0, abs(claimed.beta)):
             violations.append(Violation("beta", claimed.beta, val, tuple(a), tuple(b)))
 

@@ -221,12 +221,37 @@ def run_pair(plant: Plant, design_id: str, report: ConstantsReport, options: Run
     return out
 
 
+def _constants_task(pid: str, seed: int, n_samples: int):
+    """Worker task: the constants of one plant (or the error message)."""
+    try:
+        return compute_constants(PLANTS.create(pid), seed=seed, n_samples=n_samples), ""
+    except Exception as exc:
+        return None, f"{type(exc).__name__}: {exc}"
+
+
+def _pair_task(pid: str, did: str, report: ConstantsReport, options: RunOptions) -> PairOutcome:
+    """Worker task: one pair; the plant is rebuilt from the registry (plants hold closures)."""
+    out = run_pair(PLANTS.create(pid), did, report, options)
+    out.plant = None  # the parent re-attaches its own plant object
+    return out
+
+
+def _flags(r: dict) -> str:
+    flags = [r["status"]]
+    if r["status"] == "feasible":
+        flags.append("certified" if r["certified"] else "not certified")
+        flags.append("converged" if r["converged"] else f"not converged ({r['sim_status']})")
+    return ", ".join(flags)
+
+
 def run(
     plant_ids: list[str],
     design_ids: list[str],
     options: RunOptions = RunOptions(),
     *,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[int, int, str], None] | None = None,
+    jobs: int = 1,
+    scheduler: str | None = None,
 ) -> RunResult:
     """Run every (plant, design) pair.
 
@@ -236,49 +261,117 @@ def run(
         Registry ids (already resolved from globs).
     options : RunOptions
     progress : callable, optional
-        Called with one line per finished pair (e.g. ``print`` to stderr).
+        ``progress(done, total, label)`` after each finished task.
+    jobs : int
+        Local worker processes (1: serial, in-process).
+    scheduler : str, optional
+        Dask distributed scheduler address (see :mod:`bench.executors`).
 
     Returns
     -------
     RunResult
+        Outcomes in (plant, design) order, whatever the order in which they finished.
+
+    Raises
+    ------
+    bench.executors.ExecutorError
+        If the executor cannot be created.
     """
+    from concurrent.futures import as_completed
+
+    from bench.executors import executor
+
     t_start = time.perf_counter()
-    outcomes: list[PairOutcome] = []
     constants: dict[str, ConstantsReport] = {}
     cerrors: dict[str, str] = {}
-    total = len(plant_ids) * len(design_ids)
-    k = 0
-    for pid in plant_ids:
-        try:
-            plant = PLANTS.create(pid)
-            constants[pid] = compute_constants(plant, seed=options.seed, n_samples=options.n_samples)
-        except Exception as exc:
-            if options.fail_fast:
-                raise
-            cerrors[pid] = f"{type(exc).__name__}: {exc}"
-            for did in design_ids:
-                k += 1
-                rec = _blank(pid, did)
-                rec.update(status="error", reason=f"plant {pid!r}: {cerrors[pid]}")
-                outcomes.append(PairOutcome(rec))
-                if progress:
-                    progress(f"[{k}/{total}] {pid} x {did}: error ({cerrors[pid]})")
-            continue
-        for did in design_ids:
-            k += 1
-            t0 = time.perf_counter()
-            o = run_pair(plant, did, constants[pid], options)
-            outcomes.append(o)
+    total = len(plant_ids) + len(plant_ids) * len(design_ids)
+    done = 0
+    results: dict[tuple[str, str], PairOutcome] = {}
+    with executor(jobs, scheduler) as ex:
+        futs = {ex.submit(_constants_task, pid, options.seed, options.n_samples): pid for pid in plant_ids}
+        for fut in as_completed(futs):
+            pid = futs[fut]
+            try:
+                rep, err = fut.result()
+            except Exception as exc:  # a worker died
+                rep, err = None, f"{type(exc).__name__}: {exc}"
+            if rep is None:
+                if options.fail_fast:
+                    raise RuntimeError(f"plant {pid!r}: {err}")
+                cerrors[pid] = err
+            else:
+                constants[pid] = rep
+            done += 1
             if progress:
-                r = o.record
-                flags = [r["status"]]
-                if r["status"] == "feasible":
-                    flags.append("certified" if r["certified"] else "not certified")
-                    flags.append("converged" if r["converged"] else f"not converged ({r['sim_status']})")
-                progress(f"[{k}/{total}] {pid} x {did}: {', '.join(flags)} ({time.perf_counter() - t0:.2f} s)")
+                progress(done, total, f"constants of {pid}" + (f": error ({err})" if err else ""))
+        pair_futs = {}
+        for pid in plant_ids:
+            for did in design_ids:
+                if pid in cerrors:
+                    rec = _blank(pid, did)
+                    rec.update(status="error", reason=f"plant {pid!r}: {cerrors[pid]}")
+                    results[(pid, did)] = PairOutcome(rec)
+                    done += 1
+                    if progress:
+                        progress(done, total, f"{pid} x {did}: error")
+                else:
+                    pair_futs[ex.submit(_pair_task, pid, did, constants[pid], options)] = (pid, did)
+        for fut in as_completed(pair_futs):
+            pid, did = pair_futs[fut]
+            try:
+                o = fut.result()
+            except Exception as exc:  # fail_fast re-raise, or a worker that died mid-run
+                if options.fail_fast:
+                    raise
+                rec = _blank(pid, did)
+                rec.update(status="error", reason=f"worker failed: {type(exc).__name__}: {exc}")
+                o = PairOutcome(rec)
+            results[(pid, did)] = o
+            done += 1
+            if progress:
+                progress(done, total, f"{pid} x {did}: {_flags(o.record)}")
+    plants = {pid: PLANTS.create(pid) for pid in plant_ids if pid not in cerrors}
+    outcomes = []
+    for pid in plant_ids:
+        for did in design_ids:
+            o = results[(pid, did)]
+            o.plant = plants.get(pid)
+            outcomes.append(o)
     return RunResult(outcomes, constants, cerrors, options, time.perf_counter() - t_start)
 
 
-def stderr_progress(line: str) -> None:
-    """Progress printer used by the CLI."""
-    print(line, file=sys.stderr, flush=True)
+class ProgressBar:
+    """A progress bar on stderr, drawn only when stderr is a terminal (quiet otherwise).
+
+    Parameters
+    ----------
+    stream : file, optional
+        Default ``sys.stderr``.
+    min_seconds : float
+        Nothing is drawn before this many seconds have passed (short runs stay quiet).
+    """
+
+    def __init__(self, stream=None, *, min_seconds: float = 1.0, width: int = 30):
+        self.stream = stream or sys.stderr
+        self.enabled = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.t0 = time.perf_counter()
+        self.min_seconds = min_seconds
+        self.width = width
+        self.drawn = False
+
+    def __call__(self, done: int, total: int, label: str) -> None:
+        elapsed = time.perf_counter() - self.t0
+        if not self.enabled or (elapsed < self.min_seconds and done < total):
+            return
+        filled = int(self.width * done / max(total, 1))
+        bar = "#" * filled + "." * (self.width - filled)
+        line = f"\r[{bar}] {done}/{total} {elapsed:5.1f}s {label[:60]:<60}"
+        self.stream.write(line)
+        self.stream.flush()
+        self.drawn = True
+
+    def close(self) -> None:
+        """End the bar's line."""
+        if self.drawn:
+            self.stream.write("\n")
+            self.stream.flush()

@@ -23,6 +23,10 @@ from bench.harness import RunResult
 
 __all__ = ["package_versions", "render_markdown", "write_report"]
 
+#: Plants that get per-design figures of states, estimates and errors (like the paper's Figures
+#: 2-5); every plant gets the norm comparison figure.
+FIGURE_PLANTS = ("flexible_link",)
+
 _PACKAGES = ("numpy", "scipy", "cvxpy", "clarabel", "control", "filterpy", "pandas", "matplotlib", "tabulate")
 
 
@@ -86,6 +90,7 @@ def _constants_table(result: RunResult) -> str:
         "| plant | constant | claimed | analytic | sampled (lower bound) | used | flag |",
         "|---|---|---|---|---|---|---|",
     ]
+    region = lambda r: "everywhere" if r is None else f"\\|\\|x\\|\\| <= {r:g}"  # noqa: E731
     for pid, rep in result.constants.items():
         for name in ("alpha", "rho", "beta", "gamma"):
             claimed = getattr(rep.claimed, name)
@@ -94,18 +99,30 @@ def _constants_table(result: RunResult) -> str:
             used = getattr(rep.valid, name)
             src = rep.source.get(name, "") if name != "gamma" else ""
             v = rep.violated(name)
-            flag = f"VIOLATED: {v.describe()}" if v else ""
+            flags = [f"VIOLATED: {v.describe()}"] if v else []
+            # a sample above an analytic bound means the plant's bound is wrong (beta only when
+            # it was sampled at the analytic gamma)
+            comparable = name != "gamma" and (name != "beta" or (rep.analytic is not None
+                                                                 and rep.analytic.gamma == rep.sampled.gamma))
+            if comparable and analytic is not None and sampled is not None and math.isfinite(sampled) and \
+                    sampled > analytic + 1e-7 * max(1.0, abs(analytic)):
+                flags.append(f"ANALYTIC BOUND EXCEEDED by a sample ({sampled:.4g} > {analytic:.4g})")
             if name == "gamma":
                 sampled_s = f"{_fmt(sampled)} (fixed)"
             else:
                 sampled_s = _fmt(sampled)
             lines.append(
                 f"| {pid} | {name} | {_fmt(claimed)} | {_fmt(analytic)} | {sampled_s} | "
-                f"{_fmt(used)}{f' ({src})' if src else ''} | {flag} |"
+                f"{_fmt(used)}{f' ({src})' if src else ''} | {'; '.join(flags)} |"
             )
-        radius = rep.valid.radius
-        if radius is not None:
-            lines.append(f"| {pid} | region | | | | ||x|| <= {radius:g} | |")
+        a_radius = rep.analytic.radius if rep.analytic is not None else None
+        has_claims = any(getattr(rep.claimed, k) is not None for k in ("alpha", "rho", "beta"))
+        if rep.claimed.radius is not None or rep.valid.radius is not None or a_radius is not None:
+            lines.append(
+                f"| {pid} | region | {region(rep.claimed.radius) if has_claims else ''} | "
+                f"{region(a_radius) if rep.analytic is not None else ''} | {region(rep.sampled.radius)} | "
+                f"{region(rep.valid.radius)} | |"
+            )
     for pid, err in result.constants_errors.items():
         lines.append(f"| {pid} | (error) | | | | | {_fmt(err)} |")
     return "\n".join(lines)
@@ -139,7 +156,7 @@ def _figures(result: RunResult, figdir: Path) -> list[tuple[str, str]]:
         fig.savefig(figdir / name, dpi=110)
         plt.close(fig)
         made.append((f"{pid}: state and error norms of every converging design (log scale)", f"figures/{name}"))
-        if outs[0].plant.family != "flexible_link":
+        if pid not in FIGURE_PLANTS:
             continue
         for o in outs:
             tr, did = o.trajectory, o.record["design"]

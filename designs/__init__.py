@@ -1,5 +1,7 @@
 """Designs of oslbench: one module per design, each registering itself."""
 
+import bench._env  # noqa: F401  (BLAS threads, before numpy)
+
 from designs._core import Design, DesignError, DesignResult
 
 __all__ = ["Design", "DesignError", "DesignResult"]

@@ -241,7 +241,7 @@ class Thm1(Design):
                     "rho": c.rho, "beta": c.beta, "gamma": c.gamma, "cap": self.cap})
 
     # -- gamma < 0: fixed multipliers eps1, eps2 ----------------------------------------------
-    def _program_fixed_eps(self, plant: Plant, c: Constants) -> _lmi.Program:
+    def _program_fixed_eps(self, plant: Plant, c: Constants, schur: bool) -> _lmi.Program:
         import cvxpy as cp
 
         A, B, C = plant.A, plant.B, plant.C
@@ -254,10 +254,9 @@ class Thm1(Design):
             "iphi": cp.Parameter(nonneg=True, name="inv_phi1"),
             "eta2": cp.Parameter(name="eta2"),
             "two_eps2": cp.Parameter(nonneg=True, name="two_eps2"),
-            "inv_eta1": cp.Parameter(nonneg=True, name="inv_eta1"),
         }
-        # eta1 = 2 (eps1 rho + eps2 beta) has the sign of rho*eps1 + beta*eps2: decided per eps2
-        self._schur_sign = None
+        if schur:
+            prm["inv_eta1"] = cp.Parameter(nonneg=True, name="inv_eta1")
 
         def blocks(d):
             Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
@@ -265,16 +264,19 @@ class Thm1(Design):
             S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * rho + d["eps4"] * beta) * I
             X = R + (d["eps4"] * gamma - d["eps3"]) * I
             Y = I + d["eta2"] * Q
-            return [
-                [S11, Z, Y, Z, B @ Fh.T, Z, Q],
-                [Z, S22, Z, X, Z, I, Z],
-                [Y.T, Z, -d["two_eps2"] * I, Z, Z, Z, Z],
-                [Z, X.T, Z, -2 * d["eps4"] * I, Z, Z, Z],
-                [Fh @ B.T, Z, Z, Z, -d["iphi"] * Q, Z, Z],
-                [Z, I, Z, Z, Z, -d["phi"] * Q, Z],
-                # Schur column for eta1 Q Q; inv_eta1 = 1/eta1, or a huge weight (term ~ 0) when eta1 <= 0
-                [Q, Z, Z, Z, Z, Z, -d["inv_eta1"] * I],
+            rows = [
+                [S11, Z, Y, Z, B @ Fh.T, Z],
+                [Z, S22, Z, X, Z, I],
+                [Y.T, Z, -d["two_eps2"] * I, Z, Z, Z],
+                [Z, X.T, Z, -2 * d["eps4"] * I, Z, Z],
+                [Fh @ B.T, Z, Z, Z, -d["iphi"] * Q, Z],
+                [Z, I, Z, Z, Z, -d["phi"] * Q],
             ]
+            if schur:  # eta1 Q Q with eta1 > 0; for eta1 <= 0 the term is <= 0 and is dropped
+                for row, blk in zip(rows, (Q, Z, Z, Z, Z, Z)):
+                    row.append(blk)
+                rows.append([Q, Z, Z, Z, Z, Z, -d["inv_eta1"] * I])
+            return rows
 
         def extra(d):
             return [d["eps3"] >= 0, d["eps4"] >= 0]
@@ -320,28 +322,36 @@ class Thm1(Design):
             return _result(prog, concl, params)
 
         # gamma < 0: grid over eps2, search phi1 at each
-        prog = self._program_fixed_eps(plant, c)
+        progs: dict[bool, _lmi.Program] = {}
         eps1 = float(self.eps1)
-        best = (-np.inf, None, None)
+        best = (-np.inf, None, None, None)
         for eps2 in np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), 5):
             eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
-            fixed = dict(eta2=eps2 * c.gamma - eps1, two_eps2=2 * eps2, inv_eta1=1 / eta1 if eta1 > 0 else 1e12)
+            schur = eta1 > 0
+            if schur not in progs:
+                progs[schur] = self._program_fixed_eps(plant, c, schur)
+            prog = progs[schur]
+            fixed = dict(eta2=eps2 * c.gamma - eps1, two_eps2=2 * eps2)
+            if schur:
+                fixed["inv_eta1"] = 1 / eta1
 
-            def obj(phi, fixed=fixed):
+            def obj(phi, fixed=fixed, prog=prog):
                 return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi, **fixed)
 
             if self.phi1 is None:
                 phi, val, _ = _lmi.log_search(obj, lo, hi, n_grid=7, n_refine=3)
             else:
                 phi, val = self.phi1, obj(self.phi1)
-            if val > best[0]:
-                best = (val, eps2, phi)
-        _, eps2, phi = best
-        if eps2 is None:
-            eps2, phi = self.eps2_range[0], self.phi1 or lo
+            if val > best[0] or best[3] is None:
+                best = (val, eps2, phi, prog)
+        _, eps2, phi, prog = best
         eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
         prog.restore_best()
-        searched = f"over eps2 in {self.eps2_range} x phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
+        n_solves = sum(p.n_solves for p in progs.values())
+        prog.compile_s = sum(p.compile_s for p in progs.values())
+        prog.solve_s = sum(p.solve_s for p in progs.values())
+        prog.n_solves = n_solves
+        searched = f"over eps2 in {self.eps2_range} x phi1 in [{lo:g}, {hi:g}] ({n_solves} solves)"
         concl = _lmi.conclude(prog, what="corrected Theorem 1 (fixed eps, gamma < 0)", normalisation=norm,
                               searched=searched)
         vals = prog.values()

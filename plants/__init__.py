@@ -1,5 +1,7 @@
 """Plants of oslbench: one module per plant, each registering its factories."""
 
+import bench._env  # noqa: F401  (BLAS threads, before numpy)
+
 from plants._core import Constants, Plant, PlantError
 
 __all__ = ["Constants", "Plant", "PlantError"]

@@ -1,3 +1,4 @@
+import bench._env  # noqa: F401  (BLAS threads before numpy; see bench/_env.py)
 import numpy as np
 import pytest
 

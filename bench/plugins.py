@@ -1,0 +1,188 @@
+"""Users' own plants (and designs) from a Python file, without editing the package.
+
+A plugin is any Python file that registers plants (``@register_plant``) or designs
+(``@register_design``) when imported::
+
+    python -m bench list --plugin my_plants.py
+    python -m bench run --plugin my_plants.py --plant my_plant
+
+:func:`load_plugin` imports the file under a private module name, checks that it registered
+something, and builds every plant it registered with the factory's defaults (so a plant that
+fails validation is reported at once, not in the middle of a run). Any failure - a missing
+file, a syntax error, an exception at import, a duplicate id, a plant that fails validation,
+a file that registers nothing - raises :class:`PluginError` whose message names the file
+(and the line, where there is one); the ids the file registered are removed again, so a
+failed plugin leaves the registries as they were.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import sys
+import traceback
+from pathlib import Path
+
+from bench.registry import DESIGNS, PLANTS
+
+__all__ = ["PluginError", "load_plugin", "load_plugins"]
+
+
+class PluginError(ValueError):
+    """A plugin file could not be loaded; the message names the file."""
+
+
+def _module_name(path: Path) -> str:
+    stem = re.sub(r"\W", "_", path.stem) or "plugin"
+    base = f"oslbench_plugin_{stem}"
+    name, k = base, 1
+    while name in sys.modules:
+        k += 1
+        name = f"{base}_{k}"
+    return name
+
+
+def _where(exc: BaseException, path: Path) -> str:
+    """' (line N)' for the deepest traceback frame inside the plugin file, if any."""
+    if isinstance(exc, SyntaxError) and exc.lineno:
+        return f" (line {exc.lineno})"
+    line = None
+    for frame in traceback.extract_tb(exc.__traceback__):
+        try:
+            if Path(frame.filename).resolve() == path:
+                line = frame.lineno
+        except (OSError, ValueError):
+            continue
+    return f" (line {line})" if line else ""
+
+
+def load_plugin(path) -> list[str]:
+    """Import a plugin file and validate what it registered.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The Python file.
+
+    Returns
+    -------
+    list of str
+        The plant and design ids the file registered, plants first.
+
+    Raises
+    ------
+    PluginError
+        If the file does not exist or is not a file, does not import (syntax error, exception,
+        duplicate id), registers nothing, or registers a plant that cannot be built with its
+        defaults (e.g. fails validation) or whose ``id`` differs from its registry id. The
+        message starts with ``plugin <path>:``.
+    """
+    shown = str(path)
+    p = Path(path)
+    if not p.exists():
+        raise PluginError(f"plugin {shown}: no such file")
+    if not p.is_file():
+        raise PluginError(f"plugin {shown}: not a file")
+    p = p.resolve()
+    # built-in plants and designs first, so that a clash is reported against them
+    plants_before, designs_before = set(PLANTS.ids()), set(DESIGNS.ids())
+
+    def new_ids() -> tuple[list[str], list[str]]:
+        return ([i for i in PLANTS.ids() if i not in plants_before],
+                [i for i in DESIGNS.ids() if i not in designs_before])
+
+    def undo(name: str | None) -> None:
+        np_, nd = new_ids()
+        for i in np_:
+            PLANTS.unregister(i)
+        for i in nd:
+            DESIGNS.unregister(i)
+        if name is not None:
+            sys.modules.pop(name, None)
+
+    name = _module_name(p)
+    try:
+        spec = importlib.util.spec_from_file_location(name, p)
+        if spec is None or spec.loader is None:
+            raise PluginError(f"plugin {shown}: cannot be imported as a Python module (is it a .py file?)")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        # the plugin may import helper modules that sit next to it
+        sys.path.insert(0, str(p.parent))
+        try:
+            spec.loader.exec_module(module)
+        finally:
+            try:
+                sys.path.remove(str(p.parent))
+            except ValueError:
+                pass
+    except PluginError:
+        undo(name)
+        raise
+    except SyntaxError as exc:
+        undo(name)
+        raise PluginError(f"plugin {shown}: syntax error{_where(exc, p)}: {exc.msg}") from None
+    except Exception as exc:  # ImportError, RegistryError (duplicate id), anything the file raises
+        undo(name)
+        raise PluginError(
+            f"plugin {shown}: failed to import{_where(exc, p)}: {type(exc).__name__}: {exc}"
+        ) from None
+    except SystemExit as exc:  # a plugin calling sys.exit() must not end the run silently
+        undo(name)
+        raise PluginError(f"plugin {shown}: called sys.exit({exc.code!r}) while being imported") from None
+
+    plants, designs = new_ids()
+    if not plants and not designs:
+        sys.modules.pop(name, None)
+        raise PluginError(
+            f"plugin {shown}: registers no plant or design (decorate a keyword-only factory with "
+            "@register_plant(\"my_plant\") from bench.registry)"
+        )
+    from plants._core import Plant
+
+    for pid in plants:
+        try:
+            plant = PLANTS.create(pid)
+        except Exception as exc:
+            undo(name)
+            raise PluginError(
+                f"plugin {shown}: plant {pid!r} cannot be built with its defaults{_where(exc, p)}: "
+                f"{type(exc).__name__}: {exc}"
+            ) from None
+        if not isinstance(plant, Plant):
+            undo(name)
+            raise PluginError(f"plugin {shown}: the factory of plant {pid!r} returned a "
+                              f"{type(plant).__name__}, not a plants.Plant")
+        if plant.id != pid:
+            undo(name)
+            raise PluginError(f"plugin {shown}: plant registered as {pid!r} has id {plant.id!r}; "
+                              "use the same id in @register_plant and Plant(id=...)")
+    for did in designs:
+        try:
+            DESIGNS.create(did)
+        except Exception as exc:
+            undo(name)
+            raise PluginError(
+                f"plugin {shown}: design {did!r} cannot be built with its defaults{_where(exc, p)}: "
+                f"{type(exc).__name__}: {exc}"
+            ) from None
+    return plants + designs
+
+
+def load_plugins(paths) -> list[str]:
+    """Load several plugin files in order (see :func:`load_plugin`); None or empty loads nothing.
+
+    Returns
+    -------
+    list of str
+        Every id registered, in order.
+
+    Raises
+    ------
+    PluginError
+        At the first file that fails (earlier files stay loaded).
+    """
+    ids: list[str] = []
+    for path in paths or ():
+        ids.extend(load_plugin(path))
+    return ids

@@ -1,0 +1,152 @@
+"""The "moving object" one-sided Lipschitz plant (Abbaszadeh & Marquez 2010; Nguyen et al. 2018).
+
+::
+
+    A = [[-1, 1], [1.5, -0.5]],  B = [0, -1]',  C = [0, 1],
+    f(x) = -x (x1^2 + x2^2) = -||x||^2 x.
+
+A has eigenvalues 0.5 and -2: the linear part is unstable, (A, B)
+is controllable and (A, C) observable. The sources' simulation starts from
+``x(0) = (0.1, -0.1)``, ``x_hat(0) = (-0.1, 0.1)``; Nguyen et al. take the region r = 10.
+
+This plant shows the point of the one-sided Lipschitz condition: ``f = -grad phi`` with
+``phi(x) = ||x||^4 / 4`` convex, so f is monotone decreasing and **rho = 0 globally**, while f
+is not globally Lipschitz and its Lipschitz constant on ``||x|| <= r`` is ``3 r^2`` (300 for
+r = 10).
+
+Constants on the ball ``||x|| <= r`` (derived here; the ball is convex, so every segment
+between two of its points stays in it):
+
+- Jacobian ``J(x) = -(||x||^2 I + 2 x x')``, symmetric, with eigenvalues ``-||x||^2`` and
+  ``-3 ||x||^2``. Along a segment, ``df = -H dx`` with ``H`` the average of ``-J``,
+  symmetric and ``0 <= H <= 3 r^2 I``.
+- Lipschitz: ``alpha = 3 r^2`` (tight at ``||x|| = r``, dx along x).
+- OSL: ``<df, dx> = -dx' H dx <= 0``, so ``rho = 0`` (tight: the ratio -> 0 as x -> 0).
+- QIB: ``||df||^2 = dx' H^2 dx <= 3 r^2 dx' H dx = -3 r^2 <dx, df>`` (since
+  ``H^2 <= lambda_max(H) H`` for symmetric ``H >= 0``), so ``(beta, gamma) = (0, -3 r^2)`` is
+  valid, and tight (|gamma| cannot be smaller, by the same pair as for alpha). The sources'
+  ``(0, -4 r^2)`` is valid but looser (the condition gets weaker as gamma decreases, because
+  ``<dx, df> <= 0``).
+
+Claimed (as recorded in PLANTS.md from the sources): rho = 0; on ``||x|| <= r``:
+beta = 0, gamma = -4 r^2, Lipschitz 3 r^2. The analytic bounds use the tight gamma = -3 r^2.
+gamma < 0 needs the fixed-eps form of the corrected Theorem 1.
+
+References
+----------
+.. [1] M. Abbaszadeh and H. J. Marquez, "Nonlinear observer design for one-sided Lipschitz
+   systems", Proc. American Control Conference, 2010 (the nonlinearity).
+.. [2] M. C. Nguyen, P. N. Pathirana and H. Trinh, European Journal of Control, 2018,
+   Example 2 (the plant, initial conditions and r = 10).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.registry import register_plant
+from plants._core import Constants, Plant, PlantError
+
+__all__ = ["A", "B", "C", "X0", "X_HAT0", "moving_object", "moving_object_bounds"]
+
+SOURCE = (
+    "Abbaszadeh & Marquez, ACC 2010 (nonlinearity); Nguyen, Pathirana & Trinh, Eur. J. Control 2018, "
+    "Example 2 (plant, initial conditions, r = 10)"
+)
+
+A = np.array([[-1.0, 1.0], [1.5, -0.5]])
+B = np.array([[0.0], [-1.0]])
+C = np.array([[0.0, 1.0]])
+X0 = np.array([0.1, -0.1])
+X_HAT0 = np.array([-0.1, 0.1])
+
+#: Region radius used by Nguyen et al.
+R_SOURCE = 10.0
+
+
+def _f(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, dtype=float)
+    return -np.sum(x * x, axis=0) * x
+
+
+def _jacobian(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x, dtype=float).reshape(-1)
+    return -(float(x @ x) * np.eye(x.size) + 2.0 * np.outer(x, x))
+
+
+def moving_object_bounds(r: float) -> Constants:
+    """Valid, tight constants of ``f(x) = -||x||^2 x`` on the ball ``||x|| <= r``.
+
+    Parameters
+    ----------
+    r : float
+        Region radius, > 0.
+
+    Returns
+    -------
+    Constants
+        ``alpha = 3 r^2``, ``rho = 0``, ``(beta, gamma) = (0, -3 r^2)``, ``radius = r``.
+
+    Raises
+    ------
+    PlantError
+        If ``r`` is not a finite number > 0 (the message names ``r``).
+    """
+    r = _radius(r)
+    return Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-3 * r**2, radius=r)
+
+
+def _radius(r) -> float:
+    try:
+        v = float(r)
+    except (TypeError, ValueError):
+        raise PlantError(f"r: the region radius must be a real number, got {r!r}") from None
+    if not np.isfinite(v) or v <= 0:
+        raise PlantError(f"r: the region radius must be finite and > 0, got {r!r}")
+    return v
+
+
+@register_plant("moving_object_v1")
+def moving_object(*, r: float = R_SOURCE, t_final: float = 20.0) -> Plant:
+    """Moving object OSL plant (Abbaszadeh & Marquez 2010; Nguyen et al. 2018): f = -||x||^2 x.
+
+    Parameters
+    ----------
+    r : float
+        Radius of the region ``||x|| <= r`` where the local constants hold (10 in the source).
+    t_final : float
+        Simulation horizon in seconds.
+
+    Returns
+    -------
+    Plant
+        Version 1. Claimed: rho = 0, alpha = 3 r^2, (beta, gamma) = (0, -4 r^2) on the region;
+        analytic: the same with the tight gamma = -3 r^2.
+
+    Raises
+    ------
+    PlantError
+        If ``r`` is not finite and > 0, or the initial conditions lie outside the region.
+    """
+    bounds = moving_object_bounds(r)
+    r = bounds.radius
+    for name, v in (("x0", X0), ("x_hat0", X_HAT0)):
+        if np.linalg.norm(v) > r:
+            raise PlantError(f"r: the region ||x|| <= {r:g} must contain {name} = {v.tolist()}")
+    return Plant(
+        id="moving_object_v1",
+        A=A,
+        B=B,
+        C=C,
+        f=_f,
+        jacobian=_jacobian,
+        x0=X0,
+        x_hat0=X_HAT0,
+        claimed=Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-4 * r**2, radius=r),
+        bounds=bounds,
+        t_final=t_final,
+        family="moving_object",
+        params={"r": r, "version": 1},
+        source=SOURCE,
+        notes="OSL with rho = 0 globally; Lipschitz only locally (3 r^2 on ||x|| <= r)",
+    )

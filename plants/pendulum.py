@@ -1,0 +1,97 @@
+"""Damped pendulum with a torque input (textbook; Khalil, Nonlinear Systems, Sec. 1.2.1).
+
+The pendulum equation ``m l theta'' = -m g sin(theta) - k l theta' + T / l`` with
+``x = (theta, omega)``, the friction ratio ``b = k / m`` and the torque scaled so that
+``u = T / (m l^2)`` gives ::
+
+    A = [[0, 1], [0, -b]],  B = [0, 1]',  C = [1, 0],  f(x) = [0, -(g/l) sin(x1)]'.
+
+Values picked here: ``g / l = 9.81`` (l = 1 m, g = 9.81 m/s^2) and ``b = 0.1`` (1/s). The
+angle is measured. A has eigenvalues 0 and -b; the sine is kept whole in f (its linear part
+``-(g/l) x1`` is not moved into A). Initial conditions (picked, the textbook gives none):
+``x(0) = (1, 0)`` (about 57 degrees, at rest), ``x_hat(0) = (0, 0)``.
+
+Constants of ``f = (0, -k sin(x1))``, ``k = g / l`` (analytic, global):
+alpha = k (``|sin a - sin b| <= |a - b|``); rho = k / 2, since
+``<df, dx> = -k (sin a - sin b) d2 <= k |d1| |d2| <= (k/2)(d1^2 + d2^2)``, tight for
+``dx = (d, -d)`` near x1 = 0; ``(beta, gamma) = (k^2, 0)``.
+Claimed (PLANTS.md, the textbook values): alpha = g/l, rho = (g/l)/2.
+
+References
+----------
+.. [1] H. K. Khalil, Nonlinear Systems, 3rd ed., Prentice Hall, 2002, Section 1.2.1
+   (pendulum equation).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.registry import register_plant
+from plants._core import Constants, Plant, PlantError
+
+__all__ = ["pendulum"]
+
+SOURCE = "Khalil, Nonlinear Systems, 3rd ed., 2002, Sec. 1.2.1 (pendulum equation); g/l = 9.81, b = 0.1 picked"
+
+G_OVER_L = 9.81
+DAMPING = 0.1
+X0 = np.array([1.0, 0.0])
+X_HAT0 = np.array([0.0, 0.0])
+
+
+@register_plant("pendulum_v1")
+def pendulum(*, g_over_l: float = G_OVER_L, b: float = DAMPING, t_final: float = 20.0) -> Plant:
+    """Damped pendulum (Khalil, Sec. 1.2.1): f2 = -(g/l) sin(x1), g/l = 9.81, b = 0.1.
+
+    Parameters
+    ----------
+    g_over_l : float
+        Ratio g / l in 1/s^2, >= 0 (9.81 by default).
+    b : float
+        Viscous friction ratio k / m in 1/s, >= 0 (0.1 by default).
+    t_final : float
+        Simulation horizon in seconds.
+
+    Returns
+    -------
+    Plant
+        Version 1; global constants alpha = g/l, rho = (g/l)/2, (beta, gamma) = ((g/l)^2, 0).
+
+    Raises
+    ------
+    PlantError
+        If ``g_over_l`` or ``b`` is negative or not finite (the message names it).
+    """
+    k = float(g_over_l)
+    b = float(b)
+    for name, v in (("g_over_l", k), ("b", b)):
+        if not np.isfinite(v) or v < 0:
+            raise PlantError(f"{name}: must be finite and >= 0, got {v!r}")
+
+    def f(x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        out = np.zeros_like(x)
+        out[1] = -k * np.sin(x[0])
+        return out
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        return np.array([[0.0, 0.0], [-k * np.cos(float(np.asarray(x, dtype=float)[0])), 0.0]])
+
+    return Plant(
+        id="pendulum_v1",
+        A=np.array([[0.0, 1.0], [0.0, -b]]),
+        B=np.array([[0.0], [1.0]]),
+        C=np.array([[1.0, 0.0]]),
+        f=f,
+        jacobian=jacobian,
+        x0=X0,
+        x_hat0=X_HAT0,
+        claimed=Constants(alpha=k, rho=k / 2),
+        bounds=Constants(alpha=k, rho=k / 2, beta=k**2, gamma=0.0),
+        t_final=t_final,
+        family="pendulum",
+        params={"g_over_l": k, "b": b, "version": 1},
+        source=SOURCE,
+        notes="theta measured; the whole sine is in f (A has eigenvalues 0 and -b)",
+    )

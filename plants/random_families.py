@@ -1,0 +1,391 @@
+"""Random plant families for sweeps: seeded n-state plants with constants known in closed form.
+
+The linear part (A, B, C) is built so that (A, B) is stabilizable and (A, C) is detectable
+**by construction**, and both are then **checked** with the PBH rank test:
+
+1. An "unstable" block ``A_u`` (``n_unstable`` states) is an unreduced upper Hessenberg matrix
+   (subdiagonal entries of magnitude in [0.5, 1.5]), shifted so that its largest real part of
+   an eigenvalue is ``max_re``. With ``B_u[:, 0] = e_1`` the Krylov matrix of ``(A_u, e_1)``
+   is triangular with the (nonzero) products of the subdiagonal on its diagonal, so
+   ``(A_u, B_u)`` is controllable; with ``C_u[0, :] = e_{n_u}'`` the observability matrix is
+   (reversed) triangular, so ``(A_u, C_u)`` is observable.
+2. A "stable" block ``A_s = -(G G' / n_s + delta I) + (S - S') / 2`` has
+   ``A_s + A_s' <= -2 delta I``, hence every eigenvalue has real part ``<= -delta < 0``.
+3. ``A = T blockdiag(A_u, A_s) T'``, ``B = T [B_u; B_s]``, ``C = [C_u, C_s] T'`` with ``T`` a
+   random orthogonal matrix (so nothing in A, B, C shows the structure). Every eigenvalue
+   with real part >= 0 belongs to ``A_u``, whose eigenvectors live in the first block:
+   the PBH conditions of those eigenvalues are those of ``(A_u, B_u)`` and ``(A_u, C_u)``.
+
+Nonlinearity families, each with a scale knob ``c`` (sweeps over ``c`` keep A, B, C and the
+random directions of f fixed, since they come from separate seeded streams):
+
+- **Lipschitz** (global): ``f(x) = c G sin(H x)`` with random orthogonal G, H (n x n, so
+  ``||G|| = ||H|| = 1``). Componentwise, ``sin a - sin b = cos(xi) (a - b)``, so
+  ``df = c G D H dx`` with ``D`` diagonal, ``|D_ii| <= 1``, and
+  ``||df|| <= c ||G|| ||H|| ||dx|| = c ||dx||``: alpha = c, tight (at x = 0 the Jacobian
+  ``c G H`` is c times an orthogonal matrix). Then rho = c (Cauchy-Schwarz; valid, not
+  tight in general) and ``(beta, gamma) = (c^2, 0)`` (tight, as alpha).
+- **OSL** (local on ``||x|| <= r``): ``f(x) = -c W (W' x)^3`` (cube taken elementwise) with a
+  random orthogonal W. ``f = -grad phi`` with ``phi(x) = (c/4) sum_i (w_i' x)^4`` convex;
+  the Jacobian ``-3 c W diag((W'x)^2) W'`` is symmetric with eigenvalues
+  ``-3 c (w_i' x)^2``, in ``[-3 c r^2, 0]`` on the ball since ``(w_i' x)^2 <= ||x||^2``. Along a segment in the
+  (convex) ball ``df = -M dx`` with ``M`` symmetric, ``0 <= M <= 3 c r^2 I``, so:
+  rho = 0 (globally, as phi is convex everywhere), alpha = 3 c r^2, and since
+  ``M^2 <= 3 c r^2 M``, ``||df||^2 <= -3 c r^2 <dx, df>``: ``(beta, gamma) = (0, -3 c r^2)``.
+  alpha and gamma are tight (at ``x = r w_i``, dx along ``w_i``).
+
+The registry holds one member of each family, n = 4, m = p = 1, seed 0:
+``random_lipschitz_v1`` with c = 0.2 (alpha = 0.2; on this member the corrected Theorem 1 and
+Corollary 1 were found feasible up to c = 0.3 and infeasible from c = 0.4) and
+``random_osl_v1`` with c = 0.3, r = 1 (rho = 0 but alpha = 0.9, beyond what the Lipschitz
+designs accept on this member). Sweeps call :func:`random_lipschitz_plant` and
+:func:`random_osl_plant` directly.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+from bench.registry import register_plant
+from plants._core import Constants, Plant, PlantError
+
+__all__ = [
+    "is_detectable",
+    "is_stabilizable",
+    "pbh_margin",
+    "random_lipschitz_plant",
+    "random_lti",
+    "random_osl_plant",
+]
+
+#: Relative PBH margin below which a pair is declared not stabilizable / not detectable.
+PBH_TOL = 1e-8
+
+_SOURCE = "oslbench random family (plants/random_families.py), constants in closed form"
+
+
+# -- argument checks (each error names the parameter) -------------------------------------------
+def _int(name: str, value, lo: int, hi: int | None = None, what: str = "") -> int:
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)):
+        raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
+    v = int(value)
+    if v < lo or (hi is not None and v > hi):
+        rng = f">= {lo}" if hi is None else f"between {lo} and {hi}"
+        raise PlantError(f"{name}: {what}must be {rng}, got {value!r}")
+    return v
+
+
+def _real(name: str, value, *, lo: float | None = None, strict: bool = False) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise PlantError(f"{name}: expected a real number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise PlantError(f"{name}: must be finite, got {value!r}")
+    if lo is not None and (v < lo or (strict and v == lo)):
+        raise PlantError(f"{name}: must be {'>' if strict else '>='} {lo:g}, got {value!r}")
+    return v
+
+
+def _shapes(n, m, p, n_unstable) -> tuple[int, int, int, int]:
+    n = _int("n", n, 1, what="the number of states ")
+    m = _int("m", m, 1, n, what=f"the number of inputs (B is n x m, n = {n}) ")
+    p = _int("p", p, 1, n, what=f"the number of outputs (C is p x n, n = {n}) ")
+    nu = _int("n_unstable", n_unstable, 0, n, what=f"the size of the unstable block (n = {n}) ")
+    return n, m, p, nu
+
+
+# -- PBH tests ----------------------------------------------------------------------------------
+def pbh_margin(A, B) -> float:
+    """PBH margin of stabilizability of ``(A, B)``.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    B : array_like, shape (n, m)
+
+    Returns
+    -------
+    float
+        ``min sigma_min([lambda I - A, B]) / max(1, ||[A, B]||_2)`` over the eigenvalues
+        lambda of A with ``Re lambda >= 0`` (``inf`` when A is Hurwitz). (A, B) is
+        stabilizable iff this is positive; numerically, iff it exceeds :data:`PBH_TOL`.
+        For detectability of (A, C) use ``pbh_margin(A.T, C.T)``.
+    """
+    A = np.asarray(A, dtype=float)
+    B = np.asarray(B, dtype=float)
+    n = A.shape[0]
+    scale = max(1.0, float(np.linalg.norm(np.hstack([A, B]), 2)))
+    worst = math.inf
+    for lam in np.linalg.eigvals(A):
+        if lam.real >= -1e-12 * scale:
+            M = np.hstack([lam * np.eye(n) - A, B.astype(complex)])
+            worst = min(worst, float(np.linalg.svd(M, compute_uv=False)[-1]) / scale)
+    return worst
+
+
+def is_stabilizable(A, B, tol: float = PBH_TOL) -> bool:
+    """True when ``(A, B)`` passes the PBH test on the closed right half-plane (see :func:`pbh_margin`)."""
+    return pbh_margin(A, B) > tol
+
+
+def is_detectable(A, C, tol: float = PBH_TOL) -> bool:
+    """True when ``(A, C)`` is detectable, i.e. ``(A', C')`` is stabilizable (PBH)."""
+    return pbh_margin(np.asarray(A).T, np.asarray(C).T) > tol
+
+
+# -- the linear part ----------------------------------------------------------------------------
+def _orthogonal(rng: np.random.Generator, n: int) -> np.ndarray:
+    Q, R = np.linalg.qr(rng.standard_normal((n, n)))
+    return Q * np.where(np.diag(R) < 0, -1.0, 1.0)  # Haar distributed
+
+
+def random_lti(
+    n: int, m: int = 1, p: int = 1, *, seed: int = 0, n_unstable: int | None = None, max_re: float = 0.5
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A seeded random ``(A, B, C)`` with (A, B) stabilizable and (A, C) detectable.
+
+    Parameters
+    ----------
+    n, m, p : int
+        States (>= 1), inputs and outputs (each between 1 and n).
+    seed : int
+        Seed (>= 0); the same seed gives the same matrices.
+    n_unstable : int, optional
+        Size of the block holding the eigenvalues with the largest real parts (default
+        ``min(n, 2)``); 0 makes A Hurwitz.
+    max_re : float
+        Largest real part of an eigenvalue of that block (default 0.5: open-loop unstable).
+
+    Returns
+    -------
+    A, B, C : ndarray
+        Shapes (n, n), (n, m), (p, n).
+
+    Raises
+    ------
+    PlantError
+        On a bad argument (the message names it), or if the PBH check fails (never expected:
+        the construction guarantees it; see the module docstring).
+    """
+    n = _int("n", n, 1, what="the number of states ")
+    n, m, p, nu = _shapes(n, m, p, min(n, 2) if n_unstable is None else n_unstable)
+    seed = _int("seed", seed, 0)
+    max_re = _real("max_re", max_re)
+    rng = np.random.default_rng([seed, 0])
+    ns = n - nu
+
+    Ah = np.zeros((n, n))
+    Bh = rng.standard_normal((n, m)) / math.sqrt(n)
+    Ch = rng.standard_normal((p, n)) / math.sqrt(n)
+    if nu:
+        Hu = np.triu(rng.standard_normal((nu, nu))) * 0.5
+        sub = rng.uniform(0.5, 1.5, size=nu - 1) * rng.choice([-1.0, 1.0], size=nu - 1)
+        Hu += np.diag(sub, -1)
+        Hu += (max_re - float(np.linalg.eigvals(Hu).real.max())) * np.eye(nu)
+        Ah[:nu, :nu] = Hu
+        Bh[:nu, 0] = 0.0
+        Bh[0, 0] = 1.0  # B_u[:, 0] = e_1
+        Ch[0, :nu] = 0.0
+        Ch[0, nu - 1] = 1.0  # C_u[0, :] = e_{n_u}'
+    if ns:
+        delta = 0.2
+        G = rng.standard_normal((ns, ns))
+        S = rng.standard_normal((ns, ns))
+        Ah[nu:, nu:] = -(G @ G.T / ns + delta * np.eye(ns)) + (S - S.T) / 2
+    T = _orthogonal(rng, n)
+    A, B, C = T @ Ah @ T.T, T @ Bh, Ch @ T.T
+    if not is_stabilizable(A, B):
+        raise PlantError(f"A, B: (A, B) failed the PBH stabilizability check (margin {pbh_margin(A, B):.3g})")
+    if not is_detectable(A, C):
+        raise PlantError(f"A, C: (A, C) failed the PBH detectability check (margin {pbh_margin(A.T, C.T):.3g})")
+    return A, B, C
+
+
+def _unit(rng: np.random.Generator, n: int) -> np.ndarray:
+    v = rng.standard_normal(n)
+    return v / np.linalg.norm(v)
+
+
+# -- the families -------------------------------------------------------------------------------
+def random_lipschitz_plant(
+    *,
+    n: int = 4,
+    m: int = 1,
+    p: int = 1,
+    c: float = 0.5,
+    seed: int = 0,
+    n_unstable: int | None = None,
+    max_re: float = 0.5,
+    t_final: float = 20.0,
+    id: str | None = None,
+) -> Plant:
+    """A random plant with the globally Lipschitz nonlinearity ``f(x) = c G sin(H x)``, G, H orthogonal.
+
+    Parameters
+    ----------
+    n, m, p : int
+        States (>= 1), inputs and outputs (between 1 and n).
+    c : float
+        Scale of the nonlinearity, >= 0; it is the Lipschitz constant bound.
+    seed : int
+        Seed (>= 0) of A, B, C (stream 0) and of G, H, x0 (stream 1).
+    n_unstable, max_re
+        Passed to :func:`random_lti`.
+    t_final : float
+        Simulation horizon in seconds.
+    id : str, optional
+        Plant id (default ``random_lipschitz_v1_n{n}_s{seed}``).
+
+    Returns
+    -------
+    Plant
+        With global closed-form constants (claimed = analytic): alpha = rho = c,
+        (beta, gamma) = (c^2, 0). ``x0`` is a random unit vector, ``x_hat0 = 0``.
+
+    Raises
+    ------
+    PlantError
+        On a bad argument; the message names it.
+    """
+    A, B, C = random_lti(n, m, p, seed=seed, n_unstable=n_unstable, max_re=max_re)
+    n = A.shape[0]
+    c = _real("c", c, lo=0.0)
+    rng = np.random.default_rng([int(seed), 1])
+    G = _orthogonal(rng, n)
+    H = _orthogonal(rng, n).T
+    G.setflags(write=False)
+    H.setflags(write=False)
+
+    def f(x: np.ndarray) -> np.ndarray:
+        return c * (G @ np.sin(H @ np.asarray(x, dtype=float)))
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        z = H @ np.asarray(x, dtype=float).reshape(-1)
+        return c * (G * np.cos(z)) @ H
+
+    consts = Constants(alpha=c, rho=c, beta=c**2, gamma=0.0)
+    return Plant(
+        id=id or f"random_lipschitz_v1_n{n}_s{int(seed)}",
+        A=A, B=B, C=C, f=f, jacobian=jacobian,
+        x0=_unit(rng, n), x_hat0=np.zeros(n),
+        claimed=consts, bounds=consts, t_final=t_final, family="random_lipschitz",
+        params={"n": n, "m": B.shape[1], "p": C.shape[0], "c": c, "seed": int(seed), "max_re": float(max_re),
+                "version": 1},
+        source=_SOURCE,
+        notes="f = c G sin(H x), G and H orthogonal: alpha = rho = c, (beta, gamma) = (c^2, 0), global",
+    )
+
+
+def random_osl_plant(
+    *,
+    n: int = 4,
+    m: int = 1,
+    p: int = 1,
+    c: float = 1.0,
+    r: float = 1.0,
+    seed: int = 0,
+    n_unstable: int | None = None,
+    max_re: float = 0.5,
+    t_final: float = 20.0,
+    id: str | None = None,
+) -> Plant:
+    """A random plant with the one-sided Lipschitz nonlinearity ``f(x) = -c W (W' x)^3``.
+
+    Parameters
+    ----------
+    n, m, p : int
+        States (>= 1), inputs and outputs (between 1 and n).
+    c : float
+        Scale of the nonlinearity, >= 0.
+    r : float
+        Radius (> 0) of the region ``||x|| <= r`` where the local constants hold.
+    seed : int
+        Seed (>= 0) of A, B, C (stream 0) and of W, x0 (stream 1).
+    n_unstable, max_re
+        Passed to :func:`random_lti`.
+    t_final : float
+        Simulation horizon in seconds.
+    id : str, optional
+        Plant id (default ``random_osl_v1_n{n}_s{seed}``).
+
+    Returns
+    -------
+    Plant
+        With closed-form constants (claimed = analytic) on ``||x|| <= r``: rho = 0,
+        alpha = 3 c r^2, (beta, gamma) = (0, -3 c r^2). ``x0`` has norm r/2, ``x_hat0 = 0``.
+
+    Raises
+    ------
+    PlantError
+        On a bad argument; the message names it.
+    """
+    A, B, C = random_lti(n, m, p, seed=seed, n_unstable=n_unstable, max_re=max_re)
+    n = A.shape[0]
+    c = _real("c", c, lo=0.0)
+    r = _real("r", r, lo=0.0, strict=True)
+    rng = np.random.default_rng([int(seed), 1])
+    W = _orthogonal(rng, n)
+    W.setflags(write=False)
+
+    def f(x: np.ndarray) -> np.ndarray:
+        z = W.T @ np.asarray(x, dtype=float)
+        return -c * (W @ z**3)
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        z = W.T @ np.asarray(x, dtype=float).reshape(-1)
+        return -3.0 * c * (W * z**2) @ W.T
+
+    k = 3.0 * c * r**2
+    consts = Constants(alpha=k, rho=0.0, beta=0.0, gamma=-k, radius=r)
+    return Plant(
+        id=id or f"random_osl_v1_n{n}_s{int(seed)}",
+        A=A, B=B, C=C, f=f, jacobian=jacobian,
+        x0=0.5 * r * _unit(rng, n), x_hat0=np.zeros(n),
+        claimed=consts, bounds=consts, t_final=t_final, family="random_osl",
+        params={"n": n, "m": B.shape[1], "p": C.shape[0], "c": c, "r": r, "seed": int(seed),
+                "max_re": float(max_re), "version": 1},
+        source=_SOURCE,
+        notes="f = -c W (W'x)^3, W orthogonal: rho = 0, alpha = 3 c r^2, (beta, gamma) = (0, -3 c r^2) on ||x|| <= r",
+    )
+
+
+@register_plant("random_lipschitz_v1")
+def random_lipschitz(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.2, seed: int = 0,
+                     t_final: float = 20.0) -> Plant:
+    """Random n-state plant, f = c G sin(H x) with G, H orthogonal (Lipschitz c), seeded.
+
+    Parameters
+    ----------
+    n, m, p, c, seed, t_final
+        See :func:`random_lipschitz_plant`.
+
+    Returns
+    -------
+    Plant
+        Version 1 of the registered member ``random_lipschitz_v1``.
+    """
+    return random_lipschitz_plant(n=n, m=m, p=p, c=c, seed=seed, t_final=t_final, id="random_lipschitz_v1")
+
+
+@register_plant("random_osl_v1")
+def random_osl(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.3, r: float = 1.0, seed: int = 0,
+               t_final: float = 20.0) -> Plant:
+    """Random n-state plant, f = -c W (W'x)^3 (rho = 0; alpha = 3 c r^2 on ||x|| <= r), seeded.
+
+    Parameters
+    ----------
+    n, m, p, c, r, seed, t_final
+        See :func:`random_osl_plant`.
+
+    Returns
+    -------
+    Plant
+        Version 1 of the registered member ``random_osl_v1``.
+    """
+    return random_osl_plant(n=n, m=m, p=p, c=c, r=r, seed=seed, t_final=t_final, id="random_osl_v1")
