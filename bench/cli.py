@@ -87,6 +87,12 @@ def _build_parser() -> argparse.ArgumentParser:
     for sp in (r, ls):
         sp.add_argument("--plugin", action="append", metavar="PATH",
                         help="a Python file registering your own plants or designs (repeatable)")
+    pf = sub.add_parser("perf", help="measure design time vs n, joint vs separated, and the parallel speed-up")
+    pf.add_argument("--out", default="reports", metavar="DIR", help="folder for PERF.md (default: reports)")
+    pf.add_argument("--sizes", default="4,8,16,32,64", metavar="N,N,...", help="state dimensions (default 4,8,16,32,64)")
+    pf.add_argument("--max-joint-n", type=_positive_int, default=32, metavar="N",
+                    help="largest n for the joint 6n LMI (default 32; n = 50 took ~800 s here)")
+    pf.add_argument("--no-run", action="store_true", help="skip timing the default run with --jobs 1 and 2")
     return p
 
 
@@ -144,6 +150,23 @@ def _cmd_run(args, argv: list[str]) -> int:
     return 0
 
 
+def _cmd_perf(args) -> int:
+    try:
+        sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
+    except ValueError:
+        print(f"python -m bench perf: error: --sizes: expected integers like 4,8,16, got {args.sizes!r}", file=sys.stderr)
+        return 2
+    if not sizes or min(sizes) < 2:
+        print(f"python -m bench perf: error: --sizes: each n must be >= 2, got {args.sizes!r}", file=sys.stderr)
+        return 2
+    from bench.perf import perf_main
+
+    path = perf_main(args.out, sizes, args.max_joint_n, not args.no_run,
+                     echo=lambda line: print(line, file=sys.stderr, flush=True))
+    print(f"wrote {path}", file=sys.stderr)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code.
 
@@ -166,6 +189,8 @@ def main(argv: list[str] | None = None) -> int:
         except PluginError as exc:
             print(f"python -m bench {args.command}: error: {exc}", file=sys.stderr)
             return 2
+    if args.command == "perf":
+        return _cmd_perf(args)
     if args.command == "list":
         return _cmd_list()
     return _cmd_run(args, argv)
