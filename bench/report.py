@@ -215,7 +215,9 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         "",
         "Observer gain K (n x p), feedback F (m x n), u = F x_hat. *Stabilizing*: A+BF and A-KC Hurwitz. "
         "*Certified*: the analysis LMI of the paper's (20) with K, F fixed has a verified negative margin with "
-        "the valid constants; *decay_rate*: the largest certified lambda with V' <= -2 lambda V (bisection). "
+        "the valid constants (for a plant whose constants hold only on a region ||x|| <= r, the certificate is "
+        "local: it holds while x and x_hat stay in that region); *decay_rate*: the largest certified lambda with "
+        "V' <= -2 lambda V (bisection). "
         "*Converged*: the nonlinear closed loop (plant + observer (6)) from the plant's initial conditions ends "
         "with ||x|| and ||e|| below 1e-3 of their peaks. Settling times are 2 % of the peak norm. "
         "*lmi_margin* is the largest eigenvalue of the design LMI recomputed with numpy (negative = strictly "

@@ -3,7 +3,9 @@
 Both solve a 2n x 2n LMI with cvxpy + Clarabel, maximising a margin t under the normalisation
 ``P << cap I`` (these LMIs are homogeneous in their variables, so the cap only fixes the scale),
 and are verified like every LMI of the suite: the matrix is rebuilt with numpy at the solution
-and its largest eigenvalue must be negative.
+and its largest eigenvalue must be negative. ``solver="auto"`` tries SCS first (much faster
+for large n) and falls back to Clarabel when SCS's point does not verify
+(:func:`designs._separated.solve_side`).
 
 References
 ----------
@@ -20,16 +22,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from designs import _lmi
-from designs._core import check_positive
+from designs._core import DesignError, check_positive
 from designs._parts import Part, PartResult, register_estimator
+from designs._separated import solve_side
 from plants._core import Constants, Plant
 
 __all__ = ["RajamaniLMI", "ZhangOSL"]
 
 
-def _part_from(prog: _lmi.Program, concl: dict, K, params: dict) -> PartResult:
+def _check_solver(solver: str) -> None:
+    if solver not in ("auto", "CLARABEL", "SCS"):
+        raise DesignError(f"solver: must be 'auto', 'CLARABEL' or 'SCS', got {solver!r}")
+
+
+def _part_from(prog: _lmi.Program, concl: dict, K, params: dict, log: str = "") -> PartResult:
     return PartResult(status=concl["status"], reason=concl["reason"], gain=K if concl["status"] == "feasible" else None,
-                      solver="CLARABEL", solver_status=concl["solver_status"], compile_s=prog.compile_s,
+                      solver=prog.solver, solver_status=log or concl["solver_status"], compile_s=prog.compile_s,
                       solve_s=prog.solve_s, n_solves=prog.n_solves, margin=concl["margin"],
                       lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
                       params={**params, "margin_t": concl.get("t", float("nan"))})
@@ -46,12 +54,14 @@ class RajamaniLMI(Part):
 
     decay: float = 0.0
     cap: float = 1e3
+    solver: str = "auto"
 
     needs = ("alpha",)
 
     def __post_init__(self) -> None:
         check_positive("decay", self.decay, allow_zero=True)
         check_positive("cap", self.cap)
+        _check_solver(self.solver)
 
     def compute(self, plant: Plant, constants: Constants) -> PartResult:
         """Solve the LMI and return K."""
@@ -70,14 +80,14 @@ class RajamaniLMI(Part):
             return [[S, P], [P, -d["eps"] * I]]
 
         prog = _lmi.margin_program(blocks, v, {}, ("P",), lambda d: [d["eps"] >= 0], cap=self.cap)
-        prog.solve()
+        log = solve_side(prog, self.solver)
         concl = _lmi.conclude(prog, what="Rajamani LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
                               searched=f"with decay {lam:g}")
         vals = prog.values()
         K = np.linalg.solve(vals["P"], vals["W"]) if concl["status"] == "feasible" else None
         eps = vals["eps"]
         return _part_from(prog, concl, K, {"alpha": constants.alpha, "decay": lam,
-                                           "eps": float(eps) if eps is not None else float("nan")})
+                                           "eps": float(eps) if eps is not None else float("nan")}, log)
 
 
 @register_estimator("zhang_osl")
@@ -96,12 +106,14 @@ class ZhangOSL(Part):
 
     decay: float = 0.0
     cap: float = 1e3
+    solver: str = "auto"
 
     needs = ("rho", "beta", "gamma")
 
     def __post_init__(self) -> None:
         check_positive("decay", self.decay, allow_zero=True)
         check_positive("cap", self.cap)
+        _check_solver(self.solver)
 
     def compute(self, plant: Plant, constants: Constants) -> PartResult:
         """Solve the LMI and return K."""
@@ -123,7 +135,7 @@ class ZhangOSL(Part):
 
         prog = _lmi.margin_program(blocks, v, {}, ("P",),
                                    lambda d: [d["sigma"] >= 0, d["eps1"] >= 0, d["eps2"] >= 0], cap=self.cap)
-        prog.solve()
+        log = solve_side(prog, self.solver)
         concl = _lmi.conclude(prog, what="Zhang OSL LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
                               searched=f"with decay {lam:g}")
         vals = prog.values()
@@ -131,4 +143,4 @@ class ZhangOSL(Part):
         if concl["status"] == "feasible":
             K = (float(vals["sigma"]) / 2) * np.linalg.solve(vals["P"], C.T)
         sc = {k: (float(vals[k]) if vals[k] is not None else float("nan")) for k in ("sigma", "eps1", "eps2")}
-        return _part_from(prog, concl, K, {"rho": rho, "beta": beta, "gamma": gamma, "decay": lam, **sc})
+        return _part_from(prog, concl, K, {"rho": rho, "beta": beta, "gamma": gamma, "decay": lam, **sc}, log)
