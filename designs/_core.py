@@ -13,7 +13,7 @@ import numpy as np
 
 from plants._core import Constants, Plant
 
-__all__ = ["Design", "DesignError", "DesignResult", "STATUSES", "check_positive"]
+__all__ = ["Design", "DesignError", "DesignResult", "STATUSES", "check_positive", "missing_constants"]
 
 #: Possible design statuses.
 STATUSES = ("feasible", "infeasible", "inapplicable", "undecided", "error")
@@ -97,6 +97,14 @@ class DesignResult:
         return self.F is not None and (self.K is not None or self.estimator is not None)
 
 
+def missing_constants(needs, constants: Constants) -> str | None:
+    """None if every constant named in ``needs`` is known, else the reason in words."""
+    missing = [k for k in needs if getattr(constants, k) is None]
+    if missing:
+        return f"needs the constant(s) {', '.join(missing)}, which the plant does not provide"
+    return None
+
+
 @dataclass(frozen=True, kw_only=True)
 class Design:
     """Base class of designs: hyperparameters are dataclass fields; the plant is an argument.
@@ -109,10 +117,7 @@ class Design:
 
     def applicable(self, plant: Plant, constants: Constants) -> str | None:
         """None if the design applies to ``plant``, else the reason it does not."""
-        missing = [k for k in self.needs if getattr(constants, k) is None]
-        if missing:
-            return f"needs the constant(s) {', '.join(missing)}, which the plant does not provide"
-        return None
+        return missing_constants(self.needs, constants)
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:  # pragma: no cover
         """Compute gains for ``plant`` with ``constants``."""

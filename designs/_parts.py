@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from bench.registry import DESIGNS, Registry
-from designs._core import Design, DesignError, DesignResult
+from designs._core import Design, DesignError, DesignResult, missing_constants
 from plants._core import Constants, Plant
 
 __all__ = [
@@ -61,10 +61,7 @@ class Part:
 
     def applicable(self, plant: Plant, constants: Constants) -> str | None:
         """None if the part applies, else the reason."""
-        missing = [k for k in self.needs if getattr(constants, k) is None]
-        if missing:
-            return f"needs the constant(s) {', '.join(missing)}, which the plant does not provide"
-        return None
+        return missing_constants(self.needs, constants)
 
     def compute(self, plant: Plant, constants: Constants) -> PartResult:  # pragma: no cover
         """Compute the part for ``plant``."""

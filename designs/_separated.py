@@ -125,3 +125,60 @@ def recombine(
             f"both sides are strictly feasible (max eig {lx:.3g}, {le:.3g}) but the rebuilt joint matrix has max eig "
             f"{raw:.3g} (equilibrated {margin:.3g}; phi1 = {phi:.3g}, e-scale {s:.3g}): numerical range exceeded"))
     return out
+
+
+def separated_design(plant, blocks, e_scalars: tuple[str, ...], *, solver: str, cap: float, what: str,
+                     phi_name: str, extra_params):
+    """Solve the x-side (Q, Fh, kappa) and e-side (R, Kh, ``e_scalars``) apart and rebuild the joint.
+
+    Parameters
+    ----------
+    plant : Plant
+    blocks : tuple
+        ``(joint, xside, eside)`` block functions of the design.
+    e_scalars : tuple of str
+        Nonnegative scalar variables of the e-side (scaled with R and Kh).
+    solver : str
+        ``"auto"``, ``"CLARABEL"`` or ``"SCS"`` (see :func:`solve_side`).
+    cap : float
+        Normalisation cap.
+    what : str
+        Name of the design for reasons.
+    phi_name : str
+        Name under which the recombination's Young weight is reported.
+    extra_params : callable
+        ``extra_params(values) -> dict`` of design-specific scalars to report.
+
+    Returns
+    -------
+    DesignResult
+    """
+    import cvxpy as cp
+
+    from designs._core import DesignResult
+
+    n, m, p = plant.n, plant.m, plant.p
+    joint, xside, eside = blocks
+    xv = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
+          "t": cp.Variable()}
+    ev = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "t": cp.Variable()}
+    ev.update({k: cp.Variable() for k in e_scalars})
+    xprog = _lmi.margin_program(xside, xv, {}, ("Q",), lambda d: [d["kappa"] >= 0], cap=cap)
+    eprog = _lmi.margin_program(eside, ev, {}, ("R",), lambda d: [d[k] >= 0 for k in e_scalars], cap=cap)
+    xlog = solve_side(xprog, solver)
+    elog = solve_side(eprog, solver)
+    rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, e_keys=("R", "Kh", *e_scalars), joint_blocks=joint)
+    K = F = None
+    vals = rc["values"] or {}
+    if rc["status"] == "feasible":
+        K = np.linalg.solve(vals["R"], vals["Kh"].T)  # K = R^{-1} Kh'
+        F = np.linalg.solve(vals["Q"], vals["Fh"]).T  # F = Fh' Q^{-1}
+    return DesignResult(
+        status=rc["status"], reason=rc["reason"] and f"{what} (separated): {rc['reason']}",
+        K=K, F=F, solver=solver, solver_status=f"x {xlog}; e {elog}",
+        compile_s=xprog.compile_s + eprog.compile_s, solve_s=xprog.solve_s + eprog.solve_s,
+        n_solves=xprog.n_solves + eprog.n_solves, margin=rc["margin"], lmi_size=rc["lmi_size"],
+        min_eig=rc["min_eig"],
+        params={"form": "separated (x-side and e-side apart, joint certificate rebuilt)", phi_name: rc["phi"],
+                "e_scale": rc["scale"], "x_margin": rc["x_margin"], "e_margin": rc["e_margin"],
+                "raw_joint_margin": rc.get("raw_margin", float("nan")), "cap": cap, **extra_params(vals)})

@@ -15,7 +15,7 @@ import numpy as np
 from bench.registry import register_design
 from designs import _lmi
 from designs._core import Design, DesignError, DesignResult, check_positive
-from designs.thm1 import _gains, _result, _scalar, _variables
+from designs.thm1 import _result, _scalar, _variables
 from plants._core import Constants, Plant
 
 __all__ = ["Cor1", "Cor1Printed"]
@@ -141,38 +141,12 @@ class Cor1(Design):
 
     def _design_separated(self, plant: Plant, alpha: float) -> DesignResult:
         """x-side and e-side solved apart (two 2n LMIs), joint certificate rebuilt and verified."""
-        import cvxpy as cp
+        from designs._separated import separated_design
 
-        from designs._separated import recombine
-
-        n, m, p = plant.n, plant.m, plant.p
-        joint, xside, eside = self._blocks(plant, alpha)
-        xv = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
-              "t": cp.Variable()}
-        ev = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "mu2": cp.Variable(),
-              "t": cp.Variable()}
-        xprog = _lmi.margin_program(xside, xv, {}, ("Q",), lambda d: [d["kappa"] >= 0], cap=self.cap)
-        eprog = _lmi.margin_program(eside, ev, {}, ("R",), lambda d: [d["mu2"] >= 0], cap=self.cap)
-        from designs._separated import solve_side
-
-        xlog = solve_side(xprog, self.solver)
-        elog = solve_side(eprog, self.solver)
-        rc = recombine(plant.B, xprog, eprog, ("R", "Kh", "mu2"), joint)
-        K = F = None
-        if rc["status"] == "feasible":
-            K, F = _gains(rc["values"])
-        vals = rc["values"] or {}
-        kappa = _scalar(vals, "kappa")
-        return DesignResult(
-            status=rc["status"], reason=rc["reason"] and f"corrected Corollary 1 (separated): {rc['reason']}",
-            K=K, F=F, solver=self.solver, solver_status=f"x {xlog}; e {elog}",
-            compile_s=xprog.compile_s + eprog.compile_s, solve_s=xprog.solve_s + eprog.solve_s,
-            n_solves=2, margin=rc["margin"], lmi_size=rc["lmi_size"], min_eig=rc["min_eig"],
-            params={"form": "separated (x-side and e-side apart, joint certificate rebuilt)", "phi2": rc["phi"],
-                    "e_scale": rc["scale"], "x_margin": rc["x_margin"], "e_margin": rc["e_margin"],
-                    "raw_joint_margin": rc.get("raw_margin", float("nan")), "kappa": kappa,
-                    "mu1": 1 / kappa if kappa > 0 else float("nan"), "mu2": _scalar(vals, "mu2"),
-                    "alpha": alpha, "cap": self.cap})
+        return separated_design(plant, self._blocks(plant, alpha), ("mu2",), solver=self.solver, cap=self.cap,
+                                what="corrected Corollary 1", phi_name="phi2",
+                                extra_params=lambda v: {"kappa": _scalar(v, "kappa"), "mu2": _scalar(v, "mu2"), "alpha": alpha,
+                           "mu1": 1 / _scalar(v, "kappa") if _scalar(v, "kappa") > 0 else float("nan")})
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the corrected Corollary 1 for ``plant`` with Lipschitz constant ``constants.alpha``."""

@@ -207,40 +207,13 @@ class Thm1(Design):
 
     def _design_separated(self, plant: Plant, c: Constants) -> DesignResult:
         """x-side and e-side solved apart (two 2n LMIs), joint certificate rebuilt and verified."""
-        import cvxpy as cp
+        from designs._separated import separated_design
 
-        from designs._separated import recombine
+        return separated_design(plant, self._convex_blocks(plant, c), ("eps3", "eps4"), solver=self.solver, cap=self.cap,
+                                what="corrected Theorem 1", phi_name="phi1",
+                                extra_params=lambda v: {"kappa": _scalar(v, "kappa"), "eps3": _scalar(v, "eps3"), "eps4": _scalar(v, "eps4"),
+                           "rho": c.rho, "beta": c.beta, "gamma": c.gamma})
 
-        n, m, p = plant.n, plant.m, plant.p
-        joint, xside, eside = self._convex_blocks(plant, c)
-        xv = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
-              "t": cp.Variable()}
-        ev = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "eps3": cp.Variable(),
-              "eps4": cp.Variable(), "t": cp.Variable()}
-        xprog = _lmi.margin_program(xside, xv, {}, ("Q",), lambda d: [d["kappa"] >= 0], cap=self.cap)
-        eprog = _lmi.margin_program(eside, ev, {}, ("R",), lambda d: [d["eps3"] >= 0, d["eps4"] >= 0], cap=self.cap)
-        from designs._separated import solve_side
-
-        xlog = solve_side(xprog, self.solver)
-        elog = solve_side(eprog, self.solver)
-        rc = recombine(plant.B, xprog, eprog, ("R", "Kh", "eps3", "eps4"), joint)
-        K = F = None
-        if rc["status"] == "feasible":
-            K, F = _gains(rc["values"])
-        vals = rc["values"] or {}
-        kappa = float(vals["kappa"]) if vals.get("kappa") is not None else float("nan")
-        return DesignResult(
-            status=rc["status"], reason=rc["reason"] and f"corrected Theorem 1 (separated): {rc['reason']}",
-            K=K, F=F, solver=self.solver, solver_status=f"x {xlog}; e {elog}",
-            compile_s=xprog.compile_s + eprog.compile_s, solve_s=xprog.solve_s + eprog.solve_s,
-            n_solves=2, margin=rc["margin"], lmi_size=rc["lmi_size"], min_eig=rc["min_eig"],
-            params={"form": "separated (x-side and e-side apart, joint certificate rebuilt)", "phi1": rc["phi"],
-                    "e_scale": rc["scale"], "x_margin": rc["x_margin"], "e_margin": rc["e_margin"],
-                    "raw_joint_margin": rc.get("raw_margin", float("nan")),
-                    "kappa": kappa, "eps3": _scalar(vals, "eps3"), "eps4": _scalar(vals, "eps4"),
-                    "rho": c.rho, "beta": c.beta, "gamma": c.gamma, "cap": self.cap})
-
-    # -- gamma < 0: fixed multipliers eps1, eps2 ----------------------------------------------
     def _program_fixed_eps(self, plant: Plant, c: Constants, schur: bool) -> _lmi.Program:
         import cvxpy as cp
 
