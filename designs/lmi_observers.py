@@ -80,7 +80,7 @@ class RajamaniLMI(Part):
             return [[S, P], [P, -d["eps"] * I]]
 
         prog = _lmi.margin_program(blocks, v, {}, ("P",), lambda d: [d["eps"] >= 0], cap=self.cap)
-        log = solve_side(prog, self.solver)
+        log = solve_side(prog, self.solver, n)
         concl = _lmi.conclude(prog, what="Rajamani LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
                               searched=f"with decay {lam:g}")
         vals = prog.values()
@@ -135,7 +135,7 @@ class ZhangOSL(Part):
 
         prog = _lmi.margin_program(blocks, v, {}, ("P",),
                                    lambda d: [d["sigma"] >= 0, d["eps1"] >= 0, d["eps2"] >= 0], cap=self.cap)
-        log = solve_side(prog, self.solver)
+        log = solve_side(prog, self.solver, n)
         concl = _lmi.conclude(prog, what="Zhang OSL LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
                               searched=f"with decay {lam:g}")
         vals = prog.values()
