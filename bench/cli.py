@@ -1,7 +1,15 @@
 """Command line: ``python -m bench run`` and ``python -m bench list``.
 
-Exit codes: 0 success, 1 a run that could not write its report, 2 bad usage (unknown id,
-bad option value).
+Exit codes: 0 success, 1 a run that could not write its report (or an internal error: the
+CLI prints one line, never a bare traceback), 2 bad usage (unknown id, bad option value),
+130 interrupted (Ctrl-C / SIGINT).
+
+``run`` keeps finished pairs in ``.bench-cache/`` next to the report folder (:mod:`bench.cache`),
+so a run interrupted by Ctrl-C or a killed process resumes where it stopped when run again;
+the previous report stays untouched until the new one is complete (:func:`bench.report.write_report`
+is atomic, and a Ctrl-C while it moves the files in is deferred until it is done).
+``--no-cache`` ignores the cache. ``--timeout SECONDS`` turns a pair that runs longer into a
+``timeout`` row (:mod:`bench.harness`).
 """
 
 from __future__ import annotations
@@ -10,6 +18,8 @@ import argparse
 import shlex
 import sys
 import time
+from contextlib import contextmanager
+from typing import Iterator
 
 from bench.registry import DESIGNS, PLANTS, UnknownIdError
 
@@ -66,6 +76,10 @@ def _build_parser() -> argparse.ArgumentParser:
     r.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run on a Dask distributed cluster (pip install '.[dist]')")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+    r.add_argument("--timeout", type=_positive_float, default=None, metavar="SECONDS",
+                   help="wall-clock limit per pair; a pair that exceeds it becomes a 'timeout' row (default: none)")
+    r.add_argument("--no-cache", action="store_true",
+                   help="recompute every pair: neither read nor write the cache (.bench-cache/ next to --out)")
     ls = sub.add_parser("list", help="list plants and designs")
     for sp in (r, ls):
         sp.add_argument("--plugin", action="append", metavar="PATH",
@@ -76,6 +90,9 @@ def _build_parser() -> argparse.ArgumentParser:
     pf.add_argument("--max-joint-n", type=_positive_int, default=32, metavar="N",
                     help="largest n for the joint 6n LMI (default 32; n = 50 took ~800 s here)")
     pf.add_argument("--no-run", action="store_true", help="skip timing the default run with --jobs 1 and 2")
+    from bench.studies.cli import add_study_parser
+
+    add_study_parser(sub)  # python -m bench study {admissible,sampling,montecarlo,noise}
     return p
 
 
@@ -100,23 +117,51 @@ def _cmd_run(args, argv: list[str]) -> int:
     from bench.harness import ProgressBar, RunOptions, run
     from bench.report import write_report
 
+    from bench.cache import Cache, default_cache_dir
+
     options = RunOptions(seed=args.seed, use_claimed=args.claimed_constants, fail_fast=args.fail_fast,
-                         t_final=args.t_final, noise=args.noise)
+                         t_final=args.t_final, noise=args.noise, timeout=args.timeout)
     t0 = time.perf_counter()
-    jobs = args.jobs or default_jobs()
+    # never more workers than tasks (a huge -j would fork that many processes)
+    jobs = min(args.jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
+    cache = None if args.no_cache else Cache(default_cache_dir(args.out))
     bar = None if args.quiet else ProgressBar()
     try:
-        result = run(plant_ids, design_ids, options, progress=bar, jobs=jobs, scheduler=args.scheduler)
+        try:
+            result = run(plant_ids, design_ids, options, progress=bar, jobs=jobs, scheduler=args.scheduler,
+                         cache=cache)
+        finally:
+            if bar is not None:
+                bar.close()
     except ExecutorError as exc:
         print(f"python -m bench run: error: {exc}", file=sys.stderr)
         return 2
-    finally:
-        if bar is not None:
-            bar.close()
+    except KeyboardInterrupt:
+        kept = (f"{cache.stored} finished result(s) were cached in {cache.root}: run the same command again to "
+                "resume" if cache is not None else "nothing was cached (--no-cache)")
+        print(f"python -m bench run: interrupted; the previous report in {args.out!r}, if any, is unchanged; {kept}",
+              file=sys.stderr)
+        return 130
+    except Exception as exc:  # --fail-fast re-raises the first failure: show where, then one line
+        if not args.fail_fast:
+            raise
+        import traceback
+
+        traceback.print_exc()
+        print(f"python -m bench run: error (--fail-fast): {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
     info = {"command": "python -m bench " + shlex.join(argv), "plants": plant_ids, "designs": design_ids,
             "jobs": jobs, "scheduler": args.scheduler}
+    path = None
     try:
-        path = write_report(result, args.out, info, figures=not args.no_figures)
+        with _sigint_deferred("python -m bench run: finishing the report before stopping (Ctrl-C again to abort "
+                              "at once)"):
+            path = write_report(result, args.out, info, figures=not args.no_figures)
+    except KeyboardInterrupt:
+        where = (f"after writing {path}" if path is not None else
+                 f"while writing the report; the previous report in {args.out!r}, if any, is unchanged")
+        print(f"python -m bench run: interrupted {where}", file=sys.stderr)
+        return 130
     except Exception as exc:  # the previous report stays intact (atomic write)
         print(f"python -m bench run: error: could not write the report to {args.out!r} "
               f"({type(exc).__name__}: {exc}); the previous report, if any, is unchanged", file=sys.stderr)
@@ -127,10 +172,45 @@ def _cmd_run(args, argv: list[str]) -> int:
         n_cert = int(df["certified"].sum())
         n_conv = int(df["converged"].sum())
         n_err = int((df["status"] == "error").sum())
-        print(f"{len(df)} pairs: {n_feas} feasible, {n_cert} certified, {n_conv} converged, {n_err} errors; "
-              f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)
+        n_to = int((df["status"] == "timeout").sum())
+        cached = f"; {result.cache_hits} from the cache" if cache is not None else ""
+        timeouts = f", {n_to} timeouts" if n_to else ""
+        print(f"{len(df)} pairs: {n_feas} feasible, {n_cert} certified, {n_conv} converged, {n_err} errors"
+              f"{timeouts}{cached}; {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+        for msg in (cache.errors if cache is not None else [])[:3]:
+            print(f"python -m bench run: warning: {msg}", file=sys.stderr)
         print(f"wrote {path}", file=sys.stderr)
     return 0
+
+
+@contextmanager
+def _sigint_deferred(message: str) -> Iterator[None]:
+    """Hold a Ctrl-C until the block is done (a second Ctrl-C aborts at once); then raise it.
+
+    Only in the main thread and when SIGINT has Python's default handler; otherwise a no-op.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield
+        return
+    pending: list[int] = []
+
+    def hold(signum, frame):
+        if pending:
+            raise KeyboardInterrupt
+        pending.append(signum)
+        print(message, file=sys.stderr, flush=True)
+
+    signal.signal(signal.SIGINT, hold)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if pending:
+        raise KeyboardInterrupt
 
 
 def _cmd_perf(args) -> int:
@@ -150,8 +230,18 @@ def _cmd_perf(args) -> int:
     return 0
 
 
+def _cmd_study(args, argv: list[str]) -> int:
+    """``python -m bench study NAME``: see :mod:`bench.studies` (writes STUDY_<NAME>.md, never REPORT.md)."""
+    from bench.studies.cli import run_study
+
+    return run_study(args, argv)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit code.
+    """Entry point; returns the exit code and never raises.
+
+    A Ctrl-C returns 130 with a one-line message; an unexpected exception returns 1 with a
+    one-line message naming it (no traceback).
 
     Parameters
     ----------
@@ -159,6 +249,18 @@ def main(argv: list[str] | None = None) -> int:
         Arguments without the program name (default ``sys.argv[1:]``).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    prog = f"python -m bench {next((a for a in argv if not a.startswith('-')), '')}".rstrip()
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - the CLI prints one line, never a bare traceback
+        print(f"{prog}: error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+
+
+def _main(argv: list[str]) -> int:
     parser = _build_parser()
     try:
         args = parser.parse_args(argv)
@@ -174,6 +276,8 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     if args.command == "perf":
         return _cmd_perf(args)
+    if args.command == "study":
+        return _cmd_study(args, argv)
     if args.command == "list":
         return _cmd_list()
     return _cmd_run(args, argv)

@@ -21,13 +21,13 @@ import numpy as np
 
 from bench.harness import RunResult
 
-__all__ = ["package_versions", "render_markdown", "write_report"]
+__all__ = ["git_revision", "package_versions", "render_markdown", "write_report"]
 
 #: Plants that get per-design figures of states, estimates and errors (like the paper's Figures
 #: 2-5); every plant gets the norm comparison figure.
 FIGURE_PLANTS = ("flexible_link",)
 
-_PACKAGES = ("numpy", "scipy", "cvxpy", "clarabel", "control", "filterpy", "pandas", "matplotlib", "tabulate")
+_PACKAGES = ("numpy", "scipy", "cvxpy", "clarabel", "scs", "control", "filterpy", "pandas", "matplotlib", "tabulate")
 
 
 def package_versions() -> dict[str, str]:
@@ -39,6 +39,33 @@ def package_versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             out[name] = "not installed"
     return out
+
+
+def git_revision() -> dict[str, object]:
+    """``{"commit": sha or None, "dirty": bool or None}`` of the checkout holding this package.
+
+    None when the package is not in a git checkout (an installed wheel) or git is missing;
+    ``dirty`` is True when tracked files differ from the commit (then the commit alone does not
+    reproduce the run). Read-only: ``git rev-parse`` and ``git status`` without optional locks.
+    """
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "GIT_OPTIONAL_LOCKS": "0"}
+
+    def git(*args: str) -> str | None:
+        try:
+            done = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10,
+                                  env=env, check=False)
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    top = git("rev-parse", "--show-toplevel")
+    if top is None or Path(top).resolve() != root:
+        return {"commit": None, "dirty": None}
+    status = git("status", "--porcelain", "--untracked-files=no")
+    return {"commit": git("rev-parse", "HEAD"), "dirty": None if status is None else bool(status)}
 
 
 def _fmt(v) -> str:
@@ -308,7 +335,11 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
             "t_final_override": result.options.t_final,
             "noise": result.options.noise,
             "noise_dt": result.options.noise_dt,
-            "sim": {k: getattr(result.options.sim, k) for k in ("method", "rtol", "atol", "n_points", "blowup")},
+            "timeout": result.options.timeout,
+            "sim": {k: getattr(result.options.sim, k) for k in ("method", "rtol", "atol", "n_points", "blowup",
+                                                                 "max_nfev")},
+            **{f"git_{k}": v for k, v in git_revision().items()},
+            "cache": {"dir": result.cache_dir, "hits": result.cache_hits, "misses": result.cache_misses},
             "versions": package_versions(),
             "platform": platform.platform(),
             "executable": sys.executable,

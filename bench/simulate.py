@@ -8,7 +8,8 @@ States ``z = (x, x_hat)`` (2n), ``u = F x_hat``::
 integrated with scipy's ``solve_ivp`` (DOP853 by default). A run that blows up (non-finite
 state, or ``||z||`` above ``blowup`` times ``max(1, ||z(0)||)``) stops and reports
 ``"diverged"``; a run that exceeds ``max_nfev`` right-hand-side evaluations stops and reports
-``"budget"``. A simulation never hangs.
+``"budget"``; a run that exceeds ``max_wall_s`` seconds of wall-clock time (a pair's
+``--timeout``) stops and reports ``"timeout"``. A simulation never hangs.
 """
 
 from __future__ import annotations
@@ -39,6 +40,9 @@ class SimOptions:
         Divergence threshold on ``||z|| / max(1, ||z(0)||)``.
     max_nfev : int
         Budget of right-hand-side evaluations.
+    max_wall_s : float, optional
+        Wall-clock budget in seconds (checked at every right-hand-side evaluation and sample);
+        None: no limit. The harness sets it to what is left of a pair's ``--timeout``.
     """
 
     method: str = "DOP853"
@@ -47,8 +51,12 @@ class SimOptions:
     n_points: int = 2001
     blowup: float = 1e6
     max_nfev: int = 2_000_000
+    max_wall_s: float | None = None
 
     def __post_init__(self) -> None:
+        if self.max_wall_s is not None and not (isinstance(self.max_wall_s, (int, float))
+                                                and np.isfinite(self.max_wall_s) and self.max_wall_s > 0):
+            raise ValueError(f"max_wall_s: must be None or a finite number > 0, got {self.max_wall_s!r}")
         for name in ("rtol", "atol", "blowup"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
@@ -69,7 +77,7 @@ class Trajectory:
     x, x_hat : ndarray (n, N)
     u : ndarray (m, N)
     status : str
-        ``"ok"``, ``"diverged"``, ``"budget"`` or ``"failed"``.
+        ``"ok"``, ``"diverged"``, ``"budget"``, ``"timeout"`` or ``"failed"``.
     message : str
     wall_s : float
     nfev : int
@@ -145,11 +153,14 @@ def simulate(
     z0 = np.concatenate([x0, xh0])
     limit = options.blowup * max(1.0, float(np.linalg.norm(z0)))
     count = [0]
+    wall_end = None if options.max_wall_s is None else time.perf_counter() + options.max_wall_s
 
     def rhs(t, z):
         count[0] += 1
         if count[0] > options.max_nfev:
             raise _Stop("budget", f"more than {options.max_nfev} right-hand-side evaluations by t = {t:.4g}")
+        if wall_end is not None and time.perf_counter() > wall_end:
+            raise _Stop("timeout", f"more than {options.max_wall_s:.3g} s of wall time by t = {t:.4g}")
         if not np.all(np.isfinite(z)):
             raise _Stop("diverged", f"non-finite state at t = {t:.4g}")
         nl = np.asarray(f(z.reshape(2, n).T), dtype=float).T.ravel()
@@ -178,6 +189,13 @@ def simulate(
         status, message = "diverged", "non-finite state"
     x, xh = z[:n], z[n:]
     return Trajectory(t_out, x, xh, F @ xh, status, message, wall, count[0])
+
+
+def _finite(v: np.ndarray, t: float, what: str = "the right-hand side") -> np.ndarray:
+    """``v``, or FloatingPointError when it is not finite (a NaN derivative would stall solve_ivp)."""
+    if not np.all(np.isfinite(v)):
+        raise FloatingPointError(f"{what} is not finite (t = {t:.4g} within the sample interval)")
+    return v
 
 
 def simulate_sampled(
@@ -247,6 +265,7 @@ def simulate_sampled(
     ts, xs, xhs, us = [], [], [], []
     status, message = "ok", ""
     t0 = time.perf_counter()
+    wall_end = None if options.max_wall_s is None else t0 + options.max_wall_s
     nfev = 0
     if K is not None:
         K = np.asarray(K, dtype=float)
@@ -268,17 +287,23 @@ def simulate_sampled(
             break
         if k == N:
             break
+        if wall_end is not None and time.perf_counter() > wall_end:
+            status, message = "timeout", f"more than {options.max_wall_s:.3g} s of wall time by t = {tk:.4g}"
+            break
         try:
             if ekf is not None:
-                sol = solve_ivp(lambda t, s: A @ s + B @ u + f(s), (0.0, dt), x, method=options.method,
+                sol = solve_ivp(lambda t, s: _finite(A @ s + B @ u + f(s), t), (0.0, dt), x, method=options.method,
                                 rtol=options.rtol, atol=options.atol)
                 x = sol.y[:, -1]
+                # a NaN derivative at the start of an interval makes solve_ivp's first step NaN and
+                # its step-size loop endless: check f where the filter's prediction starts
+                _finite(np.asarray(f(np.asarray(ekf.x, dtype=float)), dtype=float), 0.0, "f at the estimate")
                 ekf.predict(u)
             else:
                 w = np.concatenate([np.zeros(n), K @ V[k]])
 
                 def rhs(t, s):
-                    return L @ s + w + np.asarray(f(s.reshape(2, n).T), dtype=float).T.ravel()
+                    return _finite(L @ s + w + np.asarray(f(s.reshape(2, n).T), dtype=float).T.ravel(), t)
 
                 sol = solve_ivp(rhs, (0.0, dt), z, method=options.method, rtol=options.rtol, atol=options.atol)
                 x, xh = sol.y[:n, -1], sol.y[n:, -1]

@@ -5,7 +5,9 @@ Nothing here simulates. Infeasibility is a result (a status with a reason), not 
 
 from __future__ import annotations
 
+import difflib
 import math
+import numbers
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
@@ -13,10 +15,22 @@ import numpy as np
 
 from plants._core import Constants, Plant
 
-__all__ = ["Design", "DesignError", "DesignResult", "STATUSES", "check_positive", "missing_constants"]
+__all__ = [
+    "Design",
+    "DesignError",
+    "DesignResult",
+    "STATUSES",
+    "check_choice",
+    "check_hyperparameter_names",
+    "check_int",
+    "check_positive",
+    "check_range",
+    "check_values_in",
+    "missing_constants",
+]
 
-#: Possible design statuses.
-STATUSES = ("feasible", "infeasible", "inapplicable", "undecided", "error")
+#: Possible design statuses (``"timeout"``: the pair ran out of its ``--timeout``; set by the harness).
+STATUSES = ("feasible", "infeasible", "inapplicable", "undecided", "error", "timeout")
 
 
 class DesignError(ValueError):
@@ -25,14 +39,99 @@ class DesignError(ValueError):
 
 def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
     """Return ``value`` as a float, or raise :class:`DesignError` naming ``name``."""
+    if isinstance(value, (str, bytes)):  # float("1e-3") would accept a string silently
+        raise DesignError(f"{name}: expected a real number, got {value!r}")
     try:
         v = float(value)
-    except (TypeError, ValueError):
-        raise DesignError(f"{name}: expected a real number, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise DesignError(f"{name}: expected a finite real number, got {_short(value)}") from None
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
         bound = ">= 0" if allow_zero else "> 0"
-        raise DesignError(f"{name}: must be finite and {bound}, got {value!r}")
+        raise DesignError(f"{name}: must be finite and {bound}, got {_short(value)}")
     return v
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def check_int(name: str, value: Any, *, minimum: int) -> int:
+    """Return ``value`` as an int ``>= minimum``, or raise :class:`DesignError` naming ``name``.
+
+    Integers (Python or numpy, not bool) only: ``2.5`` or ``"7"`` are rejected rather than
+    truncated or parsed.
+    """
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise DesignError(f"{name}: expected an integer, got {_short(value)}")
+    if int(value) < minimum:
+        raise DesignError(f"{name}: must be >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _is_sequence(value: Any) -> bool:
+    return isinstance(value, (tuple, list)) or (isinstance(value, np.ndarray) and value.ndim == 1)
+
+
+def check_range(name: str, value: Any, *, strict: bool = True) -> tuple[float, float]:
+    """Return ``(lo, hi)`` with ``0 < lo < hi < inf`` (``lo <= hi`` unless ``strict``).
+
+    Raises :class:`DesignError` naming ``name`` for anything else (a scalar, a string, three
+    values, a non-finite or non-positive end, reversed ends).
+    """
+    if not _is_sequence(value) or len(value) != 2:
+        raise DesignError(f"{name}: expected a pair (lo, hi) of positive numbers, got {_short(value)}")
+    lo, hi = (check_positive(name, v) for v in value)
+    if lo > hi or (strict and lo == hi):
+        rel = "<" if strict else "<="
+        raise DesignError(f"{name}: must be (lo, hi) with lo {rel} hi, got {_short(value)}")
+    return lo, hi
+
+
+def check_values_in(name: str, value: Any, lo: float, hi: float) -> tuple[float, ...]:
+    """Return a non-empty sequence of numbers, each in the open interval ``(lo, hi)`` with ``lo >= 0``.
+
+    Raises :class:`DesignError` naming ``name`` otherwise.
+    """
+    if not _is_sequence(value):
+        raise DesignError(f"{name}: expected a sequence of numbers in ({lo:g}, {hi:g}), got {_short(value)}")
+    if len(value) == 0:
+        raise DesignError(f"{name}: at least one value is needed")
+    out = []
+    for x in value:
+        v = check_positive(name, x, allow_zero=True)
+        if not lo < v < hi:
+            raise DesignError(f"{name}: each value must be in ({lo:g}, {hi:g}), got {_short(x)}")
+        out.append(v)
+    return tuple(out)
+
+
+def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> str:
+    """Return ``value`` if it is one of the strings ``choices``, else raise :class:`DesignError`."""
+    if not isinstance(value, str) or value not in choices:
+        raise DesignError(f"{name}: must be one of {', '.join(repr(c) for c in choices)}, got {_short(value)}")
+    return value
+
+
+def check_hyperparameter_names(cls: type, args: tuple, kwargs: dict) -> None:
+    """Reject positional arguments and unknown keyword hyperparameters of a dataclass design or part.
+
+    Called from ``__new__``, before the dataclass ``__init__`` (which would raise a bare
+    ``TypeError``); the :class:`DesignError` names the unknown parameter and suggests a close
+    match.
+    """
+    known = [k for k, f in getattr(cls, "__dataclass_fields__", {}).items() if f.init]
+    if args:
+        raise DesignError(f"{cls.__name__}: hyperparameters are keyword-only ({', '.join(known) or 'none'}), "
+                          f"got {len(args)} positional argument(s)")
+    if not hasattr(cls, "__dataclass_fields__"):
+        return
+    for key in kwargs:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise DesignError(f"{key}: unknown hyperparameter of {cls.__name__} "
+                              f"(valid: {', '.join(known) or 'none'}){hint}")
 
 
 @dataclass
@@ -114,6 +213,10 @@ class Design:
 
     #: Constants the design needs (names of :class:`plants.Constants` fields).
     needs = ()
+
+    def __new__(cls, *args: Any, **kwargs: Any):
+        check_hyperparameter_names(cls, args, kwargs)  # unknown names: DesignError, not TypeError
+        return super().__new__(cls)
 
     def applicable(self, plant: Plant, constants: Constants) -> str | None:
         """None if the design applies to ``plant``, else the reason it does not."""

@@ -14,21 +14,27 @@ Conventions (see ``../shared/design/MATH.md``):
 
 from __future__ import annotations
 
+import contextvars
 import math
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
 __all__ = [
     "MARGIN_TOL",
+    "DeadlineExceeded",
     "SolveOutcome",
+    "check_deadline",
     "log_search",
     "max_eig",
     "min_eig",
+    "remaining_time",
     "solve_timed",
     "sym",
+    "time_limit",
     "verify_tol",
 ]
 
@@ -78,15 +84,90 @@ class SolveOutcome:
         return self.status in ("optimal", "optimal_inaccurate")
 
 
+class DeadlineExceeded(BaseException):
+    """The time limit of the current :func:`time_limit` scope ran out (a pair's ``--timeout``).
+
+    A ``BaseException`` (like ``KeyboardInterrupt``), so that a design's ``except Exception``
+    cannot turn a timeout into an "infeasible" or "failed" status: it reaches the harness,
+    which records a ``timeout`` row.
+
+    Parameters
+    ----------
+    where : str
+        What was running when the limit ran out (for the row's reason).
+    """
+
+    def __init__(self, where: str):
+        super().__init__(where)
+        self.where = where
+
+
+#: (monotonic deadline, limit in seconds) of the innermost :func:`time_limit` scope of this
+#: thread or task; None outside any scope.
+_DEADLINE: contextvars.ContextVar[tuple[float, float] | None] = contextvars.ContextVar("oslbench_deadline",
+                                                                                       default=None)
+
+
+@contextmanager
+def time_limit(seconds: float | None) -> Iterator[None]:
+    """Scope with a wall-clock limit checked by :func:`solve_timed` and :func:`check_deadline`.
+
+    Every SDP solve inside the scope gets the remaining time as the solver's own limit
+    (Clarabel ``time_limit``, SCS ``time_limit_secs``), and raises :class:`DeadlineExceeded`
+    once the deadline has passed. ``None`` means no limit. The limit lives in a context
+    variable, so threads (e.g. Dask workers) each have their own.
+
+    Parameters
+    ----------
+    seconds : float or None
+        The limit; must be > 0.
+    """
+    if seconds is None:
+        yield
+        return
+    if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"timeout: must be a finite number of seconds > 0, got {seconds!r}")
+    token = _DEADLINE.set((time.monotonic() + float(seconds), float(seconds)))
+    try:
+        yield
+    finally:
+        _DEADLINE.reset(token)
+
+
+def remaining_time() -> float | None:
+    """Seconds left in the current :func:`time_limit` scope (None: no limit; may be negative)."""
+    d = _DEADLINE.get()
+    return None if d is None else d[0] - time.monotonic()
+
+
+def check_deadline(where: str) -> None:
+    """Raise :class:`DeadlineExceeded` if the current :func:`time_limit` has run out."""
+    left = remaining_time()
+    if left is not None and left <= 0:
+        raise DeadlineExceeded(where)
+
+
+#: The solvers' own wall-clock limit options (seconds).
+_TIME_LIMIT_OPTION = {"CLARABEL": "time_limit", "SCS": "time_limit_secs"}
+
+
 def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     """Solve a cvxpy problem, splitting wall time into compile and solve seconds.
 
-    Solver failures become a status (``"solver_error"``), never an exception.
+    Solver failures become a status (``"solver_error"``), never an exception. Inside a
+    :func:`time_limit` scope the solver gets the remaining time as its own limit, and
+    :class:`DeadlineExceeded` is raised when the deadline has passed (before or after the
+    solve): a solve cut short by the limit is never reported as a status.
     """
     import cvxpy as cp
 
     import warnings
 
+    check_deadline("before an SDP solve")
+    granted = remaining_time()
+    if granted is not None and solver.upper() in _TIME_LIMIT_OPTION:
+        granted = max(granted, 1e-3)
+        opts.setdefault(_TIME_LIMIT_OPTION[solver.upper()], granted)
     t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():  # the status carries "inaccurate"; no stray warnings
@@ -97,6 +178,12 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     except cp.error.SolverError as exc:
         status, err = "solver_error", str(exc).splitlines()[0] if str(exc) else "solver failed"
     wall = time.perf_counter() - t0
+    # a solver stopped by its time limit returns early (Clarabel: "user_limit") or with the point it
+    # had (SCS: "optimal_inaccurate"), by its own clock: a solve that used (nearly) all the time
+    # it was granted is a timeout, whatever its status
+    if granted is not None and wall >= 0.9 * granted:
+        raise DeadlineExceeded(f"an SDP solve ({solver}, {wall:.3g} s of the {granted:.3g} s left)")
+    check_deadline(f"an SDP solve ({solver}, {wall:.3g} s)")
     comp = float(getattr(problem, "compilation_time", None) or 0.0)
     comp = min(comp, wall)
     val = problem.value if status in ("optimal", "optimal_inaccurate") else float("nan")

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
 from bench.registry import DESIGNS, Registry
-from designs._core import Design, DesignError, DesignResult, missing_constants
+from designs._core import Design, DesignError, DesignResult, check_hyperparameter_names, missing_constants
 from plants._core import Constants, Plant
 
 __all__ = [
@@ -59,6 +59,10 @@ class Part:
 
     needs = ()
 
+    def __new__(cls, *args: Any, **kwargs: Any):
+        check_hyperparameter_names(cls, args, kwargs)  # unknown names: DesignError, not TypeError
+        return super().__new__(cls)
+
     def applicable(self, plant: Plant, constants: Constants) -> str | None:
         """None if the part applies, else the reason."""
         return missing_constants(self.needs, constants)
@@ -77,7 +81,7 @@ def check_weight(name: str, W, size: int, *, definite: bool) -> np.ndarray:
         return np.eye(size)
     try:
         M = np.atleast_2d(np.array(W, dtype=float))
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise DesignError(f"{name}: not a numeric matrix") from None
     if M.shape == (1, 1) and size > 1:
         M = M[0, 0] * np.eye(size)  # a scalar weight means scalar * I
@@ -175,7 +179,13 @@ def register_pairing(feedback: str, estimator: str, *, summary: str | None = Non
     """
     did = f"{feedback}+{estimator}"
 
-    def factory(*, feedback_params: dict | None = None, estimator_params: dict | None = None) -> Composite:
+    def factory(*, feedback_params: dict | None = None, estimator_params: dict | None = None, **unknown) -> Composite:
+        for key in unknown:
+            raise DesignError(f"{key}: unknown hyperparameter of the pairing {did!r} "
+                              "(valid: feedback_params, estimator_params)")
+        for key, value in (("feedback_params", feedback_params), ("estimator_params", estimator_params)):
+            if value is not None and not (isinstance(value, Mapping) and all(isinstance(k, str) for k in value)):
+                raise DesignError(f"{key}: expected a dict of the part's hyperparameters by name, got {value!r}")
         fb = FEEDBACKS.create(feedback, **(feedback_params or {}))
         es = ESTIMATORS.create(estimator, **(estimator_params or {}))
         return Composite(feedback=fb, estimator=es)

@@ -14,7 +14,8 @@ import numpy as np
 
 from bench.registry import register_design
 from designs import _lmi
-from designs._core import Design, DesignError, DesignResult, check_positive
+from designs._core import (Design, DesignResult, check_choice, check_int, check_positive, check_range,
+                           check_values_in)
 from designs.thm1 import _result, _scalar, _variables
 from plants._core import Constants, Plant
 
@@ -73,18 +74,14 @@ class Cor1(Design):
         return "CLARABEL" if self.solver == "auto" else self.solver
 
     def __post_init__(self) -> None:
-        if self.solver not in ("auto", "CLARABEL", "SCS"):
-            raise DesignError(f"solver: must be 'auto', 'CLARABEL' or 'SCS', got {self.solver!r}")
-        if self.method not in ("joint", "separated"):
-            raise DesignError(f"method: must be 'joint' or 'separated', got {self.method!r}")
+        check_choice("solver", self.solver, ("auto", "CLARABEL", "SCS"))
+        check_choice("method", self.method, ("joint", "separated"))
         if self.phi2 is not None:
             check_positive("phi2", self.phi2)
-        lo, hi = (check_positive("phi2_range", v) for v in self.phi2_range)
-        if lo >= hi:
-            raise DesignError(f"phi2_range: must be (lo, hi) with lo < hi, got {self.phi2_range}")
+        check_range("phi2_range", self.phi2_range)
         check_positive("cap", self.cap)
-        if int(self.n_grid) < 2:
-            raise DesignError(f"n_grid: must be >= 2, got {self.n_grid}")
+        check_int("n_grid", self.n_grid, minimum=2)
+        check_int("n_refine", self.n_refine, minimum=0)
 
     @staticmethod
     def _blocks(plant: Plant, alpha: float):
@@ -193,11 +190,7 @@ class Cor1Printed(Design):
     needs = ("alpha",)
 
     def __post_init__(self) -> None:
-        if not self.xis:
-            raise DesignError("xis: at least one value is needed")
-        for x in self.xis:
-            if not 0 < float(x) < 1:
-                raise DesignError(f"xis: each xi must be in (0, 1) (Remark 3), got {x!r}")
+        check_values_in("xis", self.xis, 0.0, 1.0)  # Remark 3: 0 < xi < 1
         check_positive("cap", self.cap)
 
     def applicable(self, plant: Plant, constants: Constants) -> str | None:

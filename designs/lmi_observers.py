@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from designs import _lmi
-from designs._core import DesignError, check_positive
+from designs._core import check_choice, check_positive
 from designs._parts import Part, PartResult, register_estimator
 from designs._separated import solve_side
 from plants._core import Constants, Plant
@@ -31,8 +31,7 @@ __all__ = ["RajamaniLMI", "ZhangOSL"]
 
 
 def _check_solver(solver: str) -> None:
-    if solver not in ("auto", "CLARABEL", "SCS"):
-        raise DesignError(f"solver: must be 'auto', 'CLARABEL' or 'SCS', got {solver!r}")
+    check_choice("solver", solver, ("auto", "CLARABEL", "SCS"))
 
 
 def _part_from(prog: _lmi.Program, concl: dict, K, params: dict, log: str = "") -> PartResult:

@@ -27,9 +27,14 @@ __all__ = ["LQEObserver", "LQRFeedback"]
 
 def _prevalidate(name: str, W: Any, *, definite: bool) -> None:
     if W is not None:
-        M = np.atleast_2d(np.asarray(W, dtype=float)) if np.size(W) else None
-        if M is None:
+        try:
+            M = np.atleast_2d(np.asarray(W, dtype=float))
+        except (TypeError, ValueError, OverflowError):
+            raise DesignError(f"{name}: not a numeric matrix, got {W!r}"[:200]) from None
+        if M.size == 0:
             raise DesignError(f"{name}: empty weight")
+        if M.ndim != 2:
+            raise DesignError(f"{name}: expected a matrix (or a scalar), got an array of shape {M.shape}")
         check_weight(name, M, M.shape[0], definite=definite)
 
 

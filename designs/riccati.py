@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from designs._core import DesignError, check_positive
+from designs._core import check_int, check_positive, check_range
 from designs._parts import Part, PartResult, register_estimator
 from plants._core import Constants, Plant
 
@@ -85,12 +85,9 @@ class RHRiccati(Part):
     def __post_init__(self) -> None:
         if self.eps is not None:
             check_positive("eps", self.eps)
-        lo, hi = (check_positive("eps_range", v) for v in self.eps_range)
-        if lo > hi:
-            raise DesignError(f"eps_range: must be (lo, hi) with lo <= hi, got {self.eps_range}")
+        check_range("eps_range", self.eps_range, strict=False)
         check_positive("residual_tol", self.residual_tol)
-        if int(self.n_grid) < 1:
-            raise DesignError(f"n_grid: must be >= 1, got {self.n_grid}")
+        check_int("n_grid", self.n_grid, minimum=1)
 
     def compute(self, plant: Plant, constants: Constants) -> PartResult:
         """Search eps and return K, or 'no stabilizing solution' with the failures seen."""

@@ -14,7 +14,8 @@ import numpy as np
 
 from bench.registry import register_design
 from designs import _lmi
-from designs._core import Design, DesignError, DesignResult, check_positive
+from designs._core import (Design, DesignResult, check_choice, check_int, check_positive, check_range,
+                           check_values_in)
 from plants._core import Constants, Plant
 
 __all__ = ["Thm1", "Thm1Printed"]
@@ -130,19 +131,16 @@ class Thm1(Design):
         return "CLARABEL" if self.solver == "auto" else self.solver
 
     def __post_init__(self) -> None:
-        if self.solver not in ("auto", "CLARABEL", "SCS"):
-            raise DesignError(f"solver: must be 'auto', 'CLARABEL' or 'SCS', got {self.solver!r}")
-        if self.method not in ("joint", "separated"):
-            raise DesignError(f"method: must be 'joint' or 'separated', got {self.method!r}")
+        check_choice("solver", self.solver, ("auto", "CLARABEL", "SCS"))
+        check_choice("method", self.method, ("joint", "separated"))
         if self.phi1 is not None:
             check_positive("phi1", self.phi1)
-        lo, hi = (check_positive("phi1_range", v) for v in self.phi1_range)
-        if lo >= hi:
-            raise DesignError(f"phi1_range: must be (lo, hi) with lo < hi, got {self.phi1_range}")
+        check_range("phi1_range", self.phi1_range)
         check_positive("cap", self.cap)
         check_positive("eps1", self.eps1, allow_zero=True)
-        if int(self.n_grid) < 2:
-            raise DesignError(f"n_grid: must be >= 2, got {self.n_grid}")
+        check_range("eps2_range", self.eps2_range, strict=False)
+        check_int("n_grid", self.n_grid, minimum=2)
+        check_int("n_refine", self.n_refine, minimum=0)
 
     # -- gamma >= 0: convex form -------------------------------------------------------------
     @staticmethod
@@ -376,12 +374,9 @@ class Thm1Printed(Design):
     needs = ("rho", "beta", "gamma")
 
     def __post_init__(self) -> None:
-        lo, hi = (check_positive("eps2_range", v) for v in self.eps2_range)
-        if lo > hi:
-            raise DesignError(f"eps2_range: must be (lo, hi) with lo <= hi, got {self.eps2_range}")
-        for r in self.ratios:
-            if not 0 < float(r) < 1:
-                raise DesignError(f"ratios: each must be in (0, 1), got {r!r}")
+        check_range("eps2_range", self.eps2_range, strict=False)
+        check_int("n_eps2", self.n_eps2, minimum=1)
+        check_values_in("ratios", self.ratios, 0.0, 1.0)
         check_positive("cap", self.cap)
 
     def _program(self, plant: Plant, c: Constants) -> _lmi.Program:

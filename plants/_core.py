@@ -7,6 +7,7 @@ package solves LMIs or simulates: that is the job of ``designs`` and ``bench``.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field, fields
 from typing import Callable, Mapping
 
@@ -26,8 +27,8 @@ def _finite_scalar(name: str, value, *, allow_none: bool = True, positive: bool 
         raise PlantError(f"{name}: a number is required, got None")
     try:
         v = float(value)
-    except (TypeError, ValueError):
-        raise PlantError(f"{name}: expected a real number, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        raise PlantError(f"{name}: expected a finite real number, got {_short(value)}") from None
     if not math.isfinite(v):
         raise PlantError(f"{name}: must be finite, got {v}")
     if positive and v <= 0:
@@ -79,10 +80,22 @@ class Constants:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+def _short(value, limit: int = 80) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _real_array(value) -> np.ndarray:
+    """``np.array(value, dtype=float)``, refusing complex values (numpy would drop the imaginary part)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", np.exceptions.ComplexWarning)
+        return np.array(value, dtype=float)
+
+
 def _matrix(name: str, value, *, ndim: int = 2) -> np.ndarray:
     try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
+        arr = _real_array(value)
+    except (TypeError, ValueError, OverflowError, np.exceptions.ComplexWarning) as exc:
         raise PlantError(f"{name}: not a real numeric array ({exc})") from None
     if ndim == 2 and arr.ndim == 1:
         raise PlantError(f"{name}: expected a 2-D matrix, got a 1-D array of shape {arr.shape}")
@@ -176,7 +189,10 @@ class Plant:
             raise PlantError(f"claimed: expected a Constants, got {type(self.claimed).__name__}")
         if self.bounds is not None and not isinstance(self.bounds, Constants):
             raise PlantError(f"bounds: expected a Constants or None, got {type(self.bounds).__name__}")
-        object.__setattr__(self, "params", dict(self.params))
+        try:
+            object.__setattr__(self, "params", dict(self.params))
+        except (TypeError, ValueError):
+            raise PlantError(f"params: expected a mapping of parameter names to numbers, got {_short(self.params)}") from None
         for key, val in self.params.items():
             _finite_scalar(f"params[{key!r}]", val, allow_none=False)
         self._check_f(n)
@@ -191,9 +207,14 @@ class Plant:
         )
         for label, arg, shape in checks:
             try:
-                out = np.asarray(self.f(arg), dtype=float)
+                raw = self.f(arg)
             except Exception as exc:  # the user's f failed: say where
                 raise PlantError(f"f: raised {type(exc).__name__} when evaluating {label}: {exc}") from exc
+            try:
+                out = _real_array(raw)
+            except Exception as exc:  # None, a string, complex values, ...: not a real array
+                raise PlantError(f"f: {label} is not a real numeric array ({type(exc).__name__}: {exc}); "
+                                 f"got {_short(raw)}") from None
             if out.shape != shape:
                 raise PlantError(f"f: {label} must have shape {shape}, got {out.shape}")
             if not np.all(np.isfinite(out)):
@@ -204,11 +225,18 @@ class Plant:
             if not callable(self.jacobian):
                 raise PlantError("jacobian: must be callable or None")
             try:
-                J = np.asarray(self.jacobian(np.array(self.x0)), dtype=float)
+                raw = self.jacobian(np.array(self.x0))
             except Exception as exc:
                 raise PlantError(f"jacobian: raised {type(exc).__name__} at x0: {exc}") from exc
+            try:
+                J = _real_array(raw)
+            except Exception as exc:
+                raise PlantError(f"jacobian: not a real numeric array at x0 ({type(exc).__name__}: {exc}); "
+                                 f"got {_short(raw)}") from None
             if J.shape != (n, n):
                 raise PlantError(f"jacobian: must return shape ({n}, {n}), got {J.shape}")
+            if not np.all(np.isfinite(J)):
+                raise PlantError(f"jacobian: not finite at x0: {J}")
 
     @property
     def n(self) -> int:

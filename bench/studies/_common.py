@@ -1,0 +1,398 @@
+"""Helpers shared by the studies: argument checks, plants and gains, random initial conditions,
+markdown tables, and the atomic writer of a study's files.
+
+Every study writes ``STUDY_<name>.md``, ``study_<name>.csv`` (plus, for some, further
+``study_<name>_*.csv``) and ``figures/study_<name>*.png`` into its output folder. The files are
+rendered into a temporary folder next to the destination and moved into place with
+``os.replace`` (the markdown last), so an exception while rendering leaves the previous
+files untouched. ``REPORT.md`` is never touched by a study.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import platform
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+__all__ = [
+    "StudyError",
+    "bisect_largest",
+    "check_box",
+    "check_count",
+    "check_levels",
+    "check_range",
+    "default_box",
+    "design_for",
+    "fmt",
+    "md_table",
+    "random_ics",
+    "study_header",
+    "write_study",
+]
+
+
+class StudyError(ValueError):
+    """A bad argument of a study.
+
+    Parameters
+    ----------
+    param : str
+        The parameter's name (the CLI maps it to its option, e.g. ``box`` -> ``--box``).
+    message : str
+        What is wrong; ``str(error)`` is ``"<param>: <message>"``.
+    """
+
+    def __init__(self, param: str, message: str):
+        self.param = param
+        self.message = message
+        super().__init__(f"{param}: {message}")
+
+
+# -- argument checks ---------------------------------------------------------------------------
+def _finite(name: str, value: Any) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise StudyError(name, f"expected a real number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise StudyError(name, f"must be finite, got {value!r}")
+    return v
+
+
+def check_box(name: str, value: Any) -> float | None:
+    """A half-width of an initial-condition box: finite and > 0 (None = the plant's default).
+
+    Raises
+    ------
+    StudyError
+        Naming ``name`` when the value is negative, zero or not finite.
+    """
+    if value is None:
+        return None
+    v = _finite(name, value)
+    if v <= 0:
+        raise StudyError(name, f"the box half-width must be > 0, got {value!r}")
+    return v
+
+
+def check_count(name: str, value: Any, lo: int = 1) -> int:
+    """An integer count ``>= lo``.
+
+    Raises
+    ------
+    StudyError
+        Naming ``name``.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise StudyError(name, f"expected an integer, got {value!r}")
+    if int(value) < lo:
+        raise StudyError(name, f"must be >= {lo}, got {value!r}")
+    return int(value)
+
+
+def check_levels(name: str, values: Any) -> list[float]:
+    """Noise levels: a non-empty list of finite numbers > 0 (a log grid cannot hold 0).
+
+    Raises
+    ------
+    StudyError
+        Naming ``name`` and the offending entry.
+    """
+    vals = list(values)
+    if not vals:
+        raise StudyError(name, f"at least one level is needed")
+    out = []
+    for v in vals:
+        x = _finite(name, v)
+        if x <= 0:
+            raise StudyError(name, f"each noise level must be > 0 (a standard deviation on a log grid), got {v!r}")
+        out.append(x)
+    return sorted(set(out))
+
+
+def check_range(name: str, value: Any, *, positive: bool = True) -> tuple[float, float] | None:
+    """Bisection bounds ``(lo, hi)`` with ``lo < hi`` (None = automatic bracketing).
+
+    Raises
+    ------
+    StudyError
+        Naming ``name`` when the bounds are not finite, not positive, or in the wrong order.
+    """
+    if value is None:
+        return None
+    try:
+        lo, hi = value
+    except (TypeError, ValueError):
+        raise StudyError(name, f"expected two numbers LO HI, got {value!r}") from None
+    lo, hi = _finite(name, lo), _finite(name, hi)
+    if positive and lo <= 0:
+        raise StudyError(name, f"the lower bound must be > 0, got {lo!r}")
+    if not lo < hi:
+        raise StudyError(name, f"bounds in the wrong order: LO = {lo:g} must be < HI = {hi:g}")
+    return lo, hi
+
+
+# -- bisection --------------------------------------------------------------------------------
+def bisect_largest(
+    check: Callable[[float], dict],
+    default: float,
+    *,
+    bounds: tuple[float, float] | None = None,
+    rtol: float = 0.01,
+    max_doublings: int = 12,
+) -> dict:
+    """Largest value at which ``check(value)["ok"]`` holds, by geometric bisection.
+
+    Parameters
+    ----------
+    check : callable
+        ``check(value) -> dict`` with a boolean ``"ok"`` and a ``"status"`` string.
+    default : float
+        Starting point of the automatic bracketing (> 0).
+    bounds : (float, float), optional
+        ``(lo, hi)`` with ``0 < lo < hi``: bisect inside them instead of bracketing
+        automatically (``lo`` failing gives "below lo", ``hi`` passing gives "at least hi").
+    rtol : float
+        Stop when ``hi / lo - 1 <= rtol``.
+    max_doublings : int
+        Automatic bracketing gives up after this many doublings (or halvings). Halving also
+        stops at a value whose record has ``status == "invalid"`` (outside the parameter's
+        valid range; ``hi`` then stays the last valid failing value).
+
+    Returns
+    -------
+    dict
+        ``lo`` (largest passing value, NaN if none), ``hi`` (smallest failing value, NaN if
+        none), ``kind`` (``"bracketed"``, ``"below_range"`` or ``"above_range"``) and
+        ``evals`` (every evaluation, in order).
+
+    Raises
+    ------
+    StudyError
+        ``bounds`` in the wrong order or not positive, ``rtol`` or ``default`` not > 0.
+    """
+    bounds = check_range("bounds", bounds)
+    if not (math.isfinite(rtol) and rtol > 0):
+        raise StudyError("rtol", f"must be finite and > 0, got {rtol!r}")
+    if not (math.isfinite(default) and default > 0):
+        raise StudyError("default", f"must be finite and > 0, got {default!r}")
+    evals: list[dict] = []
+
+    def ok(v: float) -> bool:
+        r = check(v)
+        evals.append(r)
+        return bool(r["ok"])
+
+    lo = hi = math.nan
+    if bounds is not None:
+        a, b = bounds
+        if not ok(a):
+            return {"lo": math.nan, "hi": a, "kind": "below_range", "evals": evals}
+        if ok(b):
+            return {"lo": b, "hi": math.nan, "kind": "above_range", "evals": evals}
+        lo, hi = a, b
+    elif ok(default):
+        lo = default
+        for _ in range(max_doublings):
+            if ok(lo * 2):
+                lo *= 2
+            else:
+                hi = lo * 2
+                break
+        else:
+            return {"lo": lo, "hi": math.nan, "kind": "above_range", "evals": evals}
+    else:
+        hi = default
+        for _ in range(max_doublings):
+            v = hi / 2
+            if ok(v):
+                lo = v
+                break
+            if evals[-1]["status"] == "invalid":  # below the knob's valid range: hi stays the last valid value
+                break
+            hi = v
+        else:
+            return {"lo": math.nan, "hi": hi, "kind": "below_range", "evals": evals}
+        if math.isnan(lo):
+            return {"lo": math.nan, "hi": hi, "kind": "below_range", "evals": evals}
+    while hi / lo - 1 > rtol:
+        mid = math.sqrt(lo * hi)
+        if ok(mid):
+            lo = mid
+        else:
+            hi = mid
+    return {"lo": lo, "hi": hi, "kind": "bracketed", "evals": evals}
+
+
+# -- plants, gains, initial conditions --------------------------------------------------------
+def default_box(plant) -> float:
+    """The plant's own initial-condition scale: ``max(||x0||_inf, ||x_hat0||_inf)`` (1 if both are 0)."""
+    s = float(max(np.abs(plant.x0).max(), np.abs(plant.x_hat0).max()))
+    return s if s > 0 else 1.0
+
+
+def random_ics(plant, n_ics: int, box: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``n_ics`` seeded initial conditions, x and x_hat independent and uniform in ``[-box, box]^n``.
+
+    Returns
+    -------
+    x0, x_hat0 : ndarray (n, n_ics)
+    """
+    rng = np.random.default_rng([int(seed), 5])
+    n = plant.n
+    X = rng.uniform(-box, box, size=(n, n_ics))
+    XH = rng.uniform(-box, box, size=(n, n_ics))
+    return X, XH
+
+
+def plant_constants(plant):
+    """The constants designs use in the studies: the plant's analytic bounds, else computed ones."""
+    if plant.bounds is not None and plant.bounds.has_osl and plant.bounds.alpha is not None:
+        return plant.bounds
+    from bench.constants import compute_constants
+
+    return compute_constants(plant, seed=0).valid
+
+
+@dataclass
+class Designed:
+    """A design run on one plant for a study."""
+
+    design_id: str
+    status: str
+    reason: str
+    K: np.ndarray | None
+    F: np.ndarray | None
+    estimator: Any
+    design_s: float
+
+    @property
+    def has_gains(self) -> bool:
+        """Both fixed gains K and F are present."""
+        return self.K is not None and self.F is not None
+
+
+def design_for(plant, design_id: str, constants=None, **overrides) -> Designed:
+    """Run a registered design on ``plant`` (status ``inapplicable`` with the reason if it does not apply)."""
+    from bench.registry import DESIGNS
+
+    consts = plant_constants(plant) if constants is None else constants
+    design = DESIGNS.create(design_id, **overrides)
+    why = design.applicable(plant, consts)
+    if why is not None:
+        return Designed(design_id, "inapplicable", why, None, None, None, 0.0)
+    t0 = time.perf_counter()
+    res = design.design(plant, consts)
+    wall = time.perf_counter() - t0
+    K = None if res.K is None else np.asarray(res.K, dtype=float)
+    F = None if res.F is None else np.asarray(res.F, dtype=float)
+    return Designed(design_id, res.status, res.reason, K, F, res.estimator, wall)
+
+
+# -- rendering ---------------------------------------------------------------------------------
+def fmt(v, spec: str = ".3g") -> str:
+    """Format a table cell: floats with ``spec`` (blank if NaN), bools as yes/no."""
+    if v is None:
+        return ""
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        v = float(v)
+        if math.isnan(v):
+            return ""
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return format(v, spec)
+    return str(v).replace("|", "\\|").replace("\n", " ")
+
+
+def md_table(rows: list[dict], columns: list[str], headers: list[str] | None = None) -> str:
+    """A markdown table of ``rows`` (dicts) restricted to ``columns``."""
+    headers = [h.replace("|", "\\|") for h in (headers or columns)]
+    out = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
+    for r in rows:
+        out.append("| " + " | ".join(fmt(r.get(c)) for c in columns) + " |")
+    return "\n".join(out)
+
+
+def study_header(title: str, command: str, settings: dict, wall_s: float) -> str:
+    """The first lines of a study's markdown: title, command, settings (seeds) and versions."""
+    from bench.report import package_versions
+
+    vers = package_versions()
+    keep = ("python", "numpy", "scipy", "cvxpy", "clarabel", "control", "filterpy")
+    settings_s = ", ".join(f"{k} = {v}" for k, v in settings.items())
+    return "\n".join([
+        f"# {title}",
+        "",
+        f"Produced by `{command}` in {wall_s:.1f} s on {os.cpu_count()} cores ({platform.machine()}). "
+        "Every number below comes from a solve or a simulation of this run.",
+        "",
+        f"Settings: {settings_s}.",
+        "",
+        "Versions: " + ", ".join(f"{k} {vers.get(k, '?')}" for k in keep) + ".",
+        "",
+    ])
+
+
+def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: dict[str, Any],
+                figures: dict[str, Callable[[Path], None]]) -> Path:
+    """Write a study's files atomically and return the markdown's path.
+
+    Parameters
+    ----------
+    out_dir : path
+        The report folder (created if missing).
+    name : str
+        Study name: files ``STUDY_<name>.md``, ``<table key>.csv``, ``figures/<figure key>.png``.
+    markdown : str
+    tables : dict
+        File stem (e.g. ``"study_noise"``) -> pandas DataFrame, written as CSV.
+    figures : dict
+        File stem (e.g. ``"study_noise"``) -> callable drawing the figure into the given path.
+
+    Returns
+    -------
+    Path
+        ``out_dir / f"STUDY_{name}.md"``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-study-{name}-", dir=out))
+    try:
+        (tmp / "figures").mkdir()
+        for stem, draw in figures.items():
+            draw(tmp / "figures" / f"{stem}.png")
+        for stem, df in tables.items():
+            df.to_csv(tmp / f"{stem}.csv", index=False)
+        md_name = f"STUDY_{name}.md"
+        (tmp / md_name).write_text(markdown.rstrip("\n") + "\n", encoding="utf-8")
+        (out / "figures").mkdir(exist_ok=True)
+        for stem in figures:
+            os.replace(tmp / "figures" / f"{stem}.png", out / "figures" / f"{stem}.png")
+        for stem in tables:
+            os.replace(tmp / f"{stem}.csv", out / f"{stem}.csv")
+        os.replace(tmp / md_name, out / md_name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return out / md_name
+
+
+def pyplot():
+    """matplotlib.pyplot with the Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt

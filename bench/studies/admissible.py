@@ -1,0 +1,548 @@
+"""Conservatism: the largest admissible scale of the nonlinearity for each LMI / Riccati design.
+
+For a plant with a scale knob (the coefficient ``c`` of f, or the region radius ``r`` of the
+moving object, or ``g/l`` of the pendulum) and a design, the *admissible scale* is the largest
+knob value at which the design is feasible **and** its gains are certified by the analysis LMI
+of :mod:`bench.certify` with the plant's valid (analytic) constants at that value. It is found
+by geometric bisection to a relative tolerance (1 % by default): the bracket is found by
+doubling (or halving) from the plant's default value, then ``sqrt(lo hi)`` is evaluated until
+``hi / lo - 1 <= rtol``. The answer is reported as ``[lo, hi)``: ``lo`` is the largest value
+verified feasible and certified, ``hi`` the smallest verified failing (with its reason).
+
+Normalisation. Every LMI of the suite maximises a margin t with ``M << -t I``,
+``Q, R >> t I``, ``Q, R << cap I`` and ``t <= 1`` (``cap = 1e3``; :mod:`designs._lmi`), and
+a point counts as feasible only if the rebuilt numeric matrix has its largest eigenvalue below
+``-1e-9 max(1, ||M||)``. The corrected Theorem 1 and Corollary 1 contain constant identity
+blocks (the Young and Schur columns), so they are not homogeneous in (Q, R, Fh, Kh, ...):
+scaling a feasible point does not keep it feasible, and near the admissible boundary the
+feasible set needs ever larger decision variables. A cap therefore cuts the admissible range,
+and the verification tolerance decides where a vanishing margin stops counting. The study
+states the cap and re-runs Theorem 1 and Corollary 1 with other caps to show by how much the
+answer moves.
+
+Compile vs solve. The designs build their cvxpy problems with the plant's constants as
+numbers (only the Young weight and the multipliers they search are cvxpy Parameters), so each
+knob value needs a fresh build; the compile and solve seconds of every evaluation are
+recorded and summed, so the cost of not reusing one compiled problem across the bisection is
+measured, not guessed.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from bench.studies._common import (StudyError, bisect_largest, check_range, fmt, md_table, pyplot, study_header,
+                                   write_study)
+
+__all__ = ["DEFAULT_DESIGNS", "KNOBS", "AdmissibleResult", "evaluate", "knob_of",
+           "run_admissible", "write_admissible"]
+
+#: Scale knob of each catalog plant (keyword of its factory; f scales with it, A, B, C do not).
+KNOBS = {
+    "flexible_link": "c",
+    "flexible_link_printed": "c",
+    "flexible_joint_v1": "c",
+    "pendulum_v1": "g_over_l",
+    "random_lipschitz_v1": "c",
+    "random_osl_v1": "c",
+    "moving_object_v1": "r",
+}
+
+#: LMI and Riccati designs (the study's default selection).
+DEFAULT_DESIGNS = ("thm1", "thm1_sep", "thm1_printed", "cor1", "cor1_sep", "cor1_printed", "lqr+rajamani",
+                   "lqr+zhang_osl", "lqr+rh_riccati")
+
+#: Designs re-run with other normalisation caps (they have a ``cap`` hyperparameter).
+CAP_DESIGNS = ("thm1", "cor1")
+#: Plants on which the normalisation sensitivity is measured (when selected).
+CAP_PLANTS = ("flexible_link", "random_osl_v1")
+#: Other sensitivity variants: (plant, design, overrides), run when the plant and design are selected.
+#: The gamma < 0 form of Theorem 1 searches eps2 on a grid (default 1e-2 to 1e2); on the moving
+#: object its best eps2 sits at the grid's lower end at every r, so the grid is widened here.
+EXTRA_VARIANTS = (("moving_object_v1", "thm1", {"eps2_range": (1e-6, 1e2)}),)
+
+
+def _label(overrides: dict) -> str:
+    if not overrides:
+        return "default (cap = 1e3)"
+    return ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in overrides.items())
+
+
+def hinf_resolvent(M: np.ndarray) -> float:
+    """``sup_w ||(j w I - M)^{-1}||_2`` for a Hurwitz M (log grid of 4000 frequencies plus w = 0,
+    refined by a bounded scalar search around the best grid point); ``inf`` if M is not Hurwitz."""
+    from scipy.optimize import minimize_scalar
+
+    n = M.shape[0]
+    if float(np.linalg.eigvals(M).real.max()) >= 0:
+        return math.inf
+    I = np.eye(n)
+
+    def gain(w: float) -> float:
+        return float(np.linalg.svd(np.linalg.inv(1j * w * I - M), compute_uv=False)[0])
+
+    ws = np.concatenate([[0.0], np.logspace(-4, 4, 4000)])
+    vals = np.array([gain(w) for w in ws])
+    k = int(np.argmax(vals))
+    best = float(vals[k])
+    if 0 < k < ws.size - 1:
+        res = minimize_scalar(lambda w: -gain(w), bounds=(ws[k - 1], ws[k + 1]), method="bounded",
+                              options={"xatol": 1e-10})
+        best = max(best, -float(res.fun))
+    return best
+
+
+def small_gain_bound(plant_id: str, knob: str, F: np.ndarray) -> float:
+    """Knob value at which the Lipschitz small-gain test of the state-feedback side fails:
+    ``alpha(knob) ||(sI - A - BF)^{-1}||_inf = 1`` (NaN unless alpha is linear in the knob).
+
+    An independent check on the certificate for fixed F: with ``(beta, gamma) = (alpha^2, 0)``
+    the x-side of the analysis LMI is the bounded-real lemma of ``(A + BF, I, alpha I)``.
+    """
+    from bench.registry import PLANTS
+
+    a1 = PLANTS.create(plant_id, **{knob: 1.0}).bounds
+    a2 = PLANTS.create(plant_id, **{knob: 2.0}).bounds
+    if a1 is None or a1.alpha is None or not math.isclose(a2.alpha, 2 * a1.alpha) or a1.alpha == 0:
+        return math.nan
+    plant = PLANTS.create(plant_id)
+    h = hinf_resolvent(plant.A + plant.B @ F)
+    return 1.0 / (a1.alpha * h) if math.isfinite(h) else math.nan
+
+
+def knob_of(plant_id: str) -> str | None:
+    """The scale knob of a plant: from :data:`KNOBS`, else ``"c"`` if its params have one, else None."""
+    if plant_id in KNOBS:
+        return KNOBS[plant_id]
+    from bench.registry import PLANTS
+
+    try:
+        return "c" if "c" in PLANTS.create(plant_id).params else None
+    except Exception:
+        return None
+
+
+def _knob_default(plant_id: str, knob: str) -> float:
+    from bench.registry import PLANTS
+
+    return float(PLANTS.create(plant_id).params[knob])
+
+
+def evaluate(plant_id: str, knob: str, value: float, design_id: str, overrides: dict | None = None) -> dict:
+    """Design and certify at one knob value.
+
+    Parameters
+    ----------
+    plant_id, knob : str
+        The plant is ``PLANTS.create(plant_id, **{knob: value})``.
+    value : float
+    design_id : str
+    overrides : dict, optional
+        Hyperparameters of the design (e.g. ``{"cap": 100.0}``).
+
+    Returns
+    -------
+    dict
+        ``value``, ``ok`` (feasible and certified), ``status`` (the design's, or ``invalid``
+        when the plant cannot be built at that value), ``feasible``, ``certified``,
+        ``cert_status``, ``lmi_margin``, ``cert_margin``, ``compile_s``, ``solve_s``,
+        ``n_solves``, ``design_s``, ``cert_s``, ``reason``.
+    """
+    from bench.certify import certify
+    from bench.registry import DESIGNS, PLANTS
+    from bench.studies._common import plant_constants
+    from plants._core import PlantError
+
+    rec: dict[str, Any] = {"value": float(value), "ok": False, "status": "", "feasible": False, "certified": False,
+                           "cert_status": "", "lmi_margin": math.nan, "cert_margin": math.nan, "compile_s": 0.0,
+                           "solve_s": 0.0, "n_solves": 0, "design_s": 0.0, "cert_s": 0.0, "reason": ""}
+    try:
+        plant = PLANTS.create(plant_id, **{knob: value})
+    except PlantError as exc:
+        rec.update(status="invalid", reason=f"plant cannot be built at {knob} = {value:.4g}: {exc}")
+        return rec
+    consts = plant_constants(plant)
+    design = DESIGNS.create(design_id, **(overrides or {}))
+    why = design.applicable(plant, consts)
+    if why is not None:
+        rec.update(status="inapplicable", reason=why)
+        return rec
+    t0 = time.perf_counter()
+    res = design.design(plant, consts)
+    rec.update(design_s=time.perf_counter() - t0, status=res.status, feasible=res.status == "feasible",
+               lmi_margin=res.margin, compile_s=res.compile_s, solve_s=res.solve_s, n_solves=res.n_solves,
+               reason=res.reason)
+    if not res.has_gains:
+        if res.status == "feasible":
+            rec["reason"] = "no fixed gains (K, F) to certify"
+        return rec
+    t0 = time.perf_counter()
+    cert = certify(plant, res.K, res.F, consts, rate_tol=1e-3, max_rate=1e-3)  # lam = 0 only
+    rec.update(cert_s=time.perf_counter() - t0, certified=cert.certified, cert_status=cert.status,
+               cert_margin=cert.margin)
+    rec["ok"] = bool(rec["feasible"] and cert.certified)
+    if rec["feasible"] and not cert.certified:
+        rec["reason"] = f"certificate: {cert.reason}"
+    return rec
+
+
+def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds, rtol: float) -> dict:
+    """Worker: one (plant, design[, overrides]) bisection."""
+    from bench.registry import PLANTS
+
+    t0 = time.perf_counter()
+    default = _knob_default(plant_id, knob)
+    out = bisect_largest(lambda v: evaluate(plant_id, knob, v, design_id, overrides), default, bounds=bounds,
+                            rtol=rtol)
+    ev = out["evals"]
+    row = {"plant": plant_id, "knob": knob, "default": default, "design": design_id,
+           "variant": _label(overrides), "admissible_lo": out["lo"], "failing_hi": out["hi"],
+           "kind": out["kind"], "n_evals": len(ev), "compile_s": sum(e["compile_s"] for e in ev),
+           "solve_s": sum(e["solve_s"] for e in ev), "n_solves": sum(e["n_solves"] for e in ev),
+           "cert_s": sum(e["cert_s"] for e in ev), "wall_s": time.perf_counter() - t0}
+    fail = [e for e in ev if not e["ok"] and e["value"] == out["hi"]]
+    if fail:
+        f = fail[-1]
+        row["fails_by"] = ("not certified" if f["feasible"] else f["status"])
+        row["fail_reason"] = f["reason"][:300]
+    else:
+        row["fails_by"] = ""
+        row["fail_reason"] = ""
+    default_ev = [e for e in ev if e["value"] == default]
+    row["at_default"] = ("ok" if default_ev[0]["ok"] else ("not certified" if default_ev[0]["feasible"]
+                                                            else default_ev[0]["status"])) if default_ev else ""
+    if math.isfinite(out["lo"]):
+        b = PLANTS.create(plant_id, **{knob: out["lo"]}).bounds
+        row.update(alpha_at_lo=b.alpha, rho_at_lo=b.rho, beta_at_lo=b.beta, gamma_at_lo=b.gamma)
+    for e in ev:
+        e.update(plant=plant_id, design=design_id, knob=knob, variant=row["variant"])
+    if design_id.startswith("lqr+") and not overrides:  # LQR's F does not depend on the knob
+        from bench.studies._common import design_for
+
+        d = design_for(PLANTS.create(plant_id), "lqr+lqe")
+        row["small_gain"] = small_gain_bound(plant_id, knob, d.F) if d.F is not None else math.nan
+    return {"row": row, "evals": ev}
+
+
+@dataclass
+class AdmissibleResult:
+    """What :func:`run_admissible` produced."""
+
+    rows: list[dict]
+    variant_rows: list[dict]
+    evals: list[dict]
+    settings: dict
+    wall_s: float
+    notes: list[str] = field(default_factory=list)
+
+
+def run_admissible(
+    plant_ids: list[str] | None = None,
+    design_ids: list[str] | None = None,
+    *,
+    bounds: tuple[float, float] | None = None,
+    rtol: float = 0.01,
+    caps: tuple[float, ...] = (10.0, 100.0, 1e4),
+    jobs: int = 1,
+    progress: Callable[[int, int, str], None] | None = None,
+) -> AdmissibleResult:
+    """Bisect the admissible scale of every (plant, design) pair.
+
+    Parameters
+    ----------
+    plant_ids : list of str, optional
+        Plants with a scale knob (default: :data:`KNOBS`).
+    design_ids : list of str, optional
+        Designs (default: :data:`DEFAULT_DESIGNS`).
+    bounds : (float, float), optional
+        Bisection bounds on the knob for every plant (default: automatic bracketing from each
+        plant's default value).
+    rtol : float
+        Relative tolerance of the bisection.
+    caps : tuple of float
+        Other normalisation caps for :data:`CAP_DESIGNS` on :data:`CAP_PLANTS` (empty: skip).
+    jobs : int
+        Worker processes (:func:`bench.executors.executor`).
+    progress : callable, optional
+        ``progress(done, total, label)``.
+
+    Returns
+    -------
+    AdmissibleResult
+
+    Raises
+    ------
+    StudyError
+        A plant without a scale knob, bounds in the wrong order, rtol not > 0, a cap not > 0.
+    """
+    from concurrent.futures import as_completed
+
+    from bench.executors import executor
+
+    t_start = time.perf_counter()
+    bounds = check_range("bounds", bounds)
+    if not (isinstance(rtol, (int, float)) and math.isfinite(rtol) and 0 < rtol < 1):
+        raise StudyError("rtol", f"must be a number in (0, 1), got {rtol!r}")
+    for c in caps:
+        if not (math.isfinite(c) and c > 0):
+            raise StudyError("caps", f"each cap must be finite and > 0, got {c!r}")
+    plant_ids = list(plant_ids) if plant_ids else list(KNOBS)
+    design_ids = list(design_ids) if design_ids else list(DEFAULT_DESIGNS)
+    knobs = {}
+    for pid in plant_ids:
+        k = knob_of(pid)
+        if k is None:
+            raise StudyError("plant", f"{pid!r} has no scale knob (a factory keyword c, or one of {sorted(KNOBS)})")
+        knobs[pid] = k
+    tasks = [(pid, knobs[pid], did, {}) for pid in plant_ids for did in design_ids]
+    tasks += [(pid, knobs[pid], did, {"cap": float(c)}) for pid in plant_ids if pid in CAP_PLANTS
+              for did in design_ids if did in CAP_DESIGNS for c in caps if float(c) != 1e3]
+    tasks += [(pid, knobs[pid], did, dict(ov)) for pid, did, ov in EXTRA_VARIANTS
+              if pid in plant_ids and did in design_ids]
+    results = {}
+    with executor(jobs) as ex:
+        futs = {ex.submit(_pair_task, pid, k, did, ov, bounds, rtol): (pid, did, _label(ov))
+                for pid, k, did, ov in tasks}
+        for i, fut in enumerate(as_completed(futs), 1):
+            key = futs[fut]
+            results[key] = fut.result()
+            if progress:
+                r = results[key]["row"]
+                progress(i, len(futs), f"{key[0]} x {key[1]} ({key[2]}): [{fmt(r['admissible_lo'])}, "
+                                       f"{fmt(r['failing_hi'])})")
+    rows, variant_rows, evals = [], [], []
+    for pid, k, did, ov in tasks:
+        r = results[(pid, did, _label(ov))]
+        (variant_rows if ov else rows).append(r["row"])
+        evals.extend(r["evals"])
+    for pair in dict.fromkeys((r["plant"], r["design"]) for r in list(variant_rows)):
+        variant_rows += [r for r in rows if (r["plant"], r["design"]) == pair]
+    variant_rows.sort(key=lambda r: (r["plant"], r["design"], r["variant"]))
+    settings = {"rtol": rtol, "bounds": bounds or "automatic (doubling/halving from the plant's default)",
+                "cap": 1e3, "other caps": tuple(caps), "certificate": "bench.certify at lam = 0, valid constants",
+                "jobs": jobs}
+    return AdmissibleResult(rows, variant_rows, evals, settings, time.perf_counter() - t_start)
+
+
+def _interval(r: dict) -> str:
+    lo, hi, kind = r["admissible_lo"], r["failing_hi"], r["kind"]
+    if kind == "below_range":
+        return f"< {fmt(hi, '.4g')} (fails at every value tried)"
+    if kind == "above_range":
+        return f">= {fmt(lo, '.4g')} (passes at every value tried)"
+    return f"{fmt(lo, '.4g')} (fails at {fmt(hi, '.4g')})"
+
+
+def _draw_plant(pid: str, rows: list[dict], evals: list[dict]):
+    def draw(path):
+        plt = pyplot()
+        designs = [r["design"] for r in rows]
+        fig, ax = plt.subplots(figsize=(7.5, 0.45 * len(designs) + 1.6), constrained_layout=True)
+        styles = {"ok": ("o", "tab:green", "feasible and certified"),
+                  "nc": ("s", "tab:orange", "feasible, not certified"),
+                  "no": ("x", "tab:red", "infeasible / undecided / error"),
+                  "na": ("+", "tab:gray", "inapplicable / invalid value")}
+        seen = set()
+        for i, r in enumerate(rows):
+            for e in (e for e in evals if e["plant"] == pid and e["design"] == r["design"] and e["variant"] == r["variant"]):
+                key = ("ok" if e["ok"] else "nc" if e["feasible"] else
+                       "na" if e["status"] in ("inapplicable", "invalid") else "no")
+                m, c, lab = styles[key]
+                ax.plot(e["value"], i, m, color=c, ms=6, label=None if key in seen else lab)
+                seen.add(key)
+            if math.isfinite(r["admissible_lo"]):
+                ax.plot([r["admissible_lo"]] * 2, [i - 0.35, i + 0.35], "-", color="k", lw=2)
+        ax.axvline(rows[0]["default"], ls="--", color="tab:blue", lw=1, label=f"default {rows[0]['knob']}")
+        ax.set_xscale("log")
+        ax.set_yticks(range(len(designs)), designs)
+        ax.invert_yaxis()
+        ax.set(xlabel=f"scale knob {rows[0]['knob']} of f (log)",
+               title=f"{pid}: feasibility vs {rows[0]['knob']} (black bar: admissible value)")
+        ax.grid(True, axis="x", which="both", alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+
+    return draw
+
+
+def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "Path":  # noqa: F821
+    """Write ``STUDY_admissible.md``, ``study_admissible.csv`` (one row per pair),
+    ``study_admissible_evaluations.csv`` and ``figures/study_admissible_<plant>.png`` atomically."""
+    import pandas as pd
+
+    rows = result.rows
+    plants = list(dict.fromkeys(r["plant"] for r in rows))
+    table_rows = []
+    for r in rows:
+        table_rows.append({**r, "admissible": _interval(r),
+                           "alpha": r.get("alpha_at_lo", math.nan), "rho": r.get("rho_at_lo", math.nan),
+                           "gamma": r.get("gamma_at_lo", math.nan), "small_gain": r.get("small_gain", math.nan)})
+    cols = ["plant", "knob", "default", "design", "at_default", "admissible", "fails_by", "alpha", "rho", "gamma",
+            "small_gain", "n_evals", "compile_s", "solve_s", "cert_s", "wall_s"]
+    heads = ["plant", "knob", "default", "design", "at default", "admissible value [lo] (first failure)",
+             "fails by", "alpha at lo", "rho at lo", "gamma at lo", "small-gain bound (LQR x-side)", "evals",
+             "compile s", "solve s", "cert s", "wall s"]
+    # matrix plant x design
+    designs = list(dict.fromkeys(r["design"] for r in rows))
+    mat = ["| plant (knob, default) | " + " | ".join(designs) + " |", "|---|" + "|".join("---" for _ in designs) + "|"]
+    for pid in plants:
+        sub = {r["design"]: r for r in rows if r["plant"] == pid}
+        first = next(iter(sub.values()))
+        cells = []
+        for d in designs:
+            r = sub.get(d)
+            if r is None:
+                cells.append("")
+            elif r["kind"] == "below_range":
+                cells.append(f"< {fmt(r['failing_hi'], '.3g')}")
+            elif r["kind"] == "above_range":
+                cells.append(f">= {fmt(r['admissible_lo'], '.3g')}")
+            else:
+                cells.append(fmt(r["admissible_lo"], ".3g"))
+        mat.append(f"| {pid} ({first['knob']}, {fmt(first['default'])}) | " + " | ".join(cells) + " |")
+    # theorem 1 vs corollary 1 on OSL plants
+    osl = []
+    for pid in plants:
+        sub = {r["design"]: r for r in rows if r["plant"] == pid}
+        for a, b in (("thm1", "cor1"), ("thm1_sep", "cor1_sep")):
+            if a in sub and b in sub:
+                ra, rb = sub[a], sub[b]
+                ratio = (ra["admissible_lo"] / rb["admissible_lo"]
+                         if math.isfinite(ra["admissible_lo"]) and math.isfinite(rb["admissible_lo"]) else math.nan)
+                osl.append({"plant": pid, "pair": f"{a} vs {b}", "thm": _interval(ra), "cor": _interval(rb),
+                            "ratio": ratio, "alpha_thm": ra.get("alpha_at_lo", math.nan),
+                            "alpha_cor": rb.get("alpha_at_lo", math.nan), "rho_thm": ra.get("rho_at_lo", math.nan),
+                            "gamma_thm": ra.get("gamma_at_lo", math.nan)})
+    osl.sort(key=lambda o: (not (o["rho_thm"] == 0 and o["alpha_thm"] > 0), plants.index(o["plant"])))
+    compile_total = sum(r["compile_s"] for r in rows)
+    solve_total = sum(r["solve_s"] for r in rows)
+    cert_total = sum(r["cert_s"] for r in rows)
+    n_evals = sum(r["n_evals"] for r in rows)
+    lines = [
+        study_header("Study: maximum admissible nonlinearity (conservatism)", command, result.settings, result.wall_s),
+        "For each plant with a scale knob on f and each LMI / Riccati design: the largest knob value at which the "
+        "design is **feasible and its gains are certified** (analysis LMI (20) with the plant's valid constants at "
+        "that value, `bench.certify`), by geometric bisection to "
+        f"{100 * result.settings['rtol']:g} % relative. `lo` is the largest value verified to pass; the value in "
+        "parentheses is the smallest verified to fail.",
+        "",
+        "## Normalisation (the answer depends on it)",
+        "",
+        "Every LMI maximises a margin t with `M << -t I`, `Q, R >> t I`, **`Q, R << 1e3 I`** and `t <= 1` "
+        "(`designs/_lmi.py`); a point is feasible only if the rebuilt numeric LMI has largest eigenvalue below "
+        "`-1e-9 max(1, ||M||)`. The corrected Theorem 1 and Corollary 1 contain constant identity blocks (the Young "
+        "term `[I; -phi Q]` and the Schur column `-(kappa/beta) I`, `-(kappa/alpha^2) I`), so they are not "
+        "homogeneous: a feasible point cannot be rescaled at will, and near the boundary the feasible set needs "
+        "larger Q, R. A cap on Q, R therefore cuts the admissible range, and the verification tolerance decides where "
+        "a vanishing margin stops counting. The separated designs cap each side the same way; the observer LMIs "
+        "(Rajamani, Zhang) are homogeneous, so their cap only fixes the scale. The sensitivity table below re-runs "
+        "the joint Theorem 1 and Corollary 1 with other caps. The answer also depends on the designs' own searches: "
+        "the gamma < 0 form of Theorem 1 fixes the QIB multiplier eps2 on a grid (default 1e-2 to 1e2).",
+        "",
+        "## Admissible value, plant x design",
+        "",
+        "\n".join(mat),
+        "",
+        "`< v`: fails already at v (the smallest value tried); `>= v`: passes at every value tried.",
+        "",
+        "## Details",
+        "",
+        md_table(table_rows, cols, heads),
+        "",
+        "`at default`: the outcome at the plant's default knob value. `fails by`: why the first failing value fails "
+        "(`infeasible`, `undecided` = solver trouble, `not certified` = feasible gains that the analysis LMI does "
+        "not certify). Reasons at the failing value are in `study_admissible.csv` (`fail_reason`). "
+        "`small-gain bound`: for the LQR pairings (F does not depend on the knob) the knob value at which "
+        "`alpha ||(sI - A - BF)^{-1}||_inf = 1`, computed on a frequency grid: an independent check, since with "
+        "`(beta, gamma) = (alpha^2, 0)` the certificate's state-feedback side is the bounded-real lemma; where the "
+        "pairings fail by `not certified`, the bisection's bracket should contain it.",
+        "",
+        "## Theorem 1 (OSL/QIB) vs Corollary 1 (Lipschitz)",
+        "",
+        "The paper's claim is that the one-sided Lipschitz condition (Theorem 1) is less conservative than the "
+        "Lipschitz one (Corollary 1) when rho is much smaller than alpha. On `moving_object_v1` (knob r, the region "
+        "radius: rho = 0, alpha = 3 r^2, gamma = -3 r^2) and `random_osl_v1` (knob c: rho = 0, alpha = 3c, "
+        "gamma = -3c on ||x|| <= 1), rho = 0 at every scale. On the other plants gamma = 0 and beta = alpha^2, so "
+        "Theorem 1's state-feedback side (Schur block `-(kappa/beta) I`) is Corollary 1's (`-(kappa/alpha^2) I`); "
+        "there the separated designs fail on that side first (`fail_reason`), and the two must agree up to the "
+        "joint designs' phi search.",
+        "",
+        md_table(osl, ["plant", "pair", "thm", "cor", "ratio", "alpha_thm", "alpha_cor", "rho_thm"],
+                 ["plant", "pair", "Theorem 1 admissible", "Corollary 1 admissible", "ratio Thm/Cor",
+                  "alpha at Thm's value", "alpha at Cor's value", "rho at Thm's value"]) if osl else "(not run)",
+        "",
+        _osl_verdict(osl),
+        "",
+        "## Sensitivity to the normalisation and to the designs' searches",
+        "",
+        (md_table([{**r, "admissible": _interval(r)} for r in result.variant_rows],
+                  ["plant", "design", "variant", "admissible", "fails_by", "n_evals", "wall_s"],
+                  ["plant", "design", "variant (design hyperparameters)", "admissible value", "fails by", "evals",
+                   "wall s"])
+         if result.variant_rows else "(not run: no variant's plant and design selected, or `--caps ''`)"),
+        "",
+        _variant_notes(result),
+        "",
+        "## Compile vs solve",
+        "",
+        f"{n_evals} evaluations (design + certificate at one knob value each): compile {compile_total:.2f} s, "
+        f"solve {solve_total:.2f} s (design LMIs), certificate (compile + solve) {cert_total:.2f} s. The designs take "
+        "the plant's constants as numbers, so every knob value is a fresh cvxpy build; within one evaluation the "
+        "searched scalars (phi, eps2) reuse one compiled problem. Reusing one problem across the whole bisection "
+        "needs a design entry point with the constants as cvxpy Parameters (rho, beta, alpha^2 and 1/beta enter "
+        "as parameter x variable, which is DPP).",
+        "",
+        "## Figures",
+        "",
+    ]
+    lines += [f"![{pid}](figures/study_admissible_{pid}.png)" for pid in plants]
+    lines.append("")
+    figs = {f"study_admissible_{pid}": _draw_plant(pid, [r for r in rows if r["plant"] == pid], result.evals)
+            for pid in plants}
+    summary = pd.DataFrame(rows)
+    evals = pd.DataFrame(result.evals)
+    variants = pd.DataFrame(result.variant_rows)
+    tables = {"study_admissible": summary, "study_admissible_evaluations": evals}
+    if len(variants):
+        tables["study_admissible_variants"] = variants
+    return write_study(out_dir, "admissible", "\n".join(lines), tables, figs)
+
+
+def _osl_verdict(osl: list[dict]) -> str:
+    """What the Theorem 1 / Corollary 1 numbers say, in words (whichever way they go)."""
+    def word(r: float) -> str:
+        return "larger" if r > 1.01 else "smaller" if r < 0.99 else "about equal (within 1 %)"
+
+    lines = []
+    for o in osl:
+        r = o["ratio"]
+        osl_plant = o["rho_thm"] == 0 and o["alpha_thm"] > 0
+        tag = "OSL plant, rho = 0" if osl_plant else "gamma = 0 plant"
+        if math.isfinite(r):
+            lines.append(f"- {o['plant']} ({tag}), {o['pair']}: Theorem 1's admissible value is {word(r)}: "
+                         f"{fmt(r)} x Corollary 1's.")
+        else:
+            lines.append(f"- {o['plant']} ({tag}), {o['pair']}: Theorem 1 {o['thm']}; Corollary 1 {o['cor']}.")
+    return "What the numbers say:\n\n" + "\n".join(lines) if lines else ""
+
+
+def _variant_notes(result: AdmissibleResult) -> str:
+    """Sentences drawn from the sensitivity rows (numbers only from this run)."""
+    out = []
+    by: dict[tuple[str, str], list[dict]] = {}
+    for r in result.variant_rows:
+        by.setdefault((r["plant"], r["design"]), []).append(r)
+    for (pid, did), rs in by.items():
+        vals = [(r["variant"], r["admissible_lo"], r["kind"]) for r in rs]
+        parts = "; ".join(f"{v}: {fmt(lo, '.4g')}{' (or more)' if k == 'above_range' else ''}" for v, lo, k in vals)
+        out.append(f"- {pid} x {did}: {parts}.")
+    if not out:
+        return ""
+    return ("Admissible values by variant (a different value means the answer is set by the normalisation or the "
+            "search, not by the theorem alone):\n\n" + "\n".join(out))

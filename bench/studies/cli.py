@@ -1,0 +1,195 @@
+"""Command line of the studies: ``python -m bench study {admissible,sampling,montecarlo,noise}``.
+
+:func:`add_study_parser` adds the ``study`` subcommand to the main parser (:mod:`bench.cli`);
+:func:`run_study` runs one study from the parsed arguments. Exit codes: 0 success, 1 the
+files could not be written (the previous ones stay intact), 2 bad usage (unknown id, bad
+option value: the message names the option).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shlex
+import sys
+import time
+
+__all__ = ["add_study_parser", "run_study"]
+
+#: Library parameter -> command-line option, for error messages.
+OPTIONS = {
+    "bounds": "--range", "rtol": "--rtol", "caps": "--caps", "plant": "--plant", "design": "--design",
+    "n_ics": "--n-ics", "box": "--box", "h_range": "--h-range", "discretisation": "--discretisation",
+    "t_final": "--t-final", "n": "--n", "levels": "--levels", "noise_dt": "--noise-dt", "seed": "--seed",
+}
+
+
+def _float(*, lo: float | None = None, strict: bool = True):
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+        if lo is not None and (v < lo or (strict and v == lo)):
+            raise argparse.ArgumentTypeError(f"must be {'>' if strict else '>='} {lo:g}, got {text!r}")
+        return v
+
+    return parse
+
+
+def _int(lo: int):
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {text!r}")
+        return v
+
+    return parse
+
+
+def _float_list(*, positive: bool, allow_empty: bool):
+    def parse(text: str) -> list[float]:
+        parts = [p.strip() for p in text.split(",") if p.strip()]
+        if not parts and not allow_empty:
+            raise argparse.ArgumentTypeError("expected a comma-separated list of numbers, got nothing")
+        out = []
+        for p in parts:
+            try:
+                v = float(p)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"expected numbers like 1e-3,1e-2, got {p!r}") from None
+            if not math.isfinite(v):
+                raise argparse.ArgumentTypeError(f"each value must be finite, got {p!r}")
+            if positive and v <= 0:
+                raise argparse.ArgumentTypeError(f"each value must be > 0, got {p!r}")
+            out.append(v)
+        return out
+
+    return parse
+
+
+def add_study_parser(sub) -> None:
+    """Add ``study`` and its sub-subcommands to the main parser's subparsers ``sub``."""
+    st = sub.add_parser("study", help="studies after the tables: admissible, sampling, montecarlo, noise")
+    ss = st.add_subparsers(dest="study", required=True, parser_class=type(st))
+
+    def common(p, seed: bool = True):
+        p.add_argument("--plant", action="append", metavar="GLOB", help="plant id or glob (repeatable)")
+        p.add_argument("--design", action="append", metavar="GLOB", help="design id or glob (repeatable)")
+        p.add_argument("--out", default="reports", metavar="DIR", help="report folder (default: reports)")
+        if seed:
+            p.add_argument("--seed", type=_int(0), default=0, help="seed of the random draws (default 0)")
+        p.add_argument("-j", "--jobs", type=_int(1), default=None, metavar="N",
+                       help="local worker processes (default: all cores; 1 = serial)")
+        p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+        p.add_argument("--plugin", action="append", metavar="PATH",
+                       help="a Python file registering your own plants or designs (repeatable)")
+
+    a = ss.add_parser("admissible", help="largest scale of f at which each LMI/Riccati design is feasible and "
+                                         "certified (bisection)")
+    common(a, seed=False)
+    a.add_argument("--range", nargs=2, type=_float(), default=None, metavar=("LO", "HI"),
+                   help="bisection bounds on the plant's scale knob (default: bracket from its default value)")
+    a.add_argument("--rtol", type=_float(lo=0), default=0.01, help="relative tolerance of the bisection (default 0.01)")
+    a.add_argument("--caps", type=_float_list(positive=True, allow_empty=True), default=[10.0, 100.0, 1e4],
+                   metavar="CAP,CAP,...", help="other normalisation caps for thm1/cor1 (default 10,100,10000; '' skips)")
+
+    s = ss.add_parser("sampling", help="largest sample period of a digital implementation (ZOH, discrete observer)")
+    common(s)
+    s.add_argument("--n-ics", type=_int(1), default=20, metavar="N",
+                   help="random initial conditions besides the plant's own (default 20)")
+    s.add_argument("--box", type=_float(lo=0), default=None, metavar="B",
+                   help="half-width of the initial-condition box (default: the plant's initial-condition scale)")
+    s.add_argument("--discretisation", choices=("zoh", "euler"), default="zoh",
+                   help="observer discretisation (default zoh)")
+    s.add_argument("--h-range", nargs=2, type=_float(), default=None, metavar=("LO", "HI"),
+                   help="bisection bounds on h in seconds (default: bracket from h_lin / 2)")
+    s.add_argument("--rtol", type=_float(lo=0), default=0.01, help="relative tolerance of the bisection (default 0.01)")
+    s.add_argument("--t-final", type=_float(lo=0), default=None, metavar="SECONDS", help="horizon (default: each plant's)")
+
+    m = ss.add_parser("montecarlo", help="region of convergence: N seeded random initial conditions, one batch ODE")
+    common(m)
+    m.add_argument("--n", type=_int(1), default=1000, metavar="N", help="initial conditions per plant (default 1000)")
+    m.add_argument("--box", type=_float(lo=0), default=None, metavar="B",
+                   help="half-width of the initial-condition box (default: the plant's initial-condition scale)")
+    m.add_argument("--t-final", type=_float(lo=0), default=None, metavar="SECONDS", help="horizon (default: each plant's)")
+    m.add_argument("--method", default="auto", choices=("auto", "RK45", "DOP853", "RK23", "BDF", "Radau"),
+                   help="solve_ivp method of the batch (default auto: RK45, BDF when the loop is stiff)")
+
+    n = ss.add_parser("noise", help="RMS estimation error and final ||x|| vs measurement noise, Luenberger vs EKF")
+    common(n)
+    n.add_argument("--levels", type=_float_list(positive=True, allow_empty=False), default=None,
+                   metavar="SIGMA,SIGMA,...", help="noise standard deviations (default: 7 points from 1e-4 to 1e-1)")
+    n.add_argument("--no-matched-ekf", action="store_true", help="skip the EKF with r = sigma^2")
+    n.add_argument("--t-final", type=_float(lo=0), default=None, metavar="SECONDS", help="horizon (default: each plant's)")
+
+
+def _explicit(patterns: list[str] | None) -> list[str]:
+    return [p for p in (patterns or []) if not any(ch in p for ch in "*?[]")]
+
+
+def run_study(args, argv: list[str]) -> int:
+    """Run the study named by ``args.study``; returns the exit code."""
+    from bench.executors import default_jobs
+    from bench.registry import DESIGNS, PLANTS, UnknownIdError
+    from bench.studies._common import StudyError
+
+    prog = f"python -m bench study {args.study}"
+    try:
+        plant_ids = PLANTS.select(args.plant) if args.plant else None
+        design_ids = DESIGNS.select(args.design) if args.design else None
+    except UnknownIdError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    jobs = args.jobs or default_jobs()
+    command = "python -m bench " + shlex.join(argv)
+    bar = None
+    if not args.quiet:
+        from bench.harness import ProgressBar
+
+        bar = ProgressBar()
+    t0 = time.perf_counter()
+    try:
+        if args.study == "admissible":
+            from bench.studies.admissible import run_admissible as run, write_admissible as write
+
+            result = run(plant_ids, design_ids, bounds=tuple(args.range) if args.range else None, rtol=args.rtol,
+                         caps=tuple(args.caps), jobs=jobs, progress=bar)
+        elif args.study == "sampling":
+            from bench.studies.sampling import run_sampling as run, write_sampling as write
+
+            result = run(plant_ids, design_ids, required=_explicit(args.design), n_ics=args.n_ics, box=args.box,
+                         seed=args.seed, discretisation=args.discretisation,
+                         h_range=tuple(args.h_range) if args.h_range else None, rtol=args.rtol,
+                         t_final=args.t_final, jobs=jobs, progress=bar)
+        elif args.study == "montecarlo":
+            from bench.studies.montecarlo import run_montecarlo as run, write_montecarlo as write
+
+            result = run(plant_ids, design_ids, n=args.n, box=args.box, seed=args.seed, t_final=args.t_final,
+                         method=args.method, jobs=jobs, progress=bar)
+        else:
+            from bench.studies.noise import DEFAULT_LEVELS, run_noise as run, write_noise as write
+
+            result = run(plant_ids, design_ids, levels=tuple(args.levels) if args.levels else DEFAULT_LEVELS,
+                         seed=args.seed, matched_ekf=not args.no_matched_ekf, t_final=args.t_final, jobs=jobs,
+                         progress=bar)
+    except StudyError as exc:
+        print(f"{prog}: error: {OPTIONS.get(exc.param, exc.param)}: {exc.message}", file=sys.stderr)
+        return 2
+    finally:
+        if bar is not None:
+            bar.close()
+    try:
+        path = write(result, args.out, command)
+    except Exception as exc:  # the previous files stay intact (atomic write)
+        print(f"{prog}: error: could not write the study to {args.out!r} ({type(exc).__name__}: {exc}); "
+              "the previous files, if any, are unchanged", file=sys.stderr)
+        return 1
+    if not args.quiet:
+        print(f"wrote {path} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
+    return 0

@@ -1,0 +1,248 @@
+"""Measurement noise: RMS estimation error and final state norm vs noise level, Luenberger vs EKF.
+
+For each plant and noise level sigma (a log grid), every design with a controller is simulated
+by the harness's own noisy path (:func:`bench.simulate.simulate_sampled`, seeded Gaussian
+noise ``v_k ~ N(0, sigma^2 I)`` on ``y = C x + v``):
+
+- fixed-gain (Luenberger-type) observers: continuous observer and ``u = F x_hat``, the noise held
+  over intervals of ``noise_dt = 0.01 s`` (:class:`bench.harness.RunOptions`' default);
+- the EKF (``lqr+ekf``): continuous-discrete filter at its sample time, ``u_k`` held; besides its
+  default tuning (``r = 1e-4``), an EKF with the measurement variance matched to the noise
+  (``r = sigma^2``) is run as ``lqr+ekf (r = sigma^2)``.
+
+Metrics are :func:`bench.metrics.trajectory_metrics` with ``noisy=True``: ``rms_e`` is the RMS
+of ``||x - x_hat||`` over the second half of the horizon (the steady state) and ``final_x`` the
+final ``||x||``; the numbers equal those of ``python -m bench run --noise SIGMA --seed SEED``.
+The gains are designed once per (plant, design) and reused for every level.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from bench.studies._common import (StudyError, check_levels, design_for, fmt, md_table, plant_constants, pyplot,
+                                   study_header, write_study)
+
+__all__ = ["DEFAULT_LEVELS", "DEFAULT_PLANTS", "MATCHED_EKF", "NoiseResult", "run_noise", "write_noise"]
+
+DEFAULT_LEVELS = tuple(float(v) for v in np.logspace(-4, -1, 7))
+DEFAULT_PLANTS = ("flexible_link", "random_osl_v1")
+#: Label of the EKF whose measurement variance r is matched to the noise level.
+MATCHED_EKF = "lqr+ekf (r = sigma^2)"
+
+
+def _noise_task(plant_id: str, design_id: str, K, F, spec, sigma: float, seed: int, noise_dt: float,
+                t_final: float | None) -> dict:
+    from bench.estimators import ContinuousDiscreteEKF
+    from bench.metrics import trajectory_metrics
+    from bench.registry import PLANTS
+    from bench.simulate import SimOptions, simulate_sampled
+
+    plant = PLANTS.create(plant_id)
+    T = plant.t_final if t_final is None else t_final
+    sim = SimOptions()
+    if spec is not None:
+        spec.check_horizon(T)
+        ekf = ContinuousDiscreteEKF(plant, spec, plant.x_hat0, rtol=sim.rtol, atol=sim.atol)
+        tr = simulate_sampled(plant, F, ekf=ekf, dt=spec.dt, t_final=T, noise=sigma, seed=seed, options=sim)
+    else:
+        tr = simulate_sampled(plant, F, K=K, dt=noise_dt, t_final=T, noise=sigma, seed=seed, options=sim)
+    m = trajectory_metrics(tr.t, tr.x, tr.x_hat, tr.u, finished=tr.status == "ok", noisy=True)
+    return {"plant": plant_id, "design": design_id, "noise": sigma, "estimator": "EKF" if spec is not None else "fixed K",
+            "sim_status": tr.status, "converged": m["converged"], "rms_e": m["rms_e"], "final_x": m["final_x"],
+            "final_e": m["final_e"], "settling_x_s": m["settling_x_s"], "peak_u": m["peak_u"], "sim_s": tr.wall_s}
+
+
+@dataclass
+class NoiseResult:
+    """What :func:`run_noise` produced."""
+
+    rows: list[dict]
+    skipped: list[dict]
+    settings: dict
+    wall_s: float
+
+
+def run_noise(
+    plant_ids: list[str] | None = None,
+    design_ids: list[str] | None = None,
+    *,
+    levels: tuple[float, ...] = DEFAULT_LEVELS,
+    seed: int = 0,
+    matched_ekf: bool = True,
+    noise_dt: float = 0.01,
+    t_final: float | None = None,
+    jobs: int = 1,
+    progress: Callable[[int, int, str], None] | None = None,
+) -> NoiseResult:
+    """RMS estimation error and final state norm vs noise level for every design with a controller.
+
+    Parameters
+    ----------
+    plant_ids : list of str, optional
+        Default :data:`DEFAULT_PLANTS`.
+    design_ids : list of str, optional
+        Default: every registered design (those infeasible or inapplicable on a plant are listed).
+    levels : sequence of float
+        Noise standard deviations (each finite and > 0).
+    seed : int
+        Seed of the noise (the same sequence for every design and level, scaled by sigma).
+    matched_ekf : bool
+        Also run the EKF with ``r = sigma^2`` (when ``lqr+ekf`` is selected).
+    noise_dt : float
+        Hold interval of the noise for fixed-gain observers.
+    t_final : float, optional
+    jobs : int
+    progress : callable, optional
+
+    Returns
+    -------
+    NoiseResult
+
+    Raises
+    ------
+    StudyError
+        A noise level that is negative, zero or not finite; a bad ``noise_dt`` or horizon.
+    """
+    from concurrent.futures import as_completed
+    from dataclasses import replace
+
+    from bench.executors import executor
+    from bench.registry import DESIGNS, PLANTS
+
+    t_start = time.perf_counter()
+    levels = check_levels("levels", levels)
+    if not (isinstance(noise_dt, (int, float)) and math.isfinite(noise_dt) and noise_dt > 0):
+        raise StudyError("noise_dt", f"must be finite and > 0, got {noise_dt!r}")
+    if t_final is not None and not (math.isfinite(t_final) and t_final > 0):
+        raise StudyError("t_final", f"must be finite and > 0, got {t_final!r}")
+    plant_ids = list(plant_ids) if plant_ids else list(DEFAULT_PLANTS)
+    design_ids = list(design_ids) if design_ids else DESIGNS.ids()
+    skipped, jobs_list = [], []
+    for pid in plant_ids:
+        plant = PLANTS.create(pid)
+        consts = plant_constants(plant)
+        for did in design_ids:
+            d = design_for(plant, did, consts)
+            if d.status != "feasible" or d.F is None or (d.K is None and d.estimator is None):
+                skipped.append({"plant": pid, "design": did, "status": d.status, "reason": d.reason})
+                continue
+            for s in levels:
+                jobs_list.append((pid, did, d.K, d.F, d.estimator, s))
+                if d.estimator is not None and matched_ekf:
+                    jobs_list.append((pid, MATCHED_EKF, None, d.F, replace(d.estimator, r=s * s), s))
+    rows = {}
+    with executor(jobs) as ex:
+        futs = {ex.submit(_noise_task, pid, did, K, F, spec, s, seed, noise_dt, t_final): (pid, did, s)
+                for pid, did, K, F, spec, s in jobs_list}
+        for i, fut in enumerate(as_completed(futs), 1):
+            rows[futs[fut]] = fut.result()
+            if progress:
+                r = rows[futs[fut]]
+                progress(i, len(futs), f"{r['plant']} x {r['design']} sigma {r['noise']:g}: rms_e {fmt(r['rms_e'])}")
+    ordered = [rows[(pid, did, s)] for pid, did, _, _, _, s in jobs_list]
+    settings = {"levels": ", ".join(f"{v:.3g}" for v in levels), "seed": seed, "noise_dt": noise_dt,
+                "matched EKF": matched_ekf, "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
+    return NoiseResult(ordered, skipped, settings, time.perf_counter() - t_start)
+
+
+def _draw(pid: str, rows: list[dict]):
+    def draw(path):
+        plt = pyplot()
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.3), constrained_layout=True)
+        designs = list(dict.fromkeys(r["design"] for r in rows))
+        for i, did in enumerate(designs):
+            sub = sorted((r for r in rows if r["design"] == did), key=lambda r: r["noise"])
+            style = "--" if "ekf" in did else "-"
+            marker = "s" if "ekf" in did else "o"
+            kw = dict(ls=style, marker=marker, ms=4, color=f"C{i % 10}", label=did)
+            a1.loglog([r["noise"] for r in sub], [r["rms_e"] for r in sub], **kw)
+            a2.loglog([r["noise"] for r in sub], [r["final_x"] for r in sub], **kw)
+        a1.set(xlabel="noise standard deviation sigma", ylabel="RMS ||e|| (second half of the horizon)",
+               title=f"{pid}: estimation error")
+        a2.set(xlabel="noise standard deviation sigma", ylabel="final ||x||", title=f"{pid}: final state norm")
+        for a in (a1, a2):
+            a.grid(True, which="both", alpha=0.3)
+        a2.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+
+    return draw
+
+
+def write_noise(result: NoiseResult, out_dir: str, command: str):
+    """Write ``STUDY_noise.md``, ``study_noise.csv`` and ``figures/study_noise_<plant>.png`` atomically."""
+    import pandas as pd
+
+    rows = result.rows
+    plants = list(dict.fromkeys(r["plant"] for r in rows))
+    levels = sorted({r["noise"] for r in rows})
+    lines = [
+        study_header("Study: measurement noise (Luenberger-type observers vs EKF)", command, result.settings,
+                     result.wall_s),
+        "Seeded Gaussian measurement noise of standard deviation sigma on `y = C x + v`, simulated by the harness's "
+        "noisy path (`bench.simulate.simulate_sampled`): fixed-gain observers continuous with the noise held over "
+        f"{result.settings['noise_dt']} s, the EKF at its own sample time with `u_k` held. `rms_e`: RMS of "
+        "`||x - x_hat||` over the second half of the horizon; `final_x`: final `||x||`. Same numbers as "
+        "`python -m bench run --noise SIGMA --seed SEED`. "
+        f"`{MATCHED_EKF}` is the EKF with its measurement variance set to the noise variance (default r = 1e-4).",
+        "",
+    ]
+    for pid in plants:
+        sub = [r for r in rows if r["plant"] == pid]
+        designs = list(dict.fromkeys(r["design"] for r in sub))
+        by = {(r["design"], r["noise"]): r for r in sub}
+        for metric, title in (("rms_e", "RMS estimation error"), ("final_x", "final ||x||")):
+            lines += [f"## {pid}: {title}", "",
+                      "| design | " + " | ".join(f"sigma {s:.3g}" for s in levels) + " |",
+                      "|---|" + "|".join("---" for _ in levels) + "|"]
+            for did in designs:
+                lines.append(f"| {did} | " + " | ".join(fmt(by[(did, s)][metric]) if (did, s) in by else ""
+                                                        for s in levels) + " |")
+            lines.append("")
+        # best at each level
+        best = []
+        for s in levels:
+            cand = [r for r in sub if r["noise"] == s and math.isfinite(r["rms_e"])]
+            if cand:
+                b = min(cand, key=lambda r: r["rms_e"])
+                luen = [r for r in cand if r["estimator"] == "fixed K"]
+                ekf = [r for r in cand if r["estimator"] == "EKF"]
+                best.append({"noise": s, "best": b["design"], "best_rms_e": b["rms_e"],
+                             "best_luenberger": min(luen, key=lambda r: r["rms_e"])["design"] if luen else "",
+                             "luenberger_rms_e": min(r["rms_e"] for r in luen) if luen else math.nan,
+                             "best_ekf": min(ekf, key=lambda r: r["rms_e"])["design"] if ekf else "",
+                             "ekf_rms_e": min(r["rms_e"] for r in ekf) if ekf else math.nan})
+        lines += [f"## {pid}: best estimator per level", "",
+                  md_table(best, ["noise", "best", "best_rms_e", "best_luenberger", "luenberger_rms_e", "best_ekf",
+                                  "ekf_rms_e"],
+                           ["sigma", "lowest RMS ||e||", "its RMS", "best Luenberger-type", "its RMS", "best EKF",
+                            "its RMS"]), "",
+                  f"![{pid}](figures/study_noise_{pid}.png)", ""]
+        slow = []
+        if len(levels) >= 2:
+            for did in designs:
+                lo, hi = by.get((did, levels[0])), by.get((did, levels[-1]))
+                if lo and hi and all(math.isfinite(v) for v in (lo["rms_e"], hi["rms_e"])) and hi["rms_e"] > 0 and \
+                        lo["rms_e"] / levels[0] > 3 * hi["rms_e"] / levels[-1]:
+                    slow.append(did)
+        if slow:
+            lines += ["RMS not proportional to sigma at the smallest level (RMS / sigma more than 3 x its value at the "
+                      "largest level): the transient has not died out by mid-horizon, so the error there is the slow "
+                      "convergence, not the noise: " + ", ".join(slow) + ".", ""]
+        nc = [r for r in sub if not r["converged"]]
+        if nc:
+            lines += ["Not settled (2 % settling of `||x||` or `||e||` not reached within the horizon): "
+                      + ", ".join(f"{r['design']} at sigma {r['noise']:.3g}" for r in nc) + ".", ""]
+    if result.skipped:
+        lines += ["## Not simulated", ""]
+        lines += [f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r['reason'])[:250]}"
+                  for r in result.skipped]
+        lines.append("")
+    figs = {f"study_noise_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid]) for pid in plants}
+    return write_study(out_dir, "noise", "\n".join(lines), {"study_noise": pd.DataFrame(rows)}, figs)

@@ -1,0 +1,375 @@
+"""Digital implementation: the largest sample period h at which each design's loop still converges.
+
+The controller and the observer run in discrete time at period h, the plant stays continuous
+(:func:`bench.studies.batch.simulate_digital_batch`): at ``t_k = k h`` the output is sampled,
+``u_k = F x_hat_k`` is held by a zero-order hold, and the observer is advanced by the ``"zoh"``
+discretisation (its model integrated over the period with ``B u_k`` and ``K (y_k - C x_hat_k)``
+held; for a linear plant this is the exact ZOH discretisation) or by forward Euler. The gains
+(K, F) are the continuous-time designs' own, unchanged (emulation design).
+
+For each (plant, design with fixed gains):
+
+- ``h_lin``: the first period at which the sampled loop *linearised at the origin* (A replaced
+  by ``A + df/dx(0)``) loses exponential stability, i.e. the spectral radius of its one-period
+  matrix (:func:`bench.studies.batch.digital_matrix`, from ``scipy.linalg.expm``) reaches 1
+  (log grid from 1e-5 s, then Brent's method);
+- ``h_max``: the largest h (geometric bisection to 1 % relative, bracketed from ``h_lin / 2``)
+  at which the nonlinear sampled loop **converges within the horizon** from the plant's initial
+  conditions and from ``n_ics`` seeded random initial conditions (x and x_hat uniform in a box):
+  every member's final ``||x||`` and ``||e||`` at most 1e-3 times their peaks, none diverged.
+  Convergence within a finite horizon is a stronger demand than ``rho < 1`` (a spectral radius
+  just below 1 decays too slowly), so ``h_max <= h_lin`` is expected;
+- the 2 % settling time of ``||x||`` from the plant's initial conditions at every simulated h,
+  and the continuous loop's (h -> 0, :func:`bench.simulate.simulate`) for reference.
+
+Convergence need not be monotone in h; the bisection reports the first boundary it brackets.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from bench.studies._common import (StudyError, bisect_largest, check_box, check_count, check_range, default_box,
+                                   fmt, md_table, pyplot, random_ics, study_header, write_study)
+
+__all__ = ["DEFAULT_PLANTS", "SamplingResult", "linear_h_bound", "run_sampling", "write_sampling"]
+
+DEFAULT_PLANTS = ("flexible_link", "random_lipschitz_v1", "moving_object_v1")
+
+
+def _jacobian0(plant) -> np.ndarray:
+    from bench.estimators import numeric_jacobian
+
+    z = np.zeros(plant.n)
+    if plant.jacobian is not None:
+        return np.asarray(plant.jacobian(z), dtype=float)
+    return numeric_jacobian(plant.f, z)
+
+
+def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1e-5, h_max: float = 10.0,
+                   n_grid: int = 400) -> float:
+    """First sample period at which the sampled loop linearised at the origin loses stability.
+
+    Parameters
+    ----------
+    plant : Plant
+    K, F : ndarray
+    discretisation : {"zoh", "euler"}
+    h_min, h_max : float
+        Search interval of the log grid.
+    n_grid : int
+        Grid points; the first crossing of ``rho(Phi(h)) = 1`` is refined by Brent's method.
+
+    Returns
+    -------
+    float
+        The crossing; ``0.0`` if the loop is not stable even at ``h_min`` (e.g. the continuous
+        loop is not exponentially stable), ``inf`` if it is stable on the whole grid.
+    """
+    from scipy.optimize import brentq
+
+    from bench.studies.batch import digital_matrix
+
+    Alin = plant.A + _jacobian0(plant)
+
+    def rho(h: float) -> float:
+        return float(np.abs(np.linalg.eigvals(digital_matrix(Alin, plant.B, plant.C, K, F, h, discretisation))).max())
+
+    grid = np.logspace(math.log10(h_min), math.log10(h_max), int(n_grid))
+    prev = None
+    for h in grid:
+        if rho(h) >= 1.0:
+            if prev is None:
+                return 0.0
+            return float(brentq(lambda v: rho(v) - 1.0, prev, h, rtol=1e-8))
+        prev = h
+    return math.inf
+
+
+def _check_h(plant, K, F, X, XH, h, disc, t_final) -> dict:
+    from bench.studies.batch import batch_metrics, simulate_digital_batch
+
+    tr = simulate_digital_batch(plant, K, F, X, XH, h=h, t_final=t_final, discretisation=disc)
+    m = batch_metrics(tr)
+    conv = m["converged"]
+    sx = m["settling_x_s"][conv]
+    return {"h": float(h), "ok": bool(conv.all()), "status": "converged" if conv.all() else "not converged",
+            "n_converged": int(conv.sum()), "N": int(conv.size), "plant_ic_converged": bool(conv[0]),
+            "settling_x_plant": float(m["settling_x_s"][0]) if conv[0] else math.nan,
+            "settling_e_plant": float(m["settling_e_s"][0]) if conv[0] else math.nan,
+            "settling_x_median": float(np.median(sx)) if sx.size else math.nan,
+            "worst_final_x": float(np.nanmax(np.where(tr.diverged, np.inf, m["final_x"]))),
+            "n_diverged": int(tr.diverged.sum()), "sim_s": tr.wall_s}
+
+
+def _design_task(plant_id: str, design_id: str):
+    from bench.registry import PLANTS
+    from bench.studies._common import design_for
+
+    return design_for(PLANTS.create(plant_id), design_id)
+
+
+def _sampling_task(plant_id: str, design_id: str, K, F, n_ics: int, box: float | None, seed: int,
+                   disc: str, h_range, rtol: float, t_final: float | None) -> dict:
+    from bench.metrics import trajectory_metrics
+    from bench.registry import PLANTS
+    from bench.simulate import simulate
+
+    t0 = time.perf_counter()
+    plant = PLANTS.create(plant_id)
+    b = default_box(plant) if box is None else box
+    X, XH = random_ics(plant, n_ics, b, seed)
+    X = np.concatenate([plant.x0[:, None], X], axis=1)
+    XH = np.concatenate([plant.x_hat0[:, None], XH], axis=1)
+    T = plant.t_final if t_final is None else t_final
+    h_lin = linear_h_bound(plant, K, F, disc)
+    cont = simulate(plant, K, F, t_final=T)
+    cm = trajectory_metrics(cont.t, cont.x, cont.x_hat, cont.u, finished=cont.status == "ok")
+    start = h_lin / 2 if 0 < h_lin < math.inf else (1e-3 if h_lin == 0 else 1.0)
+
+    def check(h):
+        return _check_h(plant, K, F, X, XH, h, disc, T)
+
+    out = bisect_largest(check, start, bounds=h_range, rtol=rtol, max_doublings=6)
+    evals = out["evals"]
+    # settling time vs h: a few periods below the bound (not below 2e-4 s, for cost)
+    if math.isfinite(out["lo"]):
+        done = {e["h"] for e in evals}
+        for frac in (1 / 8, 1 / 4, 1 / 2):
+            h = out["lo"] * frac
+            if h >= 2e-4 and h not in done:
+                evals.append(check(h))
+    for e in evals:
+        e.update(plant=plant_id, design=design_id)
+    row = {"plant": plant_id, "design": design_id, "status": "feasible", "h_max": out["lo"], "h_fail": out["hi"],
+           "kind": out["kind"], "h_lin": h_lin, "n_evals": len(evals), "N_ics": X.shape[1], "box": b,
+           "settling_x_cont": cm["settling_x_s"] if cm["converged"] else math.nan,
+           "cont_converged": cm["converged"], "wall_s": time.perf_counter() - t0, "reason": ""}
+    at = [e for e in evals if e["h"] == out["lo"]]
+    if at:
+        row.update(settling_x_at_hmax=at[0]["settling_x_plant"], settling_x_median_at_hmax=at[0]["settling_x_median"])
+    fail = [e for e in evals if e["h"] == out["hi"]]
+    if fail:
+        f = fail[0]
+        row["at_fail"] = (f"{f['n_converged']}/{f['N']} converged, {f['n_diverged']} diverged, worst final "
+                          f"||x|| {fmt(f['worst_final_x'])}")
+    return {"row": row, "evals": evals}
+
+
+@dataclass
+class SamplingResult:
+    """What :func:`run_sampling` produced."""
+
+    rows: list[dict]
+    evals: list[dict]
+    settings: dict
+    wall_s: float
+    notes: list[str] = field(default_factory=list)
+
+
+def run_sampling(
+    plant_ids: list[str] | None = None,
+    design_ids: list[str] | None = None,
+    *,
+    required: list[str] | tuple[str, ...] = (),
+    n_ics: int = 20,
+    box: float | None = None,
+    seed: int = 0,
+    discretisation: str = "zoh",
+    h_range: tuple[float, float] | None = None,
+    rtol: float = 0.01,
+    t_final: float | None = None,
+    jobs: int = 1,
+    progress: Callable[[int, int, str], None] | None = None,
+) -> SamplingResult:
+    """Largest sample period per (plant, design with fixed gains).
+
+    Parameters
+    ----------
+    plant_ids : list of str, optional
+        Default :data:`DEFAULT_PLANTS`.
+    design_ids : list of str, optional
+        Default: every registered design; designs without fixed gains (the EKF) and designs
+        infeasible on a plant get a row with the reason.
+    required : sequence of str
+        Designs the caller named explicitly: one of them without fixed gains on a plant raises
+        :class:`StudyError` (parameter ``design``).
+    n_ics : int
+        Random initial conditions besides the plant's own (>= 1).
+    box : float, optional
+        Half-width of the initial-condition box (default: the plant's initial-condition scale).
+    seed : int
+        Seed of the random initial conditions.
+    discretisation : {"zoh", "euler"}
+    h_range : (float, float), optional
+        Bisection bounds on h (default: bracketed from ``h_lin / 2``).
+    rtol : float
+        Relative tolerance of the bisection.
+    t_final : float, optional
+        Horizon (default: each plant's).
+    jobs : int
+    progress : callable, optional
+
+    Returns
+    -------
+    SamplingResult
+
+    Raises
+    ------
+    StudyError
+        Bad box, count, bounds, discretisation, or a required design without fixed gains.
+    """
+    from concurrent.futures import as_completed
+
+    from bench.executors import executor
+    from bench.registry import DESIGNS
+    from bench.studies.batch import DISCRETISATIONS
+
+    t_start = time.perf_counter()
+    n_ics = check_count("n_ics", n_ics, 1)
+    box = check_box("box", box)
+    h_range = check_range("h_range", h_range)
+    if discretisation not in DISCRETISATIONS:
+        raise StudyError("discretisation", f"must be one of {DISCRETISATIONS}, got {discretisation!r}")
+    if not (isinstance(rtol, (int, float)) and math.isfinite(rtol) and 0 < rtol < 1):
+        raise StudyError("rtol", f"must be a number in (0, 1), got {rtol!r}")
+    if t_final is not None and not (math.isfinite(t_final) and t_final > 0):
+        raise StudyError("t_final", f"must be finite and > 0, got {t_final!r}")
+    plant_ids = list(plant_ids) if plant_ids else list(DEFAULT_PLANTS)
+    design_ids = list(design_ids) if design_ids else DESIGNS.ids()
+    rows: dict[tuple[str, str], dict] = {}
+    evals: list[dict] = []
+    with executor(jobs) as ex:
+        dfuts = {ex.submit(_design_task, pid, did): (pid, did) for pid in plant_ids for did in design_ids}
+        designed = {}
+        for fut in as_completed(dfuts):
+            designed[dfuts[fut]] = fut.result()
+        for (pid, did), d in designed.items():
+            if d.status == "feasible" and not d.has_gains and did in required:
+                raise StudyError("design", f"{did!r} has no fixed gains (K, F) on {pid!r} (its estimator is "
+                                           f"{type(d.estimator).__name__}): a sampling study needs fixed gains")
+        sfuts = {}
+        for pid in plant_ids:
+            for did in design_ids:
+                d = designed[(pid, did)]
+                if d.status != "feasible":
+                    rows[(pid, did)] = {"plant": pid, "design": did, "status": d.status, "reason": d.reason}
+                elif not d.has_gains:
+                    rows[(pid, did)] = {"plant": pid, "design": did, "status": "no fixed gains",
+                                        "reason": f"estimator {type(d.estimator).__name__}: not a fixed gain K"}
+                else:
+                    sfuts[ex.submit(_sampling_task, pid, did, d.K, d.F, n_ics, box, seed, discretisation, h_range,
+                                    rtol, t_final)] = (pid, did)
+        for i, fut in enumerate(as_completed(sfuts), 1):
+            key = sfuts[fut]
+            r = fut.result()
+            rows[key] = r["row"]
+            evals.extend(r["evals"])
+            if progress:
+                progress(i, len(sfuts), f"{key[0]} x {key[1]}: h_max {fmt(r['row']['h_max'])}")
+    ordered = [rows[(p, d)] for p in plant_ids for d in design_ids]
+    evals.sort(key=lambda e: (plant_ids.index(e["plant"]), design_ids.index(e["design"]), e["h"]))
+    settings = {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
+                "seed": seed, "discretisation": discretisation,
+                "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
+                "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
+    return SamplingResult(ordered, evals, settings, time.perf_counter() - t_start)
+
+
+def _h_interval(r: dict) -> str:
+    kind = r.get("kind")
+    if kind == "below_range":
+        return f"< {fmt(r['h_fail'], '.3g')}"
+    if kind == "above_range":
+        return f">= {fmt(r['h_max'], '.3g')}"
+    if kind == "bracketed":
+        return fmt(r["h_max"], ".3g")
+    return ""
+
+
+def _draw(pid: str, rows: list[dict], evals: list[dict]):
+    def draw(path):
+        plt = pyplot()
+        fig, ax = plt.subplots(figsize=(7.5, 4.2), constrained_layout=True)
+        for i, r in enumerate(x for x in rows if "h_max" in x):
+            pts = sorted((e["h"], e["settling_x_plant"]) for e in evals
+                         if e["plant"] == pid and e["design"] == r["design"] and math.isfinite(e["settling_x_plant"]))
+            color = f"C{i % 10}"
+            if pts:
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=color, ms=4, label=r["design"])
+            if math.isfinite(r.get("settling_x_cont", math.nan)):
+                ax.axhline(r["settling_x_cont"], color=color, ls=":", lw=0.8)
+            if math.isfinite(r.get("h_max", math.nan)):
+                ax.axvline(r["h_max"], color=color, ls="--", lw=0.8)
+        ax.set_xscale("log")
+        ax.set(xlabel="sample period h [s] (log); dashed: largest converging h", ylabel="2 % settling time of ||x|| [s]",
+               title=f"{pid}: settling time vs h (dotted: continuous loop)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+
+    return draw
+
+
+def write_sampling(result: SamplingResult, out_dir: str, command: str):
+    """Write ``STUDY_sampling.md``, ``study_sampling.csv``, ``study_sampling_evaluations.csv`` and
+    ``figures/study_sampling_<plant>.png`` atomically; returns the markdown's path."""
+    import pandas as pd
+
+    rows = result.rows
+    plants = list(dict.fromkeys(r["plant"] for r in rows))
+    trows = [{**r, "h_max_s": _h_interval(r)} for r in rows]
+    cols = ["plant", "design", "status", "h_max_s", "h_fail", "h_lin", "settling_x_cont", "settling_x_at_hmax",
+            "settling_x_median_at_hmax", "at_fail", "n_evals", "wall_s"]
+    heads = ["plant", "design", "status", "largest converging h [s]", "first failing h", "h_lin (rho = 1)",
+             "settling, continuous [s]", "settling at h_max (plant IC)", "median settling at h_max (all ICs)",
+             "at the first failing h", "sims", "wall s"]
+    skipped = [r for r in rows if "h_max" not in r]
+    disc = result.settings["discretisation"]
+    lines = [
+        study_header("Study: digital implementation (largest sample period)", "python -m bench study sampling"
+                     if not command else command, result.settings, result.wall_s),
+        "The controller and the observer run at period h, the plant is continuous: at `t_k = k h` the output is "
+        "sampled, `u_k = F x_hat_k` is held (zero-order hold) and the observer is advanced by the "
+        + ("**zoh** discretisation (its model `x_hat' = A x_hat + f(x_hat) + B u_k + K (y_k - C x_hat_k)` "
+           "integrated over the period with the input and the output injection held; exact ZOH for a linear plant)"
+           if disc == "zoh" else "**forward Euler** discretisation of (6)")
+        + ". The gains are the continuous designs' own (emulation). Plant and observer model are integrated between "
+          "samples by fixed-step RK4 on the whole batch of initial conditions.",
+        "",
+        "- **largest converging h**: geometric bisection (1 % relative) of the largest h at which *every* initial "
+        "condition (the plant's own plus the seeded random ones, x and x_hat uniform in the box) converges within the "
+        "horizon (final `||x||` and `||e||` at most 1e-3 of their peaks, no divergence);",
+        "- **h_lin**: the first h at which the loop linearised at the origin loses exponential stability "
+        "(spectral radius of the one-period matrix from `scipy.linalg.expm` reaches 1). Convergence within a finite "
+        "horizon demands more than `rho < 1`, so `h_max <= h_lin` is expected;",
+        "- settling times are 2 % settling of `||x||` at the sample instants, from the plant's initial conditions.",
+        "",
+        "## Largest sample period per design",
+        "",
+        md_table([r for r in trows if "h_max" in r], cols, heads),
+        "",
+    ]
+    slow = [r for r in rows if "h_max" in r and not r.get("cont_converged", True)]
+    if slow:
+        lines += ["The continuous loop itself does not converge within the horizon (same criterion) from the plant's "
+                  "initial conditions, so no h can pass: " + ", ".join(f"{r['plant']} x {r['design']}" for r in slow)
+                  + ".", ""]
+    if skipped:
+        lines += ["Not simulated:", ""]
+        lines += [f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r.get('reason', ''))[:300]}"
+                  for r in skipped]
+        lines.append("")
+    lines += ["## Settling time vs h", ""]
+    lines += [f"![{pid}](figures/study_sampling_{pid}.png)" for pid in plants]
+    lines.append("")
+    figs = {f"study_sampling_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid], result.evals)
+            for pid in plants}
+    tables = {"study_sampling": pd.DataFrame(rows), "study_sampling_evaluations": pd.DataFrame(result.evals)}
+    return write_study(out_dir, "sampling", "\n".join(lines), tables, figs)

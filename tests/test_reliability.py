@@ -1,0 +1,399 @@
+"""Timeouts, interrupted runs (Ctrl-C, a killed process), the on-disk cache, reproducibility."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bench import report as report_mod
+from bench.cache import Cache, default_cache_dir
+from bench.cli import main
+from bench.harness import RunOptions, run
+from bench.registry import DESIGNS, PLANTS
+from designs import _lmi
+from designs._core import Design, DesignResult
+
+ROOT = Path(__file__).resolve().parents[1]
+TIMING = ["compile_s", "solve_s", "design_s", "cert_s", "sim_s"]
+FAST = RunOptions(n_samples=500)
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _no_temporaries(*folders: Path) -> None:
+    for folder in folders:
+        left = [p for p in folder.rglob("*") if p.name.startswith(".tmp-")]
+        assert not left, f"temporary files left behind: {left}"
+
+
+@pytest.fixture
+def register():
+    """``register(id, cls_or_factory, registry=DESIGNS)``; everything is unregistered afterwards."""
+    done = []
+
+    def reg(id_, obj, registry=DESIGNS, **kw):
+        registry.register(id_, obj, **kw)
+        done.append((registry, id_))
+
+    yield reg
+    for registry, id_ in done:
+        registry.unregister(id_)
+
+
+# -- timeouts -----------------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class _Sleeps(Design):
+    """A design stuck in Python code that checks no time limit."""
+
+    def design(self, plant, constants):
+        time.sleep(60)
+        return DesignResult(status="infeasible", reason="woke up")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class _BigSolve(Design):
+    """A design whose single SDP solve takes seconds (Clarabel, n = 25 Lyapunov-type LMI)."""
+
+    def design(self, plant, constants):
+        import cvxpy as cp
+
+        n = 25
+        A = np.random.default_rng(0).standard_normal((n, n))
+        P, t = cp.Variable((n, n), symmetric=True), cp.Variable()
+        prob = cp.Problem(cp.Maximize(t), [cp.bmat([[A.T @ P + P @ A, P], [P, -np.eye(n)]]) << -t * np.eye(2 * n),
+                                           P >> t * np.eye(n), P << np.eye(n), t <= 1])
+        out = _lmi.solve_timed(prob)
+        return DesignResult(status="undecided", reason=f"solved: {out.status}")
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_stuck_design_becomes_a_timeout_row(register, jobs):
+    register("_sleeps", _Sleeps)
+    t0 = time.perf_counter()
+    # 2.5 s: enough for paper_gains in a cold process (the first cvxpy solve costs ~0.7 s)
+    res = run(["flexible_link"], ["_sleeps", "paper_gains"], dataclasses.replace(FAST, timeout=2.5), jobs=jobs)
+    assert time.perf_counter() - t0 < 20
+    df = res.frame().set_index("design")
+    row = df.loc["_sleeps"]
+    assert row["status"] == "timeout" and not row["feasible"] and not row["certified"] and not row["converged"]
+    assert "timeout" in row["reason"] and "2.5 s" in row["reason"] and "during the design" in row["reason"]
+    assert df.loc["paper_gains", "status"] == "feasible" and df.loc["paper_gains", "converged"]
+
+
+def test_a_stuck_solve_is_stopped_by_the_solver_time_limit(register):
+    register("_big_solve", _BigSolve)
+    t0 = time.perf_counter()
+    res = run(["flexible_link"], ["_big_solve"], dataclasses.replace(FAST, timeout=0.4))
+    assert time.perf_counter() - t0 < 15
+    row = res.frame().iloc[0]
+    assert row["status"] == "timeout" and "SDP solve" in row["reason"], row["reason"]
+
+
+def test_the_solver_gets_the_remaining_time_as_its_own_limit(monkeypatch):
+    import cvxpy as cp
+
+    seen = {}
+
+    def fake_solve(self, **kw):
+        seen.update(kw)
+        self._status = "optimal"
+
+    x = cp.Variable()
+    prob = cp.Problem(cp.Minimize(x), [x >= 1])
+    monkeypatch.setattr(cp.Problem, "solve", fake_solve)
+    monkeypatch.setattr(cp.Problem, "status", property(lambda self: getattr(self, "_status", None)))
+    monkeypatch.setattr(cp.Problem, "value", property(lambda self: 1.0))
+    with _lmi.time_limit(30.0):
+        _lmi.solve_timed(prob, "CLARABEL")
+        assert 25 < seen["time_limit"] <= 30
+        _lmi.solve_timed(prob, "SCS")
+        assert 25 < seen["time_limit_secs"] <= 30
+    seen.clear()
+    _lmi.solve_timed(prob, "CLARABEL")  # no scope: no limit
+    assert "time_limit" not in seen
+
+
+SLOW = {"on": False}
+
+
+def _slow_in_simulation():
+    base = PLANTS.create("flexible_link")
+    f0 = base.f
+
+    def f(x):
+        if SLOW["on"]:
+            time.sleep(0.005)
+        return f0(x)
+
+    return dataclasses.replace(base, id="_slow_sim", f=f)
+
+
+def test_a_stuck_simulation_becomes_a_timeout_row(register, monkeypatch):
+    from bench import harness
+
+    register("_slow_sim", _slow_in_simulation, registry=PLANTS)
+    real = harness.simulate
+
+    def slow(*a, **k):
+        SLOW["on"] = True
+        try:
+            return real(*a, **k)
+        finally:
+            SLOW["on"] = False
+
+    monkeypatch.setattr(harness, "simulate", slow)
+    t0 = time.perf_counter()
+    res = run(["_slow_sim"], ["paper_gains"], dataclasses.replace(FAST, timeout=1.5))
+    assert time.perf_counter() - t0 < 15
+    row = res.frame().iloc[0]
+    assert row["status"] == "timeout" and row["sim_status"] == "timeout"
+    assert "during the simulation" in row["reason"] and "reached before: feasible, certified" in row["reason"]
+    assert not row["certified"] and not row["converged"] and not row["feasible"]
+
+
+def test_cli_timeout_option(tmp_path, register, capsys):
+    register("_sleeps", _Sleeps)
+    assert main(["run", "--timeout", "0", "--out", str(tmp_path)]) == 2
+    assert main(["run", "--timeout", "nan", "--out", str(tmp_path)]) == 2
+    assert "--timeout" in capsys.readouterr().err
+    rc = main(["run", "-j", "1", "--no-cache", "--no-figures", "--timeout", "1", "--plant", "flexible_link",
+               "--design", "_sleeps", "--out", str(tmp_path)])
+    assert rc == 0
+    assert "1 timeouts" in capsys.readouterr().err
+    df = pd.read_csv(tmp_path / "results.csv")
+    assert df.loc[0, "status"] == "timeout"
+    assert "timeout" in (tmp_path / "REPORT.md").read_text()
+    assert json.loads((tmp_path / "run.json").read_text())["timeout"] == 1.0
+
+
+# -- interrupted runs and the cache --------------------------------------------------------------
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class _CtrlC(Design):
+    """A design during which the user presses Ctrl-C."""
+
+    def design(self, plant, constants):
+        raise KeyboardInterrupt
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class _Quick(Design):
+    """A design that finishes at once (the same id as _CtrlC, after the user fixed it)."""
+
+    def design(self, plant, constants):
+        return DesignResult(status="infeasible", reason="nothing to design")
+
+
+def test_ctrl_c_keeps_the_report_and_a_rerun_resumes_from_the_cache(tmp_path, capsys):
+    out = tmp_path / "rep"
+    base = ["run", "-j", "1", "--plant", "flexible_link", "--out", str(out)]
+    assert main([*base, "-q", "--design", "paper_gains"]) == 0
+    before = _snapshot(out)
+    DESIGNS.register("_ctrl_c", _CtrlC, order=99)  # after lqr+lqe (order 50)
+    try:
+        rc = main([*base, "--design", "paper_gains", "--design", "lqr+lqe", "--design", "_ctrl_c"])
+    finally:
+        DESIGNS.unregister("_ctrl_c")
+    err = capsys.readouterr().err
+    assert rc == 130 and "interrupted" in err and "unchanged" in err and "Traceback" not in err
+    assert _snapshot(out) == before  # byte-identical, figures included
+    _no_temporaries(tmp_path)
+    DESIGNS.register("_ctrl_c", _Quick, order=99)
+    try:
+        assert main([*base, "--design", "paper_gains", "--design", "lqr+lqe", "--design", "_ctrl_c"]) == 0
+    finally:
+        DESIGNS.unregister("_ctrl_c")
+    info = json.loads((out / "run.json").read_text())
+    assert info["cache"]["hits"] == 2 and info["cache"]["misses"] == 1  # paper_gains, lqr+lqe were kept
+    assert "2 from the cache" in capsys.readouterr().err
+    # a cached pair gives the same rows (timings included: they are the cached ones)
+    df = pd.read_csv(out / "results.csv").set_index("design")
+    first = pd.read_csv(pd.io.common.BytesIO(before["results.csv"])).set_index("design")
+    pd.testing.assert_frame_equal(df.loc[["paper_gains"]], first.loc[["paper_gains"]])
+
+
+def test_a_cached_rerun_writes_an_identical_report(tmp_path):
+    out = tmp_path / "rep"
+    args = ["run", "-q", "-j", "1", "--plant", "flexible_link", "--design", "paper_gains", "--design", "lqr+ekf",
+            "--out", str(out)]
+    assert main(args) == 0
+    first = _snapshot(out)
+    assert main(args) == 0
+    second = _snapshot(out)
+    assert json.loads(second.pop("run.json"))["cache"]["hits"] == 2
+    first.pop("run.json")
+    assert second == first  # REPORT.md, results.csv, gains.json and every figure, byte for byte
+
+
+def test_ctrl_c_while_writing_the_report_leaves_the_old_one(tmp_path, monkeypatch, capsys):
+    args = ["run", "-q", "-j", "1", "--plant", "flexible_link", "--design", "paper_gains", "--out", str(tmp_path)]
+    assert main(args) == 0
+    before = _snapshot(tmp_path / "figures"), (tmp_path / "REPORT.md").read_bytes()
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(report_mod, "render_markdown", interrupted)
+    assert main(args) == 130
+    assert "while writing the report" in capsys.readouterr().err
+    assert (_snapshot(tmp_path / "figures"), (tmp_path / "REPORT.md").read_bytes()) == before
+    _no_temporaries(tmp_path)
+
+
+PLUGIN = '''
+import os, pathlib, time
+from dataclasses import dataclass
+from bench.registry import register_design
+from designs._core import Design, DesignResult
+
+
+@register_design("zz_stuck", order=1000)
+@dataclass(frozen=True, kw_only=True)
+class Stuck(Design):
+    """Signals that it started, then waits to be interrupted (when OSLBENCH_TEST_STUCK=1)."""
+
+    def design(self, plant, constants):
+        if os.environ.get("OSLBENCH_TEST_STUCK") == "1":
+            pathlib.Path(os.environ["OSLBENCH_TEST_MARK"]).write_text("started")
+            time.sleep(120)
+        return DesignResult(status="infeasible", reason="nothing to design")
+'''
+
+
+def _start(args, tmp_path: Path, mark: Path):
+    env = {**os.environ, "OSLBENCH_TEST_STUCK": "1", "OSLBENCH_TEST_MARK": str(mark)}
+    proc = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not mark.exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the stuck design never started"
+        time.sleep(0.05)
+    return proc
+
+
+def test_sigint_and_sigkill_mid_run(tmp_path, monkeypatch, capsys):
+    """Real signals to a real process: the report survives, finished pairs survive, a re-run resumes."""
+    out = tmp_path / "rep"
+    plugin = tmp_path / "stuck.py"
+    plugin.write_text(PLUGIN)
+    base = ["run", "-j", "1", "--no-figures", "--plant", "flexible_link", "--out", str(out)]
+    assert main([*base, "-q", "--design", "paper_gains"]) == 0
+    before = _snapshot(out)
+    stuck = [*base, "--plugin", str(plugin), "--design", "paper_gains", "--design", "lqr+lqe", "--design", "zz_stuck"]
+
+    proc = _start(stuck, tmp_path, tmp_path / "mark1")  # lqr+lqe finished and cached by now
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "interrupted" in stderr and "unchanged" in stderr and "resume" in stderr and "Traceback" not in stderr
+    assert _snapshot(out) == before
+    _no_temporaries(tmp_path)
+
+    proc = _start([*stuck, "--design", "lqr+rh_riccati"], tmp_path, tmp_path / "mark2")
+    proc.kill()  # SIGKILL: no handler runs at all
+    proc.communicate(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    assert _snapshot(out) == before
+    for entry in (default_cache_dir(out) / "pairs").iterdir():  # every entry whole and readable
+        assert entry.suffix == ".npz"
+        with np.load(entry, allow_pickle=False) as z:
+            assert "meta" in z.files
+
+    monkeypatch.setenv("OSLBENCH_TEST_STUCK", "0")
+    try:
+        assert main([*stuck, "--design", "lqr+rh_riccati"]) == 0
+    finally:
+        DESIGNS.unregister("zz_stuck")
+    info = json.loads((out / "run.json").read_text())
+    # paper_gains (first run), lqr+lqe (the interrupted run) and lqr+rh_riccati (the killed run)
+    assert info["cache"] == {"dir": str(default_cache_dir(out)), "hits": 3, "misses": 1}
+    assert pd.read_csv(out / "results.csv").set_index("design").loc["zz_stuck", "status"] == "infeasible"
+
+
+def test_cache_keys_follow_content(tmp_path, monkeypatch):
+    cache = Cache(tmp_path)
+    flex = PLANTS.create("flexible_link")
+    thm1 = DESIGNS.create("thm1")
+    key = cache.pair_key(flex, "flexible_link", thm1, "thm1", FAST)
+    assert key == Cache(tmp_path).pair_key(PLANTS.create("flexible_link"), "flexible_link", DESIGNS.create("thm1"),
+                                           "thm1", FAST)
+    assert key == cache.pair_key(flex, "flexible_link", thm1, "thm1", dataclasses.replace(FAST, timeout=5.0))
+    changed = [
+        cache.pair_key(PLANTS.create("flexible_link", c=0.3), "flexible_link", thm1, "thm1", FAST),
+        cache.pair_key(flex, "flexible_link", DESIGNS.create("thm1", cap=100.0), "thm1", FAST),
+        cache.pair_key(flex, "flexible_link", thm1, "thm1", dataclasses.replace(FAST, seed=1)),
+        cache.pair_key(flex, "flexible_link", thm1, "thm1", dataclasses.replace(FAST, noise=0.01)),
+        cache.pair_key(flex, "flexible_link", DESIGNS.create("lqr+lqe", estimator_params={"RN": 2.0}), "lqr+lqe",
+                       FAST),
+        cache.pair_key(flex, "flexible_link", DESIGNS.create("lqr+lqe"), "lqr+lqe", FAST),
+    ]
+    assert len({key, *changed}) == len(changed) + 1
+    # a closure value that is in no field (here c, seen only by f) still changes the key
+    hidden = dataclasses.replace(flex, f=PLANTS.create("flexible_link", c=0.5).f)
+    assert cache.pair_key(hidden, "flexible_link", thm1, "thm1", FAST) != key
+    # package versions and the source of the modules are part of the key
+    from bench import report
+
+    monkeypatch.setattr(report, "package_versions", lambda: {"numpy": "0.0"})
+    assert Cache(tmp_path).pair_key(flex, "flexible_link", thm1, "thm1", FAST) != key
+    monkeypatch.undo()
+    other = Cache(tmp_path)
+    other._sources["designs.thm1"] = "edited"
+    assert other.pair_key(flex, "flexible_link", thm1, "thm1", FAST) != key
+    # cor1 imports helpers from designs.thm1: its key follows thm1's source too
+    cor1 = DESIGNS.create("cor1")
+    assert other.pair_key(flex, "flexible_link", cor1, "cor1", FAST) != cache.pair_key(flex, "flexible_link", cor1,
+                                                                                        "cor1", FAST)
+
+
+def test_a_damaged_or_unwritable_cache_costs_a_recomputation_only(tmp_path):
+    cache = Cache(tmp_path / "c")
+    res = run(["flexible_link"], ["paper_gains"], FAST, cache=cache)
+    assert res.cache_misses == 1 and cache.stored == 2  # the pair and the constants
+    for p in (tmp_path / "c").rglob("*.*"):
+        p.write_bytes(b"garbage")
+    again = Cache(tmp_path / "c")
+    res2 = run(["flexible_link"], ["paper_gains"], FAST, cache=again)
+    assert res2.cache_hits == 0 and again.errors and res2.frame()["converged"].all()
+    blocked = tmp_path / "file"
+    blocked.write_text("not a folder")
+    broken = Cache(blocked / "cache")
+    res3 = run(["flexible_link"], ["paper_gains"], FAST, cache=broken)
+    assert res3.frame()["converged"].all() and broken.errors and broken.stored == 0
+
+
+# -- reproducibility ----------------------------------------------------------------------------
+def test_same_seed_same_tables_and_run_json_records_the_run(tmp_path):
+    sel = ["--plant", "flexible_link", "--plant", "random_osl_v1", "--design", "paper_gains", "--design", "cor1_sep",
+           "--design", "lqr+lqe", "--design", "lqr+ekf"]
+    for name in ("a", "b"):
+        assert main(["run", "-q", "-j", "1", "--no-cache", "--no-figures", "--seed", "3", *sel,
+                     "--out", str(tmp_path / name)]) == 0
+    a = pd.read_csv(tmp_path / "a" / "results.csv")
+    b = pd.read_csv(tmp_path / "b" / "results.csv")
+    assert len(a) == 8
+    pd.testing.assert_frame_equal(a.drop(columns=TIMING), b.drop(columns=TIMING))
+    assert (tmp_path / "a" / "gains.json").read_bytes() == (tmp_path / "b" / "gains.json").read_bytes()
+    info = json.loads((tmp_path / "a" / "run.json").read_text())
+    assert info["command"].startswith("python -m bench run") and "--seed 3" in info["command"]
+    assert info["seed"] == 3 and info["plants"] == ["flexible_link", "random_osl_v1"]
+    assert info["designs"] == ["cor1_sep", "paper_gains", "lqr+ekf", "lqr+lqe"] or len(info["designs"]) == 4
+    for key in ("versions", "timeout", "noise", "t_final_override", "n_samples_constants", "sim", "git_commit",
+                "git_dirty", "cache", "jobs", "python" if "python" in info else "versions"):
+        assert key in info
+    assert "scs" in info["versions"] and info["sim"]["max_nfev"] > 0
+    assert info["git_commit"] is None or re.fullmatch(r"[0-9a-f]{40}", info["git_commit"])
+    assert info["cache"]["dir"] is None  # --no-cache
