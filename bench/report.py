@@ -352,7 +352,7 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
         new = {p.name for p in (tmp / "figures").iterdir()}
         for p in (tmp / "figures").iterdir():
             os.replace(p, figdir / p.name)
-        for old in figdir.glob("*.png"):
+        for old in figdir.glob("*__*.png"):  # the main report's own figures only (studies, perf keep theirs)
             if old.name not in new:
                 old.unlink()
         for name in ("results.csv", "gains.json", "run.json", "REPORT.md"):

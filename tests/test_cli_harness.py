@@ -109,3 +109,16 @@ def test_every_module_registers_something():
         modules = {f"{package}.{m.name}" for m in pkgutil.iter_modules(pkg.__path__) if not m.name.startswith("_")}
         registered = {reg[i].module for reg in regs for i in reg.ids()}
         assert modules <= registered, f"modules that registered nothing: {modules - registered}"
+
+
+def test_main_report_keeps_other_commands_figures(tmp_path):
+    figs = tmp_path / "figures"
+    figs.mkdir()
+    (figs / "study_noise_x.png").write_bytes(b"study")
+    (figs / "perf_scaling.png").write_bytes(b"perf")
+    (figs / "flexible_link__stale_design.png").write_bytes(b"old")
+    assert main(["run", "-q", "--plant", "flexible_link", "--design", "paper_gains", "--out", str(tmp_path)]) == 0
+    assert (figs / "study_noise_x.png").read_bytes() == b"study"
+    assert (figs / "perf_scaling.png").read_bytes() == b"perf"
+    assert not (figs / "flexible_link__stale_design.png").exists()
+    assert (figs / "flexible_link__paper_gains.png").exists()
