@@ -55,6 +55,15 @@ _positive_int = _number(int, 1, strict=False)
 _nonneg_int = _number(int, 0, strict=False)
 
 
+def _scheduler_address(text: str) -> str:
+    """An argparse type: a Dask scheduler address ``[scheme://]host:port`` (checked before connecting)."""
+    import re
+
+    if not re.fullmatch(r"([a-z][a-z0-9+.-]*://)?\S+:\d+", text):
+        raise argparse.ArgumentTypeError(f"expected an address like tcp://host:8786, got {text!r}")
+    return text
+
+
 def _build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="python -m bench", description="oslbench: observer-based control of OSL/Lipschitz systems")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -73,7 +82,7 @@ def _build_parser() -> argparse.ArgumentParser:
     r.add_argument("--fail-fast", action="store_true", help="stop at the first exception (for debugging)")
     r.add_argument("-j", "--jobs", type=_positive_int, default=None, metavar="N",
                    help="local worker processes (default: all cores; 1 = serial)")
-    r.add_argument("--scheduler", default=None, metavar="ADDRESS",
+    r.add_argument("--scheduler", type=_scheduler_address, default=None, metavar="ADDRESS",
                    help="run on a Dask distributed cluster (pip install '.[dist]')")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     r.add_argument("--timeout", type=_positive_float, default=None, metavar="SECONDS",
@@ -113,11 +122,10 @@ def _cmd_run(args, argv: list[str]) -> int:
     except UnknownIdError as exc:
         print(f"python -m bench run: error: {exc}", file=sys.stderr)
         return 2
+    from bench.cache import Cache, default_cache_dir
     from bench.executors import ExecutorError, default_jobs
     from bench.harness import ProgressBar, RunOptions, run
     from bench.report import write_report
-
-    from bench.cache import Cache, default_cache_dir
 
     options = RunOptions(seed=args.seed, use_claimed=args.claimed_constants, fail_fast=args.fail_fast,
                          t_final=args.t_final, noise=args.noise, timeout=args.timeout)
@@ -137,7 +145,7 @@ def _cmd_run(args, argv: list[str]) -> int:
         print(f"python -m bench run: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        kept = (f"{cache.stored} finished result(s) were cached in {cache.root}: run the same command again to "
+        kept = (f"finished pairs are kept in {cache.root} ({cache.stored} new): run the same command again to "
                 "resume" if cache is not None else "nothing was cached (--no-cache)")
         print(f"python -m bench run: interrupted; the previous report in {args.out!r}, if any, is unchanged; {kept}",
               file=sys.stderr)

@@ -360,6 +360,16 @@ def _flags(r: dict) -> str:
     return ", ".join(flags)
 
 
+def _stop_workers(ex) -> None:
+    """Terminate a process pool's workers (after a Ctrl-C), so that shutting it down does not
+    wait for the pairs already handed to them; other executors are left to their own shutdown."""
+    for proc in list((getattr(ex, "_processes", None) or {}).values()):
+        try:
+            proc.terminate()
+        except Exception:  # noqa: BLE001 - already gone
+            pass
+
+
 def _drain(ex, tasks, finish) -> None:
     """Submit ``(fn, args, tag)`` tasks and call ``finish(future, tag)`` as each completes.
 
@@ -514,8 +524,12 @@ def run(
         tick(f"{pid} x {did}: {_flags(o.record)}")
 
     with executor(jobs, scheduler) as ex:
-        _drain(ex, constants_tasks(), finish_constants)
-        _drain(ex, pair_tasks(), finish_pair)
+        try:
+            _drain(ex, constants_tasks(), finish_constants)
+            _drain(ex, pair_tasks(), finish_pair)
+        except KeyboardInterrupt:
+            _stop_workers(ex)
+            raise
     outcomes = []
     for pid in plant_ids:
         for did in design_ids:

@@ -130,7 +130,8 @@ def check_hyperparameter_names(cls: type, args: tuple, kwargs: dict) -> None:
         if key not in known:
             close = difflib.get_close_matches(str(key), known, n=1)
             hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise DesignError(f"{key}: unknown hyperparameter of {cls.__name__} "
+            shown = key if key.isidentifier() else repr(key)
+            raise DesignError(f"{shown}: unknown hyperparameter of {cls.__name__} "
                               f"(valid: {', '.join(known) or 'none'}){hint}")
 
 

@@ -181,14 +181,20 @@ def register_pairing(feedback: str, estimator: str, *, summary: str | None = Non
 
     def factory(*, feedback_params: dict | None = None, estimator_params: dict | None = None, **unknown) -> Composite:
         for key in unknown:
-            raise DesignError(f"{key}: unknown hyperparameter of the pairing {did!r} "
+            shown = key if key.isidentifier() else repr(key)
+            raise DesignError(f"{shown}: unknown hyperparameter of the pairing {did!r} "
                               "(valid: feedback_params, estimator_params)")
         for key, value in (("feedback_params", feedback_params), ("estimator_params", estimator_params)):
             if value is not None and not (isinstance(value, Mapping) and all(isinstance(k, str) for k in value)):
                 raise DesignError(f"{key}: expected a dict of the part's hyperparameters by name, got {value!r}")
-        fb = FEEDBACKS.create(feedback, **(feedback_params or {}))
-        es = ESTIMATORS.create(estimator, **(estimator_params or {}))
-        return Composite(feedback=fb, estimator=es)
+        parts = []
+        for key, reg, part, params in (("feedback_params", FEEDBACKS, feedback, feedback_params),
+                                       ("estimator_params", ESTIMATORS, estimator, estimator_params)):
+            try:
+                parts.append(reg.create(part, **(params or {})))
+            except DesignError as exc:  # say which dict the bad parameter came from
+                raise DesignError(f"{key}: {exc}") from None
+        return Composite(feedback=parts[0], estimator=parts[1])
 
     factory.__module__ = "designs.pairings"
     if summary is None:

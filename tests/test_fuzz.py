@@ -258,8 +258,10 @@ def design_params(draw):
 
 def _design_property(label, make, kw):
     def names(msg):
-        return any(msg.startswith(f"{k}:") for k in kw) or (
-            ":" in label and msg.startswith(label.split(":")[1]))
+        named = [k if k.isidentifier() else repr(k) for k in kw]
+        if ":" in label:  # parameters of a pairing's part: "feedback_params: Q: ..."
+            named = [label.split(":")[1]]
+        return any(msg.startswith(f"{k}:") for k in named)
 
     obj = _check("design", lambda: make(kw), (DesignError,), names)
     if obj is not None:
@@ -282,7 +284,7 @@ def test_fuzz_design_hyperparameters_big(args):
 def test_unknown_hyperparameter_is_a_design_error_with_a_suggestion():
     with pytest.raises(DesignError, match=r"^phi: unknown hyperparameter of Thm1 .*did you mean 'phi1'"):
         DESIGNS.create("thm1", phi=0.1)
-    with pytest.raises(DesignError, match=r"^Q: unknown hyperparameter of LQEObserver"):
+    with pytest.raises(DesignError, match=r"^estimator_params: Q: unknown hyperparameter of LQEObserver"):
         DESIGNS.create("lqr+lqe", estimator_params={"Q": 1.0})
     with pytest.raises(DesignError, match=r"^n_grid: expected an integer"):
         DESIGNS.create("cor1", n_grid=2.5)
@@ -379,6 +381,7 @@ OPTION = st.one_of(
     st.tuples(st.sampled_from(["--seed", "--t-final", "--noise", "--timeout", "-j", "--jobs", "--sizes",
                                "--max-joint-n"]), NUMBERS),
     st.tuples(st.just("--plugin"), PLUGINS),
+    st.tuples(st.just("--scheduler"), st.sampled_from(["garbage", "", "tcp://", "tcp://host:x", "::", "a b:1"])),
     st.tuples(st.sampled_from(["--claimed-constants", "--no-figures", "--fail-fast", "-q", "--quiet", "--no-cache",
                                "--no-run", "--help", "--bogus", "-"])),
     st.tuples(st.text(max_size=5)),
@@ -394,10 +397,7 @@ def argvs(draw):
     return argv
 
 
-@settings(max_examples=80, deadline=None, derandomize=True, database=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-@given(argv=argvs())
-def test_fuzz_cli_returns_an_exit_code(cli_sandbox, argv, capsys):
+def _cli_property(argv, capsys):
     from bench.cli import main
 
     STATS["cli"][0] += 1
@@ -415,3 +415,18 @@ def test_fuzz_cli_returns_an_exit_code(cli_sandbox, argv, capsys):
     if rc != 0:
         assert err.strip(), f"exit {rc} without a message for {argv!r}"
         assert "Traceback" not in err
+
+
+@settings(max_examples=80, deadline=None, derandomize=True, database=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(argv=argvs())
+def test_fuzz_cli_returns_an_exit_code(cli_sandbox, argv, capsys):
+    _cli_property(argv, capsys)
+
+
+@pytest.mark.slow
+@settings(max_examples=1000, deadline=None, database=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(argv=argvs())
+def test_fuzz_cli_returns_an_exit_code_big(cli_sandbox, argv, capsys):
+    _cli_property(argv, capsys)

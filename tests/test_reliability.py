@@ -83,14 +83,13 @@ class _BigSolve(Design):
 def test_a_stuck_design_becomes_a_timeout_row(register, jobs):
     register("_sleeps", _Sleeps)
     t0 = time.perf_counter()
-    # 2.5 s: enough for paper_gains in a cold process (the first cvxpy solve costs ~0.7 s)
-    res = run(["flexible_link"], ["_sleeps", "paper_gains"], dataclasses.replace(FAST, timeout=2.5), jobs=jobs)
+    res = run(["flexible_link"], ["thm1_printed", "_sleeps"], dataclasses.replace(FAST, timeout=1.0), jobs=jobs)
     assert time.perf_counter() - t0 < 20
     df = res.frame().set_index("design")
     row = df.loc["_sleeps"]
     assert row["status"] == "timeout" and not row["feasible"] and not row["certified"] and not row["converged"]
-    assert "timeout" in row["reason"] and "2.5 s" in row["reason"] and "during the design" in row["reason"]
-    assert df.loc["paper_gains", "status"] == "feasible" and df.loc["paper_gains", "converged"]
+    assert "timeout" in row["reason"] and "1 s" in row["reason"] and "during the design" in row["reason"]
+    assert df.loc["thm1_printed", "status"] == "infeasible"  # the other pair is untouched
 
 
 def test_a_stuck_solve_is_stopped_by_the_solver_time_limit(register):
@@ -198,7 +197,7 @@ class _Quick(Design):
 
 def test_ctrl_c_keeps_the_report_and_a_rerun_resumes_from_the_cache(tmp_path, capsys):
     out = tmp_path / "rep"
-    base = ["run", "-j", "1", "--plant", "flexible_link", "--out", str(out)]
+    base = ["run", "-j", "1", "--no-figures", "--plant", "flexible_link", "--out", str(out)]
     assert main([*base, "-q", "--design", "paper_gains"]) == 0
     before = _snapshot(out)
     DESIGNS.register("_ctrl_c", _CtrlC, order=99)  # after lqr+lqe (order 50)
@@ -218,21 +217,21 @@ def test_ctrl_c_keeps_the_report_and_a_rerun_resumes_from_the_cache(tmp_path, ca
     info = json.loads((out / "run.json").read_text())
     assert info["cache"]["hits"] == 2 and info["cache"]["misses"] == 1  # paper_gains, lqr+lqe were kept
     assert "2 from the cache" in capsys.readouterr().err
-    # a cached pair gives the same rows (timings included: they are the cached ones)
-    df = pd.read_csv(out / "results.csv").set_index("design")
-    first = pd.read_csv(pd.io.common.BytesIO(before["results.csv"])).set_index("design")
-    pd.testing.assert_frame_equal(df.loc[["paper_gains"]], first.loc[["paper_gains"]])
+    # a cached pair gives the same row, byte for byte (timings included: they are the cached ones)
+    def row(text):
+        return next(line for line in text.splitlines() if line.startswith("flexible_link,paper_gains,"))
+
+    assert row((out / "results.csv").read_text()) == row(before["results.csv"].decode())
 
 
 def test_a_cached_rerun_writes_an_identical_report(tmp_path):
     out = tmp_path / "rep"
-    args = ["run", "-q", "-j", "1", "--plant", "flexible_link", "--design", "paper_gains", "--design", "lqr+ekf",
-            "--out", str(out)]
+    args = ["run", "-q", "-j", "1", "--plant", "flexible_link", "--design", "paper_gains", "--out", str(out)]
     assert main(args) == 0
     first = _snapshot(out)
     assert main(args) == 0
     second = _snapshot(out)
-    assert json.loads(second.pop("run.json"))["cache"]["hits"] == 2
+    assert json.loads(second.pop("run.json"))["cache"]["hits"] == 1
     first.pop("run.json")
     assert second == first  # REPORT.md, results.csv, gains.json and every figure, byte for byte
 
@@ -272,12 +271,13 @@ class Stuck(Design):
 '''
 
 
-def _start(args, tmp_path: Path, mark: Path):
+def _start(args, mark: Path, pairs: Path, n_cached: int):
+    """Start the CLI in its own session; return once the stuck design runs and ``n_cached`` pairs are cached."""
     env = {**os.environ, "OSLBENCH_TEST_STUCK": "1", "OSLBENCH_TEST_MARK": str(mark)}
     proc = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
-    while not mark.exists():
+    while not (mark.exists() and len(list(pairs.glob("*.npz"))) >= n_cached):
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() < deadline, "the stuck design never started"
         time.sleep(0.05)
@@ -289,20 +289,24 @@ def test_sigint_and_sigkill_mid_run(tmp_path, monkeypatch, capsys):
     out = tmp_path / "rep"
     plugin = tmp_path / "stuck.py"
     plugin.write_text(PLUGIN)
-    base = ["run", "-j", "1", "--no-figures", "--plant", "flexible_link", "--out", str(out)]
-    assert main([*base, "-q", "--design", "paper_gains"]) == 0
+    base = ["run", "--no-figures", "--plant", "flexible_link", "--out", str(out)]
+    pairs = default_cache_dir(out) / "pairs"
+    assert main([*base, "-q", "-j", "1", "--design", "paper_gains"]) == 0
     before = _snapshot(out)
     stuck = [*base, "--plugin", str(plugin), "--design", "paper_gains", "--design", "lqr+lqe", "--design", "zz_stuck"]
 
-    proc = _start(stuck, tmp_path, tmp_path / "mark1")  # lqr+lqe finished and cached by now
-    proc.send_signal(signal.SIGINT)
+    # Ctrl-C in a terminal: SIGINT to the whole process group, two worker processes busy
+    proc = _start([*stuck, "-j", "2"], tmp_path / "mark1", pairs, 2)  # lqr+lqe is cached by now
+    t0 = time.monotonic()
+    os.killpg(proc.pid, signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
+    assert time.monotonic() - t0 < 20  # the stuck worker is stopped, not waited for
     assert proc.returncode == 130, stderr
     assert "interrupted" in stderr and "unchanged" in stderr and "resume" in stderr and "Traceback" not in stderr
     assert _snapshot(out) == before
     _no_temporaries(tmp_path)
 
-    proc = _start([*stuck, "--design", "lqr+rh_riccati"], tmp_path, tmp_path / "mark2")
+    proc = _start([*stuck, "-j", "1", "--design", "lqr+rh_riccati"], tmp_path / "mark2", pairs, 3)
     proc.kill()  # SIGKILL: no handler runs at all
     proc.communicate(timeout=60)
     assert proc.returncode == -signal.SIGKILL
@@ -314,7 +318,7 @@ def test_sigint_and_sigkill_mid_run(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setenv("OSLBENCH_TEST_STUCK", "0")
     try:
-        assert main([*stuck, "--design", "lqr+rh_riccati"]) == 0
+        assert main([*stuck, "-j", "1", "--design", "lqr+rh_riccati"]) == 0
     finally:
         DESIGNS.unregister("zz_stuck")
     info = json.loads((out / "run.json").read_text())
@@ -377,22 +381,22 @@ def test_a_damaged_or_unwritable_cache_costs_a_recomputation_only(tmp_path):
 
 # -- reproducibility ----------------------------------------------------------------------------
 def test_same_seed_same_tables_and_run_json_records_the_run(tmp_path):
-    sel = ["--plant", "flexible_link", "--plant", "random_osl_v1", "--design", "paper_gains", "--design", "cor1_sep",
-           "--design", "lqr+lqe", "--design", "lqr+ekf"]
+    sel = ["--plant", "flexible_link", "--plant", "pendulum_v1", "--design", "paper_gains", "--design", "cor1_sep",
+           "--design", "lqr+lqe"]
     for name in ("a", "b"):
         assert main(["run", "-q", "-j", "1", "--no-cache", "--no-figures", "--seed", "3", *sel,
                      "--out", str(tmp_path / name)]) == 0
     a = pd.read_csv(tmp_path / "a" / "results.csv")
     b = pd.read_csv(tmp_path / "b" / "results.csv")
-    assert len(a) == 8
+    assert len(a) == 6 and a["converged"].sum() >= 3
     pd.testing.assert_frame_equal(a.drop(columns=TIMING), b.drop(columns=TIMING))
     assert (tmp_path / "a" / "gains.json").read_bytes() == (tmp_path / "b" / "gains.json").read_bytes()
     info = json.loads((tmp_path / "a" / "run.json").read_text())
     assert info["command"].startswith("python -m bench run") and "--seed 3" in info["command"]
-    assert info["seed"] == 3 and info["plants"] == ["flexible_link", "random_osl_v1"]
-    assert info["designs"] == ["cor1_sep", "paper_gains", "lqr+ekf", "lqr+lqe"] or len(info["designs"]) == 4
-    for key in ("versions", "timeout", "noise", "t_final_override", "n_samples_constants", "sim", "git_commit",
-                "git_dirty", "cache", "jobs", "python" if "python" in info else "versions"):
+    assert info["seed"] == 3 and info["plants"] == ["flexible_link", "pendulum_v1"]
+    assert sorted(info["designs"]) == ["cor1_sep", "lqr+lqe", "paper_gains"]
+    for key in ("versions", "timeout", "noise", "t_final_override", "n_samples_constants", "use_claimed_constants",
+                "sim", "git_commit", "git_dirty", "cache", "jobs", "platform", "executable"):
         assert key in info
     assert "scs" in info["versions"] and info["sim"]["max_nfev"] > 0
     assert info["git_commit"] is None or re.fullmatch(r"[0-9a-f]{40}", info["git_commit"])

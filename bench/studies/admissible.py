@@ -322,7 +322,9 @@ def run_admissible(
         evals.extend(r["evals"])
     for pair in dict.fromkeys((r["plant"], r["design"]) for r in list(variant_rows)):
         variant_rows += [r for r in rows if (r["plant"], r["design"]) == pair]
-    variant_rows.sort(key=lambda r: (r["plant"], r["design"], r["variant"]))
+    variant_rows.sort(key=lambda r: (r["plant"], r["design"], not r["variant"].startswith("default"),
+                                     float(r["variant"].split("= ")[1]) if r["variant"].startswith("cap") else 0.0,
+                                     r["variant"]))
     settings = {"rtol": rtol, "bounds": bounds or "automatic (doubling/halving from the plant's default)",
                 "cap": 1e3, "other caps": tuple(caps), "certificate": "bench.certify at lam = 0, valid constants",
                 "jobs": jobs}
