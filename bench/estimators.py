@@ -54,6 +54,8 @@ class ContinuousDiscreteEKF:
         class _EKF(ExtendedKalmanFilter):
             def predict_x(self, u=0):  # nonlinear prediction over one sample (u held)
                 u = np.asarray(u, dtype=float).ravel()
+                if not (np.all(np.isfinite(self.x)) and np.all(np.isfinite(u))):
+                    raise FloatingPointError("EKF prediction from a non-finite estimate or input")
                 sol = solve_ivp(lambda t, z: A @ z + B @ u + f(z), (0.0, dt), self.x[:, 0], method="DOP853",
                                 rtol=rtol, atol=atol)
                 self.x = sol.y[:, -1:].copy()

@@ -76,7 +76,7 @@ def executor(jobs: int | None = None, scheduler: str | None = None, *, connect_t
             raise ExecutorError("--scheduler needs Dask distributed: pip install '.[dist]'") from None
         try:
             client = Client(scheduler, timeout=connect_timeout, set_as_default=False)
-        except (OSError, TimeoutError) as exc:
+        except (OSError, TimeoutError, ValueError) as exc:
             raise ExecutorError(f"cannot reach the Dask scheduler at {scheduler!r} within {connect_timeout:g} s: {exc}") from None
         try:
             yield client.get_executor()

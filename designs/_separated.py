@@ -102,6 +102,14 @@ def recombine(
     bad = [name for name, val, M in (("x-side", lx, X), ("e-side", le, E)) if not val < _lmi.verify_tol(M)]
     if qmin <= 0:
         bad.append("x-side (Q not positive definite)")
+    # a solver that claimed a positive margin its point does not have: undecided, not infeasible
+    claimed = [name for name, prog in (("x-side", xprog), ("e-side", eprog))
+               if name in " ".join(bad) and float(prog.values()["t"]) > 0]
+    if claimed:
+        out.update(status="undecided", reason=(
+            f"the solver reported a positive margin on the {' and '.join(claimed)} but the recomputed matrix "
+            f"does not verify (max eig x-side {lx:.3g}, e-side {le:.3g})"))
+        return out
     if bad:
         out.update(status="infeasible", reason=(
             f"no strictly feasible point on the {' and '.join(bad)} (max eig x-side {lx:.3g}, e-side {le:.3g}); "

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Constants, Plant
+from plants._core import Constants, Plant, _finite_scalar
 
 SOURCE = (
     "Observer-based stabilization of one-sided Lipschitz systems with application to flexible "
@@ -41,6 +41,7 @@ PAPER_CLAIMED = Constants(rho=0.1109, beta=0.1109, gamma=0.0, alpha=0.333)
 
 
 def _make(pid: str, c: float, index: int, t_final: float, notes: str) -> Plant:
+    c = _finite_scalar("c", c, allow_none=False)  # a clear PlantError naming c, not a bare float() error
     def f(x: np.ndarray) -> np.ndarray:
         x = np.asarray(x, dtype=float)
         out = np.zeros_like(x)
