@@ -21,7 +21,8 @@ them is a miss:
   not depend on them);
 - the versions of Python and of the packages (:func:`bench.report.package_versions`);
 - the source of the shared code: the harness and everything it imports from ``bench``,
-  ``designs`` and ``plants``.
+  ``designs`` and ``plants`` (except rendering and command-line modules: ``bench.report``,
+  ``bench.cli``, ``bench.perf``).
 
 "Source of a module" is closed under imports: every project module a hashed module imports
 (at top level or inside a function, found by parsing its source) is hashed too, so editing
@@ -64,6 +65,10 @@ _PROJECT = ("bench", "designs", "plants")
 
 #: Statuses that are never stored.
 _TRANSIENT = ("error", "timeout")
+
+#: Rendering and command-line modules: they do not change a pair's result, so editing them
+#: does not invalidate the cache (their imports are not followed either).
+_NOT_RESULTS = frozenset({"bench.report", "bench.cli", "bench.perf", "bench.__main__"})
 
 
 def default_cache_dir(out_dir: str | os.PathLike) -> Path:
@@ -216,7 +221,7 @@ class Cache:
         todo = [r for r in roots if r and (_is_project(r) or r in sys.modules)]
         while todo:
             name = todo.pop()
-            if name in seen:
+            if name in seen or name in _NOT_RESULTS:
                 continue
             seen.add(name)
             if name not in sys.modules and _is_project(name):

@@ -192,7 +192,8 @@ class Plant:
         try:
             object.__setattr__(self, "params", dict(self.params))
         except (TypeError, ValueError):
-            raise PlantError(f"params: expected a mapping of parameter names to numbers, got {_short(self.params)}") from None
+            raise PlantError(f"params: expected a mapping of parameter names to numbers, "
+                             f"got {_short(self.params)}") from None
         for key, val in self.params.items():
             _finite_scalar(f"params[{key!r}]", val, allow_none=False)
         self._check_f(n)

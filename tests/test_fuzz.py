@@ -18,7 +18,7 @@ from dataclasses import fields
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
@@ -159,7 +159,8 @@ def plant_kwargs(draw):
         elif name == "t_final":
             bad = draw(st.one_of(SCALARS, GARBAGE))
         elif name == "params":
-            bad = draw(st.one_of(GARBAGE, st.dictionaries(st.text(max_size=3), st.one_of(SCALARS, GARBAGE), max_size=2)))
+            bad = draw(st.one_of(GARBAGE, st.dictionaries(st.text(max_size=3), st.one_of(SCALARS, GARBAGE),
+                                                          max_size=2)))
         else:
             bad = draw(GARBAGE)
         kw[name] = bad
@@ -205,6 +206,8 @@ CONSTANT_FIELDS = ("alpha", "rho", "beta", "gamma", "radius")
 
 @FAST
 @given(st.dictionaries(st.sampled_from(CONSTANT_FIELDS), st.one_of(SCALARS, GARBAGE), max_size=4))
+@example({"alpha": 10**400})  # float() of a huge int raises OverflowError
+@example({"radius": "1e-3"})
 def test_fuzz_constants(kw):
     def names(msg):
         return msg.split(":", 1)[0].startswith("constants.")
@@ -374,7 +377,8 @@ NUMBERS = st.sampled_from(["0", "1", "-1", "2.5", "1e999", "nan", "inf", "-inf",
                            " 3 ", "1_000"])
 OUT_DIRS = st.sampled_from(["out", "a/b/c", "afile", "afile/sub", "adir", ".", "", "bad\x00name", "-x"])
 PLUGINS = st.sampled_from(["missing.py", "adir", "bad_plugin.py", "empty_plugin.py", "afile", ""])
-IDS = st.sampled_from(["flexible_link", "flex*", "*", "thm1", "thm2", "cor1_sep", "lqr+*", "", "[", "nope", "paper_gains"])
+IDS = st.sampled_from(["flexible_link", "flex*", "*", "thm1", "thm2", "cor1_sep", "lqr+*", "", "[", "nope",
+                       "paper_gains"])
 OPTION = st.one_of(
     st.tuples(st.sampled_from(["--plant", "--design"]), IDS),
     st.tuples(st.just("--out"), OUT_DIRS),

@@ -160,7 +160,7 @@ def _draw(pid: str, rows: list[dict]):
             sub = sorted((r for r in rows if r["design"] == did), key=lambda r: r["noise"])
             style = "--" if "ekf" in did else "-"
             marker = "s" if "ekf" in did else "o"
-            kw = dict(ls=style, marker=marker, ms=4, color=f"C{i % 10}", label=did)
+            kw = dict(ls=style, marker=marker, ms=4, color=plt.get_cmap("tab20")(i % 20), label=did)
             a1.loglog([r["noise"] for r in sub], [r["rms_e"] for r in sub], **kw)
             a2.loglog([r["noise"] for r in sub], [r["final_x"] for r in sub], **kw)
         a1.set(xlabel="noise standard deviation sigma", ylabel="RMS ||e|| (second half of the horizon)",
@@ -227,6 +227,8 @@ def write_noise(result: NoiseResult, out_dir: str, command: str):
         slow = []
         if len(levels) >= 2:
             for did in designs:
+                if did == MATCHED_EKF:  # its tuning r = sigma^2 changes with the level: not comparable
+                    continue
                 lo, hi = by.get((did, levels[0])), by.get((did, levels[-1]))
                 if lo and hi and all(math.isfinite(v) for v in (lo["rms_e"], hi["rms_e"])) and hi["rms_e"] > 0 and \
                         lo["rms_e"] / levels[0] > 3 * hi["rms_e"] / levels[-1]:
