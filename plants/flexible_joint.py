@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Constants, Plant
+from plants._core import Constants, Plant, _finite_scalar
 
 __all__ = ["A", "B", "C", "X0", "X_HAT0", "flexible_joint"]
 
@@ -68,7 +68,7 @@ def flexible_joint(*, c: float = C_SOURCE, t_final: float = 20.0) -> Plant:
         Version 1 of the plant; claimed constants are the sources' (alpha = 3.33), the analytic
         bounds are global: alpha = |c|, rho = |c|/2, (beta, gamma) = (c^2, 0).
     """
-    c = float(c)
+    c = _finite_scalar("c", c, allow_none=False)
 
     def f(x: np.ndarray) -> np.ndarray:
         x = np.asarray(x, dtype=float)

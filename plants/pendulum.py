@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Constants, Plant, PlantError
+from plants._core import Constants, Plant, PlantError, _finite_scalar
 
 __all__ = ["pendulum"]
 
@@ -63,8 +63,8 @@ def pendulum(*, g_over_l: float = G_OVER_L, b: float = DAMPING, t_final: float =
     PlantError
         If ``g_over_l`` or ``b`` is negative or not finite (the message names it).
     """
-    k = float(g_over_l)
-    b = float(b)
+    k = _finite_scalar("g_over_l", g_over_l, allow_none=False)
+    b = _finite_scalar("b", b, allow_none=False)
     for name, v in (("g_over_l", k), ("b", b)):
         if not np.isfinite(v) or v < 0:
             raise PlantError(f"{name}: must be finite and >= 0, got {v!r}")

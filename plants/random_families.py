@@ -68,6 +68,10 @@ _SOURCE = "oslbench random family (plants/random_families.py), constants in clos
 
 
 # -- argument checks (each error names the parameter) -------------------------------------------
+#: Largest state dimension the generators accept (dense n x n matrices; the suite is tested to 256).
+MAX_N = 4096
+
+
 def _int(name: str, value, lo: int, hi: int | None = None, what: str = "") -> int:
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)):
         raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
@@ -93,7 +97,7 @@ def _real(name: str, value, *, lo: float | None = None, strict: bool = False) ->
 
 
 def _shapes(n, m, p, n_unstable) -> tuple[int, int, int, int]:
-    n = _int("n", n, 1, what="the number of states ")
+    n = _int("n", n, 1, MAX_N, what="the number of states ")
     m = _int("m", m, 1, n, what=f"the number of inputs (B is n x m, n = {n}) ")
     p = _int("p", p, 1, n, what=f"the number of outputs (C is p x n, n = {n}) ")
     nu = _int("n_unstable", n_unstable, 0, n, what=f"the size of the unstable block (n = {n}) ")
@@ -173,7 +177,7 @@ def random_lti(
         On a bad argument (the message names it), or if the PBH check fails (never expected:
         the construction guarantees it; see the module docstring).
     """
-    n = _int("n", n, 1, what="the number of states ")
+    n = _int("n", n, 1, MAX_N, what="the number of states ")
     n, m, p, nu = _shapes(n, m, p, min(n, 2) if n_unstable is None else n_unstable)
     seed = _int("seed", seed, 0)
     max_re = _real("max_re", max_re)

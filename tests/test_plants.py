@@ -81,3 +81,27 @@ def test_flexible_link_jacobian_matches_finite_differences():
 def test_factory_is_keyword_only():
     with pytest.raises(TypeError):
         PLANTS["flexible_link"].factory(0.5)
+
+
+def _float_kwargs():
+    import inspect
+
+    for pid in PLANTS.ids():
+        sig = inspect.signature(PLANTS[pid].factory)
+        for name, prm in sig.parameters.items():
+            if prm.kind is inspect.Parameter.KEYWORD_ONLY and isinstance(prm.default, float):
+                yield pid, name
+
+
+@pytest.mark.parametrize("pid, name", list(_float_kwargs()))
+@pytest.mark.parametrize("bad", ["abc", float("nan"), float("inf")])
+def test_every_factory_names_a_bad_scalar(pid, name, bad):
+    with pytest.raises(PlantError) as info:
+        PLANTS.create(pid, **{name: bad})
+    assert name in str(info.value) or "t_final" in str(info.value)
+
+
+@pytest.mark.parametrize("pid", ["random_lipschitz_v1", "random_osl_v1"])
+def test_random_family_refuses_absurd_n(pid):
+    with pytest.raises(PlantError, match="^n:"):
+        PLANTS.create(pid, n=10**9)
