@@ -319,6 +319,9 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    for stale in out.glob(".tmp-*"):  # left by a process killed while writing: never a report
+        if stale.is_dir():
+            shutil.rmtree(stale, ignore_errors=True)
     tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=out))
     try:
         (tmp / "figures").mkdir()

@@ -122,3 +122,11 @@ def test_main_report_keeps_other_commands_figures(tmp_path):
     assert (figs / "perf_scaling.png").read_bytes() == b"perf"
     assert not (figs / "flexible_link__stale_design.png").exists()
     assert (figs / "flexible_link__paper_gains.png").exists()
+
+
+def test_stale_temp_folders_of_a_killed_writer_are_removed(tmp_path):
+    stale = tmp_path / ".tmp-killed"
+    stale.mkdir()
+    (stale / "REPORT.md").write_text("half")
+    assert main(["run", "-q", "--plant", "flexible_link", "--design", "thm1_printed", "--out", str(tmp_path)]) == 0
+    assert not stale.exists() and (tmp_path / "REPORT.md").exists()
