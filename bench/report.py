@@ -68,7 +68,9 @@ def git_revision() -> dict[str, object]:
     return {"commit": git("rev-parse", "HEAD"), "dirty": None if status is None else bool(status)}
 
 
-def _fmt(v) -> str:
+def format_cell(v, spec: str = ".3g") -> str:
+    """Format a markdown table cell: floats with ``spec`` (blank if NaN, +-inf shown), bools as
+    yes/no, text with ``|`` escaped and newlines flattened."""
     if v is None:
         return ""
     if isinstance(v, (bool, np.bool_)):
@@ -76,8 +78,16 @@ def _fmt(v) -> str:
     if isinstance(v, (int, np.integer)):
         return str(int(v))
     if isinstance(v, (float, np.floating)):
-        return "" if not math.isfinite(float(v)) else f"{float(v):.3g}"
-    return str(v).replace("|", "\\|")
+        v = float(v)
+        if math.isnan(v):
+            return ""
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return format(v, spec)
+    return str(v).replace("|", "\\|").replace("\n", " ")
+
+
+_fmt = format_cell
 
 
 def _table(df, columns: list[str], headers: list[str] | None = None) -> str:

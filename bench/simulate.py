@@ -98,6 +98,20 @@ class Trajectory:
         return self.x - self.x_hat
 
 
+def check_gains(plant: Plant, K, F) -> tuple[np.ndarray, np.ndarray]:
+    """K (n x p) and F (m x n) as float arrays, or ValueError naming the one with a wrong shape."""
+    n = plant.n
+    K = np.asarray(K, dtype=float)
+    F = np.asarray(F, dtype=float)
+    if K.shape != (n, plant.p):
+        raise ValueError(f"K: expected shape ({n}, {plant.p}), got {K.shape}")
+    if F.shape != (plant.m, n):
+        raise ValueError(f"F: expected shape ({plant.m}, {n}), got {F.shape}")
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(F))):
+        raise ValueError("K, F: entries must be finite")
+    return K, F
+
+
 class _Stop(Exception):
     def __init__(self, status: str, message: str):
         super().__init__(message)
@@ -135,12 +149,7 @@ def simulate(
     from scipy.integrate import solve_ivp
 
     n = plant.n
-    K = np.asarray(K, dtype=float)
-    F = np.asarray(F, dtype=float)
-    if K.shape != (n, plant.p):
-        raise ValueError(f"K: expected shape ({n}, {plant.p}), got {K.shape}")
-    if F.shape != (plant.m, n):
-        raise ValueError(f"F: expected shape ({plant.m}, {n}), got {F.shape}")
+    K, F = check_gains(plant, K, F)
     T = float(plant.t_final if t_final is None else t_final)
     if not np.isfinite(T) or T <= 0:
         raise ValueError(f"t_final: must be finite and > 0, got {t_final!r}")

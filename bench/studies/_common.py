@@ -22,6 +22,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from bench.report import format_cell as fmt  # one cell formatter for every report
+
 __all__ = [
     "StudyError",
     "bisect_largest",
@@ -298,24 +300,6 @@ def design_for(plant, design_id: str, constants=None, **overrides) -> Designed:
 
 
 # -- rendering ---------------------------------------------------------------------------------
-def fmt(v, spec: str = ".3g") -> str:
-    """Format a table cell: floats with ``spec`` (blank if NaN), bools as yes/no."""
-    if v is None:
-        return ""
-    if isinstance(v, (bool, np.bool_)):
-        return "yes" if v else "no"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        v = float(v)
-        if math.isnan(v):
-            return ""
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return format(v, spec)
-    return str(v).replace("|", "\\|").replace("\n", " ")
-
-
 def md_table(rows: list[dict], columns: list[str], headers: list[str] | None = None) -> str:
     """A markdown table of ``rows`` (dicts) restricted to ``columns``."""
     headers = [h.replace("|", "\\|") for h in (headers or columns)]

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.metrics import CONVERGED_RATIO, SETTLING_FRACTION
+from bench.simulate import check_gains
 
 __all__ = [
     "BatchTrajectory",
@@ -89,19 +90,6 @@ class BatchTrajectory:
     def e(self) -> np.ndarray:
         """Estimation errors ``x - x_hat``, (n, N, T)."""
         return self.x - self.x_hat
-
-
-def _check_gains(plant, K, F) -> tuple[np.ndarray, np.ndarray]:
-    n = plant.n
-    K = np.asarray(K, dtype=float)
-    F = np.asarray(F, dtype=float)
-    if K.shape != (n, plant.p):
-        raise ValueError(f"K: expected shape ({n}, {plant.p}), got {K.shape}")
-    if F.shape != (plant.m, n):
-        raise ValueError(f"F: expected shape ({plant.m}, {n}), got {F.shape}")
-    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(F))):
-        raise ValueError("K, F: entries must be finite")
-    return K, F
 
 
 def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
@@ -206,7 +194,7 @@ def simulate_batch(
     """
     from scipy.integrate import solve_ivp
 
-    K, F = _check_gains(plant, K, F)
+    K, F = check_gains(plant, K, F)
     X, XH = _check_ics(plant, x0, x_hat0)
     T = _horizon(plant, t_final)
     if int(n_points) < 2:
@@ -278,7 +266,7 @@ def simulate_loop(
     """
     from scipy.integrate import solve_ivp
 
-    K, F = _check_gains(plant, K, F)
+    K, F = check_gains(plant, K, F)
     X, XH = _check_ics(plant, x0, x_hat0)
     T = _horizon(plant, t_final)
     n, N = X.shape
@@ -400,7 +388,7 @@ def simulate_digital_batch(
     BatchTrajectory
         States at the recorded sample instants; ``x_hat`` is the estimate used at that sample.
     """
-    K, F = _check_gains(plant, K, F)
+    K, F = check_gains(plant, K, F)
     X, XH = _check_ics(plant, x0, x_hat0)
     T = _horizon(plant, t_final)
     if not (isinstance(h, (int, float, np.floating)) and math.isfinite(h) and h > 0):
