@@ -44,6 +44,14 @@ class SerialExecutor(Executor):
         return fut
 
 
+def _worker_init() -> None:
+    """Workers ignore SIGINT: a terminal's Ctrl-C reaches the whole process group, and the parent
+    alone handles it (it terminates the workers), so no worker prints its own traceback."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _warm_imports() -> None:
     """Import the heavy modules before forking so that workers do not pay for them again."""
     import cvxpy  # noqa: F401
@@ -93,7 +101,8 @@ def executor(jobs: int | None = None, scheduler: str | None = None, *, connect_t
     from concurrent.futures import ProcessPoolExecutor
 
     _warm_imports()
-    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"))
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"),
+                               initializer=_worker_init)
     try:
         yield pool
     finally:
