@@ -23,6 +23,7 @@ certificate with wrong constants certifies nothing.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,50 +67,64 @@ class Certificate:
     multipliers: dict = field(default_factory=dict)
 
 
-def _program(plant: Plant, K: np.ndarray, F: np.ndarray, c: Constants):
-    import cvxpy as cp
+def _program(plant: Plant, K: np.ndarray, F: np.ndarray, c: Constants) -> _lmi.Program:
+    """The analysis program, compiled once per n and sparsity class (the constants and the dense
+    ones of A+BF, A-KC, BF are cvxpy Parameters, :func:`designs._lmi.matrices`), so certifying
+    another gain pair or plant of the same size re-uses it)."""
+    n = plant.n
+
+    def build():
+        import cvxpy as cp
+
+        I, Z = np.eye(n), np.zeros((n, n))
+        v = {
+            "P": cp.Variable((n, n), symmetric=True, name="P"),
+            "R": cp.Variable((n, n), symmetric=True, name="R"),
+            "e1": cp.Variable(name="eps1"),
+            "e2": cp.Variable(name="eps2"),
+            "e3": cp.Variable(name="eps3"),
+            "e4": cp.Variable(name="eps4"),
+            "t": cp.Variable(name="t"),
+        }
+        prm = {"lam": cp.Parameter(nonneg=True, name="lam"), **mats.parameters(),
+               **_lmi.scalar_parameters("rho", "beta", "gamma")}
+        pars = {k: v for k, v in prm.items() if isinstance(v, cp.Parameter)}
+        consts = {k: v for k, v in prm.items() if not isinstance(v, cp.Parameter)}
+
+        def blocks(d):
+            P, R, lam, Acl, Ae = d["P"], d["R"], d["lam"], d["Acl"], d["Ae"]
+            rho, beta, gamma = d["rho"], d["beta"], d["gamma"]
+            S11 = Acl.T @ P + P @ Acl + 2 * lam * P + 2 * (d["e1"] * rho + d["e2"] * beta) * I
+            S22 = Ae.T @ R + R @ Ae + 2 * lam * R + 2 * (d["e3"] * rho + d["e4"] * beta) * I
+            X13 = P + (d["e2"] * gamma - d["e1"]) * I
+            X24 = R + (d["e4"] * gamma - d["e3"]) * I
+            PBF = -P @ d["BF"]
+            return [
+                [S11, PBF, X13, Z],
+                [PBF.T, S22, Z, X24],
+                [X13.T, Z, -2 * d["e2"] * I, Z],
+                [Z, X24.T, Z, -2 * d["e4"] * I],
+            ]
+
+        t_build = time.perf_counter()
+        M = _lmi.sym(_lmi.assemble(blocks, {**v, **prm}, numeric=False))
+        t = v["t"]
+        cons = [
+            M << -t * np.eye(4 * n),
+            v["P"] >> t * I,
+            v["R"] >> t * I,
+            cp.trace(v["P"]) + cp.trace(v["R"]) == 1,
+            v["e1"] >= 0, v["e2"] >= 0, v["e3"] >= 0, v["e4"] >= 0,
+        ]
+        prob = cp.Problem(cp.Maximize(t), cons)
+        return _lmi.Program(prob, v, pars, blocks, ("P", "R"), build_s=time.perf_counter() - t_build,
+                            constants=consts)
 
     A, B, C = plant.A, plant.B, plant.C
-    n = plant.n
-    I, Z = np.eye(n), np.zeros((n, n))
-    Acl, Ae, BF = A + B @ F, A - K @ C, B @ F
-    rho, beta, gamma = c.rho, c.beta, c.gamma
-    v = {
-        "P": cp.Variable((n, n), symmetric=True, name="P"),
-        "R": cp.Variable((n, n), symmetric=True, name="R"),
-        "e1": cp.Variable(name="eps1"),
-        "e2": cp.Variable(name="eps2"),
-        "e3": cp.Variable(name="eps3"),
-        "e4": cp.Variable(name="eps4"),
-        "t": cp.Variable(name="t"),
-    }
-    prm = {"lam": cp.Parameter(nonneg=True, name="lam")}
-
-    def blocks(d):
-        P, R, lam = d["P"], d["R"], d["lam"]
-        S11 = Acl.T @ P + P @ Acl + 2 * lam * P + 2 * (d["e1"] * rho + d["e2"] * beta) * I
-        S22 = Ae.T @ R + R @ Ae + 2 * lam * R + 2 * (d["e3"] * rho + d["e4"] * beta) * I
-        X13 = P + (d["e2"] * gamma - d["e1"]) * I
-        X24 = R + (d["e4"] * gamma - d["e3"]) * I
-        PBF = -P @ BF
-        return [
-            [S11, PBF, X13, Z],
-            [PBF.T, S22, Z, X24],
-            [X13.T, Z, -2 * d["e2"] * I, Z],
-            [Z, X24.T, Z, -2 * d["e4"] * I],
-        ]
-
-    M = _lmi.sym(_lmi.assemble(blocks, {**v, **prm}, numeric=False))
-    t = v["t"]
-    cons = [
-        M << -t * np.eye(4 * n),
-        v["P"] >> t * I,
-        v["R"] >> t * I,
-        cp.trace(v["P"]) + cp.trace(v["R"]) == 1,
-        v["e1"] >= 0, v["e2"] >= 0, v["e3"] >= 0, v["e4"] >= 0,
-    ]
-    prob = cp.Problem(cp.Maximize(t), cons)
-    return _lmi.Program(prob, v, prm, blocks, ("P", "R"))
+    mats = _lmi.matrices(Acl=A + B @ F, Ae=A - K @ C, BF=B @ F)
+    prog = _lmi.cached_program(("certify", n, mats.key), build)
+    prog.set(**mats.settable(), rho=c.rho, beta=c.beta, gamma=c.gamma)
+    return prog
 
 
 def _verified(prog: _lmi.Program) -> tuple[bool, float]:

@@ -99,6 +99,8 @@ def _build_parser() -> argparse.ArgumentParser:
     pf.add_argument("--max-joint-n", type=_positive_int, default=32, metavar="N",
                     help="largest n for the joint 6n LMI (default 32; n = 50 took ~800 s here)")
     pf.add_argument("--no-run", action="store_true", help="skip timing the default run with --jobs 1 and 2")
+    pf.add_argument("--no-sweeps", action="store_true",
+                    help="skip the design-call sweeps (bisection over c, random family; compiled vs rebuilt)")
     from bench.studies.cli import add_study_parser
 
     add_study_parser(sub)  # python -m bench study {admissible,sampling,montecarlo,noise}
@@ -233,7 +235,7 @@ def _cmd_perf(args) -> int:
     from bench.perf import perf_main
 
     path = perf_main(args.out, sizes, args.max_joint_n, not args.no_run,
-                     echo=lambda line: print(line, file=sys.stderr, flush=True))
+                     echo=lambda line: print(line, file=sys.stderr, flush=True), with_sweeps=not args.no_sweeps)
     print(f"wrote {path}", file=sys.stderr)
     return 0
 

@@ -9,7 +9,9 @@ is taken:
   split into compile and solve seconds, with the peak memory of the process that ran it
   (each measurement runs in its own forked process; peak RSS is its high-water mark);
 - the fitted growth exponent (least squares on log time vs log n, n >= 8);
-- compile overhead of a parameter sweep (one compiled DPP problem, many solves);
+- compile overhead of a parameter sweep (one compiled DPP problem, many solves), and of whole
+  design calls in a sweep (a bisection over the scale of f, a random family over seeds) with
+  the program cache and with every call rebuilding its problem;
 - the default run's wall time with ``--jobs 1`` and ``--jobs 2`` (the parallel speed-up).
 """
 
@@ -31,6 +33,9 @@ __all__ = ["measure_design", "perf_main"]
 
 def _measure_child(design_id: str, n: int, kw: dict, queue) -> None:
     from bench.registry import DESIGNS, PLANTS
+    from designs._lmi import clear_program_cache
+
+    clear_program_cache()  # a cold design: programs compiled in the parent must not be inherited
 
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     plant = PLANTS.create("random_lipschitz_v1", n=n, m=max(1, n // 4), p=max(1, n // 4), c=0.1, seed=0)
@@ -76,7 +81,9 @@ def _exponent(rows: list[dict], design: str) -> float:
 def _sweep_overhead(n: int = 8, count: int = 40) -> dict:
     """One compiled DPP problem (corrected Theorem 1, phi1 as a parameter) solved ``count`` times."""
     from bench.registry import DESIGNS, PLANTS
+    from designs._lmi import clear_program_cache
 
+    clear_program_cache()
     plant = PLANTS.create("random_lipschitz_v1", n=n, m=max(1, n // 4), p=max(1, n // 4), c=0.1, seed=0)
     design = DESIGNS.create("thm1")
     prog = design._program_convex(plant, plant.bounds)
@@ -84,6 +91,68 @@ def _sweep_overhead(n: int = 8, count: int = 40) -> dict:
         prog.solve(phi=phi, iphi=1 / phi)
     return {"n": n, "solves": count, "compile_s": prog.compile_s, "solve_s": prog.solve_s,
             "overhead": prog.compile_s / prog.solve_s if prog.solve_s > 0 else float("nan")}
+
+
+#: Sweeps of whole design calls: (label, design, plant id, [factory keywords per call]).
+DESIGN_SWEEPS = (
+    ("bisection over c, flexible link (sparse A, B, C baked in)", "thm1", "flexible_link",
+     [{"c": float(c)} for c in np.geomspace(0.05, 0.5, 10)]),
+    ("bisection over c, random_lipschitz_v1 n = 8", "thm1", "random_lipschitz_v1",
+     [{"n": 8, "m": 2, "p": 2, "seed": 0, "c": float(c)} for c in np.geomspace(0.01, 0.3, 10)]),
+    ("bisection over c, random_lipschitz_v1 n = 32", "thm1_sep", "random_lipschitz_v1",
+     [{"n": 32, "m": 8, "p": 8, "seed": 0, "c": float(c)} for c in np.geomspace(0.01, 0.3, 10)]),
+    ("random family over seeds 0-9, n = 16", "thm1_sep", "random_lipschitz_v1",
+     [{"n": 16, "m": 4, "p": 4, "seed": s, "c": 0.1} for s in range(10)]),
+)
+
+
+def design_sweeps(echo=print) -> list[dict]:
+    """Compile vs solve of whole design calls in a sweep, with the program cache and without.
+
+    ``cached``: the programs stay compiled between calls (what the studies and the harness do);
+    ``rebuilt``: the cache is cleared before every call (every call builds and compiles its
+    cvxpy problem, as the designs did before the cache).
+
+    Returns
+    -------
+    list of dict
+        One row per (sweep, mode): calls, compile, solve and wall seconds, overhead
+        (compile / solve) and the statuses seen.
+    """
+    from bench.registry import DESIGNS, PLANTS
+    from designs._lmi import clear_program_cache
+
+    rows = []
+    for label, did, pid, calls in DESIGN_SWEEPS:
+        design = DESIGNS.create(did)
+        plants = [PLANTS.create(pid, **kw) for kw in calls]
+        design.design(plants[0], plants[0].bounds)  # warm-up: first-use costs of the solver interfaces
+        for mode in ("rebuilt", "cached"):
+            clear_program_cache()
+            comps, solves = [], []
+            statuses: dict[str, int] = {}
+            t0 = time.perf_counter()
+            for plant in plants:
+                if mode == "rebuilt":
+                    clear_program_cache()
+                r = design.design(plant, plant.bounds)
+                comps.append(r.compile_s)
+                solves.append(r.solve_s)
+                statuses[r.status] = statuses.get(r.status, 0) + 1
+            wall = time.perf_counter() - t0
+            comp, solve = sum(comps), sum(solves)
+            later = sum(solves[1:])
+            row = {"sweep": label, "design": did, "mode": mode, "calls": len(plants), "compile_s": comp,
+                   "solve_s": solve, "wall_s": wall, "overhead": comp / solve if solve > 0 else float("nan"),
+                   "first_compile_s": comps[0],
+                   "later_overhead": sum(comps[1:]) / later if later > 0 else float("nan"),
+                   "statuses": ", ".join(f"{k} {v}" for k, v in statuses.items())}
+            rows.append(row)
+            echo(f"sweep {label} [{did}, {mode}]: {len(plants)} calls, compile {comp:.3f} s, solve {solve:.3f} s, "
+                 f"overhead {100 * row['overhead']:.1f} % (calls 2-{len(plants)}: "
+                 f"{100 * row['later_overhead']:.1f} %), wall {wall:.2f} s")
+    clear_program_cache()
+    return rows
 
 
 def _default_run_times(jobs_list=(1, 2)) -> dict[int, float]:
@@ -98,13 +167,32 @@ def _default_run_times(jobs_list=(1, 2)) -> dict[int, float]:
     return out
 
 
+def _sweep_table(rows: list[dict]) -> str:
+    """Markdown for :func:`design_sweeps` (rebuilt vs cached per sweep)."""
+    if not rows:
+        return "Design-call sweeps not measured (--no-sweeps)."
+    out = ["Whole design calls in a sweep. *rebuilt*: every call builds and compiles its cvxpy problem (the cache "
+           "cleared before each call); *cached*: one compiled problem per structure, the plant's matrices and "
+           "constants set as cvxpy Parameters (`designs._lmi.cached_program`). Compile includes building the "
+           "expression tree.", "",
+           "| sweep | design | mode | calls | compile s | solve s | overhead % | first call compile s | "
+           "overhead % of calls 2..N | wall s | statuses |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        out.append(f"| {r['sweep']} | {r['design']} | {r['mode']} | {r['calls']} | {r['compile_s']:.3f} | "
+                   f"{r['solve_s']:.3f} | {100 * r['overhead']:.1f} | {r['first_compile_s']:.3f} | "
+                   f"{100 * r['later_overhead']:.1f} | {r['wall_s']:.2f} | {r['statuses']} |")
+    return "\n".join(out)
+
+
 def _fmt(v) -> str:
     if isinstance(v, float):
         return "" if not math.isfinite(v) else f"{v:.3g}"
     return str(v)
 
 
-def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, echo=print) -> Path:
+def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, echo=print, *,
+              with_sweeps: bool = True) -> Path:
     """Measure and write the performance report; returns the PERF.md path."""
     import matplotlib
 
@@ -137,6 +225,7 @@ def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, 
     sweep = _sweep_overhead()
     echo(f"sweep: {sweep['solves']} solves at n = {sweep['n']}: compile {sweep['compile_s']:.3f} s, "
          f"solve {sweep['solve_s']:.3f} s, overhead {100 * sweep['overhead']:.1f} %")
+    dsweeps = design_sweeps(echo) if with_sweeps else []
     runs = _default_run_times() if with_run else {}
     for j, w in runs.items():
         echo(f"default run, --jobs {j}: {w:.1f} s")
@@ -193,6 +282,8 @@ def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, 
             f"One compiled DPP problem (corrected Theorem 1 with phi1 as a cvxpy parameter), n = {sweep['n']}, "
             f"{sweep['solves']} solves: compile {sweep['compile_s']:.3f} s, solve {sweep['solve_s']:.3f} s, "
             f"overhead {100 * sweep['overhead']:.1f} % of solve time.",
+            "",
+            _sweep_table(dsweeps),
             "",
             "## Default run",
             "",

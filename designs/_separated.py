@@ -147,7 +147,7 @@ def recombine(
 
 
 def separated_design(plant, blocks, e_scalars: tuple[str, ...], *, solver: str, cap: float, what: str,
-                     phi_name: str, extra_params):
+                     phi_name: str, extra_params, key: tuple, constants: dict):
     """Solve the x-side (Q, Fh, kappa) and e-side (R, Kh, ``e_scalars``) apart and rebuild the joint.
 
     Parameters
@@ -167,6 +167,12 @@ def separated_design(plant, blocks, e_scalars: tuple[str, ...], *, solver: str, 
         Name under which the recombination's Young weight is reported.
     extra_params : callable
         ``extra_params(values) -> dict`` of design-specific scalars to report.
+    key : tuple
+        Identifies the design's structure (e.g. ``("thm1.sep", schur)``); with the shape and
+        the cap it keys the compiled side programs (:func:`designs._lmi.cached_program`).
+    constants : dict
+        The design's scalar constants (each becomes a cvxpy Parameter of both sides); the
+        plant's ``A``, ``B``, ``C`` enter as :func:`designs._lmi.plant_matrices`.
 
     Returns
     -------
@@ -178,12 +184,27 @@ def separated_design(plant, blocks, e_scalars: tuple[str, ...], *, solver: str, 
 
     n, m, p = plant.n, plant.m, plant.p
     joint, xside, eside = blocks
-    xv = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
-          "t": cp.Variable()}
-    ev = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "t": cp.Variable()}
-    ev.update({k: cp.Variable() for k in e_scalars})
-    xprog = _lmi.margin_program(xside, xv, {}, ("Q",), lambda d: [d["kappa"] >= 0], cap=cap)
-    eprog = _lmi.margin_program(eside, ev, {}, ("R",), lambda d: [d[k] >= 0 for k in e_scalars], cap=cap)
+    scalars = tuple(constants)
+    mats = _lmi.plant_matrices(plant)
+
+    def params() -> dict:
+        return {**mats.parameters(), **_lmi.scalar_parameters(*scalars)}
+
+    def build_x():
+        xv = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
+              "t": cp.Variable()}
+        return _lmi.margin_program(xside, xv, params(), ("Q",), lambda d: [d["kappa"] >= 0], cap=cap)
+
+    def build_e():
+        ev = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "t": cp.Variable()}
+        ev.update({k: cp.Variable() for k in e_scalars})
+        return _lmi.margin_program(eside, ev, params(), ("R",), lambda d: [d[k] >= 0 for k in e_scalars], cap=cap)
+
+    shape = (n, m, p, scalars, float(cap), mats.key)
+    xprog = _lmi.cached_program((*key, "x-side", *shape), build_x)
+    eprog = _lmi.cached_program((*key, "e-side", *shape), build_e)
+    xprog.set(**mats.settable(), **constants)
+    eprog.set(**mats.settable(), **constants)
     xlog = solve_side(xprog, solver, n)
     elog = solve_side(eprog, solver, n)
     rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, e_keys=("R", "Kh", *e_scalars), joint_blocks=joint)

@@ -84,23 +84,24 @@ class Cor1(Design):
         check_int("n_refine", self.n_refine, minimum=0)
 
     @staticmethod
-    def _blocks(plant: Plant, alpha: float):
-        """Blocks of the joint 6n LMI (5n when alpha = 0) and of its x-side and e-side."""
-        A, B, C = plant.A, plant.B, plant.C
-        n = plant.n
+    def _blocks(n: int, schur: bool):
+        """Blocks of the joint 6n LMI (5n when alpha = 0) and of its x-side and e-side.
+
+        ``A``, ``B``, ``C``, ``a2`` (alpha^2) and ``ia2`` (1/alpha^2) are read from the values
+        dict (cvxpy Parameters or numbers).
+        """
         I, Z = np.eye(n), np.zeros((n, n))
-        a2 = alpha**2
 
         def s11(d):
-            Q, Fh = d["Q"], d["Fh"]
+            A, B, Q, Fh = d["A"], d["B"], d["Q"], d["Fh"]
             return A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
 
         def w22(d):
-            R, Kh = d["R"], d["Kh"]
-            return A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * a2 * I
+            A, C, R, Kh = d["A"], d["C"], d["R"], d["Kh"]
+            return A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * d["a2"] * I
 
         def joint(d):
-            Q, R, Fh = d["Q"], d["R"], d["Fh"]
+            B, Q, R, Fh = d["B"], d["Q"], d["R"], d["Fh"]
             rows = [
                 [s11(d), Z, Z, B @ Fh.T, Z],
                 [Z, w22(d), R, Z, I],
@@ -108,42 +109,64 @@ class Cor1(Design):
                 [Fh @ B.T, Z, Z, -d["iphi"] * Q, Z],
                 [Z, I, Z, Z, -d["phi"] * Q],
             ]
-            if a2 > 0:
+            if schur:
                 for row, blk in zip(rows, (Q, Z, Z, Z, Z)):
                     row.append(blk)
-                rows.append([Q, Z, Z, Z, Z, -(d["kappa"] / a2) * I])
+                rows.append([Q, Z, Z, Z, Z, -(d["kappa"] * d["ia2"]) * I])
             return rows
 
         def xside(d):
-            if a2 == 0:
+            if not schur:
                 return [[s11(d)]]
-            return [[s11(d), d["Q"]], [d["Q"], -(d["kappa"] / a2) * I]]
+            return [[s11(d), d["Q"]], [d["Q"], -(d["kappa"] * d["ia2"]) * I]]
 
         def eside(d):
             return [[w22(d), d["R"]], [d["R"], -d["mu2"] * I]]
 
         return joint, xside, eside
 
+    @staticmethod
+    def _constants(alpha: float) -> tuple[dict, bool]:
+        """Scalar parameter values (alpha^2, 1/alpha^2) and whether the Schur column is present."""
+        a2 = float(alpha) ** 2
+        schur = a2 > 0
+        return {"a2": a2, "ia2": 1 / a2 if schur else 0.0}, schur
+
     def _program(self, plant: Plant, alpha: float) -> _lmi.Program:
+        """The joint program (compiled once per shape), plant and alpha set; phi2 left to the caller."""
         import cvxpy as cp
 
-        v = _variables(plant.n, plant.m, plant.p, ("kappa", "mu2"))
-        prm = {"phi": cp.Parameter(nonneg=True, name="phi2"), "iphi": cp.Parameter(nonneg=True, name="inv_phi2")}
-        joint, _, _ = self._blocks(plant, alpha)
+        n, m, p = plant.n, plant.m, plant.p
+        vals, schur = self._constants(alpha)
+        mats = _lmi.plant_matrices(plant)
 
-        def extra(d):
-            return [d["kappa"] >= 0, d["mu2"] >= 0]
+        def build():
+            v = _variables(n, m, p, ("kappa", "mu2"))
+            prm = {"phi": cp.Parameter(nonneg=True, name="phi2"), "iphi": cp.Parameter(nonneg=True, name="inv_phi2"),
+                   **mats.parameters(), **_lmi.scalar_parameters("a2", "ia2")}
+            joint, _, _ = self._blocks(n, schur)
 
-        return _lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
+            def extra(d):
+                return [d["kappa"] >= 0, d["mu2"] >= 0]
+
+            return _lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+        prog = _lmi.cached_program(("cor1.joint", n, m, p, schur, float(self.cap), mats.key), build)
+        prog.set(**mats.settable(), **vals)
+        return prog
 
     def _design_separated(self, plant: Plant, alpha: float) -> DesignResult:
         """x-side and e-side solved apart (two 2n LMIs), joint certificate rebuilt and verified."""
         from designs._separated import separated_design
 
-        return separated_design(plant, self._blocks(plant, alpha), ("mu2",), solver=self.solver, cap=self.cap,
-                                what="corrected Corollary 1", phi_name="phi2",
-                                extra_params=lambda v: {"kappa": _scalar(v, "kappa"), "mu2": _scalar(v, "mu2"), "alpha": alpha,
-                           "mu1": 1 / _scalar(v, "kappa") if _scalar(v, "kappa") > 0 else float("nan")})
+        vals, schur = self._constants(alpha)
+        return separated_design(plant, self._blocks(plant.n, schur), ("mu2",), solver=self.solver, cap=self.cap,
+                                what="corrected Corollary 1", phi_name="phi2", key=("cor1.sep", schur),
+                                constants=vals,
+                                extra_params=lambda v: {"kappa": _scalar(v, "kappa"), "mu2": _scalar(v, "mu2"),
+                                                        "alpha": alpha,
+                                                        "mu1": 1 / _scalar(v, "kappa") if _scalar(v, "kappa") > 0
+                                                        else float("nan")})
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the corrected Corollary 1 for ``plant`` with Lipschitz constant ``constants.alpha``."""
@@ -203,18 +226,16 @@ class Cor1Printed(Design):
         """Solve Corollary 1 as printed for each xi; report the best margin."""
         import cvxpy as cp
 
-        A, B, C = plant.A, plant.B, plant.C
         n, m, p = plant.n, plant.m, plant.p
         I, Z = np.eye(n), np.zeros((n, n))
         a2 = constants.alpha**2
-        v = _variables(n, m, p, ("mu1", "mu2", "alpha2", "beta2"))
-        prm = {"xi_a2": cp.Parameter(nonneg=True, name="xi_over_alpha2"),
-               "mu1_max": cp.Parameter(nonneg=True, name="mu1_max")}
+        mats = _lmi.plant_matrices(plant)
 
         def blocks(d):
+            A, B, C = d["A"], d["B"], d["C"]
             Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
             W11 = Q @ A.T + A @ Q + Fh @ B.T + B @ Fh.T
-            W22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * a2 * I
+            W22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * d["a2"] * I
             BF = -B @ Fh.T
             return [
                 # W1                                          | W2
@@ -228,13 +249,22 @@ class Cor1Printed(Design):
                 [Z, I, Z, Z, Z, Z, -d["beta2"] * I],
             ]
 
-        def extra(d):
-            t = d["t"]
-            return [d["Q"] >> d["alpha2"] * I, d["alpha2"] >= t, d["beta2"] >= t,
-                    2 * d["alpha2"] - d["beta2"] >= t, d["mu1"] >= t, d["mu1"] <= d["mu1_max"] - t,
-                    d["mu2"] >= t]
+        def build():
+            v = _variables(n, m, p, ("mu1", "mu2", "alpha2", "beta2"))
+            prm = {"xi_a2": cp.Parameter(nonneg=True, name="xi_over_alpha2"),
+                   "mu1_max": cp.Parameter(nonneg=True, name="mu1_max"),
+                   **mats.parameters(), **_lmi.scalar_parameters("a2")}
 
-        prog = _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+            def extra(d):
+                t = d["t"]
+                return [d["Q"] >> d["alpha2"] * I, d["alpha2"] >= t, d["beta2"] >= t,
+                        2 * d["alpha2"] - d["beta2"] >= t, d["mu1"] >= t, d["mu1"] <= d["mu1_max"] - t,
+                        d["mu2"] >= t]
+
+            return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+        prog = _lmi.cached_program(("cor1.printed", n, m, p, float(self.cap), mats.key), build)
+        prog.set(**mats.settable(), a2=a2)
 
         def obj(xi):
             return prog.solve(xi_a2=xi / a2, mu1_max=min(1.0, 1.0 / xi))

@@ -66,19 +66,24 @@ class RajamaniLMI(Part):
         """Solve the LMI and return K."""
         import cvxpy as cp
 
-        A, C = plant.A, plant.C
         n, p = plant.n, plant.p
         a2, lam = float(constants.alpha) ** 2, float(self.decay)
         I = np.eye(n)
-        v = {"P": cp.Variable((n, n), symmetric=True), "W": cp.Variable((n, p)), "eps": cp.Variable(),
-             "t": cp.Variable()}
 
         def blocks(d):
-            P, W = d["P"], d["W"]
-            S = A.T @ P + P @ A - C.T @ W.T - W @ C + d["eps"] * a2 * I + 2 * lam * P
+            A, C, P, W = d["A"], d["C"], d["P"], d["W"]
+            S = A.T @ P + P @ A - C.T @ W.T - W @ C + d["eps"] * d["a2"] * I + 2 * lam * P
             return [[S, P], [P, -d["eps"] * I]]
 
-        prog = _lmi.margin_program(blocks, v, {}, ("P",), lambda d: [d["eps"] >= 0], cap=self.cap)
+        def build():
+            v = {"P": cp.Variable((n, n), symmetric=True), "W": cp.Variable((n, p)), "eps": cp.Variable(),
+                 "t": cp.Variable()}
+            prm = {**mats.parameters(), **_lmi.scalar_parameters("a2")}
+            return _lmi.margin_program(blocks, v, prm, ("P",), lambda d: [d["eps"] >= 0], cap=self.cap)
+
+        mats = _lmi.matrices(A=plant.A, C=plant.C)
+        prog = _lmi.cached_program(("rajamani", n, p, lam, float(self.cap), mats.key), build)
+        prog.set(**mats.settable(), a2=a2)
         log = solve_side(prog, self.solver, n)
         concl = _lmi.conclude(prog, what="Rajamani LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
                               searched=f"with decay {lam:g}")
@@ -118,22 +123,30 @@ class ZhangOSL(Part):
         """Solve the LMI and return K."""
         import cvxpy as cp
 
-        A, C = plant.A, plant.C
+        C = plant.C
         n = plant.n
         rho, beta, gamma = constants.rho, constants.beta, constants.gamma
         lam = float(self.decay)
         I = np.eye(n)
-        v = {"P": cp.Variable((n, n), symmetric=True), "sigma": cp.Variable(), "eps1": cp.Variable(),
-             "eps2": cp.Variable(), "t": cp.Variable()}
 
         def blocks(d):
-            P = d["P"]
-            S = A.T @ P + P @ A + (d["eps1"] * rho + d["eps2"] * beta) * I - d["sigma"] * (C.T @ C) + 2 * lam * P
-            X = P + ((gamma * d["eps2"] - d["eps1"]) / 2) * I
+            A, P = d["A"], d["P"]
+            S = (A.T @ P + P @ A + (d["eps1"] * d["rho"] + d["eps2"] * d["beta"]) * I - d["sigma"] * d["CtC"]
+                 + 2 * lam * P)
+            X = P + ((d["gamma"] * d["eps2"] - d["eps1"]) / 2) * I
             return [[S, X], [X.T, -d["eps2"] * I]]
 
-        prog = _lmi.margin_program(blocks, v, {}, ("P",),
-                                   lambda d: [d["sigma"] >= 0, d["eps1"] >= 0, d["eps2"] >= 0], cap=self.cap)
+        def build():
+            v = {"P": cp.Variable((n, n), symmetric=True), "sigma": cp.Variable(), "eps1": cp.Variable(),
+                 "eps2": cp.Variable(), "t": cp.Variable()}
+            # C'C is one parameter: sigma * (C' C) with C a parameter would not be DPP
+            prm = {**mats.parameters(), **_lmi.scalar_parameters("rho", "beta", "gamma")}
+            return _lmi.margin_program(blocks, v, prm, ("P",),
+                                       lambda d: [d["sigma"] >= 0, d["eps1"] >= 0, d["eps2"] >= 0], cap=self.cap)
+
+        mats = _lmi.matrices(A=plant.A, CtC=C.T @ C)
+        prog = _lmi.cached_program(("zhang_osl", n, lam, float(self.cap), mats.key), build)
+        prog.set(**mats.settable(), rho=rho, beta=beta, gamma=gamma)
         log = solve_side(prog, self.solver, n)
         concl = _lmi.conclude(prog, what="Zhang OSL LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
                               searched=f"with decay {lam:g}")

@@ -144,28 +144,28 @@ class Thm1(Design):
 
     # -- gamma >= 0: convex form -------------------------------------------------------------
     @staticmethod
-    def _convex_blocks(plant: Plant, c: Constants):
-        """Blocks of the joint 6n LMI (5n when beta_eff <= 0) and of its x-side and e-side."""
-        A, B, C = plant.A, plant.B, plant.C
-        n = plant.n
+    def _convex_blocks(n: int, schur: bool):
+        """Blocks of the joint 6n LMI (5n when beta_eff <= 0) and of its x-side and e-side.
+
+        Plant matrices (``A``, ``B``, ``C``) and constants (``rho``, ``beta``, ``gamma``,
+        ``ibeff`` = 1/beta_eff) are read from the values dict, so the same functions build the
+        cvxpy matrix (with Parameters) and the numeric one (with arrays).
+        """
         I, Z = np.eye(n), np.zeros((n, n))
-        rho, beta, gamma = c.rho, c.beta, c.gamma
-        beff = beta + gamma * rho
-        schur = beff > 0
 
         def s11(d):
-            Q, Fh = d["Q"], d["Fh"]
+            A, B, Q, Fh = d["A"], d["B"], d["Q"], d["Fh"]
             return A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
 
         def s22(d):
-            R, Kh = d["R"], d["Kh"]
-            return A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * rho + d["eps4"] * beta) * I
+            A, C, R, Kh = d["A"], d["C"], d["R"], d["Kh"]
+            return A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * d["rho"] + d["eps4"] * d["beta"]) * I
 
         def xr(d):
-            return d["R"] + (d["eps4"] * gamma - d["eps3"]) * I
+            return d["R"] + (d["eps4"] * d["gamma"] - d["eps3"]) * I
 
         def joint(d):
-            Q, Fh = d["Q"], d["Fh"]
+            B, Q, Fh = d["B"], d["Q"], d["Fh"]
             X = xr(d)
             rows = [
                 [s11(d), Z, Z, B @ Fh.T, Z],
@@ -177,13 +177,13 @@ class Thm1(Design):
             if schur:
                 for row, blk in zip(rows, (Q, Z, Z, Z, Z)):
                     row.append(blk)
-                rows.append([Q, Z, Z, Z, Z, -(d["kappa"] / beff) * I])
+                rows.append([Q, Z, Z, Z, Z, -(d["kappa"] * d["ibeff"]) * I])
             return rows
 
         def xside(d):
             if not schur:
                 return [[s11(d)]]
-            return [[s11(d), d["Q"]], [d["Q"], -(d["kappa"] / beff) * I]]
+            return [[s11(d), d["Q"]], [d["Q"], -(d["kappa"] * d["ibeff"]) * I]]
 
         def eside(d):
             X = xr(d)
@@ -191,49 +191,64 @@ class Thm1(Design):
 
         return joint, xside, eside
 
+    @staticmethod
+    def _constants(c: Constants) -> tuple[dict, bool]:
+        """Scalar parameter values of the convex form and whether its Schur column is present."""
+        beff = c.beta + c.gamma * c.rho
+        schur = beff > 0
+        return {"rho": c.rho, "beta": c.beta, "gamma": c.gamma, "ibeff": 1 / beff if schur else 0.0}, schur
+
     def _program_convex(self, plant: Plant, c: Constants) -> _lmi.Program:
+        """The joint convex program (compiled once per shape; see :func:`designs._lmi.cached_program`),
+        with the plant's matrices and constants set; phi1 is left to the caller."""
         import cvxpy as cp
 
-        v = _variables(plant.n, plant.m, plant.p, ("kappa", "eps3", "eps4"))
-        prm = {"phi": cp.Parameter(nonneg=True, name="phi1"), "iphi": cp.Parameter(nonneg=True, name="inv_phi1")}
-        joint, _, _ = self._convex_blocks(plant, c)
+        n, m, p = plant.n, plant.m, plant.p
+        vals, schur = self._constants(c)
+        mats = _lmi.plant_matrices(plant)
 
-        def extra(d):
-            return [d["kappa"] >= 0, d["eps3"] >= 0, d["eps4"] >= 0]
+        def build():
+            v = _variables(n, m, p, ("kappa", "eps3", "eps4"))
+            prm = {"phi": cp.Parameter(nonneg=True, name="phi1"), "iphi": cp.Parameter(nonneg=True, name="inv_phi1"),
+                   **mats.parameters(), **_lmi.scalar_parameters("rho", "beta", "gamma", "ibeff")}
+            joint, _, _ = self._convex_blocks(n, schur)
 
-        return _lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
+            def extra(d):
+                return [d["kappa"] >= 0, d["eps3"] >= 0, d["eps4"] >= 0]
+
+            return _lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+        prog = _lmi.cached_program(("thm1.convex", n, m, p, schur, float(self.cap), mats.key), build)
+        prog.set(**mats.settable(), **vals)
+        return prog
 
     def _design_separated(self, plant: Plant, c: Constants) -> DesignResult:
         """x-side and e-side solved apart (two 2n LMIs), joint certificate rebuilt and verified."""
         from designs._separated import separated_design
 
-        return separated_design(plant, self._convex_blocks(plant, c), ("eps3", "eps4"), solver=self.solver, cap=self.cap,
-                                what="corrected Theorem 1", phi_name="phi1",
-                                extra_params=lambda v: {"kappa": _scalar(v, "kappa"), "eps3": _scalar(v, "eps3"), "eps4": _scalar(v, "eps4"),
-                           "rho": c.rho, "beta": c.beta, "gamma": c.gamma})
+        vals, schur = self._constants(c)
+        return separated_design(plant, self._convex_blocks(plant.n, schur), ("eps3", "eps4"), solver=self.solver,
+                                cap=self.cap, what="corrected Theorem 1", phi_name="phi1",
+                                key=("thm1.sep", schur), constants=vals,
+                                extra_params=lambda v: {"kappa": _scalar(v, "kappa"), "eps3": _scalar(v, "eps3"),
+                                                        "eps4": _scalar(v, "eps4"), "rho": c.rho, "beta": c.beta,
+                                                        "gamma": c.gamma})
 
     def _program_fixed_eps(self, plant: Plant, c: Constants, schur: bool) -> _lmi.Program:
+        """The fixed-eps program for gamma < 0 (compiled once per shape and Schur flag), plant and
+        constants set; phi1, eta2, two_eps2 (and inv_eta1) are left to the caller."""
         import cvxpy as cp
 
-        A, B, C = plant.A, plant.B, plant.C
         n, m, p = plant.n, plant.m, plant.p
         I, Z = np.eye(n), np.zeros((n, n))
-        rho, beta, gamma = c.rho, c.beta, c.gamma
-        v = _variables(n, m, p, ("eps3", "eps4"))
-        prm = {
-            "phi": cp.Parameter(nonneg=True, name="phi1"),
-            "iphi": cp.Parameter(nonneg=True, name="inv_phi1"),
-            "eta2": cp.Parameter(name="eta2"),
-            "two_eps2": cp.Parameter(nonneg=True, name="two_eps2"),
-        }
-        if schur:
-            prm["inv_eta1"] = cp.Parameter(nonneg=True, name="inv_eta1")
+        mats = _lmi.plant_matrices(plant)
 
         def blocks(d):
+            A, B, C = d["A"], d["B"], d["C"]
             Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
             S11 = A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T
-            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * rho + d["eps4"] * beta) * I
-            X = R + (d["eps4"] * gamma - d["eps3"]) * I
+            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * d["rho"] + d["eps4"] * d["beta"]) * I
+            X = R + (d["eps4"] * d["gamma"] - d["eps3"]) * I
             Y = I + d["eta2"] * Q
             rows = [
                 [S11, Z, Y, Z, B @ Fh.T, Z],
@@ -249,10 +264,27 @@ class Thm1(Design):
                 rows.append([Q, Z, Z, Z, Z, Z, -d["inv_eta1"] * I])
             return rows
 
-        def extra(d):
-            return [d["eps3"] >= 0, d["eps4"] >= 0]
+        def build():
+            v = _variables(n, m, p, ("eps3", "eps4"))
+            prm = {
+                "phi": cp.Parameter(nonneg=True, name="phi1"),
+                "iphi": cp.Parameter(nonneg=True, name="inv_phi1"),
+                "eta2": cp.Parameter(name="eta2"),
+                "two_eps2": cp.Parameter(nonneg=True, name="two_eps2"),
+                **mats.parameters(),
+                **_lmi.scalar_parameters("rho", "beta", "gamma"),
+            }
+            if schur:
+                prm["inv_eta1"] = cp.Parameter(nonneg=True, name="inv_eta1")
 
-        return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+            def extra(d):
+                return [d["eps3"] >= 0, d["eps4"] >= 0]
+
+            return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+        prog = _lmi.cached_program(("thm1.fixed_eps", n, m, p, schur, float(self.cap), mats.key), build)
+        prog.set(**mats.settable(), rho=c.rho, beta=c.beta, gamma=c.gamma)
+        return prog
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the corrected Theorem 1 for ``plant`` with ``constants``."""
@@ -380,21 +412,20 @@ class Thm1Printed(Design):
         check_positive("cap", self.cap)
 
     def _program(self, plant: Plant, c: Constants) -> _lmi.Program:
+        """The printed program (compiled once per shape), plant and constants set; psi, zeta and
+        two_eps2 are left to the caller."""
         import cvxpy as cp
 
-        A, B, C = plant.A, plant.B, plant.C
         n, m, p = plant.n, plant.m, plant.p
         I, Z = np.eye(n), np.zeros((n, n))
-        rho, beta, gamma = c.rho, c.beta, c.gamma
-        v = _variables(n, m, p, ("eps3", "eps4", "alpha1", "beta1"))
-        prm = {"psi": cp.Parameter(nonneg=True, name="psi"), "zeta": cp.Parameter(nonneg=True, name="zeta"),
-               "two_eps2": cp.Parameter(nonneg=True, name="two_eps2")}
+        mats = _lmi.plant_matrices(plant)
 
         def blocks(d):
+            A, B, C = d["A"], d["B"], d["C"]
             Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
             S11 = Q @ A.T + A @ Q + Fh @ B.T + B @ Fh.T
-            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * rho + d["eps4"] * beta) * I
-            X = R + (d["eps4"] * gamma - d["eps3"]) * I
+            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * d["rho"] + d["eps4"] * d["beta"]) * I
+            X = R + (d["eps4"] * d["gamma"] - d["eps3"]) * I
             BF = -B @ Fh.T
             return [
                 # S1                                                  | S2
@@ -409,12 +440,22 @@ class Thm1Printed(Design):
                 [Z, Z, I, Z, Z, Z, Z, -d["zeta"] * I],
             ]
 
-        def extra(d):
-            t = d["t"]
-            return [d["Q"] >> d["alpha1"] * I, d["alpha1"] >= t, d["beta1"] >= t,
-                    2 * d["alpha1"] - d["beta1"] >= t, d["eps3"] >= 0, d["eps4"] >= 0]
+        def build():
+            v = _variables(n, m, p, ("eps3", "eps4", "alpha1", "beta1"))
+            prm = {"psi": cp.Parameter(nonneg=True, name="psi"), "zeta": cp.Parameter(nonneg=True, name="zeta"),
+                   "two_eps2": cp.Parameter(nonneg=True, name="two_eps2"),
+                   **mats.parameters(), **_lmi.scalar_parameters("rho", "beta", "gamma")}
 
-        return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+            def extra(d):
+                t = d["t"]
+                return [d["Q"] >> d["alpha1"] * I, d["alpha1"] >= t, d["beta1"] >= t,
+                        2 * d["alpha1"] - d["beta1"] >= t, d["eps3"] >= 0, d["eps4"] >= 0]
+
+            return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+
+        prog = _lmi.cached_program(("thm1.printed", n, m, p, float(self.cap), mats.key), build)
+        prog.set(**mats.settable(), rho=c.rho, beta=c.beta, gamma=c.gamma)
+        return prog
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve Theorem 1 as printed, or explain why it cannot be satisfied."""

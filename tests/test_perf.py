@@ -4,7 +4,7 @@ from bench.cli import main
 
 
 def test_perf_small_writes_report(tmp_path):
-    assert main(["perf", "--sizes", "4", "--no-run", "--out", str(tmp_path)]) == 0
+    assert main(["perf", "--sizes", "4", "--no-run", "--no-sweeps", "--out", str(tmp_path)]) == 0
     md = (tmp_path / "PERF.md").read_text()
     assert "Design time vs n" in md and "Compile overhead in a sweep" in md
     assert (tmp_path / "figures" / "perf_scaling.png").exists()

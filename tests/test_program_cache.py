@@ -1,0 +1,153 @@
+"""Compiled once, solved many times: LMI programs are cached per structure and re-parameterised.
+
+The reference for every reused solve is a fresh build of the same problem (cache cleared): a
+reused program must give the same status, the same gains (to solver tolerance) and verified
+certificates; only the compile seconds may differ.
+"""
+
+import threading
+
+import numpy as np
+import pytest
+
+from bench.certify import certify
+from bench.registry import DESIGNS, PLANTS
+from designs import _lmi
+
+LMI_DESIGNS = ("thm1", "thm1_sep", "cor1", "cor1_sep", "thm1_printed", "cor1_printed", "lqr+rajamani",
+               "lqr+zhang_osl")
+
+
+def _fresh(design_id, plant):
+    _lmi.clear_program_cache()
+    return DESIGNS.create(design_id).design(plant, plant.bounds)
+
+
+def _same(a, b):
+    assert a.status == b.status, (a.reason, b.reason)
+    if a.has_gains:
+        for g in ("K", "F"):
+            x, y = getattr(a, g), getattr(b, g)
+            assert np.allclose(x, y, rtol=1e-5, atol=1e-7 * max(1.0, float(np.abs(y).max()))), g
+
+
+@pytest.mark.parametrize("design_id", LMI_DESIGNS)
+def test_a_bisection_over_the_scale_reuses_one_program_and_matches_a_fresh_build(design_id):
+    """Knob values 0.2 then 0.35 then 0.2 again: the later calls reuse the program built for the
+    first (same A, B, C; only rho, beta, gamma / alpha change) and agree with fresh builds."""
+    design = DESIGNS.create(design_id)
+    plants = [PLANTS.create("flexible_link", c=c) for c in (0.2, 0.35, 0.2)]
+    fresh = [_fresh(design_id, p) for p in plants]
+    _lmi.clear_program_cache()
+    reused = []
+    for p in plants:
+        reused.append(design.design(p, p.bounds))
+    for a, b in zip(reused, fresh):
+        _same(a, b)
+    # the second and third calls compiled nothing new: their compile seconds are a fraction of the first's
+    first, later = reused[0].compile_s, max(r.compile_s for r in reused[1:])
+    if reused[0].n_solves:
+        assert later < 0.5 * first, (first, later)
+
+
+def test_random_family_members_of_one_shape_share_one_program():
+    """Dense A, B, C (a random family) enter as Parameters: another seed is another parameter value."""
+    design = DESIGNS.create("thm1_sep")
+    a, b = (PLANTS.create("random_lipschitz_v1", n=6, m=2, p=2, c=0.1, seed=s) for s in (1, 2))
+    _lmi.clear_program_cache()
+    design.design(a, a.bounds)
+    n_programs = len(_lmi._cache())
+    rb = design.design(b, b.bounds)
+    assert len(_lmi._cache()) == n_programs  # nothing new was built
+    _same(rb, _fresh("thm1_sep", b))
+    assert rb.status == "feasible"
+    assert max(np.linalg.eigvals(b.A + b.B @ rb.F).real) < 0
+    assert max(np.linalg.eigvals(b.A - rb.K @ b.C).real) < 0
+
+
+def test_sparse_matrices_are_baked_in_and_key_the_program():
+    """A mostly-zero A is a constant of the problem (no explicit zeros handed to the solver), so
+    a different sparse A must get its own program."""
+    A1 = np.diag([-1.0, -2.0, -3.0])
+    A2 = np.diag([-1.0, -2.0, -4.0])
+    dense = np.arange(1.0, 10.0).reshape(3, 3)
+    m1, m2, md = _lmi.matrices(A=A1), _lmi.matrices(A=A2), _lmi.matrices(A=dense)
+    assert m1.dense == frozenset() and md.dense == frozenset({"A"})
+    assert m1.key != m2.key
+    assert md.key == _lmi.matrices(A=dense + 1.0).key  # same shape, parameter: same program
+    assert md.settable().keys() == {"A"} and m1.settable() == {}
+
+
+def test_a_parameter_left_unset_fails_loudly_instead_of_reusing_a_stale_value():
+    import cvxpy as cp
+
+    def build():
+        v = {"P": cp.Variable((2, 2), symmetric=True), "t": cp.Variable()}
+        prm = {"a": cp.Parameter(name="a")}
+
+        def blocks(d):
+            return [[-d["P"] * 1.0 + d["a"] * np.eye(2)]]
+
+        return _lmi.margin_program(blocks, v, prm, ("P",))
+
+    prog = _lmi.cached_program(("test.unset",), build)
+    prog.solve(a=-1.0)
+    assert prog.verified()
+    again = _lmi.cached_program(("test.unset",), build)
+    assert again is prog and again.reused
+    with pytest.raises(Exception, match="(?i)parameter"):
+        again.solve()
+
+
+def test_threads_never_share_a_program():
+    """A cvxpy problem holds its last solution: each thread has its own cache."""
+    def build():
+        import cvxpy as cp
+
+        return _lmi.margin_program(lambda d: [[-d["P"]]], {"P": cp.Variable((2, 2), symmetric=True),
+                                                           "t": cp.Variable()}, {}, ("P",))
+
+    mine = _lmi.cached_program(("test.thread",), build)
+    other = []
+    th = threading.Thread(target=lambda: other.append(_lmi.cached_program(("test.thread",), build)))
+    th.start()
+    th.join()
+    assert other and other[0] is not mine
+
+
+def test_certificates_reuse_the_analysis_program_and_agree_with_a_fresh_one(flex, flex_constants):
+    """Certifying two gain pairs of the same size: the second reuses the program and both agree
+    with fresh builds (certified or not, decay rate to the bisection tolerance)."""
+    c = flex_constants.valid
+    pairs = []
+    for did in ("paper_gains", "thm1_sep"):
+        r = DESIGNS.create(did).design(flex, c)
+        pairs.append((r.K, r.F))
+    warm = [certify(flex, K, F, c) for K, F in pairs]
+    cold = []
+    for K, F in pairs:
+        _lmi.clear_program_cache()
+        cold.append(certify(flex, K, F, c))
+    for w, k in zip(warm, cold):
+        assert w.certified == k.certified
+        if w.certified:
+            assert abs(w.decay_rate - k.decay_rate) <= 2e-3
+
+
+def test_a_program_cut_short_by_a_timeout_is_dropped_from_the_cache(monkeypatch):
+    import cvxpy as cp
+
+    def build():
+        return _lmi.margin_program(lambda d: [[-d["P"]]], {"P": cp.Variable((2, 2), symmetric=True),
+                                                           "t": cp.Variable()}, {}, ("P",))
+
+    prog = _lmi.cached_program(("test.timeout",), build)
+
+    def boom(*a, **k):
+        raise _lmi.DeadlineExceeded("a test")
+
+    monkeypatch.setattr(_lmi, "solve_timed", boom)
+    with pytest.raises(_lmi.DeadlineExceeded):
+        prog.solve()
+    monkeypatch.undo()
+    assert _lmi.cached_program(("test.timeout",), build) is not prog
