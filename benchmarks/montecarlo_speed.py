@@ -3,7 +3,8 @@
 Usage: ``python benchmarks/montecarlo_speed.py [--design D ...] [--n 1000] [--t-final 20] [--loop-n N]``
 (defaults: flexible link, designs ``lqr+lqe``, ``thm1`` and ``paper_gains``, 1000 initial conditions
 from the study's seeded box, 20 s). For each design it prints the batch time (best of 3 after one
-warm-up; ``bench.studies.batch.simulate_batch``, RK45, rtol 1e-6, atol 1e-9, 401 output points),
+warm-up; ``bench.studies.batch.simulate_batch``, ``--method`` (default DOP853, the study's
+non-stiff choice), rtol 1e-6, atol 1e-9, 401 output points),
 the time of looping ``solve_ivp`` over the same initial conditions with the same settings
 (``simulate_loop``; ``--loop-n`` loops over the first N only and extrapolates, labelled so), the
 speed-up, and the largest difference between the two (relative to the largest state), plus whether
@@ -35,11 +36,12 @@ def main() -> None:
     p.add_argument("--t-final", type=float, default=20.0)
     p.add_argument("--loop-n", type=int, default=None, help="loop over the first N only and extrapolate")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--method", default="DOP853", help="solve_ivp method for the batch and the loop (default DOP853)")
     a = p.parse_args()
     plant = PLANTS.create(a.plant)
     X, XH = random_ics(plant, a.n, default_box(plant), a.seed)
     print(f"{a.plant}: {a.n} initial conditions in [-{default_box(plant):g}, {default_box(plant):g}]^{plant.n} "
-          f"(seed {a.seed}), {a.t_final:g} s, RK45 rtol 1e-6 atol 1e-9, 401 output points; {os.cpu_count()} cores")
+          f"(seed {a.seed}), {a.t_final:g} s, {a.method} rtol 1e-6 atol 1e-9, 401 output points; {os.cpu_count()} cores")
     print(f"{'design':<14} {'batch s':>8} {'nfev':>6} {'loop s':>8} {'speed-up':>9} {'max rel diff':>12} "
           f"{'same verdicts':>13} {'converged':>9}")
     for did in a.design or ["lqr+lqe", "thm1", "paper_gains"]:
@@ -47,14 +49,14 @@ def main() -> None:
         if r.K is None or r.F is None:
             print(f"{did:<14} no fixed gains ({r.status}: {r.reason[:60]})")
             continue
-        simulate_batch(plant, r.K, r.F, X[:, :10], XH[:, :10], t_final=a.t_final, method="RK45")  # warm-up
+        simulate_batch(plant, r.K, r.F, X[:, :10], XH[:, :10], t_final=a.t_final, method=a.method)  # warm-up
         best = None
         for _ in range(3):
-            tr = simulate_batch(plant, r.K, r.F, X, XH, t_final=a.t_final, method="RK45")
+            tr = simulate_batch(plant, r.K, r.F, X, XH, t_final=a.t_final, method=a.method)
             if best is None or tr.wall_s < best.wall_s:
                 best = tr
         m = a.n if a.loop_n is None else min(a.loop_n, a.n)
-        t, xs, xhs, loop_s = simulate_loop(plant, r.K, r.F, X[:, :m], XH[:, :m], t_final=a.t_final, method="RK45")
+        t, xs, xhs, loop_s = simulate_loop(plant, r.K, r.F, X[:, :m], XH[:, :m], t_final=a.t_final, method=a.method)
         loop_full = loop_s * a.n / m
         diff = float(np.nanmax(np.abs(best.x[:, :m] - xs)) / np.nanmax(np.abs(xs)))
         ref = BatchTrajectory(t, xs, xhs, np.zeros(m, dtype=bool), "ok", "", loop_s, 0)

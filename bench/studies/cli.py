@@ -119,7 +119,7 @@ def add_study_parser(sub) -> None:
                    help="half-width of the initial-condition box (default: the plant's initial-condition scale)")
     m.add_argument("--t-final", type=_float(lo=0), default=None, metavar="SECONDS", help="horizon (default: each plant's)")
     m.add_argument("--method", default="auto", choices=("auto", "RK45", "DOP853", "RK23", "BDF", "Radau"),
-                   help="solve_ivp method of the batch (default auto: RK45, BDF when the loop is stiff)")
+                   help="solve_ivp method of the batch (default auto: DOP853, BDF when the loop is stiff)")
 
     n = ss.add_parser("noise", help="RMS estimation error and final ||x|| vs measurement noise, Luenberger vs EKF")
     common(n)

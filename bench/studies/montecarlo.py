@@ -106,7 +106,7 @@ def run_montecarlo(
     t_final : float, optional
         Horizon (default: each plant's).
     method, rtol, atol
-        ``solve_ivp`` settings of the batch (``"auto"``: RK45, or BDF for a stiff loop, see
+        ``solve_ivp`` settings of the batch (``"auto"``: DOP853, or BDF for a stiff loop, see
         :func:`bench.studies.batch.choose_method`).
     jobs : int
     progress : callable, optional
@@ -201,7 +201,7 @@ def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
         study_header("Study: region of convergence (Monte Carlo)", command, result.settings, result.wall_s),
         "For each plant, N initial conditions (x and x_hat independent, uniform in `[-box, box]^n`, seeded; the same "
         "draws for every design) are simulated for each design with fixed gains as **one** vectorised ODE "
-        "(`bench/studies/batch.py`: RK45, or BDF with the batch's block-diagonal Jacobian sparsity when the loop is "
+        "(`bench/studies/batch.py`: DOP853, or BDF with the batch's block-diagonal Jacobian sparsity when the loop is "
         "stiff). Converged within the horizon: final `||x||` and `||e||` at most 1e-3 of their peaks, no "
         "divergence (a slow but converging member counts as not converged: see the worst final norm). Settling: 2 % settling time of `||x||`, over the converging initial conditions.",
         "",
