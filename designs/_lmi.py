@@ -300,6 +300,23 @@ class Program:
         for k, v in params.items():
             self.parameters[k].value = v
 
+    def _problem_for(self, solver: str):
+        """The cvxpy problem to hand to ``solver``: one per solver, sharing variables and parameters.
+
+        cvxpy keeps one compiled form per problem and drops it when the solver changes, so a
+        side solved by SCS and re-solved by Clarabel (:func:`designs._separated.solve_side`)
+        would otherwise recompile at every switch.
+        """
+        import cvxpy as cp
+
+        problems = self.__dict__.setdefault("_problems", {})
+        key = solver.upper()
+        prob = problems.get(key)
+        if prob is None:
+            prob = self.problem if not problems else cp.Problem(self.problem.objective, self.problem.constraints)
+            problems[key] = prob
+        return prob
+
     def reset(self) -> None:
         """Forget counters, the best point and every parameter value (before a new design call).
 
@@ -318,7 +335,7 @@ class Program:
         """Solve at the given parameter values; return the margin t (NaN if not solved)."""
         self.set(**params)
         try:
-            out = solve_timed(self.problem, solver, **(solver_opts or {}))
+            out = solve_timed(self._problem_for(solver), solver, **(solver_opts or {}))
         except BaseException as exc:
             if not isinstance(exc, Exception) and self.cache_key is not None:
                 # a timeout or an interrupt cut a compile or a solve short: never reuse this problem
