@@ -88,8 +88,6 @@ def _program(plant: Plant, K: np.ndarray, F: np.ndarray, c: Constants) -> _lmi.P
         }
         prm = {"lam": cp.Parameter(nonneg=True, name="lam"), **mats.parameters(),
                **_lmi.scalar_parameters("rho", "beta", "gamma")}
-        pars = {k: v for k, v in prm.items() if isinstance(v, cp.Parameter)}
-        consts = {k: v for k, v in prm.items() if not isinstance(v, cp.Parameter)}
 
         def blocks(d):
             P, R, lam, Acl, Ae = d["P"], d["R"], d["lam"], d["Acl"], d["Ae"]
@@ -117,8 +115,7 @@ def _program(plant: Plant, K: np.ndarray, F: np.ndarray, c: Constants) -> _lmi.P
             v["e1"] >= 0, v["e2"] >= 0, v["e3"] >= 0, v["e4"] >= 0,
         ]
         prob = cp.Problem(cp.Maximize(t), cons)
-        return _lmi.Program(prob, v, pars, blocks, ("P", "R"), build_s=time.perf_counter() - t_build,
-                            constants=consts)
+        return _lmi.Program(prob, v, prm, blocks, ("P", "R"), build_s=time.perf_counter() - t_build)
 
     A, B, C = plant.A, plant.B, plant.C
     mats = _lmi.matrices(Acl=A + B @ F, Ae=A - K @ C, BF=B @ F)

@@ -271,7 +271,8 @@ class Program:
     variables : dict
         cvxpy variables by name (``t`` is the margin).
     parameters : dict
-        cvxpy parameters by name.
+        cvxpy parameters by name; an ndarray given here is moved to ``constants`` (a matrix
+        baked into the problem, see :func:`matrices`).
     blocks : callable
         ``blocks(values) -> list of lists`` building the LMI matrix from a dict of values.
     positive : tuple of str
@@ -294,6 +295,14 @@ class Program:
     reused: bool = False
     constants: dict = field(default_factory=dict)
     cache_key: tuple | None = None
+    problems: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        # an array among the parameters is a constant of the problem (a baked sparse matrix):
+        # keep it for the numeric rebuild, out of the settable parameters
+        arrays = {k: v for k, v in self.parameters.items() if isinstance(v, np.ndarray)}
+        self.constants = {**self.constants, **arrays}
+        self.parameters = {k: v for k, v in self.parameters.items() if k not in arrays}
 
     def set(self, **params) -> None:
         """Set parameter values (scalars or arrays of the parameter's shape)."""
@@ -309,12 +318,11 @@ class Program:
         """
         import cvxpy as cp
 
-        problems = self.__dict__.setdefault("_problems", {})
         key = solver.upper()
-        prob = problems.get(key)
+        prob = self.problems.get(key)
         if prob is None:
-            prob = self.problem if not problems else cp.Problem(self.problem.objective, self.problem.constraints)
-            problems[key] = prob
+            prob = self.problem if not self.problems else cp.Problem(self.problem.objective, self.problem.constraints)
+            self.problems[key] = prob
         return prob
 
     def reset(self) -> None:
@@ -429,10 +437,7 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
     if extra is not None:
         cons += extra(allv)
     problem = cp.Problem(cp.Maximize(t), cons)
-    prm = {k: v for k, v in parameters.items() if isinstance(v, cp.Parameter)}
-    consts = {k: v for k, v in parameters.items() if not isinstance(v, cp.Parameter)}
-    return Program(problem, variables, prm, blocks_fn, positive, build_s=time.perf_counter() - t_build,
-                   constants=consts)
+    return Program(problem, variables, parameters, blocks_fn, positive, build_s=time.perf_counter() - t_build)
 
 
 #: A matrix with at least this fraction of nonzero entries enters a cached program as a cvxpy

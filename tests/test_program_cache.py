@@ -50,7 +50,7 @@ def _compiled_forms():
     """cvxpy's compiled (parameterised) form of every cached problem, by identity."""
     out = set()
     for prog in _lmi._cache().values():
-        for prob in prog.__dict__.get("_problems", {}).values():
+        for prob in prog.problems.values():
             pp = getattr(prob._cache, "param_prog", None)
             if pp is not None:
                 out.add(id(pp))
@@ -88,7 +88,7 @@ def test_switching_solvers_keeps_one_compiled_problem_per_solver():
         prob = prog._problem_for(solver)
         form = id(prob._cache.param_prog)
         assert seen.setdefault(solver, form) == form
-    assert len(prog.__dict__["_problems"]) == 2
+    assert len(prog.problems) == 2
 
 
 def test_random_family_members_of_one_shape_share_one_program():
