@@ -2,6 +2,6 @@
 
 import bench._env  # noqa: F401  (BLAS threads, before numpy)
 
-from plants._core import Constants, Plant, PlantError
+from plants._core import Channels, Constants, Plant, PlantError
 
-__all__ = ["Constants", "Plant", "PlantError"]
+__all__ = ["Channels", "Constants", "Plant", "PlantError"]

@@ -13,7 +13,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-__all__ = ["Constants", "Plant", "PlantError"]
+__all__ = ["Channels", "Constants", "Plant", "PlantError"]
 
 
 class PlantError(ValueError):
@@ -80,6 +80,94 @@ class Constants:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+@dataclass(frozen=True, kw_only=True)
+class Channels:
+    """The nonlinearity as slope-restricted channels: ``f(x) = G phi(H x)``, phi acting channel-wise.
+
+    Channel i maps ``z_i = (H x)_i`` to ``phi_i(z_i)`` with
+    ``lo_i <= (phi_i(a) - phi_i(b)) / (a - b) <= hi_i`` for all ``a != b`` (globally, or while
+    ``||x|| <= radius``), and ``phi(0) = 0``. This is what most plants know beyond the scalar
+    constants: *which* states f acts on (the columns of G) and *which* it depends on (the
+    rows of H). The certificate ladder and the structured design use it
+    (``../shared/design/STRUCTURE.md``).
+
+    Parameters
+    ----------
+    G : array_like, shape (n, q)
+        Where each channel acts.
+    H : array_like, shape (q, n)
+        What each channel reads.
+    phi : callable
+        ``phi(z)`` for ``z`` of shape (q,) or a batch (q, N), returning the same shape.
+    lo, hi : float or array_like, shape (q,)
+        Slope bounds of each channel (a scalar applies to every channel); ``lo <= hi``.
+    radius : float, optional
+        The slopes hold on the ball ``||x|| <= radius``; None means globally.
+
+    Examples
+    --------
+    The flexible link's ``f4 = -c sin(x3)`` is one channel: ``G = e4``, ``H = e3'``,
+    ``phi(z) = -c sin(z)``, slopes in ``[-c, c]``.
+    """
+
+    G: np.ndarray
+    H: np.ndarray
+    phi: Callable[[np.ndarray], np.ndarray]
+    lo: np.ndarray | float
+    hi: np.ndarray | float
+    radius: float | None = None
+
+    def __post_init__(self) -> None:
+        G = _matrix("channels.G", self.G)
+        H = _matrix("channels.H", self.H)
+        q = G.shape[1]
+        if H.shape[0] != q:
+            raise PlantError(f"channels.H: must have q = {q} rows (G is {G.shape}), got shape {H.shape}")
+        if not callable(self.phi):
+            raise PlantError(f"channels.phi: must be callable, got {type(self.phi).__name__}")
+        bounds = []
+        for name in ("lo", "hi"):
+            v = getattr(self, name)
+            try:
+                arr = _real_array(v)
+            except (TypeError, ValueError, OverflowError, np.exceptions.ComplexWarning):
+                raise PlantError(f"channels.{name}: not a real number or array, got {_short(v)}") from None
+            arr = np.broadcast_to(arr, (q,)).copy() if arr.ndim == 0 else arr
+            if arr.shape != (q,):
+                raise PlantError(f"channels.{name}: expected a scalar or shape ({q},), got {arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                raise PlantError(f"channels.{name}: slope bounds must be finite, got {arr.tolist()}")
+            arr.setflags(write=False)
+            bounds.append(arr)
+        lo, hi = bounds
+        bad = np.nonzero(lo > hi)[0]
+        if bad.size:
+            i = int(bad[0])
+            raise PlantError(f"channels.lo/hi: channel {i} has lo = {lo[i]:g} > hi = {hi[i]:g}")
+        for name, value in (("G", G), ("H", H), ("lo", lo), ("hi", hi)):
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "radius", _finite_scalar("channels.radius", self.radius, positive=True))
+
+    @property
+    def q(self) -> int:
+        """Number of channels."""
+        return self.G.shape[1]
+
+    @property
+    def center(self) -> np.ndarray:
+        """Mid slopes ``c0 = (lo + hi) / 2`` (the loop transformation's linear part)."""
+        return (self.lo + self.hi) / 2
+
+    @property
+    def spread(self) -> np.ndarray:
+        """Half widths ``r = (hi - lo) / 2``: ``|psi_i(a) - psi_i(b)| <= r_i |a - b|``."""
+        return (self.hi - self.lo) / 2
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        """``G phi(H x)`` for a state (n,) or a batch (n, N)."""
+        return self.G @ np.asarray(self.phi(self.H @ np.asarray(x, dtype=float)), dtype=float)
+
+
 def _short(value, limit: int = 80) -> str:
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
@@ -130,7 +218,11 @@ class Plant:
     claimed : Constants
         Constants as the source claims them (kept as claimed, right or wrong).
     bounds : Constants, optional
-        Analytic, valid constants where known (used by designs in preference to sampling).
+        Analytic, valid constants where known (used by designs in preference to sampling,
+        and by certificates; constants that were only sampled never certify).
+    channels : Channels, optional
+        The nonlinearity as slope-restricted channels ``f(x) = G phi(H x)``, when known
+        (checked against f on seeded samples when the plant is built).
     t_final : float
         Simulation horizon in seconds.
     family : str
@@ -143,8 +235,9 @@ class Plant:
     Raises
     ------
     PlantError
-        On inconsistent shapes, non-finite entries, ``f(0) != 0`` or an f returning a wrong
-        shape; the message names the field.
+        On inconsistent shapes, non-finite entries, ``f(0) != 0``, an f returning a wrong
+        shape, an f that writes into its argument or whose batch form mixes columns, or
+        channels that do not reproduce f; the message names the field.
     """
 
     id: str
@@ -157,6 +250,7 @@ class Plant:
     jacobian: Callable[[np.ndarray], np.ndarray] | None = None
     claimed: Constants = field(default_factory=Constants)
     bounds: Constants | None = None
+    channels: Channels | None = None
     t_final: float = 20.0
     family: str = ""
     params: Mapping[str, float] = field(default_factory=dict)
@@ -197,6 +291,9 @@ class Plant:
         for key, val in self.params.items():
             _finite_scalar(f"params[{key!r}]", val, allow_none=False)
         self._check_f(n)
+        self._check_contract(n)
+        if self.channels is not None:
+            self._check_channels(n)
 
     def _check_f(self, n: int) -> None:
         if not callable(self.f):
@@ -239,6 +336,124 @@ class Plant:
             if not np.all(np.isfinite(J)):
                 raise PlantError(f"jacobian: not finite at x0: {J}")
 
+    def _probe_points(self, n: int, count: int = 6) -> np.ndarray:
+        """Seeded states (n, count) at several scales, inside ``radius`` when the constants are local."""
+        rng = np.random.default_rng(12345)
+        X = rng.standard_normal((n, count))
+        X /= np.linalg.norm(X, axis=0)
+        radius = next((c.radius for c in (self.bounds, self.claimed, self.channels)
+                       if c is not None and c.radius is not None), None)
+        scales = np.geomspace(0.05, 3.0, count) if radius is None else radius * np.linspace(0.1, 0.9, count)
+        return X * scales
+
+    def _check_contract(self, n: int) -> None:
+        """f must not write into its argument, and its batch form must act column by column."""
+        X = self._probe_points(n)
+        for j in range(X.shape[1]):
+            arg = X[:, j].copy()
+            out = _real_array(self.f(arg))
+            if not np.array_equal(arg, X[:, j]):
+                raise PlantError("f: writes into its argument (f(x) changed x); f must not modify its input")
+            if not np.all(np.isfinite(out)):
+                raise PlantError(f"f: not finite at x = {np.round(X[:, j], 4).tolist()}: {out}")
+        arg = X.copy()
+        batch = _real_array(self.f(arg))
+        if not np.array_equal(arg, X):
+            raise PlantError("f: writes into its batch argument; f must not modify its input")
+        for j in range(X.shape[1]):
+            single = _real_array(self.f(X[:, j].copy()))
+            if not np.allclose(batch[:, j], single, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(single).max()))):
+                raise PlantError(
+                    f"f: the batch form mixes columns: column {j} of f(X) is {np.round(batch[:, j], 6).tolist()} "
+                    f"but f(X[:, {j}]) is {np.round(single, 6).tolist()}; a batch (n, N) must be N independent "
+                    "states (e.g. use np.sum(x * x, axis=0), not np.linalg.norm(x))")
+
+    def _check_channels(self, n: int) -> None:
+        ch = self.channels
+        if not isinstance(ch, Channels):
+            raise PlantError(f"channels: expected a Channels or None, got {type(ch).__name__}")
+        if ch.G.shape[0] != n or ch.H.shape[1] != n:
+            raise PlantError(f"channels: G must be ({n}, q) and H (q, {n}) to match A {self.A.shape}, "
+                             f"got G {ch.G.shape}, H {ch.H.shape}")
+        try:
+            zero = _real_array(ch.phi(np.zeros(ch.q)))
+        except Exception as exc:
+            raise PlantError(f"channels.phi: raised {type(exc).__name__} at z = 0: {exc}") from exc
+        if zero.shape != (ch.q,) or np.linalg.norm(zero) > 1e-12:
+            raise PlantError(f"channels.phi: phi(0) must be 0 with shape ({ch.q},), got {zero}")
+        X = np.concatenate([self._probe_points(n), np.asarray(self.x0, dtype=float)[:, None]], axis=1)
+        try:
+            got = _real_array(ch.apply(X))
+        except Exception as exc:
+            raise PlantError(f"channels: G phi(H x) raised {type(exc).__name__} on a batch: {exc}") from exc
+        want = _real_array(self.f(X))
+        if got.shape != want.shape:
+            raise PlantError(f"channels: G phi(H x) has shape {got.shape} on a batch, f has {want.shape}")
+        err = np.abs(got - want).max(axis=0)
+        tol = 1e-9 * np.maximum(1.0, np.abs(want).max(axis=0))
+        if np.any(err > tol):
+            j = int(np.argmax(err - tol))
+            raise PlantError(f"channels: G phi(H x) differs from f at x = {np.round(X[:, j], 4).tolist()} "
+                             f"(by {err[j]:.3g}); the channels must reproduce f exactly")
+
+    @classmethod
+    def from_statespace(cls, sys, *, f: Callable[[np.ndarray], np.ndarray] | None = None, x0=None,
+                        x_hat0=None, id: str | None = None, **fields) -> "Plant":
+        """Build a plant from a python-control ``StateSpace`` (its A, B, C) and a nonlinearity.
+
+        Parameters
+        ----------
+        sys : control.StateSpace
+            Continuous-time system ``x' = A x + B u``, ``y = C x``; D must be zero (the
+            observer-based controller of the paper has no feedthrough).
+        f : callable, optional
+            The nonlinearity (default: ``f = 0``, a linear plant). Same contract as the
+            ``f`` field.
+        x0 : array_like, optional
+            Initial state (default: all ones).
+        x_hat0 : array_like, optional
+            Initial estimate (default: zeros).
+        id : str, optional
+            Plant id (default: the system's name).
+        **fields
+            Any other :class:`Plant` field (``bounds``, ``channels``, ``claimed``, ``t_final``,
+            ``source``, ...).
+
+        Returns
+        -------
+        Plant
+
+        Raises
+        ------
+        PlantError
+            If ``sys`` is not a state-space system, is discrete-time, or has a nonzero D.
+
+        Examples
+        --------
+        >>> import control, numpy as np
+        >>> sys = control.ss([[0, 1], [-1, -0.5]], [[0], [1]], [[1, 0]], 0, name="osc")
+        >>> plant = Plant.from_statespace(sys, f=lambda x: np.stack([0 * x[0], -0.5 * np.sin(x[0])]),
+        ...                               bounds=Constants(alpha=0.5, rho=0.25, beta=0.25, gamma=0.0))
+        >>> plant.n, plant.m, plant.p
+        (2, 1, 1)
+        """
+        for name in ("A", "B", "C", "D"):
+            if not hasattr(sys, name):
+                raise PlantError(f"sys: expected a control.StateSpace (with A, B, C, D), got {type(sys).__name__}")
+        dt = getattr(sys, "dt", 0)
+        if dt not in (0, None):
+            raise PlantError(f"sys: must be a continuous-time system (dt = 0), got dt = {dt!r}")
+        D = _matrix("D", sys.D) if np.size(sys.D) else np.zeros((0, 0))
+        if np.any(D != 0):
+            raise PlantError(f"D: must be zero (no feedthrough from u to y), got max |D| = {np.abs(D).max():g}")
+        A = _matrix("A", sys.A)
+        n = A.shape[0]
+        if f is None:
+            f = _zero_f
+        name = id if id is not None else (getattr(sys, "name", None) or "statespace_plant")
+        return cls(id=name, A=A, B=sys.B, C=sys.C, f=f, x0=np.ones(n) if x0 is None else x0,
+                   x_hat0=np.zeros(n) if x_hat0 is None else x_hat0, **fields)
+
     @property
     def n(self) -> int:
         """Number of states."""
@@ -257,3 +472,8 @@ class Plant:
     def summary(self) -> str:
         """One line: id, dimensions and source."""
         return f"{self.id}: n={self.n}, m={self.m}, p={self.p}; {self.source}"
+
+
+def _zero_f(x: np.ndarray) -> np.ndarray:
+    """The nonlinearity of a linear plant: ``f(x) = 0`` (any batch shape)."""
+    return np.zeros_like(np.asarray(x, dtype=float))

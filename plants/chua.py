@@ -21,6 +21,8 @@ Constants (analytic, global): sat is monotone with slopes in [0, 1], so along an
 ``<df, dx> = k s dx1^2``, so rho = max(k, 0) (= k = 27/7 here, tight inside |x1| < 1);
 QIB ``(beta, gamma) = (k^2, 0)``. (For k > 0 the pair (0, k) is valid too, since
 ``||df||^2 = k^2 s^2 dx1^2 <= k <dx, df>``.) Claimed (PLANTS.md): alpha = a |m0 - m1|.
+Channel structure (global): ``G = H' = e1``, ``phi(z) = k sat(z)`` with slope ``k s``,
+``s in [0, 1]``, so in ``[min(k, 0), max(k, 0)]``.
 
 References
 ----------
@@ -33,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Constants, Plant, PlantError
+from plants._core import Channels, Constants, Plant, PlantError
 
 __all__ = ["chua"]
 
@@ -103,6 +105,8 @@ def chua(
         x_hat0=X_HAT0,
         claimed=Constants(alpha=abs(a * (m0 - m1))),
         bounds=Constants(alpha=abs(k), rho=max(k, 0.0), beta=k**2, gamma=0.0),
+        channels=Channels(G=np.array([[1.0], [0.0], [0.0]]), H=np.array([[1.0, 0.0, 0.0]]),
+                          phi=lambda z: k * 0.5 * (np.abs(z + 1.0) - np.abs(z - 1.0)), lo=min(k, 0.0), hi=max(k, 0.0)),
         t_final=t_final,
         family="chua",
         params={"a": a, "b": b, "m0": m0, "m1": m1, "version": 1},

@@ -16,6 +16,7 @@ link): alpha = c; rho = c / 2, since ``<df, dx> = -c (sin a - sin b) d4 <= c |d3
 (c/2)(d3^2 + d4^2)``, tight for ``dx = (0, 0, -d, d)`` as d -> 0 near x3 = 0; and
 ``(beta, gamma) = (c^2, 0)`` since ``||df||^2 = c^2 (sin a - sin b)^2 <= c^2 d3^2``. The
 sources claim the Lipschitz constant alpha = 3.33 only (they design Lipschitz observers).
+Channel structure (global): ``G = e4``, ``H = e3'``, ``phi(z) = -c sin(z)``, slopes in ``[-|c|, |c|]``.
 
 References
 ----------
@@ -30,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Constants, Plant, _finite_scalar
+from plants._core import Channels, Constants, Plant, _finite_scalar
 
 __all__ = ["A", "B", "C", "X0", "X_HAT0", "flexible_joint"]
 
@@ -82,6 +83,8 @@ def flexible_joint(*, c: float = C_SOURCE, t_final: float = 20.0) -> Plant:
         return J
 
     ca = abs(c)
+    channels = Channels(G=np.array([[0.0], [0.0], [0.0], [1.0]]), H=np.array([[0.0, 0.0, 1.0, 0.0]]),
+                        phi=lambda z: -c * np.sin(z), lo=-ca, hi=ca)
     return Plant(
         id="flexible_joint_v1",
         A=A,
@@ -94,6 +97,7 @@ def flexible_joint(*, c: float = C_SOURCE, t_final: float = 20.0) -> Plant:
         # the sources' claim is about their c; for another c there is no claim to check
         claimed=Constants(alpha=C_SOURCE) if c == C_SOURCE else Constants(),
         bounds=Constants(alpha=ca, rho=ca / 2, beta=ca**2, gamma=0.0),
+        channels=channels,
         t_final=t_final,
         family="flexible_joint",
         params={"c": c, "version": 1},

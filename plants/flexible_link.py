@@ -10,6 +10,9 @@ Constants of ``f = (0, 0, 0, -c sin(x_i))``, i in {1, 3} (analytic, global):
 alpha = c; rho = c / 2 (|c (sin a - sin b) d4| <= c |d_i| |d4| <= c/2 (d_i^2 + d4^2));
 (beta, gamma) = (c^2, 0). The paper claims rho = beta = 0.1109 and gamma = 0: its rho is c^2,
 which is wrong (the pair dx = (0, 0, -d, d) gives a ratio -> c/2 = 0.1665); its beta is right.
+
+Channel structure (global): one channel, ``G = e4``, ``H = e_i'``, ``phi(z) = -c sin(z)`` with
+slope ``-c cos(z)`` in ``[-|c|, |c|]``.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Constants, Plant, _finite_scalar
+from plants._core import Channels, Constants, Plant, _finite_scalar
 
 SOURCE = (
     "Observer-based stabilization of one-sided Lipschitz systems with application to flexible "
@@ -54,6 +57,10 @@ def _make(pid: str, c: float, index: int, t_final: float, notes: str) -> Plant:
         return J
 
     c_abs = abs(float(c))
+    H = np.zeros((1, 4))
+    H[0, index] = 1.0
+    channels = Channels(G=np.array([[0.0], [0.0], [0.0], [1.0]]), H=H, phi=lambda z: -c * np.sin(z),
+                        lo=-c_abs, hi=c_abs)
     return Plant(
         id=pid,
         A=A,
@@ -65,6 +72,7 @@ def _make(pid: str, c: float, index: int, t_final: float, notes: str) -> Plant:
         x_hat0=X_HAT0,
         claimed=PAPER_CLAIMED,
         bounds=Constants(alpha=c_abs, rho=c_abs / 2, beta=c_abs**2, gamma=0.0),
+        channels=channels,
         t_final=t_final,
         family="flexible_link",
         params={"c": float(c)},

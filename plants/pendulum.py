@@ -16,6 +16,7 @@ alpha = k (``|sin a - sin b| <= |a - b|``); rho = k / 2, since
 ``<df, dx> = -k (sin a - sin b) d2 <= k |d1| |d2| <= (k/2)(d1^2 + d2^2)``, tight for
 ``dx = (d, -d)`` near x1 = 0; ``(beta, gamma) = (k^2, 0)``.
 Claimed (PLANTS.md, the textbook values): alpha = g/l, rho = (g/l)/2.
+Channel structure (global): ``G = e2``, ``H = e1'``, ``phi(z) = -(g/l) sin(z)``, slopes in ``[-g/l, g/l]``.
 
 References
 ----------
@@ -28,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Constants, Plant, PlantError, _finite_scalar
+from plants._core import Channels, Constants, Plant, PlantError, _finite_scalar
 
 __all__ = ["pendulum"]
 
@@ -89,6 +90,8 @@ def pendulum(*, g_over_l: float = G_OVER_L, b: float = DAMPING, t_final: float =
         x_hat0=X_HAT0,
         claimed=Constants(alpha=k, rho=k / 2),
         bounds=Constants(alpha=k, rho=k / 2, beta=k**2, gamma=0.0),
+        channels=Channels(G=np.array([[0.0], [1.0]]), H=np.array([[1.0, 0.0]]), phi=lambda z: -k * np.sin(z),
+                          lo=-k, hi=k),
         t_final=t_final,
         family="pendulum",
         params={"g_over_l": k, "b": b, "version": 1},

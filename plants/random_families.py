@@ -34,6 +34,11 @@ random directions of f fixed, since they come from separate seeded streams):
   ``M^2 <= 3 c r^2 M``, ``||df||^2 <= -3 c r^2 <dx, df>``: ``(beta, gamma) = (0, -3 c r^2)``.
   alpha and gamma are tight (at ``x = r w_i``, dx along ``w_i``).
 
+Channel structure: the Lipschitz family is ``q = n`` channels ``G' = c G``, ``H``, ``phi = sin`` with
+slopes in ``[-1, 1]`` (global); the OSL family is ``q = n`` channels ``z = W' x``,
+``phi(z) = -c z^3`` with slope ``-3 c z^2`` in ``[-3 c r^2, 0]`` while ``||x|| <= r`` (since
+``|w_i' x| <= ||x||``).
+
 The registry holds one member of each family, n = 4, m = p = 1, seed 0:
 ``random_lipschitz_v1`` with c = 0.2 (alpha = 0.2; on this member the corrected Theorem 1 and
 Corollary 1 were found feasible up to c = 0.3 and infeasible from c = 0.4) and
@@ -50,7 +55,7 @@ import numbers
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Constants, Plant, PlantError
+from plants._core import Channels, Constants, Plant, PlantError
 
 __all__ = [
     "is_detectable",
@@ -274,11 +279,12 @@ def random_lipschitz_plant(
         return c * (G * np.cos(z)) @ H
 
     consts = Constants(alpha=c, rho=c, beta=c**2, gamma=0.0)
+    channels = Channels(G=c * G, H=H, phi=np.sin, lo=-1.0, hi=1.0)
     return Plant(
         id=id or f"random_lipschitz_v1_n{n}_s{int(seed)}",
         A=A, B=B, C=C, f=f, jacobian=jacobian,
         x0=_unit(rng, n), x_hat0=np.zeros(n),
-        claimed=consts, bounds=consts, t_final=t_final, family="random_lipschitz",
+        claimed=consts, bounds=consts, channels=channels, t_final=t_final, family="random_lipschitz",
         params={"n": n, "m": B.shape[1], "p": C.shape[0], "c": c, "seed": int(seed), "max_re": float(max_re),
                 "version": 1},
         source=_SOURCE,
@@ -347,11 +353,12 @@ def random_osl_plant(
 
     k = 3.0 * c * r**2
     consts = Constants(alpha=k, rho=0.0, beta=0.0, gamma=-k, radius=r)
+    channels = Channels(G=W, H=W.T, phi=lambda z: -c * (z * z * z), lo=-k, hi=0.0, radius=r)
     return Plant(
         id=id or f"random_osl_v1_n{n}_s{int(seed)}",
         A=A, B=B, C=C, f=f, jacobian=jacobian,
         x0=0.5 * r * _unit(rng, n), x_hat0=np.zeros(n),
-        claimed=consts, bounds=consts, t_final=t_final, family="random_osl",
+        claimed=consts, bounds=consts, channels=channels, t_final=t_final, family="random_osl",
         params={"n": n, "m": B.shape[1], "p": C.shape[0], "c": c, "r": r, "seed": int(seed),
                 "max_re": float(max_re), "version": 1},
         source=_SOURCE,

@@ -179,7 +179,7 @@ def _armed_plant():
                     return 50.0 * x + f0(x)
         return f0(x)
 
-    return dataclasses.replace(base, id="_fault_sim", f=f)
+    return dataclasses.replace(base, id="_fault_sim", f=f, channels=None)
 
 
 @pytest.fixture

@@ -137,7 +137,7 @@ def _slow_in_simulation():
             time.sleep(0.005)
         return f0(x)
 
-    return dataclasses.replace(base, id="_slow_sim", f=f)
+    return dataclasses.replace(base, id="_slow_sim", f=f, channels=None)
 
 
 def test_a_stuck_simulation_becomes_a_timeout_row(register, monkeypatch):
@@ -346,7 +346,7 @@ def test_cache_keys_follow_content(tmp_path, monkeypatch):
     ]
     assert len({key, *changed}) == len(changed) + 1
     # a closure value that is in no field (here c, seen only by f) still changes the key
-    hidden = dataclasses.replace(flex, f=PLANTS.create("flexible_link", c=0.5).f)
+    hidden = dataclasses.replace(flex, f=PLANTS.create("flexible_link", c=0.5).f, channels=PLANTS.create("flexible_link", c=0.5).channels)
     assert cache.pair_key(hidden, "flexible_link", thm1, "thm1", FAST) != key
     # package versions and the source of the modules are part of the key
     from bench import report
