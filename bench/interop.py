@@ -1,0 +1,281 @@
+"""python-control at the boundary: plants, observers and closed loops as python-control systems.
+
+The suite's own simulator is :func:`bench.simulate.simulate`; this module hands the same objects
+to python-control (``control.StateSpace`` and ``control.NonlinearIOSystem``) so that its tools
+(``input_output_response``, ``feedback``, ``interconnect``, frequency responses, ...) can be used
+on them. Notation is the paper's: plant (1) ``x' = A x + B u + f(x)``, ``y = C x``; observer-based
+controller (6) ``x_hat' = A x_hat + B u + f(x_hat) + K (y - C x_hat)``, ``u = F x_hat`` with
+``K`` (n x p) and ``F`` (m x n). (python-control's ``lqr`` returns ``K_lqr`` for
+``u = -K_lqr x``, so ``F = -K_lqr``.)
+
+Signal names: plant inputs ``u[i]``, outputs ``y[i]``, states ``x[i]``; controller inputs
+``y[i]``, outputs ``u[i]``, states ``xhat[i]``.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from plants._core import Plant
+
+__all__ = ["closed_loop_nlsys", "controller_ss", "observer_nlsys", "plant_nlsys"]
+
+
+def _names(prefix: str, count: int) -> list[str]:
+    return [f"{prefix}[{i}]" for i in range(count)]
+
+
+def _sysname(plant: Plant, suffix: str) -> str:
+    """A python-control system name from the plant id (no '.', which python-control reads as 'sys.signal')."""
+    base = re.sub(r"[^0-9A-Za-z_]", "_", plant.id)
+    return f"{base}_{suffix}" if suffix else base
+
+
+def _check_plant(plant) -> Plant:
+    if not isinstance(plant, Plant):
+        raise TypeError(f"plant: expected a plants.Plant, got {type(plant).__name__}")
+    return plant
+
+
+def _check_gains(plant: Plant, K, F) -> tuple[np.ndarray, np.ndarray]:
+    """K (n x p) and F (m x n) as float arrays, or ValueError naming the bad one and the expected shape."""
+    n, m, p = plant.n, plant.m, plant.p
+    out = []
+    for name, value, shape, what in (("K", K, (n, p), "n x p"), ("F", F, (m, n), "m x n")):
+        try:
+            arr = np.array(value, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{name}: expected a real array of shape {shape} ({what}), "
+                             f"could not convert ({exc})") from None
+        if arr.shape != shape:
+            raise ValueError(f"{name}: expected shape {shape} ({what} for plant {plant.id!r} with "
+                             f"n={n}, m={m}, p={p}), got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name}: entries must be finite, got {arr.tolist()}")
+        arr.setflags(write=False)
+        out.append(arr)
+    return out[0], out[1]
+
+
+def controller_ss(plant: Plant, K, F):
+    """The linear part of the observer-based controller (6), from y to u, as a ``control.StateSpace``.
+
+    ``x_hat' = (A + B F - K C) x_hat + K y``, ``u = F x_hat`` (D = 0).
+
+    This is only the linear part: the observer (6) also adds ``f(x_hat)`` to ``x_hat'`` (see
+    :func:`observer_nlsys`). With ``f = 0`` it is the whole controller, and the closed loop with
+    the plant's linear part has the eigenvalues of ``A + B F`` and ``A - K C`` (separation).
+
+    Parameters
+    ----------
+    plant : Plant
+        Supplies A (n x n), B (n x m), C (p x n).
+    K : array_like, shape (n, p)
+        Observer gain.
+    F : array_like, shape (m, n)
+        State feedback, ``u = F x_hat``.
+
+    Returns
+    -------
+    control.StateSpace
+        Inputs ``y[0..p-1]``, outputs ``u[0..m-1]``, states ``xhat[0..n-1]``.
+
+    Raises
+    ------
+    TypeError
+        If ``plant`` is not a Plant.
+    ValueError
+        If K or F has the wrong shape or non-finite entries (the message names which).
+
+    Examples
+    --------
+    >>> from bench.registry import PLANTS
+    >>> from plants.flexible_link import PAPER_K, PAPER_F
+    >>> ctrl = controller_ss(PLANTS.create("flexible_link"), PAPER_K, PAPER_F)
+    >>> ctrl.ninputs, ctrl.noutputs, ctrl.nstates
+    (2, 1, 4)
+    """
+    import control
+
+    plant = _check_plant(plant)
+    K, F = _check_gains(plant, K, F)
+    A, B, C = plant.A, plant.B, plant.C
+    return control.ss(A + B @ F - K @ C, K, F, np.zeros((plant.m, plant.p)),
+                      inputs=_names("y", plant.p), outputs=_names("u", plant.m),
+                      states=_names("xhat", plant.n), name=_sysname(plant, "controller"))
+
+
+def _plant_system(plant: Plant, *, state_outputs: bool, name: str):
+    import control
+
+    A, B, C, f = plant.A, plant.B, plant.C, plant.f
+    n, m, p = plant.n, plant.m, plant.p
+
+    def update(t, x, u, params):
+        x = np.asarray(x, dtype=float)
+        return A @ x + B @ np.asarray(u, dtype=float).reshape(m) + np.asarray(f(x), dtype=float)
+
+    if state_outputs:
+        def output(t, x, u, params):
+            x = np.asarray(x, dtype=float)
+            return np.concatenate([C @ x, x])
+        outputs = _names("y", p) + _names("x", n)
+    else:
+        def output(t, x, u, params):
+            return C @ np.asarray(x, dtype=float)
+        outputs = _names("y", p)
+    return control.nlsys(update, output, inputs=_names("u", m), outputs=outputs,
+                         states=_names("x", n), name=name)
+
+
+def _observer_system(plant: Plant, K: np.ndarray, F: np.ndarray, *, state_outputs: bool, name: str):
+    import control
+
+    A, B, C, f = plant.A, plant.B, plant.C, plant.f
+    n, m, p = plant.n, plant.m, plant.p
+    M = A + B @ F - K @ C  # linear part of x_hat' with u = F x_hat substituted
+
+    def update(t, xh, y, params):
+        xh = np.asarray(xh, dtype=float)
+        return M @ xh + K @ np.asarray(y, dtype=float).reshape(p) + np.asarray(f(xh), dtype=float)
+
+    if state_outputs:
+        def output(t, xh, y, params):
+            xh = np.asarray(xh, dtype=float)
+            return np.concatenate([F @ xh, xh])
+        outputs = _names("u", m) + _names("xhat", n)
+    else:
+        def output(t, xh, y, params):
+            return F @ np.asarray(xh, dtype=float)
+        outputs = _names("u", m)
+    return control.nlsys(update, output, inputs=_names("y", p), outputs=outputs,
+                         states=_names("xhat", n), name=name)
+
+
+def plant_nlsys(plant: Plant):
+    """The plant (1) ``x' = A x + B u + f(x)``, ``y = C x`` as a ``control.NonlinearIOSystem``.
+
+    Parameters
+    ----------
+    plant : Plant
+
+    Returns
+    -------
+    control.NonlinearIOSystem
+        Continuous time; inputs ``u[0..m-1]``, outputs ``y[0..p-1]``, states ``x[0..n-1]``;
+        named after ``plant.id``.
+
+    Raises
+    ------
+    TypeError
+        If ``plant`` is not a Plant.
+
+    Examples
+    --------
+    >>> from bench.registry import PLANTS
+    >>> sys = plant_nlsys(PLANTS.create("flexible_link"))
+    >>> sys.ninputs, sys.noutputs, sys.nstates
+    (1, 2, 4)
+    """
+    plant = _check_plant(plant)
+    return _plant_system(plant, state_outputs=False, name=_sysname(plant, ""))
+
+
+def observer_nlsys(plant: Plant, K, F):
+    """The nonlinear observer-based controller (6), from y to u, as a ``control.NonlinearIOSystem``.
+
+    ``x_hat' = A x_hat + B F x_hat + f(x_hat) + K (y - C x_hat)``, ``u = F x_hat``.
+
+    Parameters
+    ----------
+    plant : Plant
+        Supplies A, B, C and f.
+    K : array_like, shape (n, p)
+        Observer gain.
+    F : array_like, shape (m, n)
+        State feedback.
+
+    Returns
+    -------
+    control.NonlinearIOSystem
+        Inputs ``y[0..p-1]``, outputs ``u[0..m-1]``, states ``xhat[0..n-1]``.
+
+    Raises
+    ------
+    TypeError
+        If ``plant`` is not a Plant.
+    ValueError
+        If K or F has the wrong shape or non-finite entries (the message names which).
+
+    See Also
+    --------
+    controller_ss : its linear part (without ``f(x_hat)``).
+    """
+    plant = _check_plant(plant)
+    K, F = _check_gains(plant, K, F)
+    return _observer_system(plant, K, F, state_outputs=False, name=_sysname(plant, "observer"))
+
+
+def closed_loop_nlsys(plant: Plant, K, F):
+    """Plant (1) in feedback with the observer-based controller (6), as a ``control.NonlinearIOSystem``.
+
+    Built with ``control.interconnect`` from the plant (:func:`plant_nlsys`) and the observer
+    (:func:`observer_nlsys`), each also exporting its state, with ``y`` and ``u`` connected.
+    It is the system :func:`bench.simulate.simulate` integrates::
+
+        x'     = A x + B F x_hat + f(x)
+        x_hat' = A x_hat + B F x_hat + f(x_hat) + K C (x - x_hat)
+
+    Parameters
+    ----------
+    plant : Plant
+    K : array_like, shape (n, p)
+        Observer gain.
+    F : array_like, shape (m, n)
+        State feedback, ``u = F x_hat``.
+
+    Returns
+    -------
+    control.NonlinearIOSystem
+        No inputs; 2n states in the order ``(x[0..n-1], xhat[0..n-1])`` (so
+        ``initial_state=np.concatenate([x0, x_hat0])``); 2n + m outputs in the order
+        ``(x[0..n-1], xhat[0..n-1], u[0..m-1])``.
+
+    Raises
+    ------
+    TypeError
+        If ``plant`` is not a Plant.
+    ValueError
+        If K or F has the wrong shape or non-finite entries (the message names which).
+
+    Examples
+    --------
+    >>> import control, numpy as np
+    >>> from bench.registry import PLANTS
+    >>> from plants.flexible_link import PAPER_K, PAPER_F
+    >>> plant = PLANTS.create("flexible_link")
+    >>> loop = closed_loop_nlsys(plant, PAPER_K, PAPER_F)
+    >>> resp = control.input_output_response(loop, np.linspace(0, 5, 101),
+    ...                                      initial_state=np.concatenate([plant.x0, plant.x_hat0]))
+    >>> resp.outputs.shape
+    (9, 101)
+    """
+    import control
+
+    plant = _check_plant(plant)
+    K, F = _check_gains(plant, K, F)
+    n, m, p = plant.n, plant.m, plant.p
+    pname, oname = _sysname(plant, "plant"), _sysname(plant, "observer")
+    psys = _plant_system(plant, state_outputs=True, name=pname)
+    osys = _observer_system(plant, K, F, state_outputs=True, name=oname)
+    connections = ([[f"{pname}.u[{i}]", f"{oname}.u[{i}]"] for i in range(m)]
+                   + [[f"{oname}.y[{j}]", f"{pname}.y[{j}]"] for j in range(p)])
+    outlist = ([f"{pname}.x[{i}]" for i in range(n)] + [f"{oname}.xhat[{i}]" for i in range(n)]
+               + [f"{oname}.u[{i}]" for i in range(m)])
+    return control.interconnect(
+        [psys, osys], connections=connections, inplist=[], outlist=outlist, inputs=0,
+        outputs=_names("x", n) + _names("xhat", n) + _names("u", m),
+        states=_names("x", n) + _names("xhat", n), name=_sysname(plant, "closed_loop"),
+        check_unused=False)
