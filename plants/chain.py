@@ -1,0 +1,382 @@
+"""A chain of N masses on springs with inverted-pendulum terms: a physical family that grows with n.
+
+Model (lumped mass-spring chain, fixed at both ends to walls, with a sine term on some masses)::
+
+    m q_i'' = k (q_{i-1} - 2 q_i + q_{i+1}) + d (v_{i-1} - 2 v_i + v_{i+1}) - b v_i
+              + c sin(q_i) [i in nonlinear] + sum_j u_j [i = inputs_j],     q_0 = q_{N+1} = 0,
+
+``i = 1..N`` (0-based in the code), ``v_i = q_i'``. The spring-coupled masses are the textbook
+lumped model of a string or rod clamped at both ends [1]_; with the sine term it is the
+Frenkel-Kontorova chain [2]_ (``-c sin``: masses in a periodic substrate potential, i.e. a chain of
+hanging pendula coupled by torsion springs, the discretised sine-Gordon equation) with the sign of
+the substrate force reversed (``+c sin``: coupled *inverted* pendula, as in the two spring-coupled
+inverted pendula of Siljak [3]_). The choices below are ours: identical masses, springs and
+dampers (dampers in parallel with the springs, plus an optional viscous friction ``b`` to ground),
+the inverted sign, and which masses carry a pendulum term, an actuator or a sensor.
+
+State (interleaved, so A is banded with half-bandwidth 3)::
+
+    x = (q_1, v_1, q_2, v_2, ..., q_N, v_N),  n = 2 N,
+    A[2i, 2i+1] = 1,  A[2i+1, 2j] = -k K_ij / m,  A[2i+1, 2j+1] = -(d K_ij + b delta_ij) / m,
+
+with ``K = tridiag(-1, 2, -1)`` (N x N, the fixed-fixed chain). ``B[:, j] = e_{v(inputs_j)} / m``
+(a force on mass ``inputs_j``), ``C[j, :] = e_{q(outputs_j)}'`` (its position). The sine is kept
+whole in f (its linear part is not moved into A): A is the lightly damped spring chain
+(eigenvalues of ``K`` are ``4 sin^2(j pi / (2(N+1)))`` [1]_, all > 0, so A is Hurwitz when
+``d > 0`` or ``b > 0``), while the plant's linearisation at the origin,
+``A + (c/m) sum_i e_{v_i} e_{q_i}'``, is unstable as soon as ``c`` exceeds the stiffness seen by
+one pendulum mass, ``1 / [K^{-1}]_ii = k (N+1) / ((i+1)(N-i))`` (0-based i): the upright
+equilibrium of an inverted pendulum that the springs cannot hold. With the defaults ``k = m = 1``,
+``c = 2`` every member with N >= 2 and a pendulum is open-loop unstable (the largest threshold,
+at an end mass, is ``(N+1)/N < 2``; N = 1 sits on the threshold).
+
+Stabilizability and detectability: K is a Jacobi (unreduced tridiagonal) matrix, so its
+eigenvalues are simple and every eigenvector has nonzero first and last components; with
+stiffness-proportional damping the modes of A are those of K, so one actuator (sensor) at an end
+mass already makes (A, B) controllable ((A, C) observable) for ``b >= 0``. Linearised instability
+comes from the pendula, i.e. from f; (A, B) and (A, C) are checked with the PBH test at build
+(:func:`plants.random_families.is_stabilizable` / ``is_detectable``), and so is the pair with the
+linear part of f folded in (``A + G diag(c0) H`` with the channels' mid slopes, here ``c0 = 0``,
+i.e. A itself).
+
+Channel structure (global): one channel per pendulum mass i, ``G[:, l] = e_{v_i} / m``,
+``H[l, :] = e_{q_i}'``, ``phi_l(z) = c sin(z)``, slope ``c cos(z)`` in ``[-|c|, |c|]`` (tight: cos
+takes every value in [-1, 1]).
+
+Constants of ``f = G phi(H x)`` (analytic, global). Write ``d_i = dq_i``, ``e_i = dv_i`` for the
+differences at pendulum mass i and ``s_i = sin(a_i) - sin(b_i)``, ``|s_i| <= |d_i|``
+(mean value theorem):
+
+- alpha = |c| / m: ``||df||^2 = (c/m)^2 sum_i s_i^2 <= (c/m)^2 sum_i d_i^2 <= (c/m)^2 ||dx||^2``
+  (this is ``max|slope| ||G|| ||H||`` with ``||G|| = 1/m``, ``||H|| = 1``); tight for ``dx = d e_{q_i}``,
+  d -> 0 at the origin.
+- rho = |c| / (2 m): ``<dx, df> = (c/m) sum_i e_i s_i <= (|c|/m) sum_i |e_i| |d_i|
+  <= (|c|/(2m)) sum_i (d_i^2 + e_i^2) <= (|c|/(2m)) ||dx||^2``; tight for ``d_i = d``,
+  ``e_i = sign(c) d`` at one pendulum mass, d -> 0 at the origin.
+- (beta, gamma) = (c^2 / m^2, 0): ``||df||^2 <= alpha^2 ||dx||^2``; with gamma = 0 this is the
+  smallest beta (the alpha pair is tight).
+
+With no pendulum mass (``nonlinear=()``) f = 0 and every constant is 0 (no channels are declared).
+
+Sparsity: A is banded (half-bandwidth 3) and ``df/dx`` has entries only at ``(v_i, q_i)``, which
+A already holds (``A[v_i, q_i] = -2 k / m != 0``): :func:`chain_sparsity` returns the pattern of
+``A + df/dx`` as a ``scipy.sparse`` matrix (7 N - 4 entries), for stiff solvers at large N;
+:func:`chain_matrices` returns A, B, C in sparse form.
+
+References
+----------
+.. [1] L. Meirovitch, Fundamentals of Vibrations, McGraw-Hill, 2001 (lumped-parameter
+   multi-degree-of-freedom systems; the string in transverse vibration as the limit of a chain of
+   masses on springs, and its natural frequencies).
+.. [2] O. M. Braun and Y. S. Kivshar, The Frenkel-Kontorova Model: Concepts, Methods, and
+   Applications, Springer, 2004 (the chain of masses with harmonic coupling in a sinusoidal
+   substrate potential; its mechanical analogue, a chain of pendula coupled by torsion springs).
+.. [3] D. D. Siljak, Decentralized Control of Complex Systems, Academic Press, 1991 (two inverted
+   pendula coupled by a spring, the standard interconnected-systems example).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Iterable
+
+import numpy as np
+
+from bench.registry import register_plant
+from plants._core import Channels, Constants, Plant, PlantError
+
+__all__ = ["MAX_N", "chain_matrices", "chain_plant", "chain_sparsity", "chain_v1", "default_masses"]
+
+#: Largest number of masses accepted (n = 2 N states, dense A of 8 n^2 bytes: 8 MB at N = 512).
+MAX_N = 2048
+
+SOURCE = (
+    "Mass-spring chain clamped at both ends (Meirovitch, Fundamentals of Vibrations, 2001) with "
+    "inverted-pendulum sine terms (the Frenkel-Kontorova chain of Braun & Kivshar 2004 with the "
+    "substrate force reversed; cf. Siljak 1991's spring-coupled inverted pendula); layout, sign and "
+    "values picked here"
+)
+
+
+# -- argument checks (each error names the parameter) -------------------------------------------
+def _int(name: str, value, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)):
+        raise PlantError(f"{name}: must be an integer, got {value!r}")
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        raise PlantError(f"{name}: must be an integer, got {value!r}")
+    v = int(value)
+    if not lo <= v <= hi:
+        raise PlantError(f"{name}: must be between {lo} and {hi}, got {value!r}")
+    return v
+
+
+def _real(name: str, value, *, lo: float | None = None, strict: bool = False) -> float:
+    if isinstance(value, bool):
+        raise PlantError(f"{name}: expected a real number, got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise PlantError(f"{name}: expected a real number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise PlantError(f"{name}: must be finite, got {value!r}")
+    if lo is not None and (v < lo or (strict and v == lo)):
+        raise PlantError(f"{name}: must be {'>' if strict else '>='} {lo:g}, got {value!r}")
+    return v
+
+
+def _masses(name: str, value, N: int, *, allow_empty: bool) -> tuple[int, ...]:
+    if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
+        raise PlantError(f"{name}: expected a sequence of mass indices (0 .. {N - 1}), got {value!r}")
+    out = []
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+            raise PlantError(f"{name}: mass indices must be integers, got {v!r}")
+        if not 0 <= int(v) < N:
+            raise PlantError(f"{name}: mass index {int(v)} is outside 0 .. {N - 1} (N = {N})")
+        out.append(int(v))
+    if len(set(out)) != len(out):
+        raise PlantError(f"{name}: repeated mass index in {out}")
+    if not out and not allow_empty:
+        raise PlantError(f"{name}: at least one mass is required")
+    return tuple(sorted(out))
+
+
+def default_masses(N: int, stride: int = 5) -> tuple[int, ...]:
+    """The default layout: masses ``stride // 2, stride // 2 + stride, ...`` (0-based), at least one.
+
+    Parameters
+    ----------
+    N : int
+        Number of masses (>= 1).
+    stride : int
+        Spacing (>= 1).
+
+    Returns
+    -------
+    tuple of int
+        Every ``stride``-th mass, starting at ``min(stride // 2, (N - 1) // 2)`` (so a short chain
+        still gets its middle mass).
+    """
+    N = _int("N", N, 1, MAX_N)
+    stride = _int("stride", stride, 1, MAX_N)
+    return tuple(range(min(stride // 2, (N - 1) // 2), N, stride))
+
+
+# -- the matrices -------------------------------------------------------------------------------
+def chain_matrices(*, N: int, m: float = 1.0, k: float = 1.0, d: float = 0.02, b: float = 0.0,
+                   inputs: Iterable[int] = (0,), outputs: Iterable[int] = (0,)):
+    """A, B, C of the chain in ``scipy.sparse`` CSR form (no dense n x n matrix is formed).
+
+    Parameters
+    ----------
+    N : int
+        Number of masses (n = 2 N).
+    m, k, d, b : float
+        Mass (> 0), spring stiffness (> 0), damper coefficient (>= 0, in parallel with each spring)
+        and viscous friction to ground (>= 0).
+    inputs, outputs : sequence of int
+        Masses (0-based) driven by a force / whose position is measured.
+
+    Returns
+    -------
+    A, B, C : scipy.sparse.csr_matrix
+        Shapes (n, n), (n, len(inputs)), (len(outputs), n); A has at most 7 N - 4 nonzeros.
+    """
+    import scipy.sparse as sp
+
+    N = _int("N", N, 1, MAX_N)
+    m = _real("m", m, lo=0.0, strict=True)
+    k = _real("k", k, lo=0.0, strict=True)
+    d = _real("d", d, lo=0.0)
+    b = _real("b", b, lo=0.0)
+    ins = _masses("inputs", inputs, N, allow_empty=False)
+    outs = _masses("outputs", outputs, N, allow_empty=False)
+    n = 2 * N
+    i = np.arange(N)
+    rows, cols, vals = [2 * i], [2 * i + 1], [np.ones(N)]
+    # K = tridiag(-1, 2, -1): diagonal 2, off-diagonals -1
+    rows += [2 * i + 1, 2 * i + 1]
+    cols += [2 * i, 2 * i + 1]
+    vals += [np.full(N, -2 * k / m), np.full(N, -(2 * d + b) / m)]
+    for off in (-1, 1):
+        j = i[(i + off >= 0) & (i + off < N)]
+        rows += [2 * j + 1, 2 * j + 1]
+        cols += [2 * (j + off), 2 * (j + off) + 1]
+        vals += [np.full(j.size, k / m), np.full(j.size, d / m)]
+    A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
+    A.eliminate_zeros()
+    B = sp.csr_matrix((np.full(len(ins), 1.0 / m), ([2 * v + 1 for v in ins], range(len(ins)))),
+                      shape=(n, len(ins)))
+    C = sp.csr_matrix((np.ones(len(outs)), (range(len(outs)), [2 * v for v in outs])), shape=(len(outs), n))
+    return A, B, C
+
+
+def chain_sparsity(N: int):
+    """Sparsity pattern of ``A + df/dx`` for a chain of N masses (any parameters, any layout).
+
+    Parameters
+    ----------
+    N : int
+        Number of masses (n = 2 N).
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix, shape (2 N, 2 N), dtype bool
+        True where ``A + df/dx`` may be nonzero: ``(q_i, v_i)`` and the rows ``v_i`` at
+        ``q_j, v_j`` for ``|i - j| <= 1`` (df/dx adds only ``(v_i, q_i)``, already there). Pass it
+        as ``jac_sparsity`` to ``scipy.integrate.solve_ivp`` (BDF / Radau) for the plant alone (in
+        the observer loop the gain blocks ``B F`` and ``K C`` add their own, generally dense, rows
+        and columns).
+    """
+    A, _, _ = chain_matrices(N=N, m=1.0, k=1.0, d=1.0, b=0.0)
+    return (A != 0).tocsr()
+
+
+# -- the plant ----------------------------------------------------------------------------------
+def chain_plant(
+    *,
+    N: int = 3,
+    m: float = 1.0,
+    k: float = 1.0,
+    d: float = 0.02,
+    b: float = 0.0,
+    c: float = 2.0,
+    nonlinear: Iterable[int] | None = None,
+    inputs: Iterable[int] | None = None,
+    outputs: Iterable[int] | None = None,
+    stride: int = 5,
+    amplitude: float = 0.5,
+    t_final: float = 20.0,
+    id: str | None = None,
+) -> Plant:
+    """A chain of N spring-coupled masses with inverted-pendulum terms ``c sin(q_i)`` (n = 2 N).
+
+    Parameters
+    ----------
+    N : int
+        Number of masses, 1 .. :data:`MAX_N`; n = 2 N.
+    m, k : float
+        Mass and spring stiffness (> 0).
+    d, b : float
+        Damper coefficient in parallel with each spring, and viscous friction to ground (>= 0).
+    c : float
+        Pendulum coefficient: force ``c sin(q_i)`` on each mass in ``nonlinear``. ``c > 0`` is
+        an inverted pendulum (destabilising), ``c < 0`` a hanging one (the Frenkel-Kontorova
+        substrate); slopes lie in ``[-|c|, |c|]``.
+    nonlinear, inputs, outputs : sequence of int, optional
+        Masses (0-based) carrying a pendulum term, driven by a force, measured (position).
+        Default: :func:`default_masses` ``(N, stride)`` for each. ``nonlinear`` may be empty.
+    stride : int
+        Spacing of the default layout (>= 1).
+    amplitude : float
+        Initial positions ``q_i(0) = amplitude sin(pi (i + 1) / (N + 1))`` (the first mode
+        shape), velocities 0; ``x_hat(0) = 0``.
+    t_final : float
+        Simulation horizon in seconds.
+    id : str, optional
+        Plant id (default ``chain_v1_N{N}``).
+
+    Returns
+    -------
+    Plant
+        Version 1, dense A (banded), ``channels`` one per pendulum mass, global analytic
+        constants (claimed = bounds): alpha = |c|/m, rho = |c|/(2m), (beta, gamma) = (c^2/m^2, 0).
+        f and its Jacobian cost O(N) to evaluate (index arrays, no n x n products in f).
+
+    Raises
+    ------
+    PlantError
+        On a bad argument (the message names it), or if (A, B) fails the PBH stabilizability or
+        (A, C) the detectability test.
+    """
+    from plants.random_families import is_detectable, is_stabilizable, pbh_margin
+
+    N = _int("N", N, 1, MAX_N)
+    m = _real("m", m, lo=0.0, strict=True)
+    k = _real("k", k, lo=0.0, strict=True)
+    d = _real("d", d, lo=0.0)
+    b = _real("b", b, lo=0.0)
+    c = _real("c", c)
+    amplitude = _real("amplitude", amplitude)
+    stride = _int("stride", stride, 1, MAX_N)
+    layout = default_masses(N, stride)
+    nl = layout if nonlinear is None else _masses("nonlinear", nonlinear, N, allow_empty=True)
+    ins = layout if inputs is None else _masses("inputs", inputs, N, allow_empty=False)
+    outs = layout if outputs is None else _masses("outputs", outputs, N, allow_empty=False)
+    n = 2 * N
+
+    As, Bs, Cs = chain_matrices(N=N, m=m, k=k, d=d, b=b, inputs=ins, outputs=outs)
+    A, B, C = As.toarray(), Bs.toarray(), Cs.toarray()
+    if not is_stabilizable(A, B):
+        raise PlantError(f"inputs: (A, B) is not stabilizable with inputs at masses {list(ins)} "
+                         f"(PBH margin {pbh_margin(A, B):.3g})")
+    if not is_detectable(A, C):
+        raise PlantError(f"outputs: (A, C) is not detectable with outputs at masses {list(outs)} "
+                         f"(PBH margin {pbh_margin(A.T, C.T):.3g})")
+
+    qi = np.array([2 * i for i in nl], dtype=np.intp)
+    vi = qi + 1
+    gain = c / m
+
+    def f(x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        out = np.zeros_like(x)
+        out[vi] = gain * np.sin(x[qi])
+        return out
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float).reshape(-1)
+        J = np.zeros((n, n))
+        J[vi, qi] = gain * np.cos(x[qi])
+        return J
+
+    q = len(nl)
+    a = abs(c) / m if q else 0.0
+    consts = Constants(alpha=a, rho=a / 2, beta=a * a, gamma=0.0)
+    channels = None
+    if q:
+        G = np.zeros((n, q))
+        G[vi, np.arange(q)] = 1.0 / m
+        H = np.zeros((q, n))
+        H[np.arange(q), qi] = 1.0
+        channels = Channels(G=G, H=H, phi=lambda z: c * np.sin(z), lo=-abs(c), hi=abs(c))
+
+    x0 = np.zeros(n)
+    x0[0::2] = amplitude * np.sin(np.pi * np.arange(1, N + 1) / (N + 1))
+    return Plant(
+        id=id or f"chain_v1_N{N}",
+        A=A, B=B, C=C, f=f, jacobian=jacobian, x0=x0, x_hat0=np.zeros(n),
+        claimed=consts, bounds=consts, channels=channels, t_final=t_final, family="chain",
+        params={"N": N, "n": n, "m": m, "k": k, "d": d, "b": b, "c": c, "amplitude": amplitude,
+                "n_inputs": len(ins), "n_outputs": len(outs), "n_channels": q, "version": 1},
+        source=SOURCE,
+        notes=(f"chain of {N} masses, pendula (c sin q) at {list(nl)}, forces at {list(ins)}, "
+               f"positions measured at {list(outs)}; alpha = |c|/m, rho = |c|/(2m), "
+               "(beta, gamma) = (c^2/m^2, 0), global"),
+    )
+
+
+@register_plant("chain_v1")
+def chain_v1(*, N: int = 3, c: float = 2.0, t_final: float = 20.0) -> Plant:
+    """Chain of 3 spring-coupled masses, inverted pendulum 2 sin(q) on the middle one (n = 6).
+
+    Parameters
+    ----------
+    N : int
+        Number of masses (default 3); the layout stays: force on mass 0, pendulum on the middle
+        mass ``(N - 1) // 2``, position of the last mass measured.
+    c : float
+        Pendulum coefficient (default 2: the linearisation is unstable, threshold
+        ``k (N+1) / ((i+1)(N-i))`` = 1 for the middle of 3 masses).
+    t_final : float
+        Simulation horizon in seconds.
+
+    Returns
+    -------
+    Plant
+        Version 1 of the registered member ``chain_v1``.
+    """
+    N = _int("N", N, 1, MAX_N)
+    return chain_plant(N=N, c=c, nonlinear=((N - 1) // 2,), inputs=(0,), outputs=(N - 1,),
+                       t_final=t_final, id="chain_v1")
