@@ -1,0 +1,329 @@
+"""The Riccati route (designs/_riccati_route.py), checked against expectations derived here.
+
+Every certificate is rebuilt in the test from the returned K, F, P, R, s, t, mu with numpy (the
+full (x, e, psi(Hx), dpsi) matrix, not the module's reduced one), the side LMIs are checked in
+their original synthesis form (Q = P^-1, Y = F Q; Kh = R K), and the closed loop is simulated.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+from scipy.linalg import solve_continuous_are
+
+from bench.registry import PLANTS
+from designs._riccati_route import (
+    constants_riccati,
+    equilibrated_max_eig,
+    joint_matrix,
+    min_mu,
+    solve_are,
+    solve_e_side,
+    solve_x_side,
+    structured_riccati,
+)
+from plants.chain import chain_plant
+from plants.random_families import random_lipschitz_plant
+
+
+def max_eig(M):
+    return float(np.linalg.eigvalsh((M + M.T) / 2).max())
+
+
+def jacobi(M):
+    s = 1 / np.sqrt(np.abs(np.diag(M)))
+    return M * s[:, None] * s[None, :]
+
+
+def full_joint(A0, B, C, G, H, r, F, K, P, R, s, t, mu, lam):
+    """The joint matrix of the brief, in (x, e, psi(Hx), dpsi), written out from the S-procedure."""
+    n, q = A0.shape[0], G.shape[1]
+    DH = r[:, None] * H
+    Ax, Ae = A0 + B @ F, A0 - K @ C
+    Z = np.zeros
+    return np.block([
+        [Ax.T @ P + P @ Ax + 2 * lam * P + DH.T @ DH / s, -P @ B @ F, P @ G, Z((n, q))],
+        [(-P @ B @ F).T, mu * (Ae.T @ R + R @ Ae + 2 * lam * R + t * DH.T @ DH), Z((n, q)), mu * R @ G],
+        [G.T @ P, Z((q, n)), -np.eye(q) / s, Z((q, q))],
+        [Z((q, n)), mu * G.T @ R, Z((q, q)), -mu * t * np.eye(q)],
+    ])
+
+
+def plants_small():
+    out = [PLANTS.create("flexible_link"), PLANTS.create("chain_v1"), chain_plant(N=6)]
+    out += [random_lipschitz_plant(n=n, c=0.2, seed=s) for n, s in ((4, 0), (8, 0), (8, 3), (16, 0), (16, 5))]
+    return out
+
+
+PLANTS_SMALL = plants_small()
+IDS = [f"{p.id}" for p in PLANTS_SMALL]
+
+
+def route(p, **kw):
+    ch = p.channels
+    return structured_riccati(p.A, p.B, p.C, ch.G, ch.H, ch.lo, ch.hi, **kw)
+
+
+def loop_rhs(p, F, K):
+    n = p.n
+
+    def rhs(_, z):
+        x, xh = z[:n], z[n:]
+        u = F @ xh
+        dx = p.A @ x + p.B @ u + p.f(x)
+        dxh = p.A @ xh + p.B @ u + p.f(xh) + K @ (p.C @ (x - xh))
+        return np.concatenate([dx, dxh])
+
+    return rhs
+
+
+# -- the ARE solver -----------------------------------------------------------------------------
+def test_scalar_are_closed_form():
+    # 2 a x - x^2 / rr b^2 + q = 0, stabilizing root x = rr (a + sqrt(a^2 + b^2 q / rr)) / b^2
+    a, b, rr, q = 0.7, 1.3, 0.4, 2.0
+    want = rr * (a + math.sqrt(a * a + b * b * q / rr)) / b**2
+    for method in ("schur", "sign", "scipy"):
+        X, info = solve_are(np.array([[a]]), np.array([[b]]), np.array([rr]), np.array([[q]]), method=method)
+        assert X is not None, info.reason
+        assert X[0, 0] == pytest.approx(want, rel=1e-12)
+        assert info.closed_loop_max_re == pytest.approx(a - b * b / rr * want, rel=1e-9)
+
+
+def test_no_real_solution_is_reported():
+    # x^2 + 1 = 0 (a = 0, M = -1, q = 1): Hamiltonian eigenvalues +-j
+    X, info = solve_are(np.zeros((1, 1)), np.ones((1, 1)), np.array([-1.0]), np.ones((1, 1)), fallback=False)
+    assert X is None and "imaginary axis" in info.reason
+
+
+@pytest.mark.parametrize("n", [5, 12, 30])
+def test_indefinite_are_matches_scipy_and_has_a_small_residual(n):
+    p = random_lipschitz_plant(n=n, c=0.2, seed=1)
+    G, H = p.channels.G, p.channels.H
+    b = np.hstack([p.B, G])
+    rr = np.concatenate([np.full(p.m, 0.5), np.full(n, -1 / 0.2)])
+    q = H.T @ H * 0.2 + 0.01 * np.eye(n)
+    Xs = solve_continuous_are(p.A, b, q, np.diag(rr))
+    M = b @ np.diag(1 / rr) @ b.T
+    for method in ("schur", "sign"):
+        X, info = solve_are(p.A, b, rr, q, method=method, fallback=False)
+        assert X is not None, info.reason
+        res = p.A.T @ X + X @ p.A - X @ M @ X + q
+        assert np.abs(res).max() <= 1e-10 * max(1.0, np.abs(X).max() ** 2)
+        assert np.linalg.eigvals(p.A - M @ X).real.max() < 0
+        np.testing.assert_allclose(X, Xs, rtol=1e-7, atol=1e-9 * np.abs(Xs).max())
+
+
+# -- the sides ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("p", PLANTS_SMALL[:4], ids=IDS[:4])
+def test_side_lmis_in_their_synthesis_form(p):
+    res = route(p)
+    assert res.ok, res.reason
+    ch = p.channels
+    c0, r = ch.center, ch.spread
+    A0 = p.A + ch.G @ np.diag(c0) @ ch.H
+    Dr = np.diag(r)
+    q = ch.q
+    # x-side: Q = P^-1, Y = F Q, S = s I
+    Q = np.linalg.inv(res.P)
+    Y = res.F @ Q
+    X11 = A0 @ Q + Q @ A0.T + p.B @ Y + Y.T @ p.B.T + res.s * ch.G @ ch.G.T + 2 * res.lam * Q
+    Lx = np.block([[X11, Q @ ch.H.T @ Dr], [Dr @ ch.H @ Q, -res.s * np.eye(q)]])
+    assert max_eig(jacobi(Lx)) < 0
+    # e-side: Kh = R K, T = t I
+    R = res.R
+    Kh = R @ res.K
+    E11 = A0.T @ R + R @ A0 - Kh @ p.C - p.C.T @ Kh.T + res.t * ch.H.T @ Dr @ Dr @ ch.H + 2 * res.lam * R
+    Le = np.block([[E11, R @ ch.G], [ch.G.T @ R, -res.t * np.eye(q)]])
+    assert max_eig(jacobi(Le)) < 0
+    assert np.linalg.eigvalsh(res.P).min() > 0 and np.linalg.eigvalsh(R).min() > 0
+    # the structure of the gains the route promises: F = -tau B'P, K = tau' R^-1 C' (up to the normalisation)
+    Pn = res.P
+    ratio = res.F / -(p.B.T @ Pn)
+    assert np.allclose(ratio, ratio.flat[0], rtol=1e-6) and ratio.flat[0] > 0
+    ratio_e = res.K / (np.linalg.inv(R) @ p.C.T)
+    assert np.allclose(ratio_e, ratio_e.flat[0], rtol=1e-6) and ratio_e.flat[0] > 0
+
+
+def test_side_solvers_direct():
+    p = PLANTS.create("flexible_link")
+    ch = p.channels
+    xs, why = solve_x_side(p.A, p.B, ch.G, ch.H, ch.spread, 0.0, 1.0, 1.0, 0.01)
+    assert xs is not None, why
+    assert xs.are.residual < 1e-10 and xs.min_eig > 0 and xs.margin < 0
+    es, why = solve_e_side(p.A, p.C, ch.G, ch.H, ch.spread, 0.0, 1.0, 1.0, 0.01)
+    assert es is not None, why
+    assert es.are.residual < 1e-10 and es.min_eig > 0 and es.margin < 0
+    # at an exact ARE solution the x-side matrix (channels eliminated) is -eps I in P coordinates
+    np.testing.assert_allclose(xs.side_matrix, -0.01 * np.eye(4), atol=1e-8)
+    # and the e-side one is -eps R^2
+    np.testing.assert_allclose(es.side_matrix, -0.01 * es.P @ es.P, atol=1e-8 * np.abs(es.P).max() ** 2)
+    # tau too small for the unstable chain: the reason is given in words
+    c = PLANTS.create("chain_v1").channels
+    bad, why = solve_x_side(PLANTS.create("chain_v1").A, PLANTS.create("chain_v1").B, c.G, c.H, c.spread,
+                            0.0, 2.0, 1e-3, 0.04)
+    assert bad is None and why
+
+
+# -- the joint certificate ----------------------------------------------------------------------
+@pytest.mark.parametrize("p", PLANTS_SMALL, ids=IDS)
+def test_joint_certificate_rebuilt_independently(p):
+    res = route(p)
+    assert res.status == "feasible", res.reason
+    assert -1 <= res.margin < -1e-7
+    ch = p.channels
+    A0 = p.A + ch.G @ np.diag(ch.center) @ ch.H
+    M = full_joint(A0, p.B, p.C, ch.G, ch.H, ch.spread, res.F, res.K, res.P, res.R, res.s, res.t, res.mu, res.lam)
+    assert max_eig(M) < 0
+    assert max_eig(jacobi(M)) < 0
+    np.linalg.cholesky(-jacobi(M))
+    # the module's full form is the same matrix
+    Mm = joint_matrix(A0, p.B, p.C, res.F, res.K, res.P, res.R, ch.G, ch.H, ch.spread, s=res.s, t=res.t,
+                      mu=res.mu, lam=res.lam, reduced=False)
+    np.testing.assert_allclose(Mm, M, rtol=1e-12, atol=1e-12 * np.abs(M).max())
+
+
+@pytest.mark.parametrize("p", PLANTS_SMALL[:5], ids=IDS[:5])
+def test_schur_complement_and_min_mu(p):
+    """Full and reduced matrices agree in sign on both sides of mu_min, found here by bisection."""
+    res = route(p)
+    ch = p.channels
+    A0 = p.A + ch.G @ np.diag(ch.center) @ ch.H
+
+    def signs(mu):
+        Mf = full_joint(A0, p.B, p.C, ch.G, ch.H, ch.spread, res.F, res.K, res.P, res.R, res.s, res.t, mu, res.lam)
+        Mr = joint_matrix(A0, p.B, p.C, res.F, res.K, res.P, res.R, ch.G, ch.H, ch.spread, s=res.s, t=res.t,
+                          mu=mu, lam=res.lam)
+        return max_eig(jacobi(Mf)) < 0, max_eig(jacobi(Mr)) < 0
+
+    lo, hi = 0.0, res.mu
+    assert signs(hi) == (True, True)
+    for _ in range(60):
+        mid = math.sqrt(lo * hi) if lo > 0 else hi / 1e6
+        ok_full, ok_red = signs(mid)
+        assert ok_full == ok_red
+        lo, hi = (lo, mid) if ok_red else (mid, hi)
+        if hi / max(lo, 1e-300) < 1 + 1e-4:
+            break
+    assert res.mu_min == pytest.approx(hi, rel=1e-3)
+    assert signs(0.9 * res.mu_min) == (False, False)
+    assert signs(1.1 * res.mu_min) == (True, True)
+
+
+@pytest.mark.parametrize("p", [PLANTS.create("flexible_link"), chain_plant(N=5)], ids=["flexible_link", "chain_N5"])
+def test_linear_channels_reduce_to_a_lyapunov_test(p):
+    """lo = hi: f is linear and inside A0; the certificate is a Lyapunov matrix of the linear loop."""
+    ch = p.channels
+    c0 = 0.5 * ch.hi
+    res = structured_riccati(p.A, p.B, p.C, ch.G, ch.H, c0, c0)
+    assert res.ok, res.reason
+    A0 = p.A + ch.G @ np.diag(c0) @ ch.H
+    assert np.linalg.eigvals(A0 + p.B @ res.F).real.max() < 0
+    assert np.linalg.eigvals(A0 - res.K @ p.C).real.max() < 0
+    n = p.n
+    Acl = np.block([[A0 + p.B @ res.F, -p.B @ res.F], [np.zeros((n, n)), A0 - res.K @ p.C]])
+    Pj = np.block([[res.P, np.zeros((n, n))], [np.zeros((n, n)), res.mu * res.R]])
+    assert max_eig(jacobi(Acl.T @ Pj + Pj @ Acl)) < 0
+    # no channel is left: the module's reduced matrix is exactly that Lyapunov matrix
+    Mr = joint_matrix(A0, p.B, p.C, res.F, res.K, res.P, res.R, ch.G, ch.H, np.zeros(ch.q), s=res.s, t=res.t,
+                      mu=res.mu)
+    np.testing.assert_allclose(Mr, Acl.T @ Pj + Pj @ Acl, atol=1e-9 * np.abs(Mr).max())
+
+
+def test_infeasible_case_says_why():
+    p = random_lipschitz_plant(n=4, c=1.0)
+    res = route(p)
+    assert res.status == "infeasible" and not res.ok
+    assert res.K is None and res.F is None
+    assert "grid" in res.reason and res.tries
+
+
+def test_equilibration_keeps_the_inertia():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        V = rng.standard_normal((6, 6))
+        M = V @ np.diag(rng.choice([-1.0, 1.0], 6) * 10.0 ** rng.uniform(-3, 3, 6)) @ V.T
+        assert (equilibrated_max_eig(M) < 0) == (max_eig(M) < 0)
+    M = -np.diag([1e-8, 1.0, 1e8])
+    assert equilibrated_max_eig(M) == pytest.approx(-1.0)
+
+
+def test_methods_agree():
+    p = PLANTS.create("chain_v1")
+    out = {m: route(p, method=m) for m in ("schur", "sign", "scipy")}
+    for m, res in out.items():
+        assert res.ok, (m, res.reason)
+        assert res.methods == (m, m)
+    np.testing.assert_allclose(out["sign"].F, out["schur"].F, rtol=1e-6)
+    np.testing.assert_allclose(out["scipy"].K, out["schur"].K, rtol=1e-6)
+
+
+# -- closed loop --------------------------------------------------------------------------------
+@pytest.mark.parametrize("p", PLANTS_SMALL[:5], ids=IDS[:5])
+def test_closed_loop_decays(p):
+    res = route(p)
+    n = p.n
+    # the horizon from the loop linearised at the origin (f'(0) included): 10 time constants
+    J0 = p.jacobian(np.zeros(n))
+    lin = np.block([[p.A + J0 + p.B @ res.F, -p.B @ res.F], [np.zeros((n, n)), p.A + J0 - res.K @ p.C]])
+    sigma = np.linalg.eigvals(lin).real.max()
+    assert sigma < 0
+    T = 10 / abs(sigma)
+    z0 = np.concatenate([p.x0, p.x_hat0])
+    ts = np.linspace(0, T, 400)
+    sol = solve_ivp(loop_rhs(p, res.F, res.K), (0, T), z0, t_eval=ts, method="LSODA", rtol=1e-9, atol=1e-12)
+    assert sol.success
+    x, e = sol.y[:n], sol.y[:n] - sol.y[n:]
+    assert np.linalg.norm(x[:, -1]) < 1e-2 * np.linalg.norm(p.x0)
+    assert np.linalg.norm(e[:, -1]) < 1e-2 * np.linalg.norm(p.x0 - p.x_hat0)
+    # the certificate's V never increases
+    V = np.einsum("it,ij,jt->t", x, res.P, x) + res.mu * np.einsum("it,ij,jt->t", e, res.R, e)
+    assert np.all(np.diff(V) <= 1e-7 * V[0])
+
+
+def test_certified_decay_rate_holds_along_the_trajectory():
+    """With lam > 0, V = x'Px + mu e'Re must satisfy V(t) <= exp(-2 lam t) V(0) on the simulation."""
+    p = PLANTS.create("flexible_link")
+    lam = 0.5
+    res = route(p, lam=lam)
+    assert res.ok, res.reason
+    n = p.n
+    z0 = np.concatenate([p.x0, p.x_hat0])
+    ts = np.linspace(0, 10, 201)
+    sol = solve_ivp(loop_rhs(p, res.F, res.K), (0, 10), z0, t_eval=ts, method="LSODA", rtol=1e-10, atol=1e-13)
+    x = sol.y[:n]
+    e = x - sol.y[n:]
+    V = np.einsum("it,ij,jt->t", x, res.P, x) + res.mu * np.einsum("it,ij,jt->t", e, res.R, e)
+    assert np.all(V <= np.exp(-2 * lam * ts) * V[0] * (1 + 1e-6) + 1e-12 * V[0])
+
+
+# -- the constants route ------------------------------------------------------------------------
+def test_constants_route_lipschitz_form():
+    """G = H = I with |dpsi| <= alpha |dx|: the certificate holds for any f with Lipschitz constant alpha."""
+    p = PLANTS.create("flexible_link")
+    alpha = p.bounds.alpha
+    res, used = constants_riccati(p.A, p.B, p.C, alpha=alpha)
+    assert used["form"] == "lipschitz" and res.ok, res.reason
+    n = p.n
+    I = np.eye(n)
+    M = full_joint(p.A, p.B, p.C, I, I, np.full(n, alpha), res.F, res.K, res.P, res.R, res.s, res.t, res.mu, 0.0)
+    assert max_eig(jacobi(M)) < 0
+
+
+def test_constants_route_osl_qib_square():
+    # theta (rho dx^2 - dx df) + beta dx^2 + gamma dx df - df^2 = r^2 dx^2 - (df - c0 dx)^2, checked on numbers
+    p = PLANTS.create("flexible_link")
+    b = p.bounds
+    res, used = constants_riccati(p.A, p.B, p.C, rho=b.rho, beta=b.beta, gamma=b.gamma)
+    assert used["form"] == "osl_qib"
+    th, c0, r = used["theta"], used["c0"], used["r"]
+    rng = np.random.default_rng(0)
+    dx, df = rng.standard_normal(100), rng.standard_normal(100)
+    lhs = th * (b.rho * dx * dx - dx * df) + b.beta * dx * dx + b.gamma * dx * df - df * df
+    np.testing.assert_allclose(lhs, r * r * dx * dx - (df - c0 * dx) ** 2, atol=1e-12)
+    assert res.ok, res.reason
+
+
+def test_min_mu_requires_negative_sides():
+    with pytest.raises(np.linalg.LinAlgError):
+        min_mu(np.ones((2, 1)), np.ones((1, 2)), np.eye(2), np.eye(2), -np.eye(2))
