@@ -327,13 +327,11 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
     Path
         The REPORT.md path.
     """
+    from bench.outdir import publish, staged
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    for stale in out.glob(".tmp-*"):  # left by a process killed while writing: never a report
-        if stale.is_dir():
-            shutil.rmtree(stale, ignore_errors=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-", dir=out))
-    try:
+    with staged(out, "report") as tmp:  # a folder of its own; stale ones are removed by publish
         (tmp / "figures").mkdir()
         figs = _figures(result, tmp / "figures") if figures else []
         md = render_markdown(result, figs, run_info)
@@ -359,17 +357,10 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
             "wall_s": round(result.wall_s, 3),
         }
         (tmp / "run.json").write_text(json.dumps(info, indent=1, default=str) + "\n", encoding="utf-8")
-        # everything rendered: move into place, REPORT.md last
-        figdir = out / "figures"
-        figdir.mkdir(exist_ok=True)
-        new = {p.name for p in (tmp / "figures").iterdir()}
-        for p in (tmp / "figures").iterdir():
-            os.replace(p, figdir / p.name)
-        for old in figdir.glob("*__*.png"):  # the main report's own figures only (studies, perf keep theirs)
-            if old.name not in new:
-                old.unlink()
-        for name in ("results.csv", "gains.json", "run.json", "REPORT.md"):
-            os.replace(tmp / name, out / name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        # everything rendered: swap it in whole or not at all (bench.outdir), REPORT.md last; stale figures
+        # of the main report (figures/*__*.png) go, the studies' and perf's stay
+        files = [f"figures/{p.name}" for p in sorted((tmp / "figures").iterdir())]
+        files += ["results.csv", "gains.json", "run.json", "REPORT.md"]
+        publish(out, tmp, files, dirs=("figures",),
+                owned=lambda rel: rel.startswith("figures/") and "__" in rel and rel.endswith(".png"))
     return out / "REPORT.md"

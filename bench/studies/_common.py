@@ -350,25 +350,20 @@ def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: di
     Path
         ``out_dir / f"STUDY_{name}.md"``.
     """
+    from bench.outdir import publish, staged
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-study-{name}-", dir=out))
-    try:
+    md_name = f"STUDY_{name}.md"
+    with staged(out, f"study-{name}") as tmp:
         (tmp / "figures").mkdir()
         for stem, draw in figures.items():
             draw(tmp / "figures" / f"{stem}.png")
         for stem, df in tables.items():
             df.to_csv(tmp / f"{stem}.csv", index=False)
-        md_name = f"STUDY_{name}.md"
         (tmp / md_name).write_text(markdown.rstrip("\n") + "\n", encoding="utf-8")
-        (out / "figures").mkdir(exist_ok=True)
-        for stem in figures:
-            os.replace(tmp / "figures" / f"{stem}.png", out / "figures" / f"{stem}.png")
-        for stem in tables:
-            os.replace(tmp / f"{stem}.csv", out / f"{stem}.csv")
-        os.replace(tmp / md_name, out / md_name)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        # whole or not at all (bench.outdir), the markdown last
+        publish(out, tmp, [*(f"figures/{stem}.png" for stem in figures), *(f"{stem}.csv" for stem in tables), md_name])
     return out / md_name
 
 

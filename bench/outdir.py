@@ -1,0 +1,461 @@
+"""Output folders: checked before any computing, written whole or not at all.
+
+:func:`check_out_dir` is called by ``python -m bench run`` and ``python -m bench study`` before
+they compute anything: an empty path, a path that is a file, or a folder that cannot be
+written is refused at once (:class:`OutDirError`), not after an hour of computing.
+
+:func:`publish` (with :func:`staged`) replaces a set of files in an output folder so that a
+reader, a second writer, an I/O error, a Ctrl-C or a killed process never leaves a mix of two
+runs:
+
+1. The writer renders every file into its own stage folder
+   ``<out>/.tmp-<label>.<pid>.<host>.<random>/`` (a unique name recording its owner; only its
+   owner removes it while the owner lives).
+2. It takes an exclusive lock, ``fcntl.flock`` on ``<out>/.oslbench.lock``; a second writer
+   waits for it (at most ``timeout`` seconds, then :class:`OutDirError`).
+3. Under the lock it first rolls back a swap that a killed writer left half done (the journal,
+   below), and removes stale temporary entries: those whose recorded process is dead on this
+   host, and folders that record no owner at all (an older version's). Nobody else can be
+   swapping at that moment.
+4. It writes the journal ``<out>/.oslbench.journal`` (the files, whether each had a previous
+   version, the backup folder), keeps the previous versions of the files it replaces (a hard
+   link, or a move where links are not supported) and moves the stale files it deletes into a
+   backup folder ``<out>/.tmp-backup.<pid>.<host>.<random>/``, moves the new files in (the
+   last one last: ``REPORT.md``), and deletes the journal: that is the commit. The backup
+   folder is removed after it.
+5. On any error (or Ctrl-C) during 4 it moves every previous version back and removes the new
+   files that had none, then re-raises: the previous files are intact. A writer killed during
+   4 leaves the journal, and the next writer rolls the swap back before it starts.
+
+The lock file stays in the folder (deleting a lock file is itself a race); it is empty.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import hashlib
+import json
+import os
+import re
+import shutil
+import socket
+import tempfile
+import time
+from pathlib import Path, PurePosixPath
+from typing import Callable, Iterable, Iterator
+
+try:  # POSIX; elsewhere writers are not serialised (documented in publish)
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
+
+__all__ = [
+    "JOURNAL_NAME",
+    "LOCK_NAME",
+    "LOCK_TIMEOUT",
+    "OutDirError",
+    "check_out_dir",
+    "locked",
+    "publish",
+    "recover",
+    "staged",
+]
+
+#: The lock file, inside the output folder.
+LOCK_NAME = ".oslbench.lock"
+#: The journal of a swap in progress, inside the output folder.
+JOURNAL_NAME = ".oslbench.journal"
+#: Seconds a writer waits for another writer's lock (a swap takes milliseconds).
+LOCK_TIMEOUT = 120.0
+#: Temporary names in an output folder start with this.
+TMP_PREFIX = ".tmp-"
+JOURNAL_FORMAT = 1
+_POLL_S = 0.05
+_HOST = hashlib.sha256(socket.gethostname().encode("utf-8", "replace")).hexdigest()[:8]
+_NO_LOCKING = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
+
+
+class OutDirError(ValueError):
+    """An output folder that cannot be used, or a write that could not be completed.
+
+    The message names the folder (and the option, for :func:`check_out_dir`).
+    """
+
+
+# -- checks ---------------------------------------------------------------------------------------
+def check_out_dir(path, *, option: str = "--out") -> Path:
+    """Check that ``path`` is a folder this process can write into (create it if missing).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The output folder.
+    option : str
+        The name shown in messages (the command-line option).
+
+    Returns
+    -------
+    Path
+        ``Path(path)``, now an existing, writable folder.
+
+    Raises
+    ------
+    OutDirError
+        The path is empty, is a file (or under a file), cannot be created, or the folder is not
+        writable (checked by creating and removing a file in it). The message names the path.
+    """
+    try:
+        text = os.fspath(path)
+    except TypeError:
+        raise OutDirError(f"{option}: expected a folder path, got {path!r}") from None
+    if isinstance(text, bytes):
+        text = os.fsdecode(text)
+    if text == "":
+        raise OutDirError(f"{option}: an empty path is not a folder")
+    folder = Path(text)
+    try:
+        if folder.exists() and not folder.is_dir():
+            kind = "is a file, not a folder" if folder.is_file() else "exists and is not a folder"
+            raise OutDirError(f"{option} {text!r}: {kind}")
+        folder.mkdir(parents=True, exist_ok=True)
+    except OutDirError:
+        raise
+    except (OSError, ValueError) as exc:  # a parent that is a file, no permission, a NUL byte
+        raise OutDirError(f"{option} {text!r}: cannot create the folder ({_why(exc)})") from None
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f"{_tmp_prefix('probe')}", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OutDirError(f"{option} {text!r}: the folder is not writable ({_why(exc)})") from None
+    return folder
+
+
+def _why(exc: BaseException) -> str:
+    return getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+
+
+# -- temporary names and owners -------------------------------------------------------------------
+def _tmp_prefix(label: str) -> str:
+    """``.tmp-<label>.<pid>.<host>.``: the owner is recorded in the name (dots separate the fields)."""
+    label = re.sub(r"[^A-Za-z0-9_-]", "_", label) or "x"
+    return f"{TMP_PREFIX}{label}.{os.getpid()}.{_HOST}."
+
+
+def _owner(name: str) -> tuple[int, str] | None:
+    """The (pid, host) recorded in a temporary name, or None when it records none."""
+    parts = name[len(TMP_PREFIX):].split(".")
+    if len(parts) != 4 or not parts[1].isdigit():
+        return None
+    return int(parts[1]), parts[2]
+
+
+def _alive(pid: int) -> bool:
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # EPERM: alive, another user's
+        return True
+    return True
+
+
+def _stale(path: Path) -> bool:
+    """A temporary entry whose owner is dead on this host (or a folder that records no owner: left by
+    an older version's writer)."""
+    owner = _owner(path.name)
+    if owner is None:
+        return path.is_dir() and not path.is_symlink()
+    pid, host = owner
+    return host == _HOST and not _alive(pid)
+
+
+def _remove(path: Path) -> None:
+    try:
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink()
+    except OSError:
+        pass
+
+
+@contextlib.contextmanager
+def staged(out_dir, label: str = "write") -> Iterator[Path]:
+    """A fresh stage folder inside ``out_dir`` for rendering files; removed on exit, whatever happens.
+
+    Parameters
+    ----------
+    out_dir : path
+        The output folder (must exist).
+    label : str
+        A word in the folder's name (e.g. ``"report"``).
+
+    Yields
+    ------
+    Path
+        The stage folder ``<out>/.tmp-<label>.<pid>.<host>.<random>``; render into it, then
+        call :func:`publish`.
+    """
+    stage = Path(tempfile.mkdtemp(prefix=_tmp_prefix(label), dir=out_dir))
+    try:
+        yield stage
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+# -- the lock -------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def locked(out_dir, timeout: float = LOCK_TIMEOUT) -> Iterator[None]:
+    """Hold the exclusive lock of ``out_dir`` (``fcntl.flock`` on ``<out>/.oslbench.lock``).
+
+    Parameters
+    ----------
+    out_dir : path
+        The output folder (must exist).
+    timeout : float
+        Seconds to wait for another writer.
+
+    Raises
+    ------
+    OutDirError
+        The lock file cannot be opened, or another writer held the lock for ``timeout`` s.
+    """
+    out = Path(out_dir)
+    lock = out / LOCK_NAME
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:
+        raise OutDirError(f"{out}: cannot open the lock file {LOCK_NAME} ({_why(exc)})") from None
+    try:
+        if fcntl is not None:
+            deadline = time.monotonic() + timeout
+            while True:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    break
+                except BlockingIOError:
+                    if time.monotonic() >= deadline:
+                        raise OutDirError(
+                            f"{out}: another oslbench process has been writing into this folder for more "
+                            f"than {timeout:g} s (it holds {lock}); wait for it to finish or stop it, then "
+                            "run again") from None
+                    time.sleep(_POLL_S)
+                except OSError as exc:
+                    if exc.errno in _NO_LOCKING:  # a file system without flock: write unserialised
+                        break
+                    raise OutDirError(f"{out}: cannot lock {LOCK_NAME} ({_why(exc)})") from None
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+# -- the journal ----------------------------------------------------------------------------------
+def _write_journal(out: Path, doc: dict) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix("journal"), dir=out)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(doc, fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, out / JOURNAL_NAME)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def _rollback(out: Path, doc: dict) -> list[str]:
+    """Undo a swap described by a journal; returns the problems (empty: fully restored)."""
+    backup = out / doc["backup"]
+    problems: list[str] = []
+    for entry in reversed(doc["entries"]):
+        rel = entry["path"]
+        dst, old = out / rel, backup / rel
+        try:
+            if os.path.lexists(old):
+                os.replace(old, dst)  # the previous version back (over the new one, if it came in)
+            elif entry["new"] and not entry["old"] and os.path.lexists(dst):
+                os.unlink(dst)  # a new file that had no previous version
+        except OSError as exc:
+            problems.append(f"{rel}: {_why(exc)}")
+    if not problems:
+        shutil.rmtree(backup, ignore_errors=True)
+    return problems
+
+
+def recover(out_dir) -> bool:
+    """Roll back a swap left half done by a writer that was killed; call it holding :func:`locked`.
+
+    Also removes stale temporary entries (their recorded process is dead on this host, or they
+    are folders that record none). :func:`publish` calls it first.
+
+    Parameters
+    ----------
+    out_dir : path
+
+    Returns
+    -------
+    bool
+        True when a swap was rolled back.
+
+    Raises
+    ------
+    OutDirError
+        The journal is unreadable, or a file could not be restored (the journal is kept, so the
+        next writer tries again).
+    """
+    out = Path(out_dir)
+    journal = out / JOURNAL_NAME
+    rolled = False
+    if os.path.lexists(journal):
+        try:
+            doc = json.loads(journal.read_text(encoding="utf-8"))
+            if doc.get("format") != JOURNAL_FORMAT:
+                raise ValueError(f"unknown format {doc.get('format')!r}")
+            for e in doc["entries"]:
+                _relpath(e["path"])
+            _relpath(doc["backup"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise OutDirError(f"{out}: the journal {JOURNAL_NAME} of an interrupted write is unreadable "
+                              f"({_why(exc)}); check the folder's files, then delete the journal") from None
+        problems = _rollback(out, doc)
+        if problems:
+            raise OutDirError(f"{out}: could not undo the interrupted write recorded in {JOURNAL_NAME} "
+                              f"({'; '.join(problems[:3])}); the previous versions are in {doc['backup']}")
+        journal.unlink()
+        rolled = True
+    for entry in out.iterdir():
+        if entry.name.startswith(TMP_PREFIX) and _stale(entry):
+            _remove(entry)
+    return rolled
+
+
+# -- publishing -----------------------------------------------------------------------------------
+def _relpath(rel: str) -> str:
+    p = PurePosixPath(rel)
+    if not rel or p.is_absolute() or ".." in p.parts or str(p) != rel or rel == ".":
+        raise ValueError(f"not a plain relative path: {rel!r}")
+    return rel
+
+
+def _keep_old(src: Path, dst: Path, *, move: bool) -> None:
+    """Keep the previous version ``src`` at ``dst``: moved there (``move``), else hard-linked so that
+    ``src`` stays readable until the new version replaces it (moved where links are not supported)."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if not move:
+        try:
+            if src.is_file() and not src.is_symlink():
+                os.link(src, dst)
+                return
+        except OSError:
+            pass  # no hard links here (EXDEV, EPERM, ...): move it
+    os.replace(src, dst)
+
+
+def publish(out_dir, stage_dir, files: Iterable[str], *, owned: Callable[[str], bool] | None = None,
+            dirs: Iterable[str] = (), timeout: float = LOCK_TIMEOUT) -> list[Path]:
+    """Move rendered files from ``stage_dir`` into ``out_dir``, all of them or none.
+
+    Parameters
+    ----------
+    out_dir : path
+        The output folder (must exist).
+    stage_dir : path
+        A folder inside ``out_dir`` (same file system) holding the new files, e.g. from
+        :func:`staged`.
+    files : iterable of str
+        The new files, as relative POSIX paths (``"figures/a.png"``), in the order they are
+        moved in: the last one last (the file readers open first, e.g. ``REPORT.md``).
+    owned : callable, optional
+        ``owned(relpath) -> bool``: files of ``out_dir`` this writer owns; an owned file that is
+        not among ``files`` is stale and deleted (with the same guarantee). Only the top level
+        and the folders of ``files`` and ``dirs`` are scanned; names starting with "." never are.
+    dirs : iterable of str
+        Further folders to scan for stale owned files (e.g. ``("figures",)`` when this run
+        may have drawn no figure).
+    timeout : float
+        Seconds to wait for another writer's lock.
+
+    Returns
+    -------
+    list of Path
+        The published paths, in order.
+
+    Raises
+    ------
+    OutDirError
+        The lock was not obtained in time, or a previous interrupted write could not be
+        undone (nothing was changed by this call).
+    OSError, KeyboardInterrupt, ...
+        Whatever interrupted the swap, re-raised after every previous file was restored. If
+        the restore itself fails, an :class:`OutDirError` says so and the journal is kept for
+        the next writer.
+    ValueError
+        ``files`` holds a path that is absolute, climbs out with "..", repeats, or is missing
+        from the stage folder (a bug of the caller; nothing is changed).
+
+    Notes
+    -----
+    Without ``fcntl`` (not POSIX) or on a file system without ``flock``, writers are not
+    serialised; everything else holds.
+    """
+    out, stage = Path(out_dir), Path(stage_dir)
+    files = [_relpath(f) for f in files]
+    if len(set(files)) != len(files):
+        raise ValueError(f"publish: a file is listed twice in {files}")
+    for rel in files:
+        if not (stage / rel).is_file():
+            raise ValueError(f"publish: {rel!r} was not rendered into {stage}")
+    new = set(files)
+    with locked(out, timeout):
+        recover(out)
+        stale: list[str] = []
+        if owned is not None:
+            scan = {str(PurePosixPath(f).parent) for f in files} | {str(PurePosixPath(d)) for d in dirs} | {"."}
+            for d in sorted(scan):
+                folder = out if d == "." else out / d
+                if not folder.is_dir():
+                    continue
+                for p in sorted(folder.iterdir()):
+                    rel = p.name if d == "." else f"{d}/{p.name}"
+                    if not p.name.startswith(".") and rel not in new and p.is_file() and owned(rel):
+                        stale.append(rel)
+        backup = Path(tempfile.mkdtemp(prefix=_tmp_prefix("backup"), dir=out))
+        entries = ([{"path": rel, "old": True, "new": False} for rel in stale]
+                   + [{"path": rel, "old": os.path.lexists(out / rel), "new": True} for rel in files])
+        doc = {"format": JOURNAL_FORMAT, "pid": os.getpid(), "host": _HOST, "backup": backup.name,
+               "entries": entries}
+        try:
+            _write_journal(out, doc)
+        except BaseException:
+            shutil.rmtree(backup, ignore_errors=True)
+            raise
+        try:
+            for e in entries:
+                rel = e["path"]
+                if e["old"]:
+                    _keep_old(out / rel, backup / rel, move=not e["new"])
+                if e["new"]:
+                    (out / rel).parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(stage / rel, out / rel)
+            (out / JOURNAL_NAME).unlink()  # the commit
+        except BaseException as exc:
+            problems = _rollback(out, doc)
+            if problems:
+                raise OutDirError(
+                    f"{out}: writing failed ({type(exc).__name__}: {exc}) and the previous files could not "
+                    f"all be restored ({'; '.join(problems[:3])}); they are in {backup.name}, and the next "
+                    "run restores them first") from exc
+            try:
+                (out / JOURNAL_NAME).unlink()
+            except OSError:
+                pass
+            raise
+        shutil.rmtree(backup, ignore_errors=True)
+    return [out / rel for rel in files]
