@@ -124,6 +124,13 @@ def _cmd_run(args, argv: list[str]) -> int:
     except UnknownIdError as exc:
         print(f"python -m bench run: error: {exc}", file=sys.stderr)
         return 2
+    from bench.outdir import OutDirError, check_out_dir
+
+    try:  # before any computing: an unusable --out is found now, not after the run
+        check_out_dir(args.out)
+    except OutDirError as exc:
+        print(f"python -m bench run: error: {exc}", file=sys.stderr)
+        return 2
     from bench.cache import Cache, default_cache_dir
     from bench.executors import ExecutorError, default_jobs
     from bench.harness import ProgressBar, RunOptions, run

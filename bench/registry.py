@@ -3,6 +3,10 @@
 Modules of the ``plants`` and ``designs`` packages are discovered by walking the packages
 (modules whose name starts with ``_`` are skipped), so adding a plant or a design is adding
 one file. Unknown ids raise :class:`UnknownIdError` with a "did you mean" suggestion.
+
+Ids name files (``figures/<plant>__<design>.png``) and are matched by command-line globs, so
+:func:`check_id` allows only letters, digits, ``_``, ``-``, ``.`` and ``+`` (``"lqr+lqe"``), and
+no leading ``.`` or ``-``; :meth:`Registry.register` refuses any other id at once.
 """
 
 from __future__ import annotations
@@ -11,16 +15,19 @@ import difflib
 import fnmatch
 import importlib
 import pkgutil
+import re
 from dataclasses import dataclass
 from typing import Any, Callable
 
 __all__ = [
     "DESIGNS",
+    "ID_CHARS",
     "PLANTS",
     "Entry",
     "Registry",
     "RegistryError",
     "UnknownIdError",
+    "check_id",
     "register_design",
     "register_plant",
 ]
@@ -59,6 +66,44 @@ class Entry:
         return self.factory(**overrides)
 
 
+#: The characters an id may hold: ids become parts of file names (``figures/<plant>__<design>.png``)
+#: and command-line globs, so no path separator, blank, glob or shell character.
+ID_CHARS = "letters A-Z a-z, digits 0-9, '_', '-', '.', '+'"
+_ID_RE = re.compile(r"[A-Za-z0-9_.+-]+")
+
+
+def check_id(id: Any, kind: str = "id") -> str:
+    """Check that ``id`` is a non-empty string of :data:`ID_CHARS`, not starting with '.' or '-'.
+
+    Parameters
+    ----------
+    id : str
+        The plant or design id (e.g. ``"flexible_link"``, ``"lqr+lqe"``).
+    kind : str
+        ``"plant"``, ``"design"``, ... (used in the message).
+
+    Returns
+    -------
+    str
+        ``id``.
+
+    Raises
+    ------
+    RegistryError
+        Naming the id, the first offending character and the allowed characters.
+    """
+    if not isinstance(id, str) or not id:
+        raise RegistryError(f"{kind} id {id!r}: must be a non-empty string of {ID_CHARS}")
+    if not _ID_RE.fullmatch(id):
+        bad = next(c for c in id if not _ID_RE.fullmatch(c))
+        raise RegistryError(f"{kind} id {id!r}: the character {bad!r} is not allowed (ids name files); "
+                            f"use only {ID_CHARS}")
+    if id[0] in ".-":
+        raise RegistryError(f"{kind} id {id!r}: must not start with {id[0]!r} (a hidden file, or an option); "
+                            f"use only {ID_CHARS}, starting with a letter, a digit or '_'")
+    return id
+
+
 def _first_line(obj: Any) -> str:
     doc = (getattr(obj, "__doc__", None) or "").strip()
     return doc.splitlines()[0].strip() if doc else ""
@@ -82,12 +127,16 @@ class Registry:
         self._discovered = False
 
     def register(self, id: str, factory: Callable[..., Any], summary: str | None = None, *, order: int = 100) -> None:
-        """Register ``factory`` under ``id``; a duplicate id raises :class:`RegistryError`.
+        """Register ``factory`` under ``id``.
 
         ``order`` sorts listings and tables (then the id), whatever the import order.
+
+        Raises
+        ------
+        RegistryError
+            A duplicate id, or an id that is not a safe file-name part (:func:`check_id`).
         """
-        if not isinstance(id, str) or not id or any(c in id for c in "*?[] "):
-            raise RegistryError(f"{self.kind} id {id!r}: must be a non-empty string without spaces or glob characters")
+        check_id(id, self.kind)
         if id in self._entries:
             other = self._entries[id].module
             raise RegistryError(f"duplicate {self.kind} id {id!r} (already registered by {other})")

@@ -146,6 +146,13 @@ def run_study(args, argv: list[str]) -> int:
     except UnknownIdError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
+    from bench.outdir import OutDirError, check_out_dir
+
+    try:  # before any computing: an unusable --out is found now, not after the study
+        check_out_dir(args.out)
+    except OutDirError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
     jobs = args.jobs or default_jobs()
     command = "python -m bench " + shlex.join(argv)
     bar = None
