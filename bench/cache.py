@@ -7,26 +7,54 @@ writes it). Delete the folder to reclaim the space.
 
 Keys
 ----
-An entry is found under the SHA-256 of everything its result depends on; a change to any of
-them is a miss:
+An entry is found under the SHA-256 of a JSON document of everything its result depends on; a
+change to any part is a miss. A pair's key holds:
 
-- the plant's content: id, A, B, C, x0, x_hat0 (exact bytes), t_final, params, family, the
-  claimed and analytic constants, whether it has a Jacobian, the values of f at three fixed
-  points (so a change hidden in a closure is seen), and the **source** of the module that
-  registered it and of the modules defining its f and Jacobian;
-- the design's content: id, every hyperparameter (the design object's dataclass fields,
-  recursively through a pairing's parts), and the source of the modules defining it;
-- the run options that change results: seed, n_samples, use_claimed, t_final, noise,
-  noise_dt and the simulation settings (not ``timeout``, ``fail_fast``, ``jobs``: results do
-  not depend on them);
-- the versions of Python and of the packages (:func:`bench.report.package_versions`);
-- the source of the shared code: the harness and everything it imports from ``bench``,
-  ``designs`` and ``plants`` (except rendering and command-line modules: ``bench.report``,
-  ``bench.cli``, ``bench.perf``).
+- ``kind``: ``"pair"``;
+- ``format``: :data:`CACHE_FORMAT`;
+- ``versions``: the versions of Python and of the packages (:func:`bench.report.package_versions`);
+- ``code``: the source of the shared code: ``bench.harness``, ``bench.estimators``,
+  ``bench.cache`` and the modules they import (below);
+- ``plant``: the plant's content: its registry id, every field of the :class:`plants.Plant`
+  (A, B, C, x0, x_hat0 by exact bytes; t_final, params, family, the claimed and analytic
+  constants, the channels, source and notes; f, the Jacobian and the channels' phi by name
+  and module), a **probe** (below) of f and of the Jacobian, and the source of the module
+  that registered the plant and of the modules defining f, the Jacobian and phi;
+- ``design``: the design's content: id, every hyperparameter (the design object's dataclass
+  fields, recursively through a pairing's parts), and the source of the modules defining it;
+- ``options``: the run options that change results: seed, n_samples, use_claimed, t_final,
+  noise, noise_dt and the simulation settings but ``max_wall_s`` (not ``timeout``,
+  ``fail_fast``, ``jobs``: results do not depend on them);
+- ``settings``: the suite's effective settings, read when the key is computed: the current
+  value of every module-level constant named in upper case (``CONVERGED_RATIO``,
+  ``_REL_TOL``) of every module whose source is in the key, when it is a number, a string,
+  bytes, None, a numpy array, or a tuple, list, set, frozenset or string-keyed dict of those.
+  A plugin that sets ``bench.metrics.CONVERGED_RATIO = 0.1`` therefore changes the keys of
+  every pair of that run, the catalog's included.
 
-"Source of a module" is closed under imports: every project module a hashed module imports
-(at top level or inside a function, found by parsing its source) is hashed too, so editing
-``designs/thm1.py`` also invalidates Corollary 1, which imports helpers from it.
+A constants key holds ``kind`` (``"constants"``), ``format``, ``versions``, ``code``, ``plant``,
+``settings``, ``seed`` and ``n_samples``.
+
+"Source of a module" means the SHA-256 of its file, and is closed under imports: the source of
+every module that a hashed module imports (at top level or inside a function, found by parsing
+its source; absolute and relative imports) is hashed too, when the imported module is of the
+project (``bench``, ``designs``, ``plants``, a plugin file) or is any other module whose file
+lies outside the standard library and the installed packages (the ``stdlib``, ``platstdlib``,
+``purelib`` and ``platlib`` paths of :mod:`sysconfig`, for this environment and its base
+installation, and :func:`site.getsitepackages`, :func:`site.getusersitepackages`): a helper
+module next to a plugin file (``import mylib``) is part of the key of every plant the plugin
+defines with it. Installed packages enter through ``versions`` instead. So editing
+``designs/thm1.py`` also invalidates Corollary 1, which imports helpers from it, and editing
+``mylib.py`` invalidates the plugin's pairs. Rendering and command-line modules are left out
+(``bench.report``, ``bench.cli``, ``bench.perf``, ``bench.__main__``; their imports are not
+followed).
+
+The probe evaluates f, seeded, at :data:`PROBE_POINTS` states (directions drawn once for the
+dimension n, at 8 scales from 0.01 to 10, or from 5 % to 95 % of ``radius`` when the
+constants or the channels hold only on a ball, the smallest radius given) plus x0 and x_hat0, as one batch (point by point if the
+batch raises), and the Jacobian at each of them; the key holds the SHA-256 of the exact values
+(every NaN the same; an exception or a non-numeric result is recorded by its type). A change of
+f or of the Jacobian that hides in a closure is seen this way.
 
 Entries
 -------
@@ -36,31 +64,40 @@ plus numpy arrays (``allow_pickle=False``: no pickled objects); ``constants/<key
 into place with ``os.replace``, so an interrupted write leaves no partial entry; an unreadable
 entry is a miss. Rows with status ``error`` or ``timeout`` are not stored (they may be
 transient: a worker that died, a loaded machine).
+
+A cache problem never fails a run: a key that cannot be computed, an unreadable entry, an
+unwritable folder or an entry that cannot be stored is a miss (or an entry not stored), noted
+in :attr:`Cache.errors`.
 """
 
 from __future__ import annotations
 
 import ast
 import dataclasses
+import functools
 import hashlib
 import importlib
+import importlib.machinery
 import importlib.util
 import json
 import os
-import warnings
+import re
+import site
 import sys
+import sysconfig
 import tempfile
+import warnings
 from pathlib import Path
 from typing import IO, Any, Callable
 
 import numpy as np
 
-__all__ = ["CACHE_FORMAT", "Cache", "default_cache_dir"]
+__all__ = ["CACHE_FORMAT", "PROBE_POINTS", "Cache", "default_cache_dir"]
 
 #: Bumped when the layout or the meaning of an entry changes.
-CACHE_FORMAT = 1
+CACHE_FORMAT = 2
 
-#: Packages whose modules are hashed by source (plus plugin modules).
+#: Packages whose modules are hashed by source (plus plugin modules and local modules).
 _PROJECT = ("bench", "designs", "plants")
 
 #: Statuses that are never stored.
@@ -69,6 +106,14 @@ _TRANSIENT = ("error", "timeout")
 #: Rendering and command-line modules: they do not change a pair's result, so editing them
 #: does not invalidate the cache (their imports are not followed either).
 _NOT_RESULTS = frozenset({"bench.report", "bench.cli", "bench.perf", "bench.__main__"})
+
+#: Seeded probe states of f and of the Jacobian (8 directions x 8 scales), plus x0 and x_hat0.
+PROBE_POINTS = 64
+_PROBE_SEED = 7_2024
+_PROBE_SCALES = 8
+
+#: Module-level names read as settings: upper case, optionally with leading underscores.
+_SETTING_NAME = re.compile(r"_*[A-Z][A-Z0-9_]*")
 
 
 def default_cache_dir(out_dir: str | os.PathLike) -> Path:
@@ -82,6 +127,81 @@ def _is_project(name: str) -> bool:
 
 def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
+
+
+# -- where a module lives -------------------------------------------------------------------------
+@functools.lru_cache(maxsize=1)
+def _installed_roots() -> tuple[str, ...]:
+    """Folders of the standard library and of installed packages (this environment and its base)."""
+    roots: set[str] = set()
+    schemes: list[dict | None] = [None, {"base": sys.base_prefix, "platbase": sys.base_exec_prefix,
+                                         "installed_base": sys.base_prefix,
+                                         "installed_platbase": sys.base_exec_prefix}]
+    for config in schemes:
+        try:
+            paths = sysconfig.get_paths(vars=config) if config else sysconfig.get_paths()
+        except Exception:  # noqa: BLE001 - an odd installation: fewer roots
+            continue
+        roots.update(paths.get(k) for k in ("stdlib", "platstdlib", "purelib", "platlib"))
+    for get in (getattr(site, "getsitepackages", None), getattr(site, "getusersitepackages", None)):
+        try:
+            found = get() if get is not None else []
+        except Exception:  # noqa: BLE001 - some virtualenvs lack them
+            continue
+        roots.update([found] if isinstance(found, str) else found)
+    out = set()
+    for r in roots:
+        if r:
+            real = os.path.realpath(r)
+            if os.path.dirname(real) != real:  # never the file system's root
+                out.add(real)
+    return tuple(sorted(out))
+
+
+def _is_installed_file(path: str) -> bool:
+    """True when ``path`` lies in the standard library or in an installed package's folder."""
+    real = os.path.realpath(path)
+    for root in _installed_roots():
+        try:
+            if os.path.commonpath([real, root]) == root:
+                return True
+        except ValueError:  # another drive
+            continue
+    return False
+
+
+def _module_file(name: str) -> str | None:
+    mod = sys.modules.get(name)
+    path = getattr(mod, "__file__", None) if mod is not None else None
+    return path if isinstance(path, str) else None
+
+
+def _find_file(name: str, near: str | None) -> str | None:
+    """The file of module ``name`` without importing it: ``sys.modules``, else a search of the
+    folder of the importing file ``near`` and of ``sys.path`` (packages level by level)."""
+    if name in sys.modules:
+        return _module_file(name)
+    parts = name.split(".")
+    search = ([os.path.dirname(near)] if near else []) + [p or os.getcwd() for p in sys.path if isinstance(p, str)]
+    try:
+        for i in range(len(parts)):
+            prefix = ".".join(parts[: i + 1])
+            if prefix in sys.modules:
+                mod = sys.modules[prefix]
+                spec_origin = _module_file(prefix)
+                search = list(getattr(mod, "__path__", []) or [])
+                if i == len(parts) - 1:
+                    return spec_origin
+                continue
+            spec = importlib.machinery.PathFinder.find_spec(prefix, search)
+            if spec is None:
+                return None
+            if i == len(parts) - 1:
+                return spec.origin if spec.has_location else None
+            search = list(spec.submodule_search_locations or [])
+    except (ImportError, ValueError, OSError):
+        return None
+    return None
 
 
 def _canon(v: Any, modules: set[str]) -> Any:
@@ -111,6 +231,58 @@ def _canon(v: Any, modules: set[str]) -> Any:
             modules.add(mod)
         return {"__callable__": f"{mod}.{getattr(v, '__qualname__', type(v).__name__)}"}
     return {"__repr__": repr(v)}
+
+
+class _Unsupported(Exception):
+    """A module constant that is not a plain setting (skipped)."""
+
+
+def _setting(v: Any, depth: int = 0) -> Any:
+    """A JSON-able, exact description of a plain setting value; raises _Unsupported otherwise."""
+    if depth > 6:
+        raise _Unsupported
+    if v is None or isinstance(v, (bool, np.bool_, str)):
+        return bool(v) if isinstance(v, np.bool_) else v
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return {"f": repr(float(v))}
+    if isinstance(v, (complex, np.complexfloating)):
+        return {"c": [repr(v.real), repr(v.imag)]}
+    if isinstance(v, bytes):
+        return {"b": _sha(v)}
+    if isinstance(v, np.ndarray):
+        if v.dtype.hasobject:
+            raise _Unsupported
+        a = np.ascontiguousarray(v)
+        return {"a": [list(a.shape), str(a.dtype), _sha(a.tobytes())]}
+    if isinstance(v, (tuple, list)):
+        return {type(v).__name__: [_setting(x, depth + 1) for x in v]}
+    if isinstance(v, (set, frozenset)):
+        items = [_setting(x, depth + 1) for x in v]
+        return {"set": sorted(items, key=lambda x: json.dumps(x, sort_keys=True))}
+    if isinstance(v, dict):
+        if not all(isinstance(k, str) for k in v):
+            raise _Unsupported
+        return {"dict": {k: _setting(x, depth + 1) for k, x in sorted(v.items())}}
+    raise _Unsupported
+
+
+def _digest(raw: Any) -> str:
+    """Hash of a numeric result, exact (every NaN alike); a non-numeric one by its type."""
+    try:
+        a = np.asarray(raw)
+    except Exception as exc:  # noqa: BLE001 - an array-like that fails to convert
+        return f"not an array: {type(exc).__name__}"
+    if a.dtype.kind in "biuf":
+        a = a.astype(np.float64)
+        a = np.where(np.isnan(a), np.nan, a)
+    elif a.dtype.kind == "c":
+        a = a.astype(np.complex128)
+        a = np.where(np.isnan(a.real) | np.isnan(a.imag), complex(np.nan, np.nan), a)
+    else:
+        return f"not numeric: {type(raw).__name__} {a.dtype}"
+    return _sha(json.dumps([list(a.shape), str(a.dtype)]).encode() + np.ascontiguousarray(a).tobytes())
 
 
 def _plain(v: Any) -> Any:
@@ -155,8 +327,8 @@ class Cache:
     stored : int
         Entries written.
     errors : list of str
-        Problems met (an unwritable folder, an unreadable entry); a cache problem never fails
-        a run, it only costs a recomputation.
+        Problems met (a key that could not be computed, an unwritable folder, an unreadable
+        entry); a cache problem never fails a run, it only costs a recomputation.
     """
 
     def __init__(self, root: str | os.PathLike):
@@ -165,18 +337,22 @@ class Cache:
         self.errors: list[str] = []
         self._sources: dict[str, str] = {}
         self._deps: dict[str, set[str]] = {}
+        self._paths: dict[str, str | None] = {}
         self._fixed: dict[str, Any] | None = None
         self._writable = True
 
     # -- fingerprints ------------------------------------------------------------------------
+    def _path(self, name: str) -> str | None:
+        """The file of module ``name`` (loaded, or found by :meth:`_imports` without importing it)."""
+        return _module_file(name) or self._paths.get(name)
+
     def _source_hash(self, name: str) -> str:
         if name not in self._sources:
-            mod = sys.modules.get(name)
-            path = getattr(mod, "__file__", None)
+            path = self._path(name)
             if path is None:
                 try:
                     spec = importlib.util.find_spec(name)
-                    path = spec.origin if spec is not None else None
+                    path = spec.origin if spec is not None and spec.has_location else None
                 except (ImportError, ValueError):
                     path = None
             try:
@@ -185,27 +361,63 @@ class Cache:
                 self._sources[name] = "unreadable source"
         return self._sources[name]
 
+    def _local(self, name: str, near: str | None) -> bool:
+        """True when module ``name`` is neither of the standard library nor installed (its file is found)."""
+        top = name.split(".")[0]
+        if top in sys.stdlib_module_names or top in sys.builtin_module_names:
+            return False
+        for mod in dict.fromkeys((top, name)):
+            path = _find_file(mod, near)
+            if path is None or _is_installed_file(path):
+                return False
+            if mod not in sys.modules:
+                self._paths.setdefault(mod, path)
+        return True
+
     def _imports(self, name: str) -> set[str]:
-        """Project modules that module ``name`` imports anywhere in its source."""
+        """Project and local modules that module ``name`` imports anywhere in its source."""
         if name in self._deps:
             return self._deps[name]
         deps: set[str] = set()
         self._deps[name] = deps
-        mod = sys.modules.get(name)
-        path = getattr(mod, "__file__", None)
+        path = self._path(name)
         try:
             tree = ast.parse(Path(path).read_bytes()) if path else None
         except (OSError, SyntaxError, ValueError):
             tree = None
-        for node in ast.walk(tree) if tree is not None else ():
+        if tree is None:
+            return deps
+        mod = sys.modules.get(name)
+        is_pkg = (mod is not None and hasattr(mod, "__path__")) or (path or "").endswith("__init__.py")
+        package = name if is_pkg else name.rpartition(".")[0]
+        candidates: set[str] = set()
+        for node in ast.walk(tree):
             if isinstance(node, ast.Import):
-                deps.update(a.name for a in node.names if _is_project(a.name))
-            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0 and _is_project(node.module):
-                deps.add(node.module)
                 for a in node.names:
-                    sub = f"{node.module}.{a.name}"
-                    if sub in sys.modules or self._is_module(sub):
-                        deps.add(sub)
+                    parts = a.name.split(".")
+                    candidates.update(".".join(parts[: i + 1]) for i in range(len(parts)))
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".") if package else []
+                    if node.level - 1 > len(base) or (node.level - 1 == len(base) and not node.module):
+                        continue
+                    base = base[: len(base) - (node.level - 1)]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    target = node.module or ""
+                if not target:
+                    continue
+                parts = target.split(".")
+                candidates.update(".".join(parts[: i + 1]) for i in range(len(parts)))
+                candidates.update(f"{target}.{a.name}" for a in node.names if a.name != "*")
+        for cand in candidates:
+            if cand == name:
+                continue
+            if _is_project(cand):
+                if cand in sys.modules or self._is_module(cand):
+                    deps.add(cand)
+            elif self._local(cand, path):
+                deps.add(cand)
         return deps
 
     @staticmethod
@@ -216,9 +428,9 @@ class Cache:
             return False
 
     def _code(self, roots: set[str]) -> dict[str, str]:
-        """Source hashes of ``roots`` and every project module they import, transitively."""
+        """Source hashes of ``roots`` and every project or local module they import, transitively."""
         seen: set[str] = set()
-        todo = [r for r in roots if r and (_is_project(r) or r in sys.modules)]
+        todo = [r for r in roots if r and (_is_project(r) or self._local(r, None))]
         while todo:
             name = todo.pop()
             if name in seen or name in _NOT_RESULTS:
@@ -232,6 +444,25 @@ class Cache:
             todo.extend(self._imports(name) - seen)
         return {name: self._source_hash(name) for name in sorted(seen)}
 
+    @staticmethod
+    def _settings(modules) -> dict[str, dict[str, Any]]:
+        """The current values of the upper-case module constants of ``modules`` (see the module docstring)."""
+        out: dict[str, dict[str, Any]] = {}
+        for name in sorted(set(modules)):
+            mod = sys.modules.get(name)
+            if mod is None:
+                continue
+            values = {}
+            for key, value in sorted(vars(mod).items()):
+                if _SETTING_NAME.fullmatch(key):
+                    try:
+                        values[key] = _setting(value)
+                    except _Unsupported:
+                        pass
+            if values:
+                out[name] = values
+        return out
+
     def _fixed_parts(self) -> dict[str, Any]:
         if self._fixed is None:
             from bench.report import package_versions
@@ -241,24 +472,13 @@ class Cache:
         return self._fixed
 
     def plant_fingerprint(self, plant, plant_id: str) -> dict[str, Any]:
-        """The content of a plant (data, constants, and the source of its modules)."""
+        """The content of a plant (data, constants, a probe of f and of its Jacobian, and the source of its modules)."""
         from bench.registry import PLANTS
 
         modules: set[str] = set()
-        data = {
-            "id": plant_id,
-            **{k: _canon(np.asarray(getattr(plant, k)), modules) for k in ("A", "B", "C", "x0", "x_hat0")},
-            "t_final": _canon(plant.t_final, modules),
-            "params": _canon(dict(plant.params), modules),
-            "family": plant.family,
-            "claimed": _canon(plant.claimed, modules),
-            "bounds": _canon(plant.bounds, modules),
-            "jacobian": plant.jacobian is not None,
-            "f": _canon(plant.f, modules),
-            "f_probe": self._probe(plant),
-        }
-        if plant.jacobian is not None:
-            _canon(plant.jacobian, modules)
+        # every field (arrays by exact bytes, callables by name and module, constants and channels
+        # recursively), so a field added to Plant later is covered too
+        data = {"id": plant_id, "plant": _canon(plant, modules), "probe": self._probe(plant)}
         try:
             modules.add(PLANTS[plant_id].module)
         except KeyError:
@@ -267,17 +487,46 @@ class Cache:
         return data
 
     @staticmethod
-    def _probe(plant) -> str:
-        """Hash of f at three fixed points: catches a change of f that hides in a closure."""
+    def _probe_points(plant) -> np.ndarray:
+        """Seeded states (n, PROBE_POINTS + 2): directions x scales (inside the constants' radius), x0, x_hat0."""
         n = plant.n
-        pts = np.stack([np.asarray(plant.x0, dtype=float) + 0.5, np.linspace(-1.0, 1.0, n),
-                        np.cos(np.arange(1.0, n + 1.0))], axis=1)
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                return _sha(np.ascontiguousarray(np.asarray(plant.f(pts), dtype=float)).tobytes())
-        except Exception as exc:  # noqa: BLE001 - the harness reports a broken f; the key only notes it
-            return f"probe failed: {type(exc).__name__}"
+        rng = np.random.default_rng([_PROBE_SEED, n])
+        D = rng.standard_normal((n, PROBE_POINTS))
+        D /= np.maximum(np.linalg.norm(D, axis=0), 1e-300)
+        radius = None
+        for c in (getattr(plant, "bounds", None), getattr(plant, "claimed", None), getattr(plant, "channels", None)):
+            r = getattr(c, "radius", None) if c is not None else None
+            if r is not None and np.isfinite(r) and r > 0:
+                radius = float(r) if radius is None else min(radius, float(r))
+        scales = (np.geomspace(0.01, 10.0, _PROBE_SCALES) if radius is None
+                  else radius * np.linspace(0.05, 0.95, _PROBE_SCALES))
+        X = D * np.tile(scales, PROBE_POINTS // _PROBE_SCALES + 1)[:PROBE_POINTS]
+        return np.concatenate([X, np.asarray(plant.x0, dtype=float)[:, None],
+                               np.asarray(plant.x_hat0, dtype=float)[:, None]], axis=1)
+
+    @classmethod
+    def _probe(cls, plant) -> str:
+        """Hash of f and of the Jacobian at the probe states (see the module docstring)."""
+
+        def call(fn, x) -> str:
+            try:
+                return _digest(fn(x.copy()))
+            except Exception as exc:  # noqa: BLE001 - the harness reports a broken f; the key only notes it
+                return f"raised {type(exc).__name__}"
+
+        X = cls._probe_points(plant)
+        parts: list[str] = []
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            batch = call(plant.f, X)
+            if batch.startswith("raised"):  # point by point, each failure noted
+                parts.append("f by point: " + ",".join(call(plant.f, X[:, j]) for j in range(X.shape[1])))
+            else:
+                parts.append("f batch: " + batch)
+            jac = getattr(plant, "jacobian", None)
+            if jac is not None:
+                parts.append("jacobian: " + ",".join(call(jac, X[:, j]) for j in range(X.shape[1])))
+        return _sha("\n".join(parts).encode())
 
     def design_fingerprint(self, design, design_id: str) -> dict[str, Any]:
         """The content of a design (hyperparameters, recursively, and the source of its modules)."""
@@ -303,16 +552,36 @@ class Cache:
     def _key(self, doc: dict) -> str:
         return _sha(json.dumps(doc, sort_keys=True).encode())
 
-    def pair_key(self, plant, plant_id: str, design, design_id: str, options) -> str:
-        """The key of one pair (see the module docstring)."""
-        return self._key({"kind": "pair", **self._fixed_parts(), "plant": self.plant_fingerprint(plant, plant_id),
-                          "design": self.design_fingerprint(design, design_id), "options": self._options(options)})
+    def _safe_key(self, what: str, build: Callable[[], dict]) -> str | None:
+        try:
+            return self._key(build())
+        except Exception as exc:  # noqa: BLE001 - a cache problem never fails a run: no key, a miss
+            self.errors.append(f"cannot compute the cache key of {what}: {type(exc).__name__}: {exc}")
+            return None
 
-    def constants_key(self, plant, plant_id: str, options) -> str:
-        """The key of one plant's constants (plant content, seed, n_samples, code, versions)."""
-        return self._key({"kind": "constants", **self._fixed_parts(),
-                          "plant": self.plant_fingerprint(plant, plant_id),
-                          "seed": options.seed, "n_samples": options.n_samples})
+    def pair_key(self, plant, plant_id: str, design, design_id: str, options) -> str | None:
+        """The key of one pair (see the module docstring); None when it cannot be computed (then a miss)."""
+
+        def build() -> dict:
+            fixed = self._fixed_parts()
+            p = self.plant_fingerprint(plant, plant_id)
+            d = self.design_fingerprint(design, design_id)
+            return {"kind": "pair", **fixed, "plant": p, "design": d, "options": self._options(options),
+                    "settings": self._settings([*fixed["code"], *p["code"], *d["code"]])}
+
+        return self._safe_key(f"{plant_id} x {design_id}", build)
+
+    def constants_key(self, plant, plant_id: str, options) -> str | None:
+        """The key of one plant's constants (plant content, seed, n_samples, code, settings, versions);
+        None when it cannot be computed (then a miss)."""
+
+        def build() -> dict:
+            fixed = self._fixed_parts()
+            p = self.plant_fingerprint(plant, plant_id)
+            return {"kind": "constants", **fixed, "plant": p, "seed": options.seed, "n_samples": options.n_samples,
+                    "settings": self._settings([*fixed["code"], *p["code"]])}
+
+        return self._safe_key(f"the constants of {plant_id}", build)
 
     # -- storage ------------------------------------------------------------------------------
     def _write(self, path: Path, write: Callable[[IO[bytes]], None]) -> bool:
@@ -324,11 +593,51 @@ class Cache:
             self._writable = False
             self.errors.append(f"cannot write the cache {self.root}: {exc}")
             return False
+        except Exception as exc:  # noqa: BLE001 - a value the writer cannot store: this entry only
+            self.errors.append(f"cannot store {path.name} in the cache: {type(exc).__name__}: {exc}")
+            return False
         self.stored += 1
         return True
 
-    def store_pair(self, key: str, outcome) -> bool:
-        """Store a finished pair; False when it is not cacheable (error, timeout) or not written."""
+    def _guard(self, what: str, fn: Callable[[], Any], default: Any) -> Any:
+        """``fn()``, or ``default`` with the problem noted: a cache problem never fails a run."""
+        try:
+            return fn()
+        except Exception as exc:  # noqa: BLE001
+            self.errors.append(f"cache: {what}: {type(exc).__name__}: {exc}")
+            return default
+
+    def store_pair(self, key: str | None, outcome) -> bool:
+        """Store a finished pair; False when it is not cacheable (error, timeout, no key) or not written."""
+        if not key:
+            return False
+        return self._guard("cannot store a pair", lambda: self._store_pair(key, outcome), False)
+
+    def load_pair(self, key: str | None):
+        """The cached :class:`bench.harness.PairOutcome` (without its plant), or None; counts hits/misses."""
+        out = self._guard("cannot read a pair", lambda: self._load_pair(key), None) if key else None
+        if out is None:
+            self.misses += 1
+        else:
+            self.hits += 1
+        return out
+
+    def store_constants(self, key: str | None, report) -> bool:
+        """Store a plant's :class:`bench.constants.ConstantsReport`; False when not written (or no key)."""
+        if not key:
+            return False
+        return self._guard("cannot store constants", lambda: self._store_constants(key, report), False)
+
+    def load_constants(self, key: str | None):
+        """The cached :class:`bench.constants.ConstantsReport`, or None; counts constants hits/misses."""
+        rep = self._guard("cannot read constants", lambda: self._load_constants(key), None) if key else None
+        if rep is None:
+            self.constants_misses += 1
+        else:
+            self.constants_hits += 1
+        return rep
+
+    def _store_pair(self, key: str, outcome) -> bool:
         rec = outcome.record
         if rec.get("status") in _TRANSIENT:
             return False
@@ -361,8 +670,7 @@ class Cache:
         arrays["meta"] = np.array(text)
         return self._write(self.root / "pairs" / f"{key}.npz", lambda fh: np.savez_compressed(fh, **arrays))
 
-    def load_pair(self, key: str):
-        """The cached :class:`bench.harness.PairOutcome` (without its plant), or None; counts hits/misses."""
+    def _load_pair(self, key: str):
         path = self.root / "pairs" / f"{key}.npz"
         out = None
         if path.is_file():
@@ -370,10 +678,6 @@ class Cache:
                 out = self._read_pair(path)
             except Exception as exc:  # noqa: BLE001 - a damaged entry is a miss
                 self.errors.append(f"unreadable cache entry {path.name}: {type(exc).__name__}: {exc}")
-        if out is None:
-            self.misses += 1
-        else:
-            self.hits += 1
         return out
 
     @staticmethod
@@ -406,8 +710,7 @@ class Cache:
                               tm["wall_s"], tm["nfev"])
         return PairOutcome(rec, result=result, trajectory=traj)
 
-    def store_constants(self, key: str, report) -> bool:
-        """Store a plant's :class:`bench.constants.ConstantsReport`."""
+    def _store_constants(self, key: str, report) -> bool:
         doc = {
             "format": CACHE_FORMAT,
             **{k: (None if getattr(report, k) is None else getattr(report, k).as_dict())
@@ -425,8 +728,7 @@ class Cache:
             return False
         return self._write(self.root / "constants" / f"{key}.json", lambda fh: fh.write(text))
 
-    def load_constants(self, key: str):
-        """The cached :class:`bench.constants.ConstantsReport`, or None."""
+    def _load_constants(self, key: str):
         from bench.constants import ConstantsReport, Violation
         from plants._core import Constants
 
@@ -444,8 +746,4 @@ class Cache:
                                           n_samples=doc["n_samples"])
             except Exception as exc:  # noqa: BLE001 - a damaged entry is a miss
                 self.errors.append(f"unreadable cache entry {path.name}: {type(exc).__name__}: {exc}")
-        if rep is None:
-            self.constants_misses += 1
-        else:
-            self.constants_hits += 1
         return rep
