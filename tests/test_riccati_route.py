@@ -327,3 +327,25 @@ def test_constants_route_osl_qib_square():
 def test_min_mu_requires_negative_sides():
     with pytest.raises(np.linalg.LinAlgError):
         min_mu(np.ones((2, 1)), np.ones((1, 2)), np.eye(2), np.eye(2), -np.eye(2))
+
+
+def test_joint_margin_statuses():
+    from designs._riccati_route import joint_margin
+
+    m, status, why = joint_margin(-np.diag([1.0, 1e-9, 1e9]))
+    assert status == "feasible" and m == pytest.approx(-1.0) and why
+    m, status, why = joint_margin(np.array([[-1.0, 1.0], [1.0, -1.0]]))  # singular: eigenvalues 0, -2
+    assert status == "marginal" and abs(m) < 1e-12 and why
+    m, status, why = joint_margin(np.array([[-1.0, 2.0], [2.0, -1.0]]))  # eigenvalues 1, -3
+    assert status == "infeasible" and m == pytest.approx(1.0) and why
+
+
+def test_bad_shapes_name_the_matrix():
+    p = PLANTS.create("flexible_link")
+    ch = p.channels
+    with pytest.raises(ValueError, match="^H:"):
+        structured_riccati(p.A, p.B, p.C, ch.G, ch.H.T, ch.lo, ch.hi)
+    with pytest.raises(ValueError, match="^C:"):
+        structured_riccati(p.A, p.B, p.C.T, ch.G, ch.H, ch.lo, ch.hi)
+    with pytest.raises(ValueError, match="lo/hi"):
+        structured_riccati(p.A, p.B, p.C, ch.G, ch.H, 1.0, -1.0)
