@@ -1,194 +1,526 @@
-"""Certificates for any gain pair (K, F), however it was designed (analysis, not synthesis).
+"""Certificates for any gain pair (K, F), however it was designed: a ladder of three levels.
 
-With K and F fixed, the closed loop (9) is certified if there are ``P > 0``, ``R > 0`` and
-S-procedure multipliers ``eps1..eps4 >= 0`` such that the matrix of the paper's (20) (with the
-coupling block ``-P B F``) is negative definite ::
+With K and F fixed, the closed loop (9) in ``z = (x, e)`` is ::
 
-    [ S11 + eta1 I   -P B F        P + eta2 I   0          ]
-    [ *              S22 + eta1e I 0            R + eta3 I ]  <  0
-    [ *              *             -2 eps2 I    0          ]
-    [ *              *             *            -2 eps4 I  ]
+    z' = Acl z + Gb w,   Acl = [[A + B F, -B F], [0, A - K C]],   Gb = diag(Gw, Gw),
 
-with ``S11 = (A+BF)'P + P(A+BF) + 2 lam P``, ``S22 = (A-KC)'R + R(A-KC) + 2 lam R``,
-``eta1 = 2(eps1 rho + eps2 beta)``, ``eta2 = eps2 gamma - eps1``,
-``eta1e = 2(eps3 rho + eps4 beta)``, ``eta3 = eps4 gamma - eps3``. This is an LMI in
-(P, R, eps). ``lam = 0`` certifies asymptotic stability (V = x'Px + e'Re decreasing); the
-largest ``lam`` that stays feasible (bisection) is a certified exponential decay rate of V
-(``V' <= -2 lam V``). The margin is maximised under ``trace(P) + trace(R) = 1`` (the analysis
-LMI is homogeneous, so this normalisation loses nothing) and re-verified with numpy.
+where ``w = (w_x, w_e)`` carries the nonlinearity: ``f(x) = Gw w_x`` and
+``f(x) - f(x_hat) = Gw w_e``. A quadratic certificate is ``V = z' P z`` with ``P > 0`` and
+S-procedure multipliers ``tau_k >= 0`` such that ::
 
-The constants must be *valid* ones (global, or on the region the trajectories stay in): a
-certificate with wrong constants certifies nothing.
+    [ Acl' P + P Acl + 2 lam P    P Gb ]
+    [ Gb' P                       0    ]  +  sum_k tau_k Pi_k  <  0
+
+for the quadratic constraints ``xi' Pi_k xi >= 0`` that f is known to satisfy along the pairs
+``(x, 0)`` and ``(x, x_hat)``. Then ``V' <= -2 lam V``: the loop is exponentially stable with
+rate ``lam`` (globally, or on the region where the constraints hold). Every level maximises a
+margin under ``trace(P) = 1`` (the LMI is homogeneous in (P, tau), so this loses nothing) and
+is verified by recomputing the matrix with numpy (:func:`bench.lmi.classify`, one tolerance).
+
+The ladder (each level's feasible set contains the one below, so a pair certified at a lower
+level is certified above it, with a rate no smaller):
+
+- ``paper``: the paper's (20): block-diagonal ``P = diag(P1, P2)``, ``w = (f, f - f_hat)`` (so
+  ``Gw = I``), the OSL and QIB constraints (16)-(19) with one multiplier each;
+- ``full``: full ``2n x 2n`` P, every scalar constant known about f (Lipschitz
+  ``alpha^2 |dx|^2 - |df|^2 >= 0``, OSL ``rho |dx|^2 - <dx, df> >= 0``, QIB
+  ``beta |dx|^2 + gamma <dx, df> - |df|^2 >= 0``), one multiplier per constraint and pair;
+- ``structured``: full P with every constraint the plant declares: its channels
+  ``f = G phi(H x)`` (``Gw = G``, ``w`` the channel outputs) with one multiplier per channel and
+  pair on the slope (sector) constraint ``(w_i - lo_i z_i)(hi_i z_i - w_i) >= 0``,
+  ``z = H dx`` (Acikmese & Corless, Automatica 2011; STRUCTURE.md), plus the scalar constants
+  written in channel coordinates.
+
+Only *trusted* knowledge enters (:meth:`bench.constants.ConstantsReport.knowledge`): analytic
+constants that no sample disproved, declared channels that no sample disproved. Constants that
+were only sampled are lower bounds and never certify.
+
+Decay rates: after ``lam = 0``, the largest certified ``lam`` is bracketed by doubling and then
+bisected geometrically (relative tolerance ``rate_rtol``); each level starts from the rate of
+the level below (warm start). The bracket's upper end is the decay rate of the closed loop
+linearised at the origin (no certificate can beat it).
 """
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from designs import _lmi
-from plants._core import Constants, Plant
+from bench import lmi
+from bench.constants import Knowledge
+from plants import Plant
 
-__all__ = ["Certificate", "certify"]
+__all__ = ["LEVELS", "LEVEL_TITLES", "Certificate", "Knowledge", "LevelResult", "certify", "level_set",
+           "linearised_rate"]
 
-#: A verified margin must be below this (relative to the matrix scale) to count as certified.
-CERT_TOL = 1e-7
+#: The ladder, weakest first.
+LEVELS = ("paper", "full", "structured")
+
+#: What each level assumes, in words (for reports).
+LEVEL_TITLES = {
+    "paper": "the paper's (20): block-diagonal P, OSL and QIB constants",
+    "full": "full P, every scalar constant (Lipschitz, OSL, QIB)",
+    "structured": "full P, the declared channel slopes and the scalar constants",
+}
+
+#: Statuses of one level.
+LEVEL_STATUSES = ("certified", "not certified", "marginal", "inapplicable", "undecided")
+
+
+@dataclass
+class LevelResult:
+    """One level of the ladder for one gain pair.
+
+    Attributes
+    ----------
+    level : str
+        One of :data:`LEVELS`.
+    status : str
+        One of :data:`LEVEL_STATUSES`.
+    decay_rate : float
+        Largest verified ``lam`` (0 if only ``lam = 0`` verifies); NaN unless certified.
+    margin : float
+        Largest eigenvalue of the verified matrix at ``lam = 0`` (negative = certified).
+    reason : str
+        Why not certified (empty when certified).
+    P : ndarray or None
+        ``2n x 2n`` Lyapunov matrix at the reported rate (``V = z' P z``, ``z = (x, e)``).
+    radius : float or None
+        The constraints hold on ``||x|| <= radius`` (None: globally): the certificate is local.
+    solve_s : float
+        Compile and solve seconds of this level.
+    n_solves : int
+    """
+
+    level: str
+    status: str
+    decay_rate: float = float("nan")
+    margin: float = float("nan")
+    reason: str = ""
+    P: np.ndarray | None = None
+    radius: float | None = None
+    solve_s: float = 0.0
+    n_solves: int = 0
+
+    @property
+    def certified(self) -> bool:
+        """True when this level certified the pair."""
+        return self.status == "certified"
 
 
 @dataclass
 class Certificate:
-    """Outcome of :func:`certify`.
+    """The ladder's outcome for one gain pair.
 
     Attributes
     ----------
-    certified : bool
-        True when the analysis LMI at ``lam = 0`` has a verified negative margin.
-    status : str
-        ``"certified"``, ``"not_certified"``, ``"inapplicable"`` or the solver's status.
-    margin : float
-        Verified max eigenvalue of the analysis LMI at lam = 0 (negative = certified).
-    decay_rate : float
-        Largest certified lam (to ``rate_tol``), 0 if only lam = 0 certifies, NaN if not certified.
-    reason : str
-    solve_s : float
-        Seconds spent in all solves.
-    multipliers : dict
-        eps1..eps4 at lam = 0.
+    levels : dict
+        :class:`LevelResult` by level name, weakest first (only the levels asked for).
     """
 
-    certified: bool
-    status: str
-    margin: float = float("nan")
-    decay_rate: float = float("nan")
-    reason: str = ""
-    solve_s: float = 0.0
-    multipliers: dict = field(default_factory=dict)
+    levels: dict[str, LevelResult]
+
+    @property
+    def best(self) -> LevelResult | None:
+        """The strongest level that certified, or None."""
+        cert = [r for r in self.levels.values() if r.certified]
+        return cert[-1] if cert else None
+
+    @property
+    def certified(self) -> bool:
+        """True when some level certified."""
+        return self.best is not None
+
+    @property
+    def decay_rate(self) -> float:
+        """The strongest certified level's rate (NaN if none)."""
+        b = self.best
+        return b.decay_rate if b is not None else float("nan")
+
+    @property
+    def solve_s(self) -> float:
+        """Seconds in all levels."""
+        return sum(r.solve_s for r in self.levels.values())
+
+    def reason(self) -> str:
+        """One line on the levels that did not certify."""
+        return "; ".join(f"{r.level}: {r.reason}" for r in self.levels.values() if not r.certified and r.reason)
 
 
-def _program(plant: Plant, K: np.ndarray, F: np.ndarray, c: Constants) -> _lmi.Program:
-    """The analysis program, compiled once per n and sparsity class (the constants and the dense
-    ones of A+BF, A-KC, BF are cvxpy Parameters, :func:`designs._lmi.matrices`), so certifying
-    another gain pair or plant of the same size re-uses it)."""
-    n = plant.n
+# -- the constraints of a level ---------------------------------------------------------------
+@dataclass(frozen=True)
+class _Spec:
+    """The structure of a level's LMI (it keys the compiled program)."""
+
+    level: str
+    n: int
+    nw: int
+    full_p: bool
+    scalars: tuple[str, ...]  # subset of ("osl", "qib", "lip")
+    channels: bool
+
+
+def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
+    """The level's structure, or None and the reason it does not apply."""
+    c = know.constants
+    have = {"osl": c.rho is not None, "qib": c.beta is not None and c.gamma is not None, "lip": c.alpha is not None}
+    notes = f" ({'; '.join(know.notes)})" if know.notes else ""
+    if level == "paper":
+        if not (have["osl"] and have["qib"]):
+            return None, f"needs trusted rho, beta, gamma (the OSL and QIB constants of (20)){notes}"
+        return _Spec(level, n, n, False, ("osl", "qib"), False), ""
+    scalars = tuple(k for k in ("osl", "qib", "lip") if have[k])
+    if level == "full":
+        if not scalars:
+            return None, f"no trusted scalar constant (alpha, rho, beta/gamma){notes}"
+        return _Spec(level, n, n, True, scalars, False), ""
+    if know.channels is None:
+        return None, f"the plant declares no channel structure f = G phi(Hx){notes}"
+    return _Spec(level, n, know.channels.q, True, scalars, True), ""
+
+
+def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge) -> lmi.Program:
+    """The level's analysis program (compiled once per structure; see :func:`bench.lmi.cached_program`)."""
+    n, nw = spec.n, spec.nw
+    ch = know.channels if spec.channels else None
+    Gw = ch.G if ch is not None else np.eye(n)
+    GtG = Gw.T @ Gw
+    Hc = ch.H if ch is not None else None
 
     def build():
         import cvxpy as cp
 
-        I, Z = np.eye(n), np.zeros((n, n))
-        v = {
-            "P": cp.Variable((n, n), symmetric=True, name="P"),
-            "R": cp.Variable((n, n), symmetric=True, name="R"),
-            "e1": cp.Variable(name="eps1"),
-            "e2": cp.Variable(name="eps2"),
-            "e3": cp.Variable(name="eps3"),
-            "e4": cp.Variable(name="eps4"),
-            "t": cp.Variable(name="t"),
-        }
+        v = {"t": cp.Variable(name="t")}
+        if spec.full_p:
+            v["P"] = cp.Variable((2 * n, 2 * n), symmetric=True, name="P")
+        else:
+            v["P1"] = cp.Variable((n, n), symmetric=True, name="P1")
+            v["P2"] = cp.Variable((n, n), symmetric=True, name="P2")
+        for side in ("x", "e"):
+            for k in spec.scalars:
+                v[f"{k}_{side}"] = cp.Variable(name=f"tau_{k}_{side}")
+            if spec.channels:
+                v[f"ch_{side}"] = cp.Variable(nw, name=f"tau_channels_{side}")
         prm = {"lam": cp.Parameter(nonneg=True, name="lam"), **mats.parameters(),
-               **_lmi.scalar_parameters("rho", "beta", "gamma")}
-
-        def blocks(d):
-            P, R, lam, Acl, Ae = d["P"], d["R"], d["lam"], d["Acl"], d["Ae"]
-            rho, beta, gamma = d["rho"], d["beta"], d["gamma"]
-            S11 = Acl.T @ P + P @ Acl + 2 * lam * P + 2 * (d["e1"] * rho + d["e2"] * beta) * I
-            S22 = Ae.T @ R + R @ Ae + 2 * lam * R + 2 * (d["e3"] * rho + d["e4"] * beta) * I
-            X13 = P + (d["e2"] * gamma - d["e1"]) * I
-            X24 = R + (d["e4"] * gamma - d["e3"]) * I
-            PBF = -P @ d["BF"]
-            return [
-                [S11, PBF, X13, Z],
-                [PBF.T, S22, Z, X24],
-                [X13.T, Z, -2 * d["e2"] * I, Z],
-                [Z, X24.T, Z, -2 * d["e4"] * I],
-            ]
-
+               **lmi.scalar_parameters("rho", "beta", "gamma", "a2")}
+        if spec.channels:
+            prm["lohi"] = cp.Parameter(nw, name="lo_times_hi")
+            prm["losum"] = cp.Parameter(nw, name="lo_plus_hi")
         t_build = time.perf_counter()
-        M = _lmi.sym(_lmi.assemble(blocks, {**v, **prm}, numeric=False))
+        M = lmi.sym(lmi.assemble(blocks, {**v, **prm}, numeric=False))
         t = v["t"]
-        cons = [
-            M << -t * np.eye(4 * n),
-            v["P"] >> t * I,
-            v["R"] >> t * I,
-            cp.trace(v["P"]) + cp.trace(v["R"]) == 1,
-            v["e1"] >= 0, v["e2"] >= 0, v["e3"] >= 0, v["e4"] >= 0,
-        ]
+        pos = ("P",) if spec.full_p else ("P1", "P2")
+        cons = [M << -t * np.eye(M.shape[0])]
+        cons += [v[k] >> t * np.eye(v[k].shape[0]) for k in pos]
+        cons.append(sum(cp.trace(v[k]) for k in pos) == 1)
+        cons += [v[k] >= 0 for k in v if k not in pos and k != "t"]
         prob = cp.Problem(cp.Maximize(t), cons)
-        return _lmi.Program(prob, v, prm, blocks, ("P", "R"), build_s=time.perf_counter() - t_build)
+        return lmi.Program(prob, v, prm, blocks, pos, build_s=time.perf_counter() - t_build)
 
-    A, B, C = plant.A, plant.B, plant.C
-    mats = _lmi.matrices(Acl=A + B @ F, Ae=A - K @ C, BF=B @ F)
-    prog = _lmi.cached_program(("certify", n, mats.key), build)
-    prog.set(**mats.settable(), rho=c.rho, beta=c.beta, gamma=c.gamma)
-    return prog
+    def blocks(d):
+        """The 4 x 4 block matrix in (x, e, w_x, w_e), numeric or cvxpy (``d``: values)."""
+        I, Zn, Zw, Znw = np.eye(n), np.zeros((n, n)), np.zeros((nw, nw)), np.zeros((n, nw))
+        if spec.full_p:
+            P = d["P"]
+            P11, P12, P22 = P[:n, :n], P[:n, n:], P[n:, n:]
+        else:
+            P11, P12, P22 = d["P1"], Zn, d["P2"]
+        Ax, Ae, BF, lam = d["Ax"], d["Ae"], d["BF"], d["lam"]
+        # V' terms: Acl' P + P Acl + 2 lam P, Acl = [[Ax, -BF], [0, Ae]]
+        xx = Ax.T @ P11 + P11 @ Ax + 2 * lam * P11
+        xe = -P11 @ BF + Ax.T @ P12 + P12 @ Ae + 2 * lam * P12
+        ee = -BF.T @ P12 - P12.T @ BF + Ae.T @ P22 + P22 @ Ae + 2 * lam * P22
+        xwx, xwe = P11 @ Gw, P12 @ Gw
+        ewx, ewe = P12.T @ Gw, P22 @ Gw
+        ww = {"x": Zw, "e": Zw}
+        diag = {"x": 0 * I, "e": 0 * I}
+        cross = {"x": Znw, "e": Znw}
+        for side in ("x", "e"):
+            for k in spec.scalars:
+                tau = d[f"{k}_{side}"]
+                if k == "osl":
+                    diag[side] = diag[side] + tau * d["rho"] * I
+                    cross[side] = cross[side] - (tau / 2) * Gw
+                elif k == "qib":
+                    diag[side] = diag[side] + tau * d["beta"] * I
+                    cross[side] = cross[side] + (tau * d["gamma"] / 2) * Gw
+                    ww[side] = ww[side] - tau * GtG
+                else:  # lip
+                    diag[side] = diag[side] + tau * d["a2"] * I
+                    ww[side] = ww[side] - tau * GtG
+            if spec.channels:
+                tau = d[f"ch_{side}"]
+                diag[side] = diag[side] + Hc.T @ _diag(-_times(tau, d["lohi"])) @ Hc
+                cross[side] = cross[side] + Hc.T @ _diag(_times(tau, d["losum"]) / 2)
+                ww[side] = ww[side] - _diag(tau)
+        return [
+            [xx + diag["x"], xe, xwx + cross["x"], xwe],
+            [xe.T, ee + diag["e"], ewx, ewe + cross["e"]],
+            [(xwx + cross["x"]).T, ewx.T, ww["x"], Zw],
+            [xwe.T, (ewe + cross["e"]).T, Zw, ww["e"]],
+        ]
+
+    key = ("certify", spec, mats.key, _digest(Gw), _digest(Hc))
+    return lmi.cached_program(key, build)
 
 
-def _verified(prog: _lmi.Program) -> tuple[bool, float]:
-    if prog.last_status not in ("optimal", "optimal_inaccurate"):
-        return False, float("nan")
-    M = prog.numeric_matrix()
+def _digest(M) -> str:
+    import hashlib
+
+    return "" if M is None else hashlib.sha1(np.ascontiguousarray(M, dtype=float).tobytes()).hexdigest()
+
+
+def _diag(v):
+    """A diagonal matrix from a vector (cvxpy or numpy)."""
+    if isinstance(v, np.ndarray):
+        return np.diag(v)
+    import cvxpy as cp
+
+    return cp.diag(v)
+
+
+def _times(a, b):
+    """Elementwise product (cvxpy or numpy)."""
+    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray):
+        return a * b
+    import cvxpy as cp
+
+    return cp.multiply(a, b)
+
+
+def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
     vals = prog.values()
-    margin = _lmi.max_eig(M)
-    pos = min(_lmi.min_eig(vals["P"]), _lmi.min_eig(vals["R"]))
-    ok = margin < -CERT_TOL * max(1.0, float(np.max(np.abs(M)))) and pos > 0
-    return ok, margin
+    if spec.full_p:
+        return np.array(vals["P"])
+    n = spec.n
+    return np.block([[vals["P1"], np.zeros((n, n))], [np.zeros((n, n)), vals["P2"]]])
+
+
+def _check(prog: lmi.Program, lam: float) -> tuple[str, float]:
+    """Solve at ``lam``; ``("verified" | "marginal" | "violated" | solver status, margin)``."""
+    prog.solve(lam=lam)
+    if prog.last_status not in ("optimal", "optimal_inaccurate"):
+        return prog.last_status, float("nan")
+    M = prog.numeric_matrix()
+    margin = lmi.max_eig(M)
+    verdict = lmi.classify(margin, M)
+    vals = prog.values()
+    if verdict == "verified" and not all(lmi.is_positive_definite(vals[k]) for k in prog.positive):
+        verdict = "violated"
+    return verdict, margin
+
+
+def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float) -> tuple[float, np.ndarray]:
+    """Largest verified rate in ``[lam0, hi)``, from a verified solve at ``lam0`` (held by ``prog``).
+
+    Bracketed by doubling from ``lam0`` (or by quartering down from ``hi`` when ``lam0 = 0``),
+    then bisected geometrically until the bracket is within ``rtol`` (relative). Only verified
+    rates count; a solve that fails or is marginal closes the bracket from above.
+    """
+    lo, best_p, top = lam0, _full_p(prog, spec), hi
+    if lo <= 0:  # a first positive rate: quarter down from hi
+        lam = hi / 2
+        while lam > 1e-6 * max(1.0, hi):
+            if _check(prog, lam)[0] == "verified":
+                lo, best_p = lam, _full_p(prog, spec)
+                break
+            top, lam = lam, lam / 4
+        if lo <= 0:
+            return 0.0, best_p
+    while 2 * lo < top:  # double until the bracket closes
+        if _check(prog, 2 * lo)[0] == "verified":
+            lo, best_p = 2 * lo, _full_p(prog, spec)
+        else:
+            top = 2 * lo
+    while top / lo - 1 > rtol:
+        mid = math.sqrt(lo * top)
+        if _check(prog, mid)[0] == "verified":
+            lo, best_p = mid, _full_p(prog, spec)
+        else:
+            top = mid
+    return lo, best_p
+
+
+def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
+    """Decay rate of the closed loop (6) linearised at the origin, ``-max Re eig`` of
+    ``A + Df(0) + B F`` and ``A + Df(0) - K C`` (no certificate can beat it).
+
+    Parameters
+    ----------
+    plant : Plant
+        Its Jacobian at 0 (or a central difference of f).
+    K, F : ndarray
+
+    Returns
+    -------
+    float
+        Negative when the linearisation is unstable.
+    """
+    J = plant.jacobian(np.zeros(plant.n)) if plant.jacobian is not None else _fd_jacobian(plant.f, plant.n)
+    A = plant.A + np.asarray(J, dtype=float)
+    eig = np.concatenate([np.linalg.eigvals(A + plant.B @ F), np.linalg.eigvals(A - K @ plant.C)])
+    return float(-eig.real.max())
+
+
+def _fd_jacobian(f, n: int, h: float = 1e-6) -> np.ndarray:
+    E = np.eye(n) * h
+    return (np.asarray(f(E), dtype=float) - np.asarray(f(-E), dtype=float)) / (2 * h)
+
+
+def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: float, hi: float, rates: bool,
+                 rtol: float) -> LevelResult:
+    """One level's program: certified at ``start`` (else at 0), then its rate."""
+    mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
+    prog = _program(spec, mats, know)
+    c = know.constants
+    values = {**mats.settable(), "rho": c.rho or 0.0, "beta": c.beta or 0.0, "gamma": c.gamma or 0.0,
+              "a2": (c.alpha or 0.0) ** 2}
+    radius = c.radius
+    if spec.channels:
+        ch = know.channels
+        values.update(lohi=ch.lo * ch.hi, losum=ch.lo + ch.hi)
+        radius = min((r for r in (radius if spec.scalars else None, ch.radius) if r is not None), default=None)
+    prog.set(**values)
+    lam0 = start if 0 < start < hi else 0.0
+    verdict, margin = _check(prog, lam0)
+    if verdict != "verified" and lam0 > 0:
+        lam0 = 0.0
+        verdict, margin = _check(prog, 0.0)
+    out = LevelResult(spec.level, "not certified", margin=margin, radius=radius)
+    if verdict == "verified":
+        out.status = "certified"
+        if lam0 > 0:  # the margin at lam = 0 of the same solution: M(0) = M(lam0) - 2 lam0 diag(P, 0)
+            M = prog.numeric_matrix()
+            P = _full_p(prog, spec)
+            M[: P.shape[0], : P.shape[0]] -= 2 * lam0 * P
+            out.margin = lmi.max_eig(M)
+        out.P = _full_p(prog, spec)
+        out.decay_rate = 0.0
+        if rates and hi > 0:
+            out.decay_rate, out.P = _rate(prog, spec, lam0, hi, rtol)
+    elif verdict == "marginal":
+        out.status, out.reason = "marginal", (
+            f"best max eig {margin:.3g} is within the verification tolerance of zero (trace(P) = 1)")
+    elif verdict == "violated":
+        out.reason = f"no P > 0 and multipliers make the LMI negative definite: best max eig {margin:.3g} (trace(P) = 1)"
+    else:
+        out.status, out.reason = "undecided", f"solver status {verdict!r} {prog.last_error}".strip()
+    out.solve_s, out.n_solves = prog.compile_s + prog.solve_s, prog.n_solves
+    return out
+
+
+def _level(spec: _Spec, plant: Plant, K, F, know: Knowledge, **kw) -> LevelResult:
+    """One level; when the solver fails on channels with scalar constants (redundant constraints
+    can make the interior-point solver fail), the channels alone are tried (a subset of the
+    constraints: still a valid certificate at this level)."""
+    out = _solve_level(spec, plant, K, F, know, **kw)
+    if out.status == "undecided" and spec.channels and spec.scalars:
+        alt = _solve_level(replace(spec, scalars=()), plant, K, F, know, **kw)
+        alt.solve_s += out.solve_s
+        alt.n_solves += out.n_solves
+        if alt.certified:
+            return alt
+        alt.reason = f"with the scalar constants: {out.reason}; with the channels alone: {alt.reason}"
+        return alt
+    return out
+
+
+def _inherit(out: LevelResult, prev: LevelResult | None) -> LevelResult:
+    """A level's knowledge contains the level below's, so the lower certificate holds here too:
+    keep the better of this level's own result and the one below (monotone by construction)."""
+    if prev is None or not prev.certified or (out.certified and out.decay_rate >= prev.decay_rate):
+        return out
+    own = f"its own LMI: {out.status}" + (f", rate {out.decay_rate:.3g}" if out.certified else "")
+    return LevelResult(out.level, "certified", decay_rate=prev.decay_rate, margin=prev.margin,
+                       reason=f"inherits the {prev.level} level's certificate ({own})", P=prev.P, radius=prev.radius,
+                       solve_s=out.solve_s, n_solves=out.n_solves)
 
 
 def certify(
     plant: Plant,
     K: np.ndarray,
     F: np.ndarray,
-    constants: Constants,
+    knowledge: Knowledge,
     *,
-    rate_tol: float = 1e-3,
-    max_rate: float | None = None,
+    levels: tuple[str, ...] = LEVELS,
+    rates: bool = True,
+    rate_rtol: float = 0.03,
+    inherit: bool = True,
 ) -> Certificate:
-    """Certify the observer-based closed loop with gains K, F and find a certified decay rate.
+    """Certify the observer-based closed loop with gains K, F at each level of the ladder.
 
     Parameters
     ----------
     plant : Plant
     K, F : ndarray
         Observer gain (n x p) and feedback gain (m x n), ``u = F x_hat``.
-    constants : Constants
-        Valid OSL/QIB constants (rho, beta, gamma) of the plant.
-    rate_tol : float
-        Absolute tolerance of the decay-rate bisection.
-    max_rate : float, optional
-        Upper end of the bisection; default: the smallest ``-max Re eig`` of A+BF and A-KC
-        (no quadratic certificate can certify a faster rate than the linear parts allow).
+    knowledge : Knowledge
+        What is trusted about f (constants and channels).
+    levels : tuple of str
+        Levels to compute (a subset of :data:`LEVELS`, in ladder order).
+    rates : bool
+        Also find each certified level's decay rate (otherwise ``lam = 0`` only).
+    rate_rtol : float
+        Relative tolerance of the rate bisection.
+    inherit : bool
+        A level whose own LMI certifies less than the level below (numerical trouble, or a
+        different P found) keeps the lower certificate, which holds at every higher level
+        (:func:`_inherit`); False reports each level's own LMI only.
 
     Returns
     -------
     Certificate
+
+    Raises
+    ------
+    ValueError
+        An unknown level, or K, F of the wrong shape.
     """
-    if not constants.has_osl:
-        return Certificate(False, "inapplicable", reason="no OSL/QIB constants (rho, beta, gamma) for the plant")
+    for lv in levels:
+        if lv not in LEVELS:
+            raise ValueError(f"levels: unknown certificate level {lv!r} (known: {', '.join(LEVELS)})")
     K = np.asarray(K, dtype=float)
     F = np.asarray(F, dtype=float)
-    prog = _program(plant, K, F, constants)
-    prog.solve(lam=0.0)
-    ok, margin = _verified(prog)
-    vals = prog.values()
-    mult = {k: float(vals[k]) for k in ("e1", "e2", "e3", "e4") if vals[k] is not None}
-    if prog.last_status not in ("optimal", "optimal_inaccurate"):
-        return Certificate(False, prog.last_status, margin, reason=f"solver status {prog.last_status!r} "
-                           f"{prog.last_error}".strip(), solve_s=prog.compile_s + prog.solve_s)
-    if not ok:
-        return Certificate(False, "not_certified", margin, reason=(
-            f"no P, R > 0 and multipliers make (20) negative definite: best max eig {margin:.3g} "
-            f"(trace(P) + trace(R) = 1)"), solve_s=prog.compile_s + prog.solve_s, multipliers=mult)
-    if max_rate is None:
-        eig = np.concatenate([np.linalg.eigvals(plant.A + plant.B @ F), np.linalg.eigvals(plant.A - K @ plant.C)])
-        max_rate = max(float(-eig.real.max()), rate_tol)
-    lo, hi = 0.0, max_rate
-    while hi - lo > rate_tol:
-        mid = (lo + hi) / 2
-        prog.solve(lam=mid)
-        if _verified(prog)[0]:
-            lo = mid
-        else:
-            hi = mid
-    return Certificate(True, "certified", margin, decay_rate=lo, solve_s=prog.compile_s + prog.solve_s,
-                       multipliers=mult)
+    if K.shape != (plant.n, plant.p) or F.shape != (plant.m, plant.n):
+        raise ValueError(f"K, F: expected shapes ({plant.n}, {plant.p}) and ({plant.m}, {plant.n}), "
+                         f"got {K.shape} and {F.shape}")
+    hi = linearised_rate(plant, K, F)
+    out: dict[str, LevelResult] = {}
+    prev: LevelResult | None = None
+    for lv in (lv for lv in LEVELS if lv in levels):
+        spec, why = _spec(lv, plant.n, knowledge)
+        if spec is None:
+            out[lv] = LevelResult(lv, "inapplicable", reason=why)
+            continue
+        start = prev.decay_rate if prev is not None and prev.certified else 0.0
+        res = _level(spec, plant, K, F, knowledge, start=start, hi=hi, rates=rates, rtol=rate_rtol)
+        out[lv] = _inherit(res, prev) if inherit else res
+        prev = out[lv]
+    return Certificate(out)
+
+
+def level_set(P: np.ndarray, radius: float) -> float:
+    """The largest ``v`` with ``{z' P z <= v}`` inside ``||x|| <= radius`` and ``||x_hat|| <= radius``.
+
+    With ``z = (x, e)``, ``x = [I 0] z`` and ``x_hat = [I -I] z``; the largest ``||T z||`` on the
+    ellipsoid ``z' P z <= v`` is ``sqrt(v lmax(T P^-1 T'))``.
+
+    Parameters
+    ----------
+    P : ndarray (2n, 2n)
+        Positive definite.
+    radius : float
+
+    Returns
+    -------
+    float
+    """
+    n = P.shape[0] // 2
+    Pinv = np.linalg.inv((P + P.T) / 2)
+    Tx = np.hstack([np.eye(n), np.zeros((n, n))])
+    Th = np.hstack([np.eye(n), -np.eye(n)])
+    worst = max(float(np.linalg.eigvalsh(T @ Pinv @ T.T)[-1]) for T in (Tx, Th))
+    return radius**2 / worst

@@ -16,21 +16,28 @@ everywhere), with pairs of their own when that region differs from the analytic 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
-from plants._core import Constants, Plant
+from plants import Channels, Constants, Plant, PlantError
 
-__all__ = ["ConstantsReport", "Violation", "compute_constants", "resolve_constants"]
+__all__ = ["ConstantsReport", "Knowledge", "Violation", "compute_constants", "linear_prechecks",
+           "resolve_constants"]
 
-_REL_TOL = 1e-7  # a claimed constant is flagged when a sample exceeds it by more than this
+_REL_TOL = 1e-7  # a constant is flagged when a sample exceeds it by more than this (relative)
+
+#: Globally sampled constants with no analytic value: an estimate at ``||x|| ~ 30`` more than this
+#: many times the estimate at ``||x|| <= 1`` is taken as growing without bound (f is not globally
+#: Lipschitz / OSL / QIB with any constant): the constant is not provided.
+GROWTH_FACTOR = 4.0
 
 
 @dataclass(frozen=True)
 class Violation:
-    """A claimed constant and the sampled pair that violates it."""
+    """A stated constant (claimed, analytic, or a channel's slope bound) and the sampled pair that violates it."""
 
     name: str
     claimed: float
@@ -38,18 +45,43 @@ class Violation:
     x1: tuple[float, ...]
     x2: tuple[float, ...]
 
-    def describe(self) -> str:
-        """One line for the report."""
+    def describe(self, what: str = "claimed") -> str:
+        """One line for reports, e.g. ``"claimed rho = 0.1109 is violated: the pair ... gives 0.1665"``."""
         fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
         return (
-            f"claimed {self.name} = {self.claimed:.4g} is violated: the pair x1 = {fmt(self.x1)}, "
+            f"{what} {self.name} = {self.claimed:.4g} is violated: the pair x1 = {fmt(self.x1)}, "
             f"x2 = {fmt(self.x2)} gives {self.sampled:.4g}"
         )
 
 
 @dataclass(frozen=True)
+class Knowledge:
+    """What is trusted about f: the constants and channels a certificate may use.
+
+    Attributes
+    ----------
+    constants : Constants
+        Trusted scalar constants (analytic, not disproved); unknown or untrusted ones are None.
+    channels : Channels or None
+        Trusted channel structure, or None.
+    notes : tuple of str
+        Why something known was not trusted (for the certificate levels' reasons).
+    """
+
+    constants: Constants = field(default_factory=Constants)
+    channels: Channels | None = None
+    notes: tuple[str, ...] = ()
+
+    @staticmethod
+    def trusting(plant: Plant) -> "Knowledge":
+        """The plant's own declarations, trusted as they are (tests and scripts; the pipeline uses
+        :attr:`ConstantsReport.knowledge`, which checks them by sampling first)."""
+        return Knowledge(plant.bounds or Constants(), plant.channels)
+
+
+@dataclass(frozen=True)
 class ConstantsReport:
-    """Claimed, analytic and sampled constants of one plant, and which ones to use.
+    """Claimed, analytic and sampled constants of one plant, which ones to use, and what is trusted.
 
     Attributes
     ----------
@@ -60,11 +92,22 @@ class ConstantsReport:
     sampled : Constants
         Sampled lower bounds (beta at ``gamma = valid.gamma``).
     valid : Constants
-        What designs use by default: analytic where available, else the sampled value.
+        What designs use by default: analytic where available and not disproved, else the
+        sampled value (a lower bound: designs using it carry no guarantee); a constant whose
+        estimate grows without bound is None.
     source : dict
-        For each of alpha, rho, beta: ``"analytic"`` or ``"sampled"`` (or ``"none"``).
+        For each of alpha, rho, beta: ``"analytic"``, ``"sampled"``, ``"sampled (analytic
+        disproved)"`` or ``"unbounded"``.
     violations : list of Violation
         Claimed constants a sample violates.
+    disproved : list of Violation
+        Analytic constants (the plant's ``bounds``) a sample violates: they never certify.
+    channel_violations : list of Violation
+        Declared channel slope bounds a sample violates (name ``"channel i slope"``).
+    unbounded : dict
+        Constant name -> why its sampled estimate is taken as unbounded.
+    prechecks : list of str
+        Problems of the linear part that no design can overcome (e.g. not stabilizable).
     seed, n_samples : int
         Sampler settings, for reproducibility.
     """
@@ -75,6 +118,10 @@ class ConstantsReport:
     valid: Constants
     source: dict[str, str]
     violations: list[Violation] = field(default_factory=list)
+    disproved: list[Violation] = field(default_factory=list)
+    channel_violations: list[Violation] = field(default_factory=list)
+    unbounded: dict[str, str] = field(default_factory=dict)
+    prechecks: list[str] = field(default_factory=list)
     seed: int = 0
     n_samples: int = 0
 
@@ -82,12 +129,69 @@ class ConstantsReport:
         """The violation of claimed constant ``name``, if any."""
         return next((v for v in self.violations if v.name == name), None)
 
+    def knowledge(self, plant: Plant) -> Knowledge:
+        """The trusted part for ``plant``: analytic constants no sample disproved, and the plant's
+        channels unless a sample disproved their slopes."""
+        an = self.analytic or Constants()
+        bad = {v.name for v in self.disproved}
+        notes = [v.describe("analytic") + ": not used by certificates" for v in self.disproved]
+        kept = {k: getattr(an, k) for k in ("alpha", "rho") if k not in bad}
+        qib_ok = "beta" not in bad and an.beta is not None
+        sampled_only = [k for k in ("alpha", "rho", "beta") if self.source.get(k, "").startswith("sampled")]
+        if sampled_only:
+            notes.append(f"{', '.join(sampled_only)} only sampled (lower bounds): never used by certificates")
+        consts = Constants(**kept, beta=an.beta if qib_ok else None, gamma=an.gamma if qib_ok else None,
+                           radius=an.radius)
+        ch = plant.channels if not self.channel_violations else None
+        notes += [v.describe("declared") + ": channels not used by certificates" for v in self.channel_violations]
+        return Knowledge(consts, ch, tuple(notes))
+
+    @property
+    def trust(self) -> str:
+        """One phrase for a results row: where the constants came from and what certificates may use."""
+        parts = []
+        by: dict[str, list[str]] = {}
+        for k in ("alpha", "rho", "beta"):
+            by.setdefault(self.source.get(k, "none"), []).append(k)
+        for src in ("analytic", "sampled", "sampled (analytic disproved)", "unbounded", "none"):
+            if src in by:
+                label = {"sampled": "sampled (lower bounds, not certifying)",
+                         "sampled (analytic disproved)": "analytic DISPROVED by a sample (not certifying)",
+                         "none": "unknown"}.get(src, src)
+                parts.append(f"{'/'.join(by[src])} {label}")
+        if self.channel_violations:
+            parts.append("channels DISPROVED by a sample (not certifying)")
+        if self.valid.radius is not None:
+            parts.append(f"on ||x|| <= {self.valid.radius:g}")
+        return "; ".join(parts)
+
+
+def _values(f: Callable, X: np.ndarray) -> np.ndarray:
+    """``f(X)`` for a batch, as real numbers; a complex or non-finite value raises :class:`PlantError`
+    naming the state (the sampler never skips a broken value silently)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", np.exceptions.ComplexWarning)
+        try:
+            out = np.asarray(f(X.copy()), dtype=float)
+        except np.exceptions.ComplexWarning:
+            raise PlantError("f: returned complex values on sampled states; f must be real") from None
+    if out.shape != X.shape:
+        raise PlantError(f"f: a batch of shape {X.shape} gave shape {out.shape}")
+    bad = ~np.all(np.isfinite(out), axis=0)
+    if bad.any():
+        j = int(np.argmax(bad))
+        raise PlantError(f"f: not finite at the sampled state x = {np.round(X[:, j], 6).tolist()}: "
+                         f"{np.round(out[:, j], 6).tolist()}")
+    return out
+
 
 def _ratios(f: Callable, x1: np.ndarray, x2: np.ndarray, gamma: float):
     """alpha, rho and beta(gamma) ratios for batches of pairs, shape (n, N) each."""
     dx = x1 - x2
-    with np.errstate(over="ignore", invalid="ignore"):  # a superlinear f sampled globally overflows: inf
-        df = np.asarray(f(x1), dtype=float) - np.asarray(f(x2), dtype=float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        df = _values(f, x1) - _values(f, x2)
         nx2 = np.sum(dx * dx, axis=0)
         nx2 = np.where(nx2 > 0, nx2, np.nan)
         inner = np.sum(dx * df, axis=0)
@@ -163,6 +267,91 @@ def _best_pairs(f, x1, x2, gamma, radius, n, n_refine) -> dict[str, tuple[float,
     return best
 
 
+def _growth(f, x1, x2, gamma, which: int) -> tuple[float, float]:
+    """Sampled sup of one ratio over pairs inside ``||x|| <= 1`` and over pairs outside ``||x|| >= 10``."""
+    r = _ratios(f, x1, x2, gamma)[which]
+    r = np.where(np.isfinite(r), r, -np.inf)
+    s = np.maximum(np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0))
+    small, large = r[s <= 1.0], r[np.minimum(np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0)) >= 10.0]
+    return (float(small.max()) if small.size else -np.inf, float(large.max()) if large.size else -np.inf)
+
+
+def _unbounded(f, x1, x2, gamma, sampled: dict) -> dict[str, str]:
+    """Constants whose global estimate grows with the sampled radius (see :data:`GROWTH_FACTOR`)."""
+    out = {}
+    for which, name in enumerate(("alpha", "rho", "beta")):
+        small, large = _growth(f, x1, x2, gamma, which)
+        if large > GROWTH_FACTOR * max(small, 1e-12) and large > 1e-9:
+            kind = {"alpha": "globally Lipschitz", "rho": "one-sided Lipschitz with any constant",
+                    "beta": "quadratically inner-bounded at this gamma"}[name]
+            out[name] = (f"f is not {kind} (the sampled {name} grows with the sampled radius: {small:.3g} for "
+                         f"||x|| <= 1, {large:.3g} for ||x|| >= 10): declare bounds with a radius")
+    return out
+
+
+def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000) -> list[Violation]:
+    """Sampled slopes of each declared channel against its bounds (inside the channels' region)."""
+    ch = plant.channels
+    if ch is None:
+        return []
+    out = []
+    for i in range(ch.q):
+        h = float(np.linalg.norm(ch.H[i]))
+        zmax = (ch.radius * h) if ch.radius is not None else 30.0
+        a = rng.uniform(-zmax, zmax, n_pairs)
+        b = a + rng.normal(0, 1, n_pairs) * np.maximum(0.05 * zmax, 1e-3) * 10.0 ** rng.uniform(-4, 0, n_pairs)
+        b = np.clip(b, -zmax, zmax)
+        Z = np.zeros((ch.q, 2 * n_pairs))
+        Z[i, :n_pairs], Z[i, n_pairs:] = a, b
+        with np.errstate(invalid="ignore", divide="ignore"):
+            phi = np.asarray(ch.phi(Z), dtype=float)[i]
+            slope = (phi[:n_pairs] - phi[n_pairs:]) / (a - b)
+        ok = np.isfinite(slope)
+        tol = _REL_TOL * max(1.0, abs(ch.lo[i]), abs(ch.hi[i])) + 1e-9
+        for bound, worst, name in ((ch.hi[i], np.max(np.where(ok, slope, -np.inf)), "max"),
+                                   (ch.lo[i], np.min(np.where(ok, slope, np.inf)), "min")):
+            if (name == "max" and worst > bound + tol) or (name == "min" and worst < bound - tol):
+                k = int(np.nanargmax(np.where(ok, slope if name == "max" else -slope, -np.inf)))
+                x1 = tuple(float(v) for v in np.linalg.pinv(ch.H) @ Z[:, k])
+                x2 = tuple(float(v) for v in np.linalg.pinv(ch.H) @ Z[:, n_pairs + k])
+                label = f"channel {i} {'upper' if name == 'max' else 'lower'} slope bound"
+                out.append(Violation(label, float(bound), float(worst), x1, x2))
+    return out
+
+
+def linear_prechecks(plant: Plant) -> list[str]:
+    """Problems of the linear part that no observer-based controller can overcome.
+
+    ``(A, B)`` must be stabilizable and ``(A, C)`` detectable (PBH test on the eigenvalues with
+    ``Re >= 0``); the messages name the eigenvalue.
+
+    Parameters
+    ----------
+    plant : Plant
+
+    Returns
+    -------
+    list of str
+        Empty when both hold.
+    """
+    A, B, C = plant.A, plant.B, plant.C
+    n = plant.n
+    scale = max(1.0, float(np.linalg.norm(A, 2)))
+    out = []
+    for lam in np.linalg.eigvals(A):
+        if lam.real < -1e-9 * scale or lam.imag < -1e-12:  # one of each conjugate pair
+            continue
+        shown = f"{lam.real:.4g}" + (f" +- {lam.imag:.4g}j" if abs(lam.imag) > 1e-12 else "")
+        for name, M, what in (("(A, B)", np.hstack([lam * np.eye(n) - A, B]), "stabilizable"),
+                              ("(A, C)", np.vstack([lam * np.eye(n) - A, C]), "detectable")):
+            if float(np.linalg.svd(M, compute_uv=False)[-1]) <= 1e-9 * scale:
+                word = "uncontrollable" if what == "stabilizable" else "unobservable"
+                msg = f"{name} is not {what}: eigenvalue {shown} of A is {word}"
+                if msg not in out:
+                    out.append(msg)
+    return out
+
+
 def compute_constants(
     plant: Plant,
     *,
@@ -170,7 +359,7 @@ def compute_constants(
     n_samples: int = 20000,
     n_refine: int = 5,
 ) -> ConstantsReport:
-    """Compute the constants of ``plant.f``: analytic, sampled, and flags on the claimed ones.
+    """Compute the constants of ``plant.f``: analytic, sampled, flags, and what is trusted.
 
     Parameters
     ----------
@@ -189,6 +378,11 @@ def compute_constants(
     Returns
     -------
     ConstantsReport
+
+    Raises
+    ------
+    PlantError
+        If f returns a complex or non-finite value at a sampled state (the message names it).
     """
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
@@ -208,11 +402,43 @@ def compute_constants(
     sampled = Constants(
         alpha=max(best["alpha"][0], 0.0), rho=best["rho"][0], beta=best["beta"][0], gamma=gamma, radius=radius
     )
+    unbounded = _unbounded(plant.f, x1, x2, gamma, best) if radius is None else {}
+    disproved = []
+    for name in ("alpha", "rho", "beta"):
+        av = getattr(analytic, name) if analytic is not None else None
+        val, a, b = best[name]
+        if av is not None and val > av + _REL_TOL * max(1.0, abs(av)):
+            disproved.append(Violation(name, av, val, tuple(a), tuple(b)))
+    violations = _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine)
+    valid_kw, source = {}, {}
+    bad = {v.name for v in disproved}
+    for name in ("alpha", "rho", "beta"):
+        av = getattr(analytic, name) if analytic is not None else None
+        if av is not None and name not in bad:
+            valid_kw[name], source[name] = av, "analytic"
+        elif av is not None:
+            valid_kw[name], source[name] = getattr(sampled, name), "sampled (analytic disproved)"
+        elif name in unbounded:
+            valid_kw[name], source[name] = None, "unbounded"
+        else:
+            valid_kw[name], source[name] = getattr(sampled, name), "sampled"
+    if valid_kw["beta"] is None:
+        valid = Constants(**valid_kw, radius=radius)
+    else:
+        valid = Constants(**valid_kw, gamma=gamma, radius=radius)
+    return ConstantsReport(
+        claimed=plant.claimed, analytic=analytic, sampled=sampled, valid=valid, source=source,
+        violations=violations, disproved=disproved,
+        channel_violations=_channel_check(plant, np.random.default_rng([seed, 2])), unbounded=unbounded,
+        prechecks=linear_prechecks(plant), seed=seed, n_samples=n_samples,
+    )
 
-    # claimed constants: flag any a sample violates, with the violating pair. They are checked
-    # on the region the source claims them for (which may differ from the analytic region).
+
+def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine) -> list[Violation]:
+    """Claimed constants a sample violates, checked on the region the source claims them for."""
     violations: list[Violation] = []
     claimed = plant.claimed
+    n = plant.n
     c_radius = claimed.radius
     if c_radius != radius and any(getattr(claimed, k) is not None for k in ("alpha", "rho", "beta")):
         crng = np.random.default_rng([seed, 1])
@@ -235,25 +461,7 @@ def compute_constants(
             a, b, val = _local_max(plant.f, 2, claimed.gamma, x1[:, k], x2[:, k], c_radius, n)
         if val > claimed.beta + _REL_TOL * max(1.0, abs(claimed.beta)):
             violations.append(Violation("beta", claimed.beta, val, tuple(a), tuple(b)))
-
-    valid_kw, source = {}, {}
-    for name in ("alpha", "rho", "beta"):
-        av = getattr(analytic, name) if analytic is not None else None
-        if av is not None:
-            valid_kw[name], source[name] = av, "analytic"
-        else:
-            valid_kw[name], source[name] = getattr(sampled, name), "sampled"
-    valid = Constants(**valid_kw, gamma=gamma, radius=radius)
-    return ConstantsReport(
-        claimed=claimed,
-        analytic=analytic,
-        sampled=sampled,
-        valid=valid,
-        source=source,
-        violations=violations,
-        seed=seed,
-        n_samples=n_samples,
-    )
+    return violations
 
 
 def resolve_constants(report: ConstantsReport, *, use_claimed: bool = False) -> Constants:

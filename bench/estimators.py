@@ -1,7 +1,8 @@
 """Run-time estimators that are not a fixed gain: the continuous-discrete EKF (filterpy).
 
-This is the harness side of :mod:`designs.ekf`: the design fixes the specification, the
-harness runs the filter inside its sampled-time simulation.
+This is the simulator's side of :mod:`designs.ekf`: the design fixes the specification
+(:class:`designs.ekf.EKFSpec`), :func:`runtime_estimator` builds the filter, and
+:func:`bench.simulate.simulate_sampled` runs it in sampled time.
 """
 
 from __future__ import annotations
@@ -9,9 +10,40 @@ from __future__ import annotations
 import numpy as np
 
 from designs.ekf import EKFSpec
-from plants._core import Plant
+from plants import Plant
 
-__all__ = ["ContinuousDiscreteEKF", "numeric_jacobian"]
+__all__ = ["ContinuousDiscreteEKF", "numeric_jacobian", "runtime_estimator"]
+
+
+def runtime_estimator(spec, plant: Plant, x_hat0: np.ndarray, *, t_final: float, options=None):
+    """Build the run-time estimator a design specified (the simulator calls this).
+
+    Parameters
+    ----------
+    spec : object
+        The design's estimator specification (:class:`designs.ekf.EKFSpec`).
+    plant : Plant
+    x_hat0 : ndarray (n,)
+    t_final : float
+        The horizon (the sample time must divide it).
+    options : bench.simulate.SimOptions, optional
+        Integration tolerances of the filter's prediction.
+
+    Returns
+    -------
+    object
+        With ``dt``, ``x``, ``update(y)`` and ``predict(u)``.
+
+    Raises
+    ------
+    TypeError
+        For a specification no run-time estimator is known for.
+    """
+    if isinstance(spec, EKFSpec):
+        spec.check_horizon(t_final)
+        kw = {} if options is None else {"rtol": options.rtol, "atol": options.atol}
+        return ContinuousDiscreteEKF(plant, spec, x_hat0, **kw)
+    raise TypeError(f"estimator: no run-time estimator for a {type(spec).__name__}")
 
 
 def numeric_jacobian(f, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
@@ -52,7 +84,13 @@ class ContinuousDiscreteEKF:
         self.spec = spec
 
         class _EKF(ExtendedKalmanFilter):
+            x_next = None  # set by predict(u, x_next): the model's flow, integrated by the simulator
+
             def predict_x(self, u=0):  # nonlinear prediction over one sample (u held)
+                if self.x_next is not None:
+                    self.x = np.asarray(self.x_next, dtype=float).reshape(-1, 1).copy()
+                    self.x_next = None
+                    return
                 u = np.asarray(u, dtype=float).ravel()
                 if not (np.all(np.isfinite(self.x)) and np.all(np.isfinite(u))):
                     raise FloatingPointError("EKF prediction from a non-finite estimate or input")
@@ -66,6 +104,7 @@ class ContinuousDiscreteEKF:
         self._ekf.Q = spec.q * dt * np.eye(n)
         self._ekf.R = spec.r * np.eye(p)
         self._A, self._C, self._jac, self._dt, self._expm = A, C, jac, dt, expm
+        self.dt = dt
 
     @property
     def x(self) -> np.ndarray:
@@ -82,8 +121,22 @@ class ContinuousDiscreteEKF:
         C = self._C
         self._ekf.update(np.asarray(y, dtype=float).reshape(-1, 1), HJacobian=lambda x: C, Hx=lambda x: C @ x)
 
-    def predict(self, u: np.ndarray) -> None:
-        """Propagate the estimate (nonlinear) and covariance (Jacobian) over one sample."""
+    #: The prediction is the plant model's flow from the estimate (u held): a simulator may
+    #: integrate it together with the plant and pass it to :meth:`predict` as ``x_next``.
+    predicts_with_model = True
+
+    def predict(self, u: np.ndarray, x_next: np.ndarray | None = None) -> None:
+        """Propagate the estimate (nonlinear) and covariance (Jacobian) over one sample.
+
+        Parameters
+        ----------
+        u : ndarray (m,)
+            The input held over the sample.
+        x_next : ndarray (n,), optional
+            The estimate's model flow over the sample, already integrated by the caller (with
+            the plant, in one ODE); None integrates it here.
+        """
         J = self._A + np.asarray(self._jac(self.x), dtype=float)
         self._ekf.F = self._expm(J * self._dt)
+        self._ekf.x_next = x_next
         self._ekf.predict(u=np.asarray(u, dtype=float).reshape(-1, 1))

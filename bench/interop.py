@@ -18,7 +18,7 @@ import re
 
 import numpy as np
 
-from plants._core import Plant
+from plants import Plant
 
 __all__ = ["closed_loop_nlsys", "controller_ss", "observer_nlsys", "plant_nlsys"]
 

@@ -1,13 +1,23 @@
-"""Metrics of a closed-loop trajectory: pure functions of (t, x, x_hat, u).
+"""Metrics of closed-loop trajectories: pure functions of (t, x, x_hat, u), for one or a batch.
 
-- ``settling_time(t, s)``: 2 % settling time of a norm signal s, the first time after which
-  ``s`` stays at or below 2 % of its peak over the run (NaN if it never does by the end);
-- ``converged``: the run finished and both ``||x||`` and ``||e||`` at the end are at most
-  ``CONVERGED_RATIO`` (1e-3) times their peaks;
+One implementation, :func:`batch_metrics`, works on a batch of N trajectories on a common time
+grid (arrays ``(n, N, T)``); :func:`trajectory_metrics` is the same for one trajectory
+(``(n, T)``). With ``z = (x, e)``, ``e = x - x_hat``:
+
+- ``converged``: the run finished, nothing diverged, and at the end both ``||x||`` and
+  ``||e||`` are at most ``CONVERGED_RATIO`` (1e-3) times the peak of ``||z||`` over the run.
+  This is what a certificate guarantees: ``||z(t)|| <= sqrt(cond P) e^{-lam t} ||z(0)||``, so
+  a certified pair converges by ``t = (ln(1/CONVERGED_RATIO) + ln(cond P)/2) / lam``
+  (:func:`bench.verdicts.horizon` simulates that long);
 - with measurement noise (``noisy=True``) the norms cannot shrink by 1e-3, so ``converged``
   means the run finished and both norms settled (finite 2 % settling times);
-- IAE of ``||e||`` by the trapezoid rule; ``rms_e``, the RMS of ``||e||`` over the second half of
-  the horizon (the steady state, where noise dominates); peak ``|u|`` over all inputs and times.
+- ``settling_x_s``, ``settling_e_s``: 2 % settling time of ``||x||`` and ``||e||``, the first
+  time after which the norm stays at or below 2 % of its peak (NaN if it never does);
+- ``iae_e``: integral of ``||e||`` (trapezoid rule); ``rms_e``: RMS of ``||e||`` over the second
+  half of the horizon (the steady state, where noise dominates); ``peak_u``: peak ``|u|``;
+- ``tail_rate``: the exponential decay rate of ``||z||`` fitted (least squares on ``log ||z||``)
+  over the last quarter of the horizon (NaN once the norm is at round-off);
+- ``peak_x``, ``peak_e``, ``max_norm`` (the largest ``max(||x||, ||x_hat||)``, for regions).
 """
 
 from __future__ import annotations
@@ -16,73 +26,125 @@ import math
 
 import numpy as np
 
-__all__ = ["CONVERGED_RATIO", "SETTLING_FRACTION", "trajectory_metrics", "settling_time"]
+__all__ = ["CONVERGED_RATIO", "SETTLING_FRACTION", "batch_metrics", "batch_settling_time", "settling_time",
+           "trajectory_metrics"]
 
 SETTLING_FRACTION = 0.02
 CONVERGED_RATIO = 1e-3
 
 
+def batch_settling_time(t: np.ndarray, s: np.ndarray, fraction: float = SETTLING_FRACTION) -> np.ndarray:
+    """First time after which each row of ``s`` (N, T) stays within ``fraction`` of its peak.
+
+    NaN where a row never settles by the end (or is not finite), ``t[0]`` where it never leaves,
+    0 for an all-zero row.
+    """
+    t = np.asarray(t, dtype=float)
+    s = np.atleast_2d(np.asarray(s, dtype=float))
+    N, Tn = s.shape
+    out = np.full(N, np.nan)
+    finite = np.all(np.isfinite(s), axis=1)
+    peak = np.where(finite, np.max(np.where(np.isfinite(s), s, -np.inf), axis=1), np.nan)
+    outside = s > fraction * peak[:, None]
+    any_out = outside.any(axis=1)
+    last = Tn - 1 - np.argmax(outside[:, ::-1], axis=1)
+    ok = finite & any_out & (last < Tn - 1)
+    out[ok] = t[np.minimum(last[ok] + 1, Tn - 1)]
+    out[finite & ~any_out] = t[0]
+    out[finite & (peak == 0)] = 0.0
+    return out
+
+
 def settling_time(t: np.ndarray, s: np.ndarray, fraction: float = SETTLING_FRACTION) -> float:
     """First time after which ``s`` stays within ``fraction`` of its peak (NaN if never)."""
-    t = np.asarray(t, dtype=float)
     s = np.asarray(s, dtype=float)
-    if s.size == 0 or not np.all(np.isfinite(s)):
+    if s.size == 0:
         return math.nan
-    peak = float(np.max(s))
-    if peak == 0:
-        return 0.0
-    outside = np.nonzero(s > fraction * peak)[0]
-    if outside.size == 0:
-        return float(t[0])
-    last = outside[-1]
-    if last == s.size - 1:
-        return math.nan
-    return float(t[last + 1])
+    return float(batch_settling_time(t, s[None, :], fraction)[0])
 
 
-def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True, noisy: bool = False) -> dict[str, float | bool]:
-    """Metrics of one trajectory.
+def _tail_rate(t: np.ndarray, nz: np.ndarray) -> np.ndarray:
+    """Fitted decay rate of each row of ``nz`` (N, T) over the last quarter of ``t``."""
+    k0 = int(0.75 * (t.size - 1))
+    tt = t[k0:]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        y = np.log(nz[:, k0:])
+    out = np.full(nz.shape[0], np.nan)
+    for j in range(nz.shape[0]):
+        good = np.isfinite(y[j]) & (nz[j, k0:] > 1e-12 * max(float(np.max(nz[j])), 1e-300))
+        if good.sum() >= 3 and np.ptp(tt[good]) > 0:
+            out[j] = -float(np.polyfit(tt[good], y[j][good], 1)[0])
+    return out
+
+
+def batch_metrics(t, x, x_hat, u=None, *, finished=True, diverged=None, noisy: bool = False) -> dict[str, np.ndarray]:
+    """Per-member metrics of a batch of trajectories (see the module docstring).
 
     Parameters
     ----------
-    t : ndarray (N,)
-    x, x_hat : ndarray (n, N)
-    u : ndarray (m, N)
-    finished : bool
-        False when the simulation stopped early (diverged): then ``converged`` is False.
+    t : ndarray (T,)
+    x, x_hat : ndarray (n, N, T)
+    u : ndarray (m, N, T), optional
+    finished : bool or ndarray of bool (N,)
+        False where the simulation stopped early (then not converged).
+    diverged : ndarray of bool (N,), optional
+        Members that blew up.
     noisy : bool
-        The run had measurement noise (changes the meaning of ``converged``, see above).
+        The run had measurement noise (``converged`` means settled).
+
+    Returns
+    -------
+    dict of ndarray (N,)
+        ``converged``, ``settling_x_s``, ``settling_e_s``, ``final_x``, ``final_e``, ``iae_e``,
+        ``rms_e``, ``peak_u``, ``peak_x``, ``peak_e``, ``max_norm``, ``tail_rate``.
+    """
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(x, dtype=float)
+    xh = np.asarray(x_hat, dtype=float)
+    e = x - xh
+    nx = np.sqrt(np.einsum("ijk,ijk->jk", x, x))
+    ne = np.sqrt(np.einsum("ijk,ijk->jk", e, e))
+    nh = np.sqrt(np.einsum("ijk,ijk->jk", xh, xh))
+    nz = np.sqrt(nx**2 + ne**2)
+    N = nx.shape[0]
+    finite = np.all(np.isfinite(nz), axis=1)
+    ok = finite & np.broadcast_to(np.asarray(finished, dtype=bool), (N,))
+    if diverged is not None:
+        ok &= ~np.asarray(diverged, dtype=bool)
+    pz = np.where(finite, np.max(np.where(np.isfinite(nz), nz, 0.0), axis=1), np.nan)
+    fx, fe = nx[:, -1], ne[:, -1]
+    scale = CONVERGED_RATIO * np.maximum(pz, 1e-300)
+    sx = np.where(ok, batch_settling_time(t, nx), np.nan)
+    se = np.where(ok, batch_settling_time(t, ne), np.nan)
+    if noisy:
+        conv = ok & np.isfinite(sx) & np.isfinite(se)
+    else:
+        conv = ok & (fx <= scale) & (fe <= scale)
+    dt = np.diff(t)
+    iae = np.sum((ne[:, 1:] + ne[:, :-1]) * dt, axis=1) / 2 if t.size > 1 else np.zeros(N)
+    tail = t >= t[0] + (t[-1] - t[0]) / 2
+    rms = np.where(ok, np.sqrt(np.mean(ne[:, tail] ** 2, axis=1)), np.nan)
+    if u is None or np.size(u) == 0:
+        pu = np.full(N, np.nan)
+    else:
+        pu = np.max(np.abs(np.asarray(u, dtype=float)), axis=(0, 2))
+    return {
+        "converged": conv, "settling_x_s": sx, "settling_e_s": se, "final_x": fx, "final_e": fe, "iae_e": iae,
+        "rms_e": rms, "peak_u": pu, "peak_x": np.max(nx, axis=1), "peak_e": np.max(ne, axis=1),
+        "max_norm": np.max(np.maximum(nx, nh), axis=1), "tail_rate": _tail_rate(t, nz),
+    }
+
+
+def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True, noisy: bool = False) -> dict[str, float | bool]:
+    """:func:`batch_metrics` of one trajectory (``x``, ``x_hat`` of shape (n, T), ``u`` (m, T)).
 
     Returns
     -------
     dict
-        ``converged``, ``settling_x_s``, ``settling_e_s``, ``final_x``, ``final_e``,
-        ``iae_e``, ``rms_e``, ``peak_u``.
+        The same keys as :func:`batch_metrics`, as Python scalars.
     """
-    t = np.asarray(t, dtype=float)
-    nx = np.linalg.norm(np.asarray(x, dtype=float), axis=0)
-    ne = np.linalg.norm(np.asarray(x, dtype=float) - np.asarray(x_hat, dtype=float), axis=0)
-    final_x, final_e = float(nx[-1]), float(ne[-1])
-    ok = finished and np.all(np.isfinite(nx)) and np.all(np.isfinite(ne))
-    conv = bool(
-        ok
-        and final_x <= CONVERGED_RATIO * max(float(nx.max()), 1e-300)
-        and final_e <= CONVERGED_RATIO * max(float(ne.max()), 1e-300)
-    )
-    iae = float(np.sum((ne[1:] + ne[:-1]) * np.diff(t)) / 2) if t.size > 1 else 0.0
-    sx = settling_time(t, nx) if ok else math.nan
-    se = settling_time(t, ne) if ok else math.nan
-    if noisy:
-        conv = bool(ok and math.isfinite(sx) and math.isfinite(se))
-    tail = t >= t[0] + (t[-1] - t[0]) / 2
-    rms = float(np.sqrt(np.mean(ne[tail] ** 2))) if ok else math.nan
-    return {
-        "converged": conv,
-        "settling_x_s": sx,
-        "settling_e_s": se,
-        "final_x": final_x,
-        "final_e": final_e,
-        "iae_e": iae,
-        "rms_e": rms,
-        "peak_u": float(np.max(np.abs(u))) if np.size(u) else math.nan,
-    }
+    x = np.asarray(x, dtype=float)[:, None, :]
+    xh = np.asarray(x_hat, dtype=float)[:, None, :]
+    uu = None if u is None or np.size(u) == 0 else np.asarray(u, dtype=float)[:, None, :]
+    m = batch_metrics(t, x, xh, uu, finished=finished, noisy=noisy)
+    return {k: (bool(v[0]) if k == "converged" else float(v[0])) for k, v in m.items()}

@@ -33,7 +33,7 @@ __all__ = ["measure_design", "perf_main"]
 
 def _measure_child(design_id: str, n: int, kw: dict, queue) -> None:
     from bench.registry import DESIGNS, PLANTS
-    from designs._lmi import clear_program_cache
+    from bench.lmi import clear_program_cache
 
     clear_program_cache()  # a cold design: programs compiled in the parent must not be inherited
 
@@ -81,7 +81,7 @@ def _exponent(rows: list[dict], design: str) -> float:
 def _sweep_overhead(n: int = 8, count: int = 40) -> dict:
     """One compiled DPP problem (corrected Theorem 1, phi1 as a parameter) solved ``count`` times."""
     from bench.registry import DESIGNS, PLANTS
-    from designs._lmi import clear_program_cache
+    from bench.lmi import clear_program_cache
 
     clear_program_cache()
     plant = PLANTS.create("random_lipschitz_v1", n=n, m=max(1, n // 4), p=max(1, n // 4), c=0.1, seed=0)
@@ -120,7 +120,7 @@ def design_sweeps(echo=print) -> list[dict]:
         (compile / solve) and the statuses seen.
     """
     from bench.registry import DESIGNS, PLANTS
-    from designs._lmi import clear_program_cache
+    from bench.lmi import clear_program_cache
 
     rows = []
     for label, did, pid, calls in DESIGN_SWEEPS:
@@ -173,7 +173,7 @@ def _sweep_table(rows: list[dict]) -> str:
         return "Design-call sweeps not measured (--no-sweeps)."
     out = ["Whole design calls in a sweep. *rebuilt*: every call builds and compiles its cvxpy problem (the cache "
            "cleared before each call); *cached*: one compiled problem per structure, the plant's matrices and "
-           "constants set as cvxpy Parameters (`designs._lmi.cached_program`). Compile includes building the "
+           "constants set as cvxpy Parameters (`bench.lmi.cached_program`). Compile includes building the "
            "expression tree.", "",
            "| sweep | design | mode | calls | compile s | solve s | overhead % | first call compile s | "
            "overhead % of calls 2..N | wall s | statuses |",

@@ -138,7 +138,7 @@ def load_plugin(path) -> list[str]:
             f"plugin {shown}: registers no plant or design (decorate a keyword-only factory with "
             "@register_plant(\"my_plant\") from bench.registry)"
         )
-    from plants._core import Plant
+    from plants import Plant
 
     for pid in plants:
         try:

@@ -19,9 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plants._core import Plant
+from plants import Plant
 
-__all__ = ["SimOptions", "Trajectory", "simulate"]
+__all__ = ["STIFF", "SimOptions", "Trajectory", "check_gains", "choose_method", "simulate", "simulate_controller",
+           "simulate_sampled"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -31,7 +32,9 @@ class SimOptions:
     Parameters
     ----------
     method : str
-        ``solve_ivp`` method.
+        ``solve_ivp`` method, or ``"auto"``: DOP853, or Radau when the loop is stiff over the
+        horizon (:func:`choose_method`; measured: a Theorem 1 observer with an eigenvalue at
+        -1121 over 70 s took 5 s with DOP853).
     rtol, atol : float
         Tolerances (tight enough that ``||x(T)|| ~ 1e-9`` is resolved).
     n_points : int
@@ -45,7 +48,7 @@ class SimOptions:
         None: no limit. The harness sets it to what is left of a pair's ``--timeout``.
     """
 
-    method: str = "DOP853"
+    method: str = "auto"
     rtol: float = 1e-8
     atol: float = 1e-12
     n_points: int = 2001
@@ -110,6 +113,30 @@ def check_gains(plant: Plant, K, F) -> tuple[np.ndarray, np.ndarray]:
     if not (np.all(np.isfinite(K)) and np.all(np.isfinite(F))):
         raise ValueError("K, F: entries must be finite")
     return K, F
+
+
+#: ``method="auto"`` switches to BDF when ``max(-Re lambda) * t_final`` of the linear closed loop exceeds this.
+STIFF = 5000.0
+
+
+def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: str = "BDF") -> str:
+    """``stiff`` if the linear part of the closed loop (6) is stiff over the horizon, else ``"DOP853"``.
+
+    DOP853 (8th order, as the harness's single-trajectory simulator) rather than RK45: on the
+    flexible link's 1000-member batch at rtol 1e-6 it took 8852 right-hand sides and 0.56-0.60 s
+    with the paper's gains against 13 574 and 0.83-0.94 s with RK45 (thm1: 5897 vs 6920, lqr+lqe:
+    1424 vs 1934; trajectories agree to 1.3e-6 relative; ``python benchmarks/montecarlo_speed.py``).
+
+    Stiff means ``max(-Re lambda) * t_final > STIFF`` for the eigenvalues lambda of
+    ``[[A, BF], [KC, A + BF - KC]]``: an explicit method would then need more than ~STIFF/3
+    steps for stability alone (measured: a Theorem 1 observer with an eigenvalue at -1121 took
+    47 000 RK45 right-hand sides for 20 s and 690 with BDF).
+    """
+    A, B, C = plant.A, plant.B, plant.C
+    BF, KC = B @ F, K @ C
+    L = np.block([[A, BF], [KC, A + BF - KC]])
+    fast = float(np.max(-np.linalg.eigvals(L).real))
+    return stiff if fast * t_final > STIFF else "DOP853"
 
 
 class _Stop(Exception):
@@ -183,7 +210,8 @@ def simulate(
     t0 = time.perf_counter()
     status, message = "ok", ""
     try:
-        sol = solve_ivp(rhs, (0.0, T), z0, method=options.method, t_eval=t_eval, rtol=options.rtol,
+        method = choose_method(plant, K, F, T, stiff="Radau") if options.method == "auto" else options.method
+        sol = solve_ivp(rhs, (0.0, T), z0, method=method, t_eval=t_eval, rtol=options.rtol,
                         atol=options.atol, events=blow)
         t_out, z = sol.t, sol.y
         if sol.status == 1:
@@ -207,12 +235,62 @@ def _finite(v: np.ndarray, t: float, what: str = "the right-hand side") -> np.nd
     return v
 
 
+def simulate_controller(
+    plant: Plant,
+    F: np.ndarray,
+    *,
+    K: np.ndarray | None = None,
+    estimator=None,
+    t_final: float,
+    noise: float = 0.0,
+    noise_dt: float = 0.01,
+    seed: int = 0,
+    options: SimOptions = SimOptions(),
+) -> Trajectory:
+    """Simulate an observer-based controller, whatever its estimator: the one entry point for a pair.
+
+    - a fixed gain ``K`` without noise: the continuous loop (:func:`simulate`);
+    - a fixed gain ``K`` with measurement noise: the noise held over ``noise_dt``
+      (:func:`simulate_sampled`);
+    - a run-time ``estimator`` specification (e.g. :class:`designs.ekf.EKFSpec`): the estimator
+      is built (:func:`bench.estimators.runtime_estimator`) and run in sampled time at its own
+      sample period (:func:`simulate_sampled`).
+
+    Parameters
+    ----------
+    plant : Plant
+    F : ndarray (m, n)
+    K : ndarray (n, p), optional
+    estimator : object, optional
+        Exactly one of ``K`` and ``estimator``.
+    t_final : float
+    noise, noise_dt, seed
+        Measurement noise (standard deviation 0: none), its hold period for a fixed gain, seed.
+    options : SimOptions
+
+    Returns
+    -------
+    Trajectory
+    """
+    if (K is None) == (estimator is None):
+        raise ValueError("simulate_controller: give exactly one of K and estimator")
+    if estimator is not None:
+        from bench.estimators import runtime_estimator
+
+        est = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final, options=options)
+        return simulate_sampled(plant, F, estimator=est, dt=est.dt, t_final=t_final, noise=noise, seed=seed,
+                                options=options)
+    if noise > 0:
+        return simulate_sampled(plant, F, K=K, dt=noise_dt, t_final=t_final, noise=noise, seed=seed, options=options)
+    return simulate(plant, K, F, t_final=t_final, options=options)
+
+
 def simulate_sampled(
     plant: Plant,
     F: np.ndarray,
     *,
     K: np.ndarray | None = None,
-    ekf=None,
+    estimator=None,
     dt: float,
     t_final: float | None = None,
     noise: float = 0.0,
@@ -221,10 +299,11 @@ def simulate_sampled(
 ) -> Trajectory:
     """Simulate with measurements sampled every ``dt`` (and optional measurement noise).
 
-    Two estimators are supported:
+    Two kinds of estimator are supported:
 
-    - ``ekf`` (a :class:`bench.estimators.ContinuousDiscreteEKF`): discrete filter at the samples,
-      ``u_k = F x_hat_k`` held by a zero-order hold, plant continuous;
+    - ``estimator`` (a run-time estimator such as :class:`bench.estimators.ContinuousDiscreteEKF`:
+      ``x``, ``update(y)``, ``predict(u)``): discrete filter at the samples, ``u_k = F x_hat_k``
+      held by a zero-order hold, plant continuous;
     - ``K`` (a continuous Luenberger observer (6)): the observer and ``u = F x_hat`` stay
       continuous, the measurement noise ``v_k`` is held constant over each sample interval,
       ``y(t) = C x(t) + v_k``.
@@ -234,8 +313,8 @@ def simulate_sampled(
     plant : Plant
     F : ndarray (m, n)
     K : ndarray (n, p), optional
-    ekf : ContinuousDiscreteEKF, optional
-        Exactly one of ``K`` and ``ekf``.
+    estimator : object, optional
+        Exactly one of ``K`` and ``estimator``.
     dt : float
         Sample time; must divide the horizon.
     t_final : float, optional
@@ -252,8 +331,8 @@ def simulate_sampled(
     """
     from scipy.integrate import solve_ivp
 
-    if (K is None) == (ekf is None):
-        raise ValueError("simulate_sampled: give exactly one of K and ekf")
+    if (K is None) == (estimator is None):
+        raise ValueError("simulate_sampled: give exactly one of K and estimator")
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: must be finite and > 0, got {dt!r}")
     if not (np.isfinite(noise) and noise >= 0):
@@ -280,11 +359,13 @@ def simulate_sampled(
         K = np.asarray(K, dtype=float)
         BF = B @ F
         L = np.block([[A, BF], [K @ C, A + BF - K @ C]])
+    method = "DOP853" if options.method == "auto" else options.method
+    first = None
     for k in range(N + 1):
         tk = k * dt
-        if ekf is not None:
-            ekf.update(C @ x + V[k])
-            xh = ekf.x
+        if estimator is not None:
+            estimator.update(C @ x + V[k])
+            xh = estimator.x
         u = F @ xh
         ts.append(tk)
         xs.append(x.copy())
@@ -300,23 +381,39 @@ def simulate_sampled(
             status, message = "timeout", f"more than {options.max_wall_s:.3g} s of wall time by t = {tk:.4g}"
             break
         try:
-            if ekf is not None:
-                sol = solve_ivp(lambda t, s: _finite(A @ s + B @ u + f(s), t), (0.0, dt), x, method=options.method,
-                                rtol=options.rtol, atol=options.atol)
-                x = sol.y[:, -1]
+            if estimator is not None:
                 # a NaN derivative at the start of an interval makes solve_ivp's first step NaN and
                 # its step-size loop endless: check f where the filter's prediction starts
-                _finite(np.asarray(f(np.asarray(ekf.x, dtype=float)), dtype=float), 0.0, "f at the estimate")
-                ekf.predict(u)
+                xe = np.asarray(estimator.x, dtype=float)
+                _finite(np.asarray(f(xe), dtype=float), 0.0, "f at the estimate")
+                if getattr(estimator, "predicts_with_model", False):  # plant and prediction: one ODE
+                    Bu = np.repeat((B @ u)[:, None], 2, axis=1)
+
+                    def rhs(t, s, Bu=Bu):
+                        S = s.reshape(n, 2)
+                        return _finite(A @ S + Bu + np.asarray(f(S), dtype=float), t).ravel()
+
+                    sol = solve_ivp(rhs, (0.0, dt), np.stack([x, xe], axis=1).ravel(), method=method,
+                                    rtol=options.rtol, atol=options.atol, first_step=first)
+                    S = sol.y[:, -1].reshape(n, 2)
+                    x = S[:, 0].copy()
+                    estimator.predict(u, x_next=S[:, 1].copy())
+                else:
+                    sol = solve_ivp(lambda t, s: _finite(A @ s + B @ u + f(s), t), (0.0, dt), x, method=method,
+                                    rtol=options.rtol, atol=options.atol, first_step=first)
+                    x = sol.y[:, -1]
+                    estimator.predict(u)
             else:
                 w = np.concatenate([np.zeros(n), K @ V[k]])
 
                 def rhs(t, s):
                     return _finite(L @ s + w + np.asarray(f(s.reshape(2, n).T), dtype=float).T.ravel(), t)
 
-                sol = solve_ivp(rhs, (0.0, dt), z, method=options.method, rtol=options.rtol, atol=options.atol)
+                sol = solve_ivp(rhs, (0.0, dt), z, method=method, rtol=options.rtol, atol=options.atol,
+                                first_step=first)
                 x, xh = sol.y[:n, -1], sol.y[n:, -1]
             nfev += sol.nfev
+            first = min(dt, float(np.max(np.diff(sol.t)))) if sol.t.size > 1 else None  # the last step size
         except (FloatingPointError, OverflowError, np.linalg.LinAlgError) as exc:
             status, message = "diverged", f"{type(exc).__name__} at t = {tk:.4g}: {exc}"
             break

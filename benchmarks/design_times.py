@@ -15,7 +15,7 @@ import time
 
 from bench.constants import compute_constants
 from bench.registry import DESIGNS, PLANTS
-from designs._lmi import clear_program_cache
+from bench.lmi import clear_program_cache
 
 
 def main() -> None:

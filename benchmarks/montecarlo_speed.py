@@ -3,7 +3,7 @@
 Usage: ``python benchmarks/montecarlo_speed.py [--design D ...] [--n 1000] [--t-final 20] [--loop-n N]``
 (defaults: flexible link, designs ``lqr+lqe``, ``thm1`` and ``paper_gains``, 1000 initial conditions
 from the study's seeded box, 20 s). For each design it prints the batch time (best of 3 after one
-warm-up; ``bench.studies.batch.simulate_batch``, ``--method`` (default DOP853, the study's
+warm-up; ``bench.batch.simulate_batch``, ``--method`` (default DOP853, the study's
 non-stiff choice), rtol 1e-6, atol 1e-9, 401 output points),
 the time of looping ``solve_ivp`` over the same initial conditions with the same settings
 (``simulate_loop``; ``--loop-n`` loops over the first N only and extrapolates, labelled so), the
@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 
 from bench.registry import DESIGNS, PLANTS  # noqa: E402
 from bench.studies._common import default_box, random_ics  # noqa: E402
-from bench.studies.batch import BatchTrajectory, batch_metrics, simulate_batch, simulate_loop  # noqa: E402
+from bench.batch import BatchTrajectory, batch_metrics, simulate_batch, simulate_loop  # noqa: E402
 
 
 def main() -> None:

@@ -2,6 +2,6 @@
 
 import bench._env  # noqa: F401  (BLAS threads, before numpy)
 
-from designs._core import Design, DesignError, DesignResult
+from designs._core import GAIN_STATUSES, STATUSES, Design, DesignError, DesignResult
 
-__all__ = ["Design", "DesignError", "DesignResult"]
+__all__ = ["GAIN_STATUSES", "STATUSES", "Design", "DesignError", "DesignResult"]

@@ -8,18 +8,20 @@ from __future__ import annotations
 import difflib
 import math
 import numbers
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from plants._core import Constants, Plant
+from plants import Constants, Plant
 
 __all__ = [
     "Design",
     "DesignError",
     "DesignResult",
+    "GAIN_STATUSES",
     "STATUSES",
+    "Configurable",
     "check_choice",
     "check_hyperparameter_names",
     "check_int",
@@ -29,8 +31,23 @@ __all__ = [
     "missing_constants",
 ]
 
-#: Possible design statuses (``"timeout"``: the pair ran out of its ``--timeout``; set by the harness).
-STATUSES = ("feasible", "infeasible", "inapplicable", "undecided", "error", "timeout")
+#: Possible design statuses.
+#:
+#: - ``feasible``: a feasibility problem (an LMI, or a Riccati equation's existence condition)
+#:   was solved and its solution verified;
+#: - ``computed``: gains computed by a method that has no feasibility question (LQR, a Kalman
+#:   gain): nothing was found feasible;
+#: - ``given``: gains (or an estimator's settings) taken as given, nothing solved (printed gains);
+#: - ``infeasible``: verified not strictly feasible under the stated normalisation;
+#: - ``marginal``: the best margin is within the verification tolerance of zero;
+#: - ``inapplicable``: the design does not apply to the plant (the reason says why);
+#: - ``undecided``: the solver failed or claimed what its point does not show;
+#: - ``error``, ``timeout``: set by the pipeline for a failure or a pair over its ``--timeout``.
+STATUSES = ("feasible", "computed", "given", "infeasible", "marginal", "inapplicable", "undecided", "error",
+            "timeout")
+
+#: Statuses that come with gains (or an estimator) to simulate and certify.
+GAIN_STATUSES = ("feasible", "computed", "given")
 
 
 class DesignError(ValueError):
@@ -145,6 +162,9 @@ class DesignResult:
         One of :data:`STATUSES`.
     reason : str
         Why, in words (always set unless feasible).
+    route : str
+        How the gains were produced: ``"sdp"`` (an LMI solved by an SDP solver), ``"riccati"``
+        (algebraic Riccati equations), ``"formula"`` (a closed form, e.g. LQR), ``"given"``.
     K, F : ndarray or None
         Observer gain (n x p) and feedback gain (m x n), ``u = F x_hat``.
     solver, solver_status : str or None
@@ -169,6 +189,7 @@ class DesignResult:
 
     status: str
     reason: str = ""
+    route: str = ""
     K: np.ndarray | None = None
     F: np.ndarray | None = None
     solver: str | None = None
@@ -188,13 +209,14 @@ class DesignResult:
 
     @property
     def has_gains(self) -> bool:
-        """True when both K and F are present."""
+        """True when both fixed gains K and F are present."""
         return self.K is not None and self.F is not None
 
     @property
     def has_controller(self) -> bool:
         """True when there is a feedback F and an estimator (a gain K or a run-time estimator)."""
-        return self.F is not None and (self.K is not None or self.estimator is not None)
+        return self.status in GAIN_STATUSES and self.F is not None and (self.K is not None or
+                                                                         self.estimator is not None)
 
 
 def missing_constants(needs, constants: Constants) -> str | None:
@@ -206,41 +228,33 @@ def missing_constants(needs, constants: Constants) -> str | None:
 
 
 @dataclass(frozen=True, kw_only=True)
-class Design:
-    """Base class of designs: hyperparameters are dataclass fields; the plant is an argument.
+class Configurable:
+    """Base of designs and design parts: hyperparameters are keyword-only dataclass fields.
 
-    Subclasses set :attr:`needs` (the constants they require) and implement :meth:`design`.
+    Unknown or positional hyperparameters raise :class:`DesignError` naming them (before the
+    dataclass ``__init__`` would raise a bare ``TypeError``). Subclasses set :attr:`needs`, the
+    constants they require.
     """
 
-    #: Constants the design needs (names of :class:`plants.Constants` fields).
+    #: Constants required (names of :class:`plants.Constants` fields).
     needs = ()
 
     def __new__(cls, *args: Any, **kwargs: Any):
-        check_hyperparameter_names(cls, args, kwargs)  # unknown names: DesignError, not TypeError
+        check_hyperparameter_names(cls, args, kwargs)
         return super().__new__(cls)
 
     def applicable(self, plant: Plant, constants: Constants) -> str | None:
-        """None if the design applies to ``plant``, else the reason it does not."""
+        """None if this applies to ``plant`` with ``constants``, else the reason it does not."""
         return missing_constants(self.needs, constants)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Design(Configurable):
+    """Base class of designs: hyperparameters are dataclass fields; the plant is an argument.
+
+    Subclasses set :attr:`needs` and implement :meth:`design`.
+    """
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:  # pragma: no cover
         """Compute gains for ``plant`` with ``constants``."""
         raise NotImplementedError
-
-    def hyperparameters(self) -> dict[str, Any]:
-        """The design's hyperparameters (its dataclass fields)."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-    def describe(self) -> str:
-        """The first line of the class docstring."""
-        return (type(self).__doc__ or "").strip().splitlines()[0]
-
-
-def result_dict(res: DesignResult) -> dict[str, Any]:
-    """A JSON-friendly dict of a result (arrays as nested lists)."""
-    d = asdict(res)
-    d["estimator"] = repr(res.estimator) if res.estimator is not None else None
-    for k in ("K", "F"):
-        if d[k] is not None:
-            d[k] = np.asarray(d[k]).tolist()
-    return d

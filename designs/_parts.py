@@ -1,7 +1,8 @@
 """Observer-based controllers composed of a feedback part (F) and an estimator part (K or EKF).
 
 A *part* is a frozen dataclass of hyperparameters with ``compute(plant, constants)`` returning
-a :class:`PartResult`. A *pairing* ``"feedback+estimator"`` is registered as a design with one
+a :class:`designs.DesignResult` holding its half of the controller (``F`` for a feedback part;
+``K`` or a run-time ``estimator`` for an estimator part). A *pairing* ``"feedback+estimator"`` is registered as a design with one
 line, :func:`register_pairing`; the composed design runs both parts and merges their evidence,
 so every pairing goes through the same harness, certificate and tables as Theorem 1.
 """
@@ -9,21 +10,20 @@ so every pairing goes through the same harness, certificate and tables as Theore
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any, Mapping
+from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 
 from bench.registry import DESIGNS, Registry
-from designs._core import Design, DesignError, DesignResult, check_hyperparameter_names, missing_constants
-from plants._core import Constants, Plant
+from designs._core import GAIN_STATUSES, Configurable, Design, DesignError, DesignResult
+from plants import Constants, Plant
 
 __all__ = [
     "ESTIMATORS",
     "FEEDBACKS",
     "Composite",
     "Part",
-    "PartResult",
     "check_weight",
     "register_estimator",
     "register_feedback",
@@ -34,41 +34,12 @@ FEEDBACKS = Registry("feedback part", "designs")
 ESTIMATORS = Registry("estimator part", "designs")
 
 
-@dataclass
-class PartResult:
-    """What one part produced: a gain (F or K) or a run-time estimator, and its evidence."""
-
-    status: str
-    reason: str = ""
-    gain: np.ndarray | None = None
-    estimator: Any = None
-    solver: str | None = None
-    solver_status: str | None = None
-    compile_s: float = 0.0
-    solve_s: float = 0.0
-    n_solves: int = 0
-    margin: float = float("nan")
-    lmi_size: int = 0
-    min_eig: dict[str, float] = field(default_factory=dict)
-    params: dict[str, Any] = field(default_factory=dict)
-
-
 @dataclass(frozen=True, kw_only=True)
-class Part:
+class Part(Configurable):
     """Base of feedback and estimator parts; subclasses set ``needs`` and implement ``compute``."""
 
-    needs = ()
-
-    def __new__(cls, *args: Any, **kwargs: Any):
-        check_hyperparameter_names(cls, args, kwargs)  # unknown names: DesignError, not TypeError
-        return super().__new__(cls)
-
-    def applicable(self, plant: Plant, constants: Constants) -> str | None:
-        """None if the part applies, else the reason."""
-        return missing_constants(self.needs, constants)
-
-    def compute(self, plant: Plant, constants: Constants) -> PartResult:  # pragma: no cover
-        """Compute the part for ``plant``."""
+    def compute(self, plant: Plant, constants: Constants) -> DesignResult:  # pragma: no cover
+        """Compute the part for ``plant``: a result holding ``F`` (feedback) or ``K``/``estimator``."""
         raise NotImplementedError
 
 
@@ -135,39 +106,39 @@ class Composite(Design):
         return None
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
-        """Compute both parts and merge their evidence (timings add up, the LMI margin is the worst)."""
+        """Compute both parts and merge their evidence (timings add up, the LMI margin is the worst).
+
+        The status is the worst part's; when both parts have gains it is ``feasible`` if either
+        part solved a feasibility problem, else ``computed`` (or ``given``).
+        """
         fb = self.feedback.compute(plant, constants)
         es = self.estimator.compute(plant, constants)
         parts = (("feedback", fb), ("estimator", es))
-        bad = [(role, r) for role, r in parts if r.status != "feasible"]
-        order = ("error", "undecided", "inapplicable", "infeasible")
-        status = min((r.status for _, r in bad), key=order.index) if bad else "feasible"
-        reason = "; ".join(f"{role}: {r.reason}" for role, r in bad)
+        bad = [(role, r) for role, r in parts if r.status not in GAIN_STATUSES]
+        order = ("error", "undecided", "inapplicable", "infeasible", "marginal")
+        if bad:
+            status = min((r.status for _, r in bad), key=order.index)
+        else:
+            status = next((s for s in GAIN_STATUSES if s in (fb.status, es.status)))
+        reason = "; ".join(f"{role}: {r.reason}" for role, r in parts if r.reason)
         margins = [r.margin for _, r in parts if math.isfinite(r.margin)]
-        solvers = [r.solver for _, r in parts if r.solver]
-        sstat = [f"{r.solver_status}" for _, r in parts if r.solver_status]
-        params: dict[str, Any] = {}
-        for role, r in parts:
-            params.update({f"{role}.{k}": v for k, v in r.params.items()})
-        min_eig = {}
-        for role, r in parts:
-            min_eig.update({f"{role}.{k}": v for k, v in r.min_eig.items()})
-        ok = status == "feasible"
+        ok = not bad
         return DesignResult(
             status=status,
             reason=reason,
-            K=es.gain if ok else None,
-            F=fb.gain if ok else None,
+            route="+".join(dict.fromkeys(r.route for _, r in parts if r.route)),
+            K=es.K if ok else None,
+            F=fb.F if ok else None,
             estimator=es.estimator if ok else None,
-            solver="+".join(dict.fromkeys(solvers)) or None,
-            solver_status="+".join(sstat) or None,
+            solver="+".join(dict.fromkeys(r.solver for _, r in parts if r.solver)) or None,
+            solver_status="+".join(f"{r.solver_status}" for _, r in parts if r.solver_status) or None,
             compile_s=fb.compile_s + es.compile_s,
             solve_s=fb.solve_s + es.solve_s,
             n_solves=fb.n_solves + es.n_solves,
             margin=max(margins) if margins else float("nan"),
             lmi_size=max(fb.lmi_size, es.lmi_size),
-            min_eig=min_eig,
-            params=params,
+            min_eig={f"{role}.{k}": v for role, r in parts for k, v in r.min_eig.items()},
+            params={f"{role}.{k}": v for role, r in parts for k, v in r.params.items()},
         )
 
 
@@ -179,7 +150,8 @@ def register_pairing(feedback: str, estimator: str, *, summary: str | None = Non
     """
     did = f"{feedback}+{estimator}"
 
-    def factory(*, feedback_params: dict | None = None, estimator_params: dict | None = None, **unknown) -> Composite:
+    def factory(*, feedback_params: dict | None = None, estimator_params: dict | None = None,
+                **unknown) -> Composite:
         for key in unknown:
             shown = key if key.isidentifier() else repr(key)
             raise DesignError(f"{shown}: unknown hyperparameter of the pairing {did!r} "

@@ -28,43 +28,76 @@ from typing import Callable
 
 import numpy as np
 
-from designs import _lmi
+from bench import lmi
+from designs._core import DesignResult
 
-__all__ = ["SCS_OPTS", "recombine", "solve_side"]
-
-#: SCS settings for the separated sides (measured: n = 32 sides in ~0.15 s each vs ~3 s with
-#: Clarabel; every point is verified with numpy, and a point that fails falls back to Clarabel).
-SCS_OPTS = {"eps_abs": 1e-6, "eps_rel": 1e-6, "max_iters": 100_000}
-
-#: From this n on, "auto" tries SCS first. Measured (thm1_sep, both sides, best of 3, 2 cores):
-#: n = 4: Clarabel 0.024 s, SCS 0.026 s; n = 8: 0.062 vs 0.049; n = 12: 0.115 vs 0.042;
-#: n = 16: 0.317 vs 0.059; n = 24: 1.57 vs 0.107; flexible link (n = 4): 0.025 vs 0.067.
-SCS_FROM_N = 8
+__all__ = ["coordinate_hint", "joint_result", "paper_gains_from", "recombine", "scalar", "separated_design", "synthesis_variables",
+           "young_layout"]
 
 
-def solve_side(prog: _lmi.Program, solver: str = "auto", n: int | None = None) -> str:
-    """Solve one side and return a log of the solvers tried.
+def young_layout(n: int, s11: Callable[[dict], object], eside: Callable[[dict], list],
+                 schur_weight: Callable[[dict], object] | None):
+    """Block functions ``(joint, xside, eside)`` of a corrected Theorem 1 / Corollary 1 LMI.
 
-    ``"auto"``: Clarabel when ``n < SCS_FROM_N``; otherwise SCS first, its point verified with
-    numpy, and Clarabel when it does not verify.
+    Both LMIs share one layout (MATH.md): the x-side block ``s11`` (``AQ + QA' + B Fh' +
+    Fh B' + kappa I``), an e-side 2 x 2 block matrix ``[[E11, E12], [E12', E22]]``, the Young
+    coupling of ``-B F e`` through ``-Q/phi`` and ``-phi Q``, and, when ``schur_weight`` is
+    given, the Schur column ``Q`` with ``-w I`` (``w = kappa / beta_eff`` or ``kappa / alpha^2``)::
+
+        [ s11    0     0     B Fh'    0        Q    ]
+        [ 0      E11   E12   0        I        0    ]
+        [ 0      E12'  E22   0        0        0    ]
+        [ Fh B'  0     0     -Q/phi   0        0    ]
+        [ 0      I     0     0        -phi Q   0    ]
+        [ Q      0     0     0        0        -w I ]
+
+    The functions read ``B``, ``Q``, ``Fh``, ``phi`` and ``iphi`` (= 1/phi) from the values dict,
+    so they build the cvxpy matrix (Parameters) and the numeric one (arrays) alike.
+
+    Parameters
+    ----------
+    n : int
+    s11 : callable
+        ``s11(values)``: the x-side (1, 1) block.
+    eside : callable
+        ``eside(values)``: the e-side blocks ``[[E11, E12], [E21, E22]]``.
+    schur_weight : callable or None
+        ``schur_weight(values)``: the scalar ``w`` of the Schur block, or None without the column.
+
+    Returns
+    -------
+    joint, xside, eside : callable
     """
-    if solver == "auto" and n is not None and n < SCS_FROM_N:
-        solver = "CLARABEL"
-    if solver == "auto":
-        prog.solve(solver="SCS", solver_opts=SCS_OPTS)
-        if prog.verified():
-            return f"SCS:{prog.last_status}"
-        first = f"SCS:{prog.last_status} (not verified)"
-        prog.solve(solver="CLARABEL")
-        return f"{first} -> CLARABEL:{prog.last_status}"
-    prog.solve(solver=solver, solver_opts=SCS_OPTS if solver == "SCS" else None)
-    return f"{solver}:{prog.last_status}"
+    I, Z = np.eye(n), np.zeros((n, n))
+
+    def joint(d):
+        (E11, E12), (E21, E22) = eside(d)
+        B, Q, Fh = d["B"], d["Q"], d["Fh"]
+        rows = [
+            [s11(d), Z, Z, B @ Fh.T, Z],
+            [Z, E11, E12, Z, I],
+            [Z, E21, E22, Z, Z],
+            [Fh @ B.T, Z, Z, -d["iphi"] * Q, Z],
+            [Z, I, Z, Z, -d["phi"] * Q],
+        ]
+        if schur_weight is not None:
+            for row, blk in zip(rows, (Q, Z, Z, Z, Z)):
+                row.append(blk)
+            rows.append([Q, Z, Z, Z, Z, -schur_weight(d) * I])
+        return rows
+
+    def xside(d):
+        if schur_weight is None:
+            return [[s11(d)]]
+        return [[s11(d), d["Q"]], [d["Q"], -schur_weight(d) * I]]
+
+    return joint, xside, eside
 
 
 def recombine(
     B: np.ndarray,
-    xprog: _lmi.Program,
-    eprog: _lmi.Program,
+    xprog: lmi.Program,
+    eprog: lmi.Program,
     e_keys: tuple[str, ...],
     joint_blocks: Callable[[dict], list],
 ) -> dict:
@@ -96,48 +129,54 @@ def recombine(
             return out
     X, E = xprog.numeric_matrix(), eprog.numeric_matrix()
     xv, ev = xprog.values(), eprog.values()
-    lx, le = _lmi.max_eig(X), _lmi.max_eig(E)
+    lx, le = lmi.max_eig(X), lmi.max_eig(E)
     out.update(x_margin=lx, e_margin=le)
-    qmin = _lmi.min_eig(xv["Q"])
-    bad = [name for name, val, M in (("x-side", lx, X), ("e-side", le, E)) if not val < _lmi.verify_tol(M)]
-    if qmin <= 0:
-        bad.append("x-side (Q not positive definite)")
+    qmin = lmi.min_eig(xv["Q"])
+    sides = {"x-side": (lmi.classify(lx, X), xprog), "e-side": (lmi.classify(le, E), eprog)}
+    if not lmi.is_positive_definite(xv["Q"]):
+        sides["x-side"] = ("violated", xprog)
+    bad = [name for name, (verdict, _) in sides.items() if verdict != "verified"]
     # a solver that claimed a positive margin its point does not have: undecided, not infeasible
-    claimed = [name for name, prog in (("x-side", xprog), ("e-side", eprog))
-               if name in " ".join(bad) and float(prog.values()["t"]) > 0]
+    claimed = [name for name in bad if float(sides[name][1].values()["t"]) > lmi.verify_tol(X if name == "x-side" else E)]
+    margins = f"max eig x-side {lx:.3g}, e-side {le:.3g}"
     if claimed:
         out.update(status="undecided", reason=(
             f"the solver reported a positive margin on the {' and '.join(claimed)} but the recomputed matrix "
-            f"does not verify (max eig x-side {lx:.3g}, e-side {le:.3g})"))
+            f"does not verify ({margins})"))
         return out
     if bad:
-        out.update(status="infeasible", reason=(
-            f"no strictly feasible point on the {' and '.join(bad)} (max eig x-side {lx:.3g}, e-side {le:.3g}); "
-            "the joint LMI is feasible iff both sides are"))
+        marginal = all(sides[name][0] == "marginal" for name in bad)
+        status = "marginal" if marginal else "infeasible"
+        what = ("within the verification tolerance of zero (neither strictly feasible nor proven infeasible)"
+                if marginal else "not strictly feasible under the normalisation")
+        out.update(status=status, reason=(
+            f"the {' and '.join(bad)} {'is' if len(bad) == 1 else 'are'} {what} ({margins}); the joint LMI is "
+            "feasible iff both sides are"))
         return out
     Q, Fh = xv["Q"], xv["Fh"]
     BF = B @ np.linalg.solve(Q, Fh).T  # B Fh' Q^{-1}
     G = BF @ Q @ BF.T  # = B Fh' Q^{-1} Fh B'
-    gmax = _lmi.max_eig(G)
+    gmax = lmi.max_eig(G)
     phi = 0.5 * abs(lx) / gmax if gmax > 0 else 1.0
     s = 2.0 / (phi * qmin * abs(le))
     vals = {**xv, **ev}
     for k in e_keys:
         vals[k] = ev[k] * s
     vals.update(phi=phi, iphi=1.0 / phi)
-    M = _lmi.assemble(joint_blocks, vals, numeric=True)
+    M = lmi.assemble(joint_blocks, vals, numeric=True)
     M = (M + M.T) / 2
     diag = np.diag(M)
-    raw = _lmi.max_eig(M)
+    raw = lmi.max_eig(M)
     if np.all(diag < 0):
         d = 1.0 / np.sqrt(-diag)
-        margin = _lmi.max_eig(M * d[:, None] * d[None, :])
+        Meq = M * d[:, None] * d[None, :]
+        margin = lmi.max_eig(Meq)
     else:
-        margin = float("inf")  # a nonnegative diagonal entry: not negative definite
-    min_eig = {"Q": qmin, "R": _lmi.min_eig(vals["R"])}
+        Meq, margin = M, float("inf")  # a nonnegative diagonal entry: not negative definite
+    min_eig = {"Q": qmin, "R": lmi.min_eig(vals["R"])}
     out.update(margin=margin, raw_margin=raw, lmi_size=int(M.shape[0]), min_eig=min_eig, phi=phi, scale=s,
                values=vals)
-    if margin < -_lmi.MARGIN_TOL * 1e3 and min(min_eig.values()) > 0:
+    if lmi.classify(margin, Meq) == "verified" and lmi.is_positive_definite(vals["R"]):
         out.update(status="feasible", reason="")
     else:
         out.update(status="undecided", reason=(
@@ -158,7 +197,7 @@ def separated_design(plant, blocks, e_scalars: tuple[str, ...], *, solver: str, 
     e_scalars : tuple of str
         Nonnegative scalar variables of the e-side (scaled with R and Kh).
     solver : str
-        ``"auto"``, ``"CLARABEL"`` or ``"SCS"`` (see :func:`solve_side`).
+        ``"auto"``, ``"CLARABEL"`` or ``"SCS"`` (see :func:`bench.lmi.solve_side`).
     cap : float
         Normalisation cap.
     what : str
@@ -169,10 +208,10 @@ def separated_design(plant, blocks, e_scalars: tuple[str, ...], *, solver: str, 
         ``extra_params(values) -> dict`` of design-specific scalars to report.
     key : tuple
         Identifies the design's structure (e.g. ``("thm1.sep", schur)``); with the shape and
-        the cap it keys the compiled side programs (:func:`designs._lmi.cached_program`).
+        the cap it keys the compiled side programs (:func:`designs.lmi.cached_program`).
     constants : dict
         The design's scalar constants (each becomes a cvxpy Parameter of both sides); the
-        plant's ``A``, ``B``, ``C`` enter as :func:`designs._lmi.plant_matrices`.
+        plant's ``A``, ``B``, ``C`` enter as :func:`designs.lmi.plant_matrices`.
 
     Returns
     -------
@@ -180,45 +219,99 @@ def separated_design(plant, blocks, e_scalars: tuple[str, ...], *, solver: str, 
     """
     import cvxpy as cp
 
-    from designs._core import DesignResult
-
     n, m, p = plant.n, plant.m, plant.p
     joint, xside, eside = blocks
     scalars = tuple(constants)
-    mats = _lmi.plant_matrices(plant)
+    mats = lmi.plant_matrices(plant)
 
     def params() -> dict:
-        return {**mats.parameters(), **_lmi.scalar_parameters(*scalars)}
+        return {**mats.parameters(), **lmi.scalar_parameters(*scalars)}
 
     def build_x():
         xv = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
               "t": cp.Variable()}
-        return _lmi.margin_program(xside, xv, params(), ("Q",), lambda d: [d["kappa"] >= 0], cap=cap)
+        return lmi.margin_program(xside, xv, params(), ("Q",), lambda d: [d["kappa"] >= 0], cap=cap)
 
     def build_e():
         ev = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "t": cp.Variable()}
         ev.update({k: cp.Variable() for k in e_scalars})
-        return _lmi.margin_program(eside, ev, params(), ("R",), lambda d: [d[k] >= 0 for k in e_scalars], cap=cap)
+        return lmi.margin_program(eside, ev, params(), ("R",), lambda d: [d[k] >= 0 for k in e_scalars], cap=cap)
 
     shape = (n, m, p, scalars, float(cap), mats.key)
-    xprog = _lmi.cached_program((*key, "x-side", *shape), build_x)
-    eprog = _lmi.cached_program((*key, "e-side", *shape), build_e)
+    xprog = lmi.cached_program((*key, "x-side", *shape), build_x)
+    eprog = lmi.cached_program((*key, "e-side", *shape), build_e)
     xprog.set(**mats.settable(), **constants)
     eprog.set(**mats.settable(), **constants)
-    xlog = solve_side(xprog, solver, n)
-    elog = solve_side(eprog, solver, n)
+    xlog = lmi.solve_side(xprog, solver, n)
+    elog = lmi.solve_side(eprog, solver, n)
     rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, e_keys=("R", "Kh", *e_scalars), joint_blocks=joint)
     K = F = None
     vals = rc["values"] or {}
     if rc["status"] == "feasible":
-        K = np.linalg.solve(vals["R"], vals["Kh"].T)  # K = R^{-1} Kh'
-        F = np.linalg.solve(vals["Q"], vals["Fh"]).T  # F = Fh' Q^{-1}
+        K, F = paper_gains_from(vals)
+    used = "+".join(dict.fromkeys((xprog.solver, eprog.solver)))
     return DesignResult(
-        status=rc["status"], reason=rc["reason"] and f"{what} (separated): {rc['reason']}",
-        K=K, F=F, solver=solver, solver_status=f"x {xlog}; e {elog}",
+        status=rc["status"], reason=rc["reason"] and f"{what} (separated): {rc['reason']}", route="sdp",
+        K=K, F=F, solver=used, solver_status=f"x {xlog}; e {elog}",
         compile_s=xprog.compile_s + eprog.compile_s, solve_s=xprog.solve_s + eprog.solve_s,
         n_solves=xprog.n_solves + eprog.n_solves, margin=rc["margin"], lmi_size=rc["lmi_size"],
         min_eig=rc["min_eig"],
         params={"form": "separated (x-side and e-side apart, joint certificate rebuilt)", phi_name: rc["phi"],
                 "e_scale": rc["scale"], "x_margin": rc["x_margin"], "e_margin": rc["e_margin"],
                 "raw_joint_margin": rc.get("raw_margin", float("nan")), "cap": cap, **extra_params(vals)})
+
+
+# -- helpers shared by the corrected Theorem 1 and Corollary 1 ---------------------------------
+def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...]) -> dict:
+    """cvxpy variables Q, R (n x n symmetric), Fh (n x m), Kh (p x n), the margin t and ``scalars``."""
+    import cvxpy as cp
+
+    v = {
+        "Q": cp.Variable((n, n), symmetric=True, name="Q"),
+        "R": cp.Variable((n, n), symmetric=True, name="R"),
+        "Fh": cp.Variable((n, m), name="Fhat"),
+        "Kh": cp.Variable((p, n), name="Khat"),
+        "t": cp.Variable(name="t"),
+    }
+    for s in scalars:
+        v[s] = cp.Variable(name=s)
+    return v
+
+
+def paper_gains_from(vals: dict) -> tuple[np.ndarray, np.ndarray]:
+    """K = R^{-1} Khat', F = Fhat' Q^{-1} (the paper's recovery, correct as printed)."""
+    K = np.linalg.solve(vals["R"], vals["Kh"].T)
+    F = np.linalg.solve(vals["Q"], vals["Fh"]).T  # Q symmetric: Fh' Q^-1 = (Q^-1 Fh)'
+    return K, F
+
+
+def scalar(vals: dict, k: str) -> float:
+    """``vals[k]`` as a float (NaN when unsolved)."""
+    v = vals.get(k)
+    return float(v) if v is not None else float("nan")
+
+
+def joint_result(prog: lmi.Program, concl: dict, params: dict) -> DesignResult:
+    """The :class:`DesignResult` of a joint LMI program concluded by :func:`bench.lmi.conclude`."""
+    K = F = None
+    if concl["status"] == "feasible":
+        K, F = paper_gains_from(prog.values())
+    return DesignResult(
+        status=concl["status"], reason=concl["reason"], route="sdp", K=K, F=F, solver=prog.solver,
+        solver_status=concl["solver_status"], compile_s=prog.compile_s, solve_s=prog.solve_s,
+        n_solves=prog.n_solves, margin=concl["margin"], lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
+        params={**params, "margin_t": concl.get("t", float("nan"))},
+    )
+
+
+def coordinate_hint(plant, res: DesignResult, variant: str) -> DesignResult:
+    """Append to an infeasible or marginal result that the scalar constants depend on the coordinates.
+
+    The constants of f change with a state scaling ``x = D x~``; for a plant with channels the
+    ``variant`` design (e.g. ``thm1_scaled``) searches one (:mod:`designs.scaled`).
+    """
+    scaled_already = plant.id.endswith(".scaled")
+    if res.status in ("infeasible", "marginal") and plant.channels is not None and not scaled_already:
+        res.reason += (f"; the scalar constants depend on the state's coordinates: {variant} searches a diagonal "
+                       "scaling, and the structured design uses the channels themselves")
+    return res

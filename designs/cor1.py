@@ -12,12 +12,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench import lmi
 from bench.registry import register_design
-from designs import _lmi
 from designs._core import (Design, DesignResult, check_choice, check_int, check_positive, check_range,
                            check_values_in)
-from designs.thm1 import _result, _scalar, _variables
-from plants._core import Constants, Plant
+from designs._separated import coordinate_hint, joint_result, scalar, separated_design, synthesis_variables, young_layout
+from plants import Constants, Plant
 
 __all__ = ["Cor1", "Cor1Printed"]
 
@@ -85,45 +85,23 @@ class Cor1(Design):
 
     @staticmethod
     def _blocks(n: int, schur: bool):
-        """Blocks of the joint 6n LMI (5n when alpha = 0) and of its x-side and e-side.
+        """Blocks ``(joint, xside, eside)`` of the joint 6n LMI (5n when alpha = 0).
 
         ``A``, ``B``, ``C``, ``a2`` (alpha^2) and ``ia2`` (1/alpha^2) are read from the values
-        dict (cvxpy Parameters or numbers).
+        dict (:func:`designs._separated.young_layout`).
         """
-        I, Z = np.eye(n), np.zeros((n, n))
+        I = np.eye(n)
 
         def s11(d):
             A, B, Q, Fh = d["A"], d["B"], d["Q"], d["Fh"]
             return A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
 
-        def w22(d):
-            A, C, R, Kh = d["A"], d["C"], d["R"], d["Kh"]
-            return A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * d["a2"] * I
-
-        def joint(d):
-            B, Q, R, Fh = d["B"], d["Q"], d["R"], d["Fh"]
-            rows = [
-                [s11(d), Z, Z, B @ Fh.T, Z],
-                [Z, w22(d), R, Z, I],
-                [Z, R, -d["mu2"] * I, Z, Z],
-                [Fh @ B.T, Z, Z, -d["iphi"] * Q, Z],
-                [Z, I, Z, Z, -d["phi"] * Q],
-            ]
-            if schur:
-                for row, blk in zip(rows, (Q, Z, Z, Z, Z)):
-                    row.append(blk)
-                rows.append([Q, Z, Z, Z, Z, -(d["kappa"] * d["ia2"]) * I])
-            return rows
-
-        def xside(d):
-            if not schur:
-                return [[s11(d)]]
-            return [[s11(d), d["Q"]], [d["Q"], -(d["kappa"] * d["ia2"]) * I]]
-
         def eside(d):
-            return [[w22(d), d["R"]], [d["R"], -d["mu2"] * I]]
+            A, C, R, Kh = d["A"], d["C"], d["R"], d["Kh"]
+            W22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * d["a2"] * I
+            return [[W22, R], [R, -d["mu2"] * I]]
 
-        return joint, xside, eside
+        return young_layout(n, s11, eside, (lambda d: d["kappa"] * d["ia2"]) if schur else None)
 
     @staticmethod
     def _constants(alpha: float) -> tuple[dict, bool]:
@@ -132,47 +110,45 @@ class Cor1(Design):
         schur = a2 > 0
         return {"a2": a2, "ia2": 1 / a2 if schur else 0.0}, schur
 
-    def _program(self, plant: Plant, alpha: float) -> _lmi.Program:
+    def _program(self, plant: Plant, alpha: float) -> lmi.Program:
         """The joint program (compiled once per shape), plant and alpha set; phi2 left to the caller."""
         import cvxpy as cp
 
         n, m, p = plant.n, plant.m, plant.p
         vals, schur = self._constants(alpha)
-        mats = _lmi.plant_matrices(plant)
+        mats = lmi.plant_matrices(plant)
 
         def build():
-            v = _variables(n, m, p, ("kappa", "mu2"))
+            v = synthesis_variables(n, m, p, ("kappa", "mu2"))
             prm = {"phi": cp.Parameter(nonneg=True, name="phi2"), "iphi": cp.Parameter(nonneg=True, name="inv_phi2"),
-                   **mats.parameters(), **_lmi.scalar_parameters("a2", "ia2")}
+                   **mats.parameters(), **lmi.scalar_parameters("a2", "ia2")}
             joint, _, _ = self._blocks(n, schur)
 
             def extra(d):
                 return [d["kappa"] >= 0, d["mu2"] >= 0]
 
-            return _lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
+            return lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
 
-        prog = _lmi.cached_program(("cor1.joint", n, m, p, schur, float(self.cap), mats.key), build)
+        prog = lmi.cached_program(("cor1.joint", n, m, p, schur, float(self.cap), mats.key), build)
         prog.set(**mats.settable(), **vals)
         return prog
 
     def _design_separated(self, plant: Plant, alpha: float) -> DesignResult:
         """x-side and e-side solved apart (two 2n LMIs), joint certificate rebuilt and verified."""
-        from designs._separated import separated_design
-
         vals, schur = self._constants(alpha)
         return separated_design(plant, self._blocks(plant.n, schur), ("mu2",), solver=self.solver, cap=self.cap,
                                 what="corrected Corollary 1", phi_name="phi2", key=("cor1.sep", schur),
                                 constants=vals,
-                                extra_params=lambda v: {"kappa": _scalar(v, "kappa"), "mu2": _scalar(v, "mu2"),
+                                extra_params=lambda v: {"kappa": scalar(v, "kappa"), "mu2": scalar(v, "mu2"),
                                                         "alpha": alpha,
-                                                        "mu1": 1 / _scalar(v, "kappa") if _scalar(v, "kappa") > 0
+                                                        "mu1": 1 / scalar(v, "kappa") if scalar(v, "kappa") > 0
                                                         else float("nan")})
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the corrected Corollary 1 for ``plant`` with Lipschitz constant ``constants.alpha``."""
         alpha = constants.alpha
         if self.method == "separated":
-            return self._design_separated(plant, alpha)
+            return coordinate_hint(plant, self._design_separated(plant, alpha), "cor1_scaled")
         prog = self._program(plant, alpha)
 
         def obj(phi):
@@ -180,19 +156,19 @@ class Cor1(Design):
 
         lo, hi = self.phi2_range
         if self.phi2 is None:
-            phi, _, _ = _lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
+            phi, _ = lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
             searched = f"over phi2 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
             prog.restore_best()
         else:
             phi, searched = self.phi2, f"at phi2 = {self.phi2:g}"
             obj(phi)
-        concl = _lmi.conclude(prog, what="corrected Corollary 1",
+        concl = lmi.conclude(prog, what="corrected Corollary 1",
                               normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1", searched=searched)
         vals = prog.values()
-        kappa = _scalar(vals, "kappa")
+        kappa = scalar(vals, "kappa")
         params = {"phi2": phi, "kappa": kappa, "mu1": 1 / kappa if kappa > 0 else float("nan"),
-                  "mu2": _scalar(vals, "mu2"), "alpha": alpha, "cap": self.cap}
-        return _result(prog, concl, params)
+                  "mu2": scalar(vals, "mu2"), "alpha": alpha, "cap": self.cap}
+        return coordinate_hint(plant, joint_result(prog, concl, params), "cor1_scaled")
 
 
 @register_design("cor1_printed", order=13)
@@ -229,7 +205,7 @@ class Cor1Printed(Design):
         n, m, p = plant.n, plant.m, plant.p
         I, Z = np.eye(n), np.zeros((n, n))
         a2 = constants.alpha**2
-        mats = _lmi.plant_matrices(plant)
+        mats = lmi.plant_matrices(plant)
 
         def blocks(d):
             A, B, C = d["A"], d["B"], d["C"]
@@ -250,10 +226,10 @@ class Cor1Printed(Design):
             ]
 
         def build():
-            v = _variables(n, m, p, ("mu1", "mu2", "alpha2", "beta2"))
+            v = synthesis_variables(n, m, p, ("mu1", "mu2", "alpha2", "beta2"))
             prm = {"xi_a2": cp.Parameter(nonneg=True, name="xi_over_alpha2"),
                    "mu1_max": cp.Parameter(nonneg=True, name="mu1_max"),
-                   **mats.parameters(), **_lmi.scalar_parameters("a2")}
+                   **mats.parameters(), **lmi.scalar_parameters("a2")}
 
             def extra(d):
                 t = d["t"]
@@ -261,9 +237,9 @@ class Cor1Printed(Design):
                         2 * d["alpha2"] - d["beta2"] >= t, d["mu1"] >= t, d["mu1"] <= d["mu1_max"] - t,
                         d["mu2"] >= t]
 
-            return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+            return lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
 
-        prog = _lmi.cached_program(("cor1.printed", n, m, p, float(self.cap), mats.key), build)
+        prog = lmi.cached_program(("cor1.printed", n, m, p, float(self.cap), mats.key), build)
         prog.set(**mats.settable(), a2=a2)
 
         def obj(xi):
@@ -272,10 +248,10 @@ class Cor1Printed(Design):
         vals = [(obj(float(x)), float(x)) for x in self.xis]
         best_xi = max(vals, key=lambda vx: np.nan_to_num(vx[0], nan=-np.inf))[1]
         prog.restore_best()
-        concl = _lmi.conclude(prog, what="Corollary 1 as printed (Remarks 2-3)",
+        concl = lmi.conclude(prog, what="Corollary 1 as printed (Remarks 2-3)",
                               normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1",
                               searched=f"over xi in {tuple(self.xis)}")
         sv = prog.values()
         params = {"xi": best_xi, "alpha": constants.alpha, "cap": self.cap,
-                  **{k: _scalar(sv, k) for k in ("mu1", "mu2", "alpha2", "beta2")}}
-        return _result(prog, concl, params)
+                  **{k: scalar(sv, k) for k in ("mu1", "mu2", "alpha2", "beta2")}}
+        return joint_result(prog, concl, params)

@@ -19,8 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from designs._core import check_positive
-from designs._parts import Part, PartResult, register_estimator
-from plants._core import Constants, Plant
+from designs._core import DesignResult
+from designs._parts import Part, register_estimator
+from plants import Constants, Plant
 
 __all__ = ["EKFEstimator", "EKFSpec"]
 
@@ -74,10 +75,10 @@ class EKFEstimator(Part):
     def __post_init__(self) -> None:
         EKFSpec(dt=self.dt, q=self.q, r=self.r, p0=self.p0)  # validates, naming the parameter
 
-    def compute(self, plant: Plant, constants: Constants) -> PartResult:
+    def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Return the filter specification (checked against the plant's horizon)."""
         spec = EKFSpec(dt=self.dt, q=self.q, r=self.r, p0=self.p0)
         spec.check_horizon(plant.t_final)
-        return PartResult(status="feasible", estimator=spec, solver=None,
+        return DesignResult(status="given", route="given", estimator=spec, solver=None,
                           params={"dt": spec.dt, "q": spec.q, "r": spec.r, "p0": spec.p0,
                                   "jacobian": "analytic" if plant.jacobian is not None else "finite differences"})

@@ -5,7 +5,7 @@ Both solve a 2n x 2n LMI with cvxpy + Clarabel, maximising a margin t under the 
 and are verified like every LMI of the suite: the matrix is rebuilt with numpy at the solution
 and its largest eigenvalue must be negative. ``solver="auto"`` tries SCS first (much faster
 for large n) and falls back to Clarabel when SCS's point does not verify
-(:func:`designs._separated.solve_side`).
+(:func:`bench.lmi.solve_side`).
 
 References
 ----------
@@ -21,11 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from designs import _lmi
-from designs._core import check_choice, check_positive
-from designs._parts import Part, PartResult, register_estimator
-from designs._separated import solve_side
-from plants._core import Constants, Plant
+from bench import lmi
+from designs._core import DesignResult, check_choice, check_positive
+from designs._parts import Part, register_estimator
+from plants import Constants, Plant
 
 __all__ = ["RajamaniLMI", "ZhangOSL"]
 
@@ -34,12 +33,13 @@ def _check_solver(solver: str) -> None:
     check_choice("solver", solver, ("auto", "CLARABEL", "SCS"))
 
 
-def _part_from(prog: _lmi.Program, concl: dict, K, params: dict, log: str = "") -> PartResult:
-    return PartResult(status=concl["status"], reason=concl["reason"], gain=K if concl["status"] == "feasible" else None,
-                      solver=prog.solver, solver_status=log or concl["solver_status"], compile_s=prog.compile_s,
-                      solve_s=prog.solve_s, n_solves=prog.n_solves, margin=concl["margin"],
-                      lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
-                      params={**params, "margin_t": concl.get("t", float("nan"))})
+def _part_from(prog: lmi.Program, concl: dict, K, params: dict, log: str = "") -> DesignResult:
+    return DesignResult(status=concl["status"], reason=concl["reason"], route="sdp",
+                        K=K if concl["status"] == "feasible" else None,
+                        solver=prog.solver, solver_status=log or concl["solver_status"], compile_s=prog.compile_s,
+                        solve_s=prog.solve_s, n_solves=prog.n_solves, margin=concl["margin"],
+                        lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
+                        params={**params, "margin_t": concl.get("t", float("nan"))})
 
 
 @register_estimator("rajamani")
@@ -62,7 +62,7 @@ class RajamaniLMI(Part):
         check_positive("cap", self.cap)
         _check_solver(self.solver)
 
-    def compute(self, plant: Plant, constants: Constants) -> PartResult:
+    def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the LMI and return K."""
         import cvxpy as cp
 
@@ -78,14 +78,14 @@ class RajamaniLMI(Part):
         def build():
             v = {"P": cp.Variable((n, n), symmetric=True), "W": cp.Variable((n, p)), "eps": cp.Variable(),
                  "t": cp.Variable()}
-            prm = {**mats.parameters(), **_lmi.scalar_parameters("a2")}
-            return _lmi.margin_program(blocks, v, prm, ("P",), lambda d: [d["eps"] >= 0], cap=self.cap)
+            prm = {**mats.parameters(), **lmi.scalar_parameters("a2")}
+            return lmi.margin_program(blocks, v, prm, ("P",), lambda d: [d["eps"] >= 0], cap=self.cap)
 
-        mats = _lmi.matrices(A=plant.A, C=plant.C)
-        prog = _lmi.cached_program(("rajamani", n, p, lam, float(self.cap), mats.key), build)
+        mats = lmi.matrices(A=plant.A, C=plant.C)
+        prog = lmi.cached_program(("rajamani", n, p, lam, float(self.cap), mats.key), build)
         prog.set(**mats.settable(), a2=a2)
-        log = solve_side(prog, self.solver, n)
-        concl = _lmi.conclude(prog, what="Rajamani LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
+        log = lmi.solve_side(prog, self.solver, n)
+        concl = lmi.conclude(prog, what="Rajamani LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
                               searched=f"with decay {lam:g}")
         vals = prog.values()
         K = np.linalg.solve(vals["P"], vals["W"]) if concl["status"] == "feasible" else None
@@ -119,7 +119,7 @@ class ZhangOSL(Part):
         check_positive("cap", self.cap)
         _check_solver(self.solver)
 
-    def compute(self, plant: Plant, constants: Constants) -> PartResult:
+    def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the LMI and return K."""
         import cvxpy as cp
 
@@ -140,15 +140,15 @@ class ZhangOSL(Part):
             v = {"P": cp.Variable((n, n), symmetric=True), "sigma": cp.Variable(), "eps1": cp.Variable(),
                  "eps2": cp.Variable(), "t": cp.Variable()}
             # C'C is one parameter: sigma * (C' C) with C a parameter would not be DPP
-            prm = {**mats.parameters(), **_lmi.scalar_parameters("rho", "beta", "gamma")}
-            return _lmi.margin_program(blocks, v, prm, ("P",),
+            prm = {**mats.parameters(), **lmi.scalar_parameters("rho", "beta", "gamma")}
+            return lmi.margin_program(blocks, v, prm, ("P",),
                                        lambda d: [d["sigma"] >= 0, d["eps1"] >= 0, d["eps2"] >= 0], cap=self.cap)
 
-        mats = _lmi.matrices(A=plant.A, CtC=C.T @ C)
-        prog = _lmi.cached_program(("zhang_osl", n, lam, float(self.cap), mats.key), build)
+        mats = lmi.matrices(A=plant.A, CtC=C.T @ C)
+        prog = lmi.cached_program(("zhang_osl", n, lam, float(self.cap), mats.key), build)
         prog.set(**mats.settable(), rho=rho, beta=beta, gamma=gamma)
-        log = solve_side(prog, self.solver, n)
-        concl = _lmi.conclude(prog, what="Zhang OSL LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
+        log = lmi.solve_side(prog, self.solver, n)
+        concl = lmi.conclude(prog, what="Zhang OSL LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
                               searched=f"with decay {lam:g}")
         vals = prog.values()
         K = None

@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from designs._core import DesignError
-from designs._parts import Part, PartResult, check_weight, register_estimator, register_feedback
-from plants._core import Constants, Plant
+from designs._core import DesignError, DesignResult
+from designs._parts import Part, check_weight, register_estimator, register_feedback
+from plants import Constants, Plant
 
 __all__ = ["LQEObserver", "LQRFeedback"]
 
@@ -55,7 +55,7 @@ class LQRFeedback(Part):
         _prevalidate("Q", self.Q, definite=False)
         _prevalidate("R", self.R, definite=True)
 
-    def compute(self, plant: Plant, constants: Constants) -> PartResult:
+    def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """F = -K_lqr for ``plant``'s (A, B)."""
         import control
 
@@ -65,12 +65,12 @@ class LQRFeedback(Part):
         try:
             K_lqr, S, _ = control.lqr(A, B, Q, R, method="scipy")
         except Exception as exc:  # not stabilizable, Hamiltonian on the axis, ...
-            return PartResult(status="infeasible", reason=f"control.lqr failed: {exc}", solver="control.lqr",
-                              solver_status="failed")
+            return DesignResult(status="infeasible", reason=f"control.lqr failed: {exc}", route="formula",
+                                solver="control.lqr", solver_status="failed")
         K_lqr = np.asarray(K_lqr, dtype=float)
         S = np.asarray(S, dtype=float)
         res = A.T @ S + S @ A - S @ B @ np.linalg.solve(R, B.T) @ S + Q
-        return PartResult(status="feasible", gain=-K_lqr, solver="control.lqr", solver_status="solved",
+        return DesignResult(status="computed", route="formula", F=-K_lqr, solver="control.lqr", solver_status="solved",
                           params={"riccati_residual": float(np.abs(res).max()), "Q": "I" if self.Q is None else "set",
                                   "R": "I" if self.R is None else "set"})
 
@@ -92,7 +92,7 @@ class LQEObserver(Part):
         _prevalidate("QN", self.QN, definite=False)
         _prevalidate("RN", self.RN, definite=True)
 
-    def compute(self, plant: Plant, constants: Constants) -> PartResult:
+    def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """K = L for ``plant``'s (A, C)."""
         import control
 
@@ -101,7 +101,7 @@ class LQEObserver(Part):
         try:
             L, _, _ = control.lqe(plant.A, np.eye(plant.n), plant.C, QN, RN, method="scipy")
         except Exception as exc:
-            return PartResult(status="infeasible", reason=f"control.lqe failed: {exc}", solver="control.lqe",
-                              solver_status="failed")
-        return PartResult(status="feasible", gain=np.asarray(L, dtype=float), solver="control.lqe",
-                          solver_status="solved")
+            return DesignResult(status="infeasible", reason=f"control.lqe failed: {exc}", route="formula",
+                                solver="control.lqe", solver_status="failed")
+        return DesignResult(status="computed", route="formula", K=np.asarray(L, dtype=float), solver="control.lqe",
+                            solver_status="solved")

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from bench.registry import register_design
 from designs._core import Design, DesignResult
-from plants._core import Constants, Plant
+from plants import Constants, Plant
 from plants.flexible_link import PAPER_F, PAPER_K
 
 __all__ = ["PaperGains"]
@@ -32,6 +32,6 @@ class PaperGains(Design):
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Return the printed gains (no solve)."""
-        return DesignResult(status="feasible", reason="printed in the paper (37)-(38); no LMI solved here",
+        return DesignResult(status="given", route="given", reason="printed in the paper (37)-(38); no LMI solved here",
                             K=PAPER_K.copy(), F=PAPER_F.copy(), solver=None,
                             params={"source": "eqs. (37)-(38)"})

@@ -26,8 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from designs._core import check_int, check_positive, check_range
-from designs._parts import Part, PartResult, register_estimator
-from plants._core import Constants, Plant
+from designs._core import DesignResult
+from designs._parts import Part, register_estimator
+from plants import Constants, Plant
 
 __all__ = ["RHRiccati", "rh_solve"]
 
@@ -89,7 +90,7 @@ class RHRiccati(Part):
         check_positive("residual_tol", self.residual_tol)
         check_int("n_grid", self.n_grid, minimum=1)
 
-    def compute(self, plant: Plant, constants: Constants) -> PartResult:
+    def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Search eps and return K, or 'no stabilizing solution' with the failures seen."""
         import time
 
@@ -119,12 +120,14 @@ class RHRiccati(Part):
         if not valid:
             summary = "; ".join(f"{why} (eps = {', '.join(f'{e:.2g}' for e in es[:3])}{', ...' if len(es) > 3 else ''})"
                                 for why, es in failures.items())
-            return PartResult(status="infeasible", solver="scipy.solve_continuous_are", solver_status="no solution",
+            return DesignResult(status="infeasible", route="riccati", solver="scipy.solve_continuous_are",
+                                solver_status="no solution",
                               reason=f"no stabilizing solution P > 0 of the RH Riccati equation for alpha = {alpha:.4g} "
                                      f"on {len(grid)} eps values in [{grid[0]:.2g}, {grid[-1]:.2g}]: {summary}",
                               solve_s=wall, n_solves=len(grid), params={"alpha": alpha})
         eps, P, K, res, lo, ae = max(valid, key=lambda v: v[0])
-        return PartResult(status="feasible", gain=K, solver="scipy.solve_continuous_are", solver_status="solved",
+        return DesignResult(status="feasible", route="riccati", K=K, solver="scipy.solve_continuous_are",
+                            solver_status="solved",
                           solve_s=wall, n_solves=len(grid), min_eig={"P": lo},
                           params={"eps": eps, "alpha": alpha, "riccati_residual": res,
                                   "eps_valid_min": min(v[0] for v in valid), "eps_valid_max": eps})

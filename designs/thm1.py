@@ -12,56 +12,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench import lmi
 from bench.registry import register_design
-from designs import _lmi
 from designs._core import (Design, DesignResult, check_choice, check_int, check_positive, check_range,
                            check_values_in)
-from plants._core import Constants, Plant
+from designs._separated import coordinate_hint, joint_result, scalar, separated_design, synthesis_variables, young_layout
+from plants import Constants, Plant
 
 __all__ = ["Thm1", "Thm1Printed"]
-
-
-def _variables(n: int, m: int, p: int, scalars: tuple[str, ...]) -> dict:
-    import cvxpy as cp
-
-    v = {
-        "Q": cp.Variable((n, n), symmetric=True, name="Q"),
-        "R": cp.Variable((n, n), symmetric=True, name="R"),
-        "Fh": cp.Variable((n, m), name="Fhat"),
-        "Kh": cp.Variable((p, n), name="Khat"),
-        "t": cp.Variable(name="t"),
-    }
-    for s in scalars:
-        v[s] = cp.Variable(name=s)
-    return v
-
-
-def _gains(vals: dict) -> tuple[np.ndarray, np.ndarray]:
-    """K = R^{-1} Khat', F = Fhat' Q^{-1} (the paper's recovery, correct as printed)."""
-    K = np.linalg.solve(vals["R"], vals["Kh"].T)
-    F = np.linalg.solve(vals["Q"], vals["Fh"]).T  # Q symmetric: Fh' Q^-1 = (Q^-1 Fh)'
-    return K, F
-
-
-def _result(prog: _lmi.Program, concl: dict, params: dict) -> DesignResult:
-    K = F = None
-    if concl["status"] == "feasible":
-        K, F = _gains(prog.values())
-    return DesignResult(
-        status=concl["status"],
-        reason=concl["reason"],
-        K=K,
-        F=F,
-        solver="CLARABEL",
-        solver_status=concl["solver_status"],
-        compile_s=prog.compile_s,
-        solve_s=prog.solve_s,
-        n_solves=prog.n_solves,
-        margin=concl["margin"],
-        lmi_size=concl["lmi_size"],
-        min_eig=concl["min_eig"],
-        params={**params, "margin_t": concl.get("t", float("nan"))},
-    )
 
 
 @register_design("thm1_sep", order=15, method="separated")
@@ -145,51 +103,24 @@ class Thm1(Design):
     # -- gamma >= 0: convex form -------------------------------------------------------------
     @staticmethod
     def _convex_blocks(n: int, schur: bool):
-        """Blocks of the joint 6n LMI (5n when beta_eff <= 0) and of its x-side and e-side.
+        """Blocks ``(joint, xside, eside)`` of the joint 6n LMI (5n when beta_eff <= 0).
 
         Plant matrices (``A``, ``B``, ``C``) and constants (``rho``, ``beta``, ``gamma``,
-        ``ibeff`` = 1/beta_eff) are read from the values dict, so the same functions build the
-        cvxpy matrix (with Parameters) and the numeric one (with arrays).
+        ``ibeff`` = 1/beta_eff) are read from the values dict (:func:`designs._separated.young_layout`).
         """
-        I, Z = np.eye(n), np.zeros((n, n))
+        I = np.eye(n)
 
         def s11(d):
             A, B, Q, Fh = d["A"], d["B"], d["Q"], d["Fh"]
             return A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
 
-        def s22(d):
-            A, C, R, Kh = d["A"], d["C"], d["R"], d["Kh"]
-            return A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * d["rho"] + d["eps4"] * d["beta"]) * I
-
-        def xr(d):
-            return d["R"] + (d["eps4"] * d["gamma"] - d["eps3"]) * I
-
-        def joint(d):
-            B, Q, Fh = d["B"], d["Q"], d["Fh"]
-            X = xr(d)
-            rows = [
-                [s11(d), Z, Z, B @ Fh.T, Z],
-                [Z, s22(d), X, Z, I],
-                [Z, X.T, -2 * d["eps4"] * I, Z, Z],
-                [Fh @ B.T, Z, Z, -d["iphi"] * Q, Z],
-                [Z, I, Z, Z, -d["phi"] * Q],
-            ]
-            if schur:
-                for row, blk in zip(rows, (Q, Z, Z, Z, Z)):
-                    row.append(blk)
-                rows.append([Q, Z, Z, Z, Z, -(d["kappa"] * d["ibeff"]) * I])
-            return rows
-
-        def xside(d):
-            if not schur:
-                return [[s11(d)]]
-            return [[s11(d), d["Q"]], [d["Q"], -(d["kappa"] * d["ibeff"]) * I]]
-
         def eside(d):
-            X = xr(d)
-            return [[s22(d), X], [X.T, -2 * d["eps4"] * I]]
+            A, C, R, Kh = d["A"], d["C"], d["R"], d["Kh"]
+            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * d["rho"] + d["eps4"] * d["beta"]) * I
+            X = R + (d["eps4"] * d["gamma"] - d["eps3"]) * I
+            return [[S22, X], [X.T, -2 * d["eps4"] * I]]
 
-        return joint, xside, eside
+        return young_layout(n, s11, eside, (lambda d: d["kappa"] * d["ibeff"]) if schur else None)
 
     @staticmethod
     def _constants(c: Constants) -> tuple[dict, bool]:
@@ -198,50 +129,48 @@ class Thm1(Design):
         schur = beff > 0
         return {"rho": c.rho, "beta": c.beta, "gamma": c.gamma, "ibeff": 1 / beff if schur else 0.0}, schur
 
-    def _program_convex(self, plant: Plant, c: Constants) -> _lmi.Program:
-        """The joint convex program (compiled once per shape; see :func:`designs._lmi.cached_program`),
+    def _program_convex(self, plant: Plant, c: Constants) -> lmi.Program:
+        """The joint convex program (compiled once per shape; see :func:`designs.lmi.cached_program`),
         with the plant's matrices and constants set; phi1 is left to the caller."""
         import cvxpy as cp
 
         n, m, p = plant.n, plant.m, plant.p
         vals, schur = self._constants(c)
-        mats = _lmi.plant_matrices(plant)
+        mats = lmi.plant_matrices(plant)
 
         def build():
-            v = _variables(n, m, p, ("kappa", "eps3", "eps4"))
+            v = synthesis_variables(n, m, p, ("kappa", "eps3", "eps4"))
             prm = {"phi": cp.Parameter(nonneg=True, name="phi1"), "iphi": cp.Parameter(nonneg=True, name="inv_phi1"),
-                   **mats.parameters(), **_lmi.scalar_parameters("rho", "beta", "gamma", "ibeff")}
+                   **mats.parameters(), **lmi.scalar_parameters("rho", "beta", "gamma", "ibeff")}
             joint, _, _ = self._convex_blocks(n, schur)
 
             def extra(d):
                 return [d["kappa"] >= 0, d["eps3"] >= 0, d["eps4"] >= 0]
 
-            return _lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
+            return lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
 
-        prog = _lmi.cached_program(("thm1.convex", n, m, p, schur, float(self.cap), mats.key), build)
+        prog = lmi.cached_program(("thm1.convex", n, m, p, schur, float(self.cap), mats.key), build)
         prog.set(**mats.settable(), **vals)
         return prog
 
     def _design_separated(self, plant: Plant, c: Constants) -> DesignResult:
         """x-side and e-side solved apart (two 2n LMIs), joint certificate rebuilt and verified."""
-        from designs._separated import separated_design
-
         vals, schur = self._constants(c)
         return separated_design(plant, self._convex_blocks(plant.n, schur), ("eps3", "eps4"), solver=self.solver,
                                 cap=self.cap, what="corrected Theorem 1", phi_name="phi1",
                                 key=("thm1.sep", schur), constants=vals,
-                                extra_params=lambda v: {"kappa": _scalar(v, "kappa"), "eps3": _scalar(v, "eps3"),
-                                                        "eps4": _scalar(v, "eps4"), "rho": c.rho, "beta": c.beta,
+                                extra_params=lambda v: {"kappa": scalar(v, "kappa"), "eps3": scalar(v, "eps3"),
+                                                        "eps4": scalar(v, "eps4"), "rho": c.rho, "beta": c.beta,
                                                         "gamma": c.gamma})
 
-    def _program_fixed_eps(self, plant: Plant, c: Constants, schur: bool) -> _lmi.Program:
+    def _program_fixed_eps(self, plant: Plant, c: Constants, schur: bool) -> lmi.Program:
         """The fixed-eps program for gamma < 0 (compiled once per shape and Schur flag), plant and
         constants set; phi1, eta2, two_eps2 (and inv_eta1) are left to the caller."""
         import cvxpy as cp
 
         n, m, p = plant.n, plant.m, plant.p
         I, Z = np.eye(n), np.zeros((n, n))
-        mats = _lmi.plant_matrices(plant)
+        mats = lmi.plant_matrices(plant)
 
         def blocks(d):
             A, B, C = d["A"], d["B"], d["C"]
@@ -265,14 +194,14 @@ class Thm1(Design):
             return rows
 
         def build():
-            v = _variables(n, m, p, ("eps3", "eps4"))
+            v = synthesis_variables(n, m, p, ("eps3", "eps4"))
             prm = {
                 "phi": cp.Parameter(nonneg=True, name="phi1"),
                 "iphi": cp.Parameter(nonneg=True, name="inv_phi1"),
                 "eta2": cp.Parameter(name="eta2"),
                 "two_eps2": cp.Parameter(nonneg=True, name="two_eps2"),
                 **mats.parameters(),
-                **_lmi.scalar_parameters("rho", "beta", "gamma"),
+                **lmi.scalar_parameters("rho", "beta", "gamma"),
             }
             if schur:
                 prm["inv_eta1"] = cp.Parameter(nonneg=True, name="inv_eta1")
@@ -280,52 +209,67 @@ class Thm1(Design):
             def extra(d):
                 return [d["eps3"] >= 0, d["eps4"] >= 0]
 
-            return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+            return lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
 
-        prog = _lmi.cached_program(("thm1.fixed_eps", n, m, p, schur, float(self.cap), mats.key), build)
+        prog = lmi.cached_program(("thm1.fixed_eps", n, m, p, schur, float(self.cap), mats.key), build)
         prog.set(**mats.settable(), rho=c.rho, beta=c.beta, gamma=c.gamma)
         return prog
 
+    @property
+    def _normalisation(self) -> str:
+        return f"the normalisation Q, R << {self.cap:g} I, t <= 1"
+
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
-        """Solve the corrected Theorem 1 for ``plant`` with ``constants``."""
-        c = constants
+        """Solve the corrected Theorem 1 for ``plant`` with ``constants``.
+
+        ``gamma >= 0``: the convex form (joint, or separated for ``method="separated"``);
+        ``gamma < 0``: the fixed-eps form (:meth:`_design_fixed_eps`).
+        """
+        if constants.gamma < 0:
+            res = self._design_fixed_eps(plant, constants)
+        elif self.method == "separated":
+            res = self._design_separated(plant, constants)
+        else:
+            res = self._design_convex(plant, constants)
+        return coordinate_hint(plant, res, "thm1_scaled")
+
+    def _search_phi(self, obj) -> tuple[float, str]:
+        """Search (or fix) the Young weight phi1 with the objective ``obj(phi) -> margin``."""
         lo, hi = self.phi1_range
-        norm = f"the normalisation Q, R << {self.cap:g} I, t <= 1"
-        if c.gamma >= 0 and self.method == "separated":
-            return self._design_separated(plant, c)
-        if c.gamma >= 0:
-            prog = self._program_convex(plant, c)
+        if self.phi1 is not None:
+            obj(self.phi1)
+            return self.phi1, f"at phi1 = {self.phi1:g}"
+        phi, _ = lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
+        return phi, f"over phi1 in [{lo:g}, {hi:g}]"
 
-            def obj(phi):
-                return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi)
+    def _design_convex(self, plant: Plant, c: Constants) -> DesignResult:
+        """The joint convex form (gamma >= 0), phi1 searched."""
+        prog = self._program_convex(plant, c)
+        phi, searched = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi))
+        prog.restore_best()
+        concl = lmi.conclude(prog, what="corrected Theorem 1", normalisation=self._normalisation,
+                             searched=f"{searched} ({prog.n_solves} solves)")
+        vals = prog.values()
+        kappa = scalar(vals, "kappa")
+        params = {
+            "form": "convex (eps1 = gamma eps2)",
+            "phi1": phi,
+            "kappa": kappa,
+            "eps2": 1 / (2 * kappa) if kappa > 0 else float("nan"),
+            "eps1": c.gamma / (2 * kappa) if kappa > 0 else float("nan"),
+            "eps3": scalar(vals, "eps3"),
+            "eps4": scalar(vals, "eps4"),
+            "rho": c.rho,
+            "beta": c.beta,
+            "gamma": c.gamma,
+            "cap": self.cap,
+        }
+        return joint_result(prog, concl, params)
 
-            if self.phi1 is None:
-                phi, _, _ = _lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
-                searched = f"over phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
-                prog.restore_best()
-            else:
-                phi, searched = self.phi1, f"at phi1 = {self.phi1:g}"
-                obj(phi)
-            concl = _lmi.conclude(prog, what="corrected Theorem 1", normalisation=norm, searched=searched)
-            vals = prog.values()
-            kappa = float(vals["kappa"]) if vals["kappa"] is not None else float("nan")
-            params = {
-                "form": "convex (eps1 = gamma eps2)",
-                "phi1": phi,
-                "kappa": kappa,
-                "eps2": 1 / (2 * kappa) if kappa > 0 else float("nan"),
-                "eps1": c.gamma / (2 * kappa) if kappa > 0 else float("nan"),
-                "eps3": _scalar(vals, "eps3"),
-                "eps4": _scalar(vals, "eps4"),
-                "rho": c.rho,
-                "beta": c.beta,
-                "gamma": c.gamma,
-                "cap": self.cap,
-            }
-            return _result(prog, concl, params)
-
-        # gamma < 0: grid over eps2, search phi1 at each
-        progs: dict[bool, _lmi.Program] = {}
+    def _design_fixed_eps(self, plant: Plant, c: Constants) -> DesignResult:
+        """The fixed-eps form (gamma < 0): eps2 on a log grid, phi1 searched at each."""
+        lo, hi = self.phi1_range
+        progs: dict[bool, lmi.Program] = {}
         eps1 = float(self.eps1)
         best = (-np.inf, None, None, None)
         for eps2 in np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), 5):
@@ -342,7 +286,7 @@ class Thm1(Design):
                 return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi, **fixed)
 
             if self.phi1 is None:
-                phi, val, _ = _lmi.log_search(obj, lo, hi, n_grid=7, n_refine=3)
+                phi, val = lmi.log_search(obj, lo, hi, n_grid=7, n_refine=3)
             else:
                 phi, val = self.phi1, obj(self.phi1)
             if val > best[0] or best[3] is None:
@@ -350,13 +294,12 @@ class Thm1(Design):
         _, eps2, phi, prog = best
         eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
         prog.restore_best()
-        n_solves = sum(p.n_solves for p in progs.values())
         prog.compile_s = sum(p.compile_s for p in progs.values())
         prog.solve_s = sum(p.solve_s for p in progs.values())
-        prog.n_solves = n_solves
-        searched = f"over eps2 in {self.eps2_range} x phi1 in [{lo:g}, {hi:g}] ({n_solves} solves)"
-        concl = _lmi.conclude(prog, what="corrected Theorem 1 (fixed eps, gamma < 0)", normalisation=norm,
-                              searched=searched)
+        prog.n_solves = sum(p.n_solves for p in progs.values())
+        searched = f"over eps2 in {self.eps2_range} x phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
+        concl = lmi.conclude(prog, what="corrected Theorem 1 (fixed eps, gamma < 0)",
+                             normalisation=self._normalisation, searched=searched)
         vals = prog.values()
         params = {
             "form": "fixed eps (gamma < 0)",
@@ -365,19 +308,14 @@ class Thm1(Design):
             "eps2": eps2,
             "eta1": eta1,
             "eta2": eps2 * c.gamma - eps1,
-            "eps3": _scalar(vals, "eps3"),
-            "eps4": _scalar(vals, "eps4"),
+            "eps3": scalar(vals, "eps3"),
+            "eps4": scalar(vals, "eps4"),
             "rho": c.rho,
             "beta": c.beta,
             "gamma": c.gamma,
             "cap": self.cap,
         }
-        return _result(prog, concl, params)
-
-
-def _scalar(vals: dict, k: str) -> float:
-    v = vals.get(k)
-    return float(v) if v is not None else float("nan")
+        return joint_result(prog, concl, params)
 
 
 @register_design("thm1_printed", order=11)
@@ -411,14 +349,14 @@ class Thm1Printed(Design):
         check_values_in("ratios", self.ratios, 0.0, 1.0)
         check_positive("cap", self.cap)
 
-    def _program(self, plant: Plant, c: Constants) -> _lmi.Program:
+    def _program(self, plant: Plant, c: Constants) -> lmi.Program:
         """The printed program (compiled once per shape), plant and constants set; psi, zeta and
         two_eps2 are left to the caller."""
         import cvxpy as cp
 
         n, m, p = plant.n, plant.m, plant.p
         I, Z = np.eye(n), np.zeros((n, n))
-        mats = _lmi.plant_matrices(plant)
+        mats = lmi.plant_matrices(plant)
 
         def blocks(d):
             A, B, C = d["A"], d["B"], d["C"]
@@ -441,19 +379,19 @@ class Thm1Printed(Design):
             ]
 
         def build():
-            v = _variables(n, m, p, ("eps3", "eps4", "alpha1", "beta1"))
+            v = synthesis_variables(n, m, p, ("eps3", "eps4", "alpha1", "beta1"))
             prm = {"psi": cp.Parameter(nonneg=True, name="psi"), "zeta": cp.Parameter(nonneg=True, name="zeta"),
                    "two_eps2": cp.Parameter(nonneg=True, name="two_eps2"),
-                   **mats.parameters(), **_lmi.scalar_parameters("rho", "beta", "gamma")}
+                   **mats.parameters(), **lmi.scalar_parameters("rho", "beta", "gamma")}
 
             def extra(d):
                 t = d["t"]
                 return [d["Q"] >> d["alpha1"] * I, d["alpha1"] >= t, d["beta1"] >= t,
                         2 * d["alpha1"] - d["beta1"] >= t, d["eps3"] >= 0, d["eps4"] >= 0]
 
-            return _lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
+            return lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
 
-        prog = _lmi.cached_program(("thm1.printed", n, m, p, float(self.cap), mats.key), build)
+        prog = lmi.cached_program(("thm1.printed", n, m, p, float(self.cap), mats.key), build)
         prog.set(**mats.settable(), rho=c.rho, beta=c.beta, gamma=c.gamma)
         return prog
 
@@ -488,11 +426,11 @@ class Thm1Printed(Design):
         best = max(combos, key=lambda cb: np.nan_to_num(prog.solve(psi=cb[2], zeta=cb[3], two_eps2=2 * cb[1]), nan=-np.inf))
         eps1, eps2, psi, zeta = best
         prog.restore_best()
-        concl = _lmi.conclude(prog, what="Theorem 1 as printed (Remark 1)",
+        concl = lmi.conclude(prog, what="Theorem 1 as printed (Remark 1)",
                               normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1",
                               searched=f"over {len(combos)} (eps1, eps2) pairs")
         vals = prog.values()
         params.update(eps1=eps1, eps2=eps2, psi=psi, zeta=zeta, cap=self.cap,
-                      alpha1=_scalar(vals, "alpha1"), beta1=_scalar(vals, "beta1"),
-                      eps3=_scalar(vals, "eps3"), eps4=_scalar(vals, "eps4"))
-        return _result(prog, concl, params)
+                      alpha1=scalar(vals, "alpha1"), beta1=scalar(vals, "beta1"),
+                      eps3=scalar(vals, "eps3"), eps4=scalar(vals, "eps4"))
+        return joint_result(prog, concl, params)

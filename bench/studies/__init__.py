@@ -5,7 +5,7 @@
 - ``sampling`` (:mod:`bench.studies.sampling`): the largest sample period of a digital
   implementation (discrete observer and controller, zero-order hold, continuous plant);
 - ``montecarlo`` (:mod:`bench.studies.montecarlo`): region of convergence from N seeded random
-  initial conditions, simulated as one vectorised ODE (:mod:`bench.studies.batch`);
+  initial conditions, simulated as one vectorised ODE (:mod:`bench.batch`);
 - ``noise`` (:mod:`bench.studies.noise`): RMS estimation error and final state norm vs
   measurement noise, Luenberger-type observers vs the EKF.
 

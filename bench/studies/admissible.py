@@ -3,14 +3,15 @@
 For a plant with a scale knob (the coefficient ``c`` of f, or the region radius ``r`` of the
 moving object, or ``g/l`` of the pendulum) and a design, the *admissible scale* is the largest
 knob value at which the design is feasible **and** its gains are certified by the analysis LMI
-of :mod:`bench.certify` with the plant's valid (analytic) constants at that value. It is found
+of :mod:`bench.certify` (at some level of its ladder) with the plant's trusted constants at that
+value, judged by the same pipeline as the main table (:func:`bench.pipeline.evaluate_pair`). It is found
 by geometric bisection to a relative tolerance (1 % by default): the bracket is found by
 doubling (or halving) from the plant's default value, then ``sqrt(lo hi)`` is evaluated until
 ``hi / lo - 1 <= rtol``. The answer is reported as ``[lo, hi)``: ``lo`` is the largest value
 verified feasible and certified, ``hi`` the smallest verified failing (with its reason).
 
 Normalisation. Every LMI of the suite maximises a margin t with ``M << -t I``,
-``Q, R >> t I``, ``Q, R << cap I`` and ``t <= 1`` (``cap = 1e3``; :mod:`designs._lmi`), and
+``Q, R >> t I``, ``Q, R << cap I`` and ``t <= 1`` (``cap = 1e3``; :mod:`bench.lmi`), and
 a point counts as feasible only if the rebuilt numeric matrix has its largest eigenvalue below
 ``-1e-9 max(1, ||M||)``. The corrected Theorem 1 and Corollary 1 contain constant identity
 blocks (the Young and Schur columns), so they are not homogeneous in (Q, R, Fh, Kh, ...):
@@ -21,7 +22,7 @@ states the cap and re-runs Theorem 1 and Corollary 1 with other caps to show by 
 answer moves.
 
 Compile vs solve. The LMI designs and the certificate keep one compiled cvxpy problem per
-structure (:func:`designs._lmi.cached_program`): the constants (rho, beta, gamma, 1/beta_eff,
+structure (:func:`bench.lmi.cached_program`): the constants (rho, beta, gamma, 1/beta_eff,
 alpha^2) and the searched Young weights are cvxpy Parameters, the knob changes only f, so the
 whole bisection of one (plant, design) pair compiles its problems once and every later knob
 value only sets parameter values. The compile and solve seconds of every evaluation are
@@ -40,7 +41,7 @@ import numpy as np
 from bench.studies._common import (StudyError, bisect_largest, check_range, fmt, md_table, pyplot, study_header,
                                    write_study)
 
-__all__ = ["DEFAULT_DESIGNS", "KNOBS", "AdmissibleResult", "evaluate", "knob_of",
+__all__ = ["DEFAULT_DESIGNS", "KNOBS", "AdmissibleResult", "evaluate_at", "knob_of",
            "run_admissible", "write_admissible"]
 
 #: Scale knob of each catalog plant (keyword of its factory; f scales with it, A, B, C do not).
@@ -134,8 +135,8 @@ def _knob_default(plant_id: str, knob: str) -> float:
     return float(PLANTS.create(plant_id).params[knob])
 
 
-def evaluate(plant_id: str, knob: str, value: float, design_id: str, overrides: dict | None = None) -> dict:
-    """Design and certify at one knob value.
+def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, overrides: dict | None = None) -> dict:
+    """Design and certify at one knob value (the pipeline, without simulation).
 
     Parameters
     ----------
@@ -149,46 +150,30 @@ def evaluate(plant_id: str, knob: str, value: float, design_id: str, overrides: 
     Returns
     -------
     dict
-        ``value``, ``ok`` (feasible and certified), ``status`` (the design's, or ``invalid``
-        when the plant cannot be built at that value), ``feasible``, ``certified``,
-        ``cert_status``, ``lmi_margin``, ``cert_margin``, ``compile_s``, ``solve_s``,
+        ``value``, ``ok`` (feasible and certified at some level), ``status`` (the design's, or
+        ``invalid`` when the plant cannot be built at that value), ``feasible``, ``certified``,
+        ``cert_level``, ``lmi_margin``, ``cert_margin``, ``compile_s``, ``solve_s``,
         ``n_solves``, ``design_s``, ``cert_s``, ``reason``.
     """
-    from bench.certify import certify
-    from bench.registry import DESIGNS, PLANTS
-    from bench.studies._common import plant_constants
-    from plants._core import PlantError
+    from bench.pipeline import RunOptions
+    from bench.registry import PLANTS
+    from bench.studies._common import evaluate
+    from plants import PlantError
 
     rec: dict[str, Any] = {"value": float(value), "ok": False, "status": "", "feasible": False, "certified": False,
-                           "cert_status": "", "lmi_margin": math.nan, "cert_margin": math.nan, "compile_s": 0.0,
+                           "cert_level": "", "lmi_margin": math.nan, "cert_margin": math.nan, "compile_s": 0.0,
                            "solve_s": 0.0, "n_solves": 0, "design_s": 0.0, "cert_s": 0.0, "reason": ""}
     try:
         plant = PLANTS.create(plant_id, **{knob: value})
     except PlantError as exc:
         rec.update(status="invalid", reason=f"plant cannot be built at {knob} = {value:.4g}: {exc}")
         return rec
-    consts = plant_constants(plant)
-    design = DESIGNS.create(design_id, **(overrides or {}))
-    why = design.applicable(plant, consts)
-    if why is not None:
-        rec.update(status="inapplicable", reason=why)
-        return rec
-    t0 = time.perf_counter()
-    res = design.design(plant, consts)
-    rec.update(design_s=time.perf_counter() - t0, status=res.status, feasible=res.status == "feasible",
-               lmi_margin=res.margin, compile_s=res.compile_s, solve_s=res.solve_s, n_solves=res.n_solves,
-               reason=res.reason)
-    if not res.has_gains:
-        if res.status == "feasible":
-            rec["reason"] = "no fixed gains (K, F) to certify"
-        return rec
-    t0 = time.perf_counter()
-    cert = certify(plant, res.K, res.F, consts, rate_tol=1e-3, max_rate=1e-3)  # lam = 0 only
-    rec.update(cert_s=time.perf_counter() - t0, certified=cert.certified, cert_status=cert.status,
-               cert_margin=cert.margin)
-    rec["ok"] = bool(rec["feasible"] and cert.certified)
-    if rec["feasible"] and not cert.certified:
-        rec["reason"] = f"certificate: {cert.reason}"
+    row = evaluate(plant, design_id, RunOptions(certificate="verdict", simulate=False), overrides=overrides).record
+    rec.update({k: row[k] for k in rec if k in row and k not in ("value", "ok")})
+    for k in ("compile_s", "solve_s", "design_s", "cert_s"):
+        rec[k] = 0.0 if not math.isfinite(rec[k]) else rec[k]
+    rec["n_solves"] = 0 if not math.isfinite(rec["n_solves"]) else int(rec["n_solves"])
+    rec["ok"] = bool(rec["feasible"] and rec["certified"])
     return rec
 
 
@@ -198,8 +183,8 @@ def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds
 
     t0 = time.perf_counter()
     default = _knob_default(plant_id, knob)
-    out = bisect_largest(lambda v: evaluate(plant_id, knob, v, design_id, overrides), default, bounds=bounds,
-                            rtol=rtol)
+    out = bisect_largest(lambda v: evaluate_at(plant_id, knob, v, design_id, overrides), default, bounds=bounds,
+                         rtol=rtol)
     ev = out["evals"]
     row = {"plant": plant_id, "knob": knob, "default": default, "design": design_id,
            "variant": _label(overrides), "admissible_lo": out["lo"], "failing_hi": out["hi"],
@@ -223,10 +208,11 @@ def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds
     for e in ev:
         e.update(plant=plant_id, design=design_id, knob=knob, variant=row["variant"])
     if design_id.startswith("lqr+") and not overrides:  # LQR's F does not depend on the knob
-        from bench.studies._common import design_for
+        from designs.lqr import LQRFeedback
 
-        d = design_for(PLANTS.create(plant_id), "lqr+lqe")
-        row["small_gain"] = small_gain_bound(plant_id, knob, d.F) if d.F is not None else math.nan
+        plant = PLANTS.create(plant_id)
+        F = LQRFeedback().compute(plant, plant.bounds).F
+        row["small_gain"] = small_gain_bound(plant_id, knob, F) if F is not None else math.nan
     return {"row": row, "evals": ev}
 
 
@@ -327,7 +313,8 @@ def run_admissible(
                                      float(r["variant"].split("= ")[1]) if r["variant"].startswith("cap") else 0.0,
                                      r["variant"]))
     settings = {"rtol": rtol, "bounds": bounds or "automatic (doubling/halving from the plant's default)",
-                "cap": 1e3, "other caps": tuple(caps), "certificate": "bench.certify at lam = 0, valid constants",
+                "cap": 1e3, "other caps": tuple(caps),
+                "certificate": "the pipeline's ladder at lam = 0 (strongest level first), trusted constants",
                 "jobs": jobs}
     return AdmissibleResult(rows, variant_rows, evals, settings, time.perf_counter() - t_start)
 
@@ -430,15 +417,16 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
     lines = [
         study_header("Study: maximum admissible nonlinearity (conservatism)", command, result.settings, result.wall_s),
         "For each plant with a scale knob on f and each LMI / Riccati design: the largest knob value at which the "
-        "design is **feasible and its gains are certified** (analysis LMI (20) with the plant's valid constants at "
-        "that value, `bench.certify`), by geometric bisection to "
+        "design is **feasible and its gains are certified** (at some level of the certificate ladder, "
+        "`bench.certify`, with the plant's trusted constants and channels at that value, by the same pipeline as "
+        "the main table: `bench.pipeline.evaluate_pair`), by geometric bisection to "
         f"{100 * result.settings['rtol']:g} % relative. `lo` is the largest value verified to pass; the value in "
         "parentheses is the smallest verified to fail.",
         "",
         "## Normalisation (the answer depends on it)",
         "",
         "Every LMI maximises a margin t with `M << -t I`, `Q, R >> t I`, **`Q, R << 1e3 I`** and `t <= 1` "
-        "(`designs/_lmi.py`); a point is feasible only if the rebuilt numeric LMI has largest eigenvalue below "
+        "(`bench/lmi.py`); a point is feasible only if the rebuilt numeric LMI has largest eigenvalue below "
         "`-1e-9 max(1, ||M||)`. The corrected Theorem 1 and Corollary 1 contain constant identity blocks (the Young "
         "term `[I; -phi Q]` and the Schur column `-(kappa/beta) I`, `-(kappa/alpha^2) I`), so they are not "
         "homogeneous: a feasible point cannot be rescaled at will, and near the boundary the feasible set needs "
@@ -499,7 +487,7 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
         "compiles its cvxpy problem once per structure and re-uses it across the bisection: the constants (rho, beta, "
         "gamma, 1/beta_eff, alpha^2) enter as cvxpy Parameters (parameter x variable, which is DPP), and the knob "
         "does not change A, B, C; later knob values only set parameter values "
-        "(`designs._lmi.cached_program`; `python -m bench perf` measures the same sweep with and without reuse).",
+        "(`bench.lmi.cached_program`; `python -m bench perf` measures the same sweep with and without reuse).",
         "",
         "## Figures",
         "",

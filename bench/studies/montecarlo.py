@@ -4,7 +4,7 @@ For each plant, ``N`` initial conditions are drawn once (seeded): x and x_hat in
 uniform in ``[-box, box]^n`` (default ``box``: the plant's own initial-condition scale,
 ``max(||x0||_inf, ||x_hat0||_inf)``), and every design with fixed gains (K, F) is simulated
 from all of them with **one** ``solve_ivp`` call over the whole batch
-(:func:`bench.studies.batch.simulate_batch`: state of size ``2 n N``, f evaluated on the
+(:func:`bench.batch.simulate_batch`: state of size ``2 n N``, f evaluated on the
 ``(n, 2N)`` batch). Per design: the fraction converging (final ``||x||`` and ``||e||`` at most
 1e-3 times their peaks, none diverged: the criterion of :mod:`bench.metrics`), the worst final
 ``||x||``, and the distribution of the 2 % settling time of ``||x||`` over the converging
@@ -22,48 +22,65 @@ from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, check_box, check_count, default_box, design_for, fmt, md_table,
-                                   plant_constants, pyplot, random_ics, study_header, write_study)
+from bench.studies._common import (StudyError, check_box, check_count, default_box, fmt, md_table, pyplot,
+                                   random_ics, study_header, write_study)
 
 __all__ = ["MonteCarloResult", "run_montecarlo", "write_montecarlo"]
 
 
 def _mc_task(plant_id: str, design_id: str, n: int, box: float | None, seed: int, t_final: float | None,
              method: str, rtol: float, atol: float) -> dict:
-    from bench.certify import certify
+    """One (plant, design): the pipeline with a batch of ``n`` initial conditions."""
+    from bench.pipeline import RunOptions, Scenario
     from bench.registry import PLANTS
-    from bench.studies.batch import batch_metrics, simulate_batch
+    from bench.studies._common import evaluate
 
     t0 = time.perf_counter()
     plant = PLANTS.create(plant_id)
     b = default_box(plant) if box is None else box
     row = {"plant": plant_id, "design": design_id, "N": n, "box": b, "seed": seed}
-    consts = plant_constants(plant)
-    d = design_for(plant, design_id, consts)
-    if d.status != "feasible":
-        row.update(status=d.status, reason=d.reason)
+    X, XH = random_ics(plant, n, b, seed)
+    first = evaluate(plant, design_id, RunOptions(t_final=t_final, simulate=False))
+    rec, res = first.record, first.result
+    if res is None or not res.has_controller:
+        row.update(status=rec["status"], reason=rec["reason"])
         return {"row": row, "settling": np.array([])}
-    if not d.has_gains:
-        row.update(status="no fixed gains", reason=f"estimator {type(d.estimator).__name__}: not a fixed gain K, "
+    if not res.has_gains:
+        row.update(status="no fixed gains", reason=f"estimator {type(res.estimator).__name__}: not a fixed gain K, "
                                                    "so it cannot be simulated as one ODE batch")
         return {"row": row, "settling": np.array([])}
-    cert = certify(plant, d.K, d.F, consts, rate_tol=1e-3, max_rate=1e-3)
-    X, XH = random_ics(plant, n, b, seed)
-    tr = simulate_batch(plant, d.K, d.F, X, XH, t_final=t_final, method=method, rtol=rtol, atol=atol)
-    m = batch_metrics(tr)
+    scenario = Scenario(x0=X, x_hat0=XH, method=method, rtol=rtol, atol=atol)
+    out = evaluate(plant, design_id, RunOptions(t_final=t_final), prior=first, scenario=scenario)
+    rec, m, tr = out.record, out.metrics, out.trajectory
+    if m is None:
+        row.update(status="error", reason=rec["reason"])
+        return {"row": row, "settling": np.array([])}
     conv = m["converged"]
     sx = m["settling_x_s"][conv]
     q = (lambda p: float(np.quantile(sx, p))) if sx.size else (lambda p: math.nan)
     fx = np.where(tr.diverged, np.inf, m["final_x"])
-    row.update(status="feasible", reason="" if tr.status == "ok" else f"integration {tr.status}: {tr.message}",
-               certified=cert.certified,
-               region="global" if consts.radius is None else f"||x|| <= {consts.radius:g}",
-               frac_converged=float(conv.mean()), n_converged=int(conv.sum()), n_diverged=int(tr.diverged.sum()),
-               worst_final_x=float(np.nanmax(fx)), median_final_x=float(np.nanmedian(fx)),
-               settling_min=q(0.0), settling_p10=q(0.1), settling_median=q(0.5), settling_p90=q(0.9),
-               settling_max=q(1.0), peak_x_max=float(np.nanmax(m["peak_x"])), sim_s=tr.wall_s, nfev=tr.nfev, method=tr.method,
-               design_s=d.design_s, wall_s=time.perf_counter() - t0)
+    row.update(status=rec["status"], reason="" if tr.status == "ok" else f"integration {tr.status}: {tr.message}",
+               certified=rec["certified"], cert_level=rec["cert_level"], decay_rate=rec["decay_rate"],
+               region="global" if not math.isfinite(rec["cert_radius"]) else f"||x|| <= {rec['cert_radius']:g}",
+               horizon_s=rec["horizon_s"], frac_converged=float(conv.mean()), n_converged=int(conv.sum()),
+               n_diverged=int(tr.diverged.sum()), worst_final_x=float(np.nanmax(fx)),
+               median_final_x=float(np.nanmedian(fx)), settling_min=q(0.0), settling_p10=q(0.1),
+               settling_median=q(0.5), settling_p90=q(0.9), settling_max=q(1.0),
+               peak_x_max=float(np.nanmax(m["peak_x"])), sim_s=tr.wall_s, nfev=tr.nfev, method=tr.method,
+               design_s=rec["design_s"], wall_s=time.perf_counter() - t0)
+    if rec["certified"] and math.isfinite(rec["cert_radius"]):
+        # a local certificate proves convergence only from its level set: count those members
+        inside = _inside_level_set(first, X, XH)
+        row.update(n_in_level_set=int(inside.sum()), frac_converged_in_level_set=float(conv[inside].mean())
+                   if inside.any() else math.nan)
     return {"row": row, "settling": sx}
+
+
+def _inside_level_set(first, X: np.ndarray, XH: np.ndarray) -> np.ndarray:
+    """Members whose initial (x, e) lies in the certified level set ``V <= level_set``."""
+    P = first.certificate.best.P
+    Z = np.vstack([X, X - XH])
+    return np.einsum("ij,ij->j", Z, P @ Z) <= first.record["level_set"]
 
 
 @dataclass
@@ -107,7 +124,7 @@ def run_montecarlo(
         Horizon (default: each plant's).
     method, rtol, atol
         ``solve_ivp`` settings of the batch (``"auto"``: DOP853, or BDF for a stiff loop, see
-        :func:`bench.studies.batch.choose_method`).
+        :func:`bench.simulate.choose_method`).
     jobs : int
     progress : callable, optional
 
@@ -201,7 +218,7 @@ def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
         study_header("Study: region of convergence (Monte Carlo)", command, result.settings, result.wall_s),
         "For each plant, N initial conditions (x and x_hat independent, uniform in `[-box, box]^n`, seeded; the same "
         "draws for every design) are simulated for each design with fixed gains as **one** vectorised ODE "
-        "(`bench/studies/batch.py`: DOP853, or BDF with the batch's block-diagonal Jacobian sparsity when the loop is "
+        "(`bench.batch.py`: DOP853, or BDF with the batch's block-diagonal Jacobian sparsity when the loop is "
         "stiff). Converged within the horizon: final `||x||` and `||e||` at most 1e-3 of their peaks, no "
         "divergence (a slow but converging member counts as not converged: see the worst final norm). Settling: 2 % settling time of `||x||`, over the converging initial conditions.",
         "",

@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, check_levels, design_for, fmt, md_table, plant_constants, pyplot,
+from bench.studies._common import (StudyError, check_levels, fmt, md_table, pyplot,
                                    study_header, write_study)
 
 __all__ = ["DEFAULT_LEVELS", "DEFAULT_PLANTS", "MATCHED_EKF", "NoiseResult", "run_noise", "write_noise"]
@@ -36,26 +36,47 @@ DEFAULT_PLANTS = ("flexible_link", "random_osl_v1")
 MATCHED_EKF = "lqr+ekf (r = sigma^2)"
 
 
-def _noise_task(plant_id: str, design_id: str, K, F, spec, sigma: float, seed: int, noise_dt: float,
-                t_final: float | None) -> dict:
-    from bench.estimators import ContinuousDiscreteEKF
-    from bench.metrics import trajectory_metrics
+def _noise_task(prior, label: str, sigma: float, seed: int, noise_dt: float, t_final: float | None) -> dict:
+    """One pair at one noise level: the pipeline with ``noise = sigma``, design and certificate re-used."""
+    from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from bench.simulate import SimOptions, simulate_sampled
+    from bench.studies._common import evaluate
 
-    plant = PLANTS.create(plant_id)
-    T = plant.t_final if t_final is None else t_final
-    sim = SimOptions()
-    if spec is not None:
-        spec.check_horizon(T)
-        ekf = ContinuousDiscreteEKF(plant, spec, plant.x_hat0, rtol=sim.rtol, atol=sim.atol)
-        tr = simulate_sampled(plant, F, ekf=ekf, dt=spec.dt, t_final=T, noise=sigma, seed=seed, options=sim)
-    else:
-        tr = simulate_sampled(plant, F, K=K, dt=noise_dt, t_final=T, noise=sigma, seed=seed, options=sim)
-    m = trajectory_metrics(tr.t, tr.x, tr.x_hat, tr.u, finished=tr.status == "ok", noisy=True)
-    return {"plant": plant_id, "design": design_id, "noise": sigma, "estimator": "EKF" if spec is not None else "fixed K",
-            "sim_status": tr.status, "converged": m["converged"], "rms_e": m["rms_e"], "final_x": m["final_x"],
-            "final_e": m["final_e"], "settling_x_s": m["settling_x_s"], "peak_u": m["peak_u"], "sim_s": tr.wall_s}
+    plant = PLANTS.create(prior.record["plant"])
+    options = RunOptions(noise=sigma, seed=seed, noise_dt=noise_dt, t_final=t_final, certificate="none")
+    rec = evaluate(plant, label, options, prior=prior).record
+    est = "EKF" if prior.result.estimator is not None else "fixed K"
+    return {"plant": rec["plant"], "design": label, "noise": sigma, "estimator": est,
+            "sim_status": rec["sim_status"], "converged": rec["converged"], "rms_e": rec["rms_e"],
+            "final_x": rec["final_x"], "final_e": rec["final_e"], "settling_x_s": rec["settling_x_s"],
+            "peak_u": rec["peak_u"], "horizon_s": rec["horizon_s"], "sim_s": rec["sim_s"]}
+
+
+def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[list, list]:
+    """Design and certify each pair once (the pipeline without simulation); the jobs per level."""
+    from dataclasses import replace
+
+    from bench.pipeline import RunOptions
+    from bench.registry import PLANTS
+    from bench.studies._common import evaluate
+
+    skipped, jobs_list = [], []
+    for pid in plant_ids:
+        plant = PLANTS.create(pid)
+        for did in design_ids:
+            prior = evaluate(plant, did, RunOptions(simulate=False, t_final=t_final))
+            res = prior.result
+            if res is None or not res.has_controller:
+                skipped.append({"plant": pid, "design": did, "status": prior.record["status"],
+                                "reason": prior.record["reason"]})
+                continue
+            prior.plant = None
+            for sig in levels:
+                jobs_list.append((prior, did, sig))
+                if res.estimator is not None and matched_ekf:
+                    matched = replace(prior, result=replace(res, estimator=replace(res.estimator, r=sig * sig)))
+                    jobs_list.append((matched, MATCHED_EKF, sig))
+    return skipped, jobs_list
 
 
 @dataclass
@@ -123,29 +144,17 @@ def run_noise(
         raise StudyError("t_final", f"must be finite and > 0, got {t_final!r}")
     plant_ids = list(plant_ids) if plant_ids else list(DEFAULT_PLANTS)
     design_ids = list(design_ids) if design_ids else DESIGNS.ids()
-    skipped, jobs_list = [], []
-    for pid in plant_ids:
-        plant = PLANTS.create(pid)
-        consts = plant_constants(plant)
-        for did in design_ids:
-            d = design_for(plant, did, consts)
-            if d.status != "feasible" or d.F is None or (d.K is None and d.estimator is None):
-                skipped.append({"plant": pid, "design": did, "status": d.status, "reason": d.reason})
-                continue
-            for s in levels:
-                jobs_list.append((pid, did, d.K, d.F, d.estimator, s))
-                if d.estimator is not None and matched_ekf:
-                    jobs_list.append((pid, MATCHED_EKF, None, d.F, replace(d.estimator, r=s * s), s))
+    skipped, jobs_list = _priors(plant_ids, design_ids, levels, matched_ekf, t_final)
     rows = {}
     with executor(jobs) as ex:
-        futs = {ex.submit(_noise_task, pid, did, K, F, spec, s, seed, noise_dt, t_final): (pid, did, s)
-                for pid, did, K, F, spec, s in jobs_list}
+        futs = {ex.submit(_noise_task, prior, label, s, seed, noise_dt, t_final): (prior.record["plant"], label, s)
+                for prior, label, s in jobs_list}
         for i, fut in enumerate(as_completed(futs), 1):
             rows[futs[fut]] = fut.result()
             if progress:
                 r = rows[futs[fut]]
                 progress(i, len(futs), f"{r['plant']} x {r['design']} sigma {r['noise']:g}: rms_e {fmt(r['rms_e'])}")
-    ordered = [rows[(pid, did, s)] for pid, did, _, _, _, s in jobs_list]
+    ordered = [rows[(prior.record["plant"], label, s)] for prior, label, s in jobs_list]
     settings = {"levels": ", ".join(f"{v:.3g}" for v in levels), "seed": seed, "noise_dt": noise_dt,
                 "matched EKF": matched_ekf, "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
     return NoiseResult(ordered, skipped, settings, time.perf_counter() - t_start)

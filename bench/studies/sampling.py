@@ -1,7 +1,7 @@
 """Digital implementation: the largest sample period h at which each design's loop still converges.
 
 The controller and the observer run in discrete time at period h, the plant stays continuous
-(:func:`bench.studies.batch.simulate_digital_batch`): at ``t_k = k h`` the output is sampled,
+(:func:`bench.batch.simulate_digital_batch`): at ``t_k = k h`` the output is sampled,
 ``u_k = F x_hat_k`` is held by a zero-order hold, and the observer is advanced by the ``"zoh"``
 discretisation (its model integrated over the period with ``B u_k`` and ``K (y_k - C x_hat_k)``
 held; for a linear plant this is the exact ZOH discretisation) or by forward Euler. The gains
@@ -11,7 +11,7 @@ For each (plant, design with fixed gains):
 
 - ``h_lin``: the first period at which the sampled loop *linearised at the origin* (A replaced
   by ``A + df/dx(0)``) loses exponential stability, i.e. the spectral radius of its one-period
-  matrix (:func:`bench.studies.batch.digital_matrix`, from ``scipy.linalg.expm``) reaches 1
+  matrix (:func:`bench.batch.digital_matrix`, from ``scipy.linalg.expm``) reaches 1
   (log grid from 1e-5 s, then Brent's method);
 - ``h_max``: the largest h (geometric bisection to 1 % relative, bracketed from ``h_lin / 2``)
   at which the nonlinear sampled loop **converges within the horizon** from the plant's initial
@@ -73,7 +73,7 @@ def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1
     """
     from scipy.optimize import brentq
 
-    from bench.studies.batch import digital_matrix
+    from bench.batch import digital_matrix
 
     Alin = plant.A + _jacobian0(plant)
 
@@ -91,11 +91,19 @@ def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1
     return math.inf
 
 
-def _check_h(plant, K, F, X, XH, h, disc, t_final) -> dict:
-    from bench.studies.batch import batch_metrics, simulate_digital_batch
+def _check_h(plant, prior, X, XH, h, disc, t_final) -> dict:
+    """The digital loop at period ``h`` from every initial condition: the pipeline with a scenario."""
+    from bench.pipeline import RunOptions, Scenario
+    from bench.studies._common import evaluate
 
-    tr = simulate_digital_batch(plant, K, F, X, XH, h=h, t_final=t_final, discretisation=disc)
-    m = batch_metrics(tr)
+    out = evaluate(plant, prior.record["design"], RunOptions(certificate="none", t_final=t_final), prior=prior,
+                   scenario=Scenario(x0=X, x_hat0=XH, sample_period=h, discretisation=disc))
+    m, rec = out.metrics, out.record
+    if m is None:  # the pipeline recorded an error
+        return {"h": float(h), "ok": False, "status": rec["status"], "n_converged": 0, "N": X.shape[1],
+                "plant_ic_converged": False, "settling_x_plant": math.nan, "settling_e_plant": math.nan,
+                "settling_x_median": math.nan, "worst_final_x": math.nan, "n_diverged": 0, "sim_s": math.nan,
+                "horizon_s": rec["horizon_s"]}
     conv = m["converged"]
     sx = m["settling_x_s"][conv]
     return {"h": float(h), "ok": bool(conv.all()), "status": "converged" if conv.all() else "not converged",
@@ -103,37 +111,39 @@ def _check_h(plant, K, F, X, XH, h, disc, t_final) -> dict:
             "settling_x_plant": float(m["settling_x_s"][0]) if conv[0] else math.nan,
             "settling_e_plant": float(m["settling_e_s"][0]) if conv[0] else math.nan,
             "settling_x_median": float(np.median(sx)) if sx.size else math.nan,
-            "worst_final_x": float(np.nanmax(np.where(tr.diverged, np.inf, m["final_x"]))),
-            "n_diverged": int(tr.diverged.sum()), "sim_s": tr.wall_s}
+            "worst_final_x": float(np.nanmax(np.where(out.trajectory.diverged, np.inf, m["final_x"]))),
+            "n_diverged": int(out.trajectory.diverged.sum()), "sim_s": rec["sim_s"], "horizon_s": rec["horizon_s"]}
 
 
-def _design_task(plant_id: str, design_id: str):
+def _design_task(plant_id: str, design_id: str, t_final: float | None):
+    """The pair as the main table has it (design, certificate ladder, continuous simulation)."""
+    from dataclasses import replace
+
+    from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from bench.studies._common import design_for
+    from bench.studies._common import evaluate
 
-    return design_for(PLANTS.create(plant_id), design_id)
+    out = evaluate(PLANTS.create(plant_id), design_id, RunOptions(t_final=t_final))
+    return replace(out, trajectory=None, plant=None)
 
 
-def _sampling_task(plant_id: str, design_id: str, K, F, n_ics: int, box: float | None, seed: int,
-                   disc: str, h_range, rtol: float, t_final: float | None) -> dict:
-    from bench.metrics import trajectory_metrics
+def _sampling_task(prior, n_ics: int, box: float | None, seed: int, disc: str, h_range, rtol: float,
+                   t_final: float | None) -> dict:
     from bench.registry import PLANTS
-    from bench.simulate import simulate
 
     t0 = time.perf_counter()
+    plant_id, design_id = prior.record["plant"], prior.record["design"]
     plant = PLANTS.create(plant_id)
+    K, F = prior.result.K, prior.result.F
     b = default_box(plant) if box is None else box
     X, XH = random_ics(plant, n_ics, b, seed)
     X = np.concatenate([plant.x0[:, None], X], axis=1)
     XH = np.concatenate([plant.x_hat0[:, None], XH], axis=1)
-    T = plant.t_final if t_final is None else t_final
     h_lin = linear_h_bound(plant, K, F, disc)
-    cont = simulate(plant, K, F, t_final=T)
-    cm = trajectory_metrics(cont.t, cont.x, cont.x_hat, cont.u, finished=cont.status == "ok")
     start = h_lin / 2 if 0 < h_lin < math.inf else (1e-3 if h_lin == 0 else 1.0)
 
     def check(h):
-        return _check_h(plant, K, F, X, XH, h, disc, T)
+        return _check_h(plant, prior, X, XH, h, disc, t_final)
 
     out = bisect_largest(check, start, bounds=h_range, rtol=rtol, max_doublings=6)
     evals = out["evals"]
@@ -146,10 +156,13 @@ def _sampling_task(plant_id: str, design_id: str, K, F, n_ics: int, box: float |
                 evals.append(check(h))
     for e in evals:
         e.update(plant=plant_id, design=design_id)
-    row = {"plant": plant_id, "design": design_id, "status": "feasible", "h_max": out["lo"], "h_fail": out["hi"],
-           "kind": out["kind"], "h_lin": h_lin, "n_evals": len(evals), "N_ics": X.shape[1], "box": b,
-           "settling_x_cont": cm["settling_x_s"] if cm["converged"] else math.nan,
-           "cont_converged": cm["converged"], "wall_s": time.perf_counter() - t0, "reason": ""}
+    rec = prior.record
+    row = {"plant": plant_id, "design": design_id, "status": rec["status"], "certified": rec["certified"],
+           "decay_rate": rec["decay_rate"], "h_max": out["lo"], "h_fail": out["hi"], "kind": out["kind"],
+           "h_lin": h_lin, "n_evals": len(evals), "N_ics": X.shape[1], "box": b,
+           "settling_x_cont": rec["settling_x_s"] if rec["converged"] else math.nan,
+           "cont_converged": rec["converged"], "horizon_s": evals[0]["horizon_s"] if evals else math.nan,
+           "wall_s": time.perf_counter() - t0, "reason": ""}
     at = [e for e in evals if e["h"] == out["lo"]]
     if at:
         row.update(settling_x_at_hmax=at[0]["settling_x_plant"], settling_x_median_at_hmax=at[0]["settling_x_median"])
@@ -228,7 +241,7 @@ def run_sampling(
 
     from bench.executors import executor
     from bench.registry import DESIGNS
-    from bench.studies.batch import DISCRETISATIONS
+    from bench.batch import DISCRETISATIONS
 
     t_start = time.perf_counter()
     n_ics = check_count("n_ics", n_ics, 1)
@@ -245,26 +258,28 @@ def run_sampling(
     rows: dict[tuple[str, str], dict] = {}
     evals: list[dict] = []
     with executor(jobs) as ex:
-        dfuts = {ex.submit(_design_task, pid, did): (pid, did) for pid in plant_ids for did in design_ids}
+        dfuts = {ex.submit(_design_task, pid, did, t_final): (pid, did) for pid in plant_ids for did in design_ids}
         designed = {}
         for fut in as_completed(dfuts):
             designed[dfuts[fut]] = fut.result()
         for (pid, did), d in designed.items():
-            if d.status == "feasible" and not d.has_gains and did in required:
+            res = d.result
+            if res is not None and res.has_controller and not res.has_gains and did in required:
                 raise StudyError("design", f"{did!r} has no fixed gains (K, F) on {pid!r} (its estimator is "
-                                           f"{type(d.estimator).__name__}): a sampling study needs fixed gains")
+                                           f"{type(res.estimator).__name__}): a sampling study needs fixed gains")
         sfuts = {}
         for pid in plant_ids:
             for did in design_ids:
                 d = designed[(pid, did)]
-                if d.status != "feasible":
-                    rows[(pid, did)] = {"plant": pid, "design": did, "status": d.status, "reason": d.reason}
-                elif not d.has_gains:
+                res, rec = d.result, d.record
+                if res is None or not res.has_controller:
+                    rows[(pid, did)] = {"plant": pid, "design": did, "status": rec["status"], "reason": rec["reason"]}
+                elif not res.has_gains:
                     rows[(pid, did)] = {"plant": pid, "design": did, "status": "no fixed gains",
-                                        "reason": f"estimator {type(d.estimator).__name__}: not a fixed gain K"}
+                                        "reason": f"estimator {type(res.estimator).__name__}: not a fixed gain K"}
                 else:
-                    sfuts[ex.submit(_sampling_task, pid, did, d.K, d.F, n_ics, box, seed, discretisation, h_range,
-                                    rtol, t_final)] = (pid, did)
+                    sfuts[ex.submit(_sampling_task, d, n_ics, box, seed, discretisation, h_range, rtol,
+                                    t_final)] = (pid, did)
         for i, fut in enumerate(as_completed(sfuts), 1):
             key = sfuts[fut]
             r = fut.result()

@@ -41,14 +41,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.metrics import CONVERGED_RATIO, SETTLING_FRACTION
-from bench.simulate import check_gains
+from bench.metrics import batch_metrics as _batch_metrics
+from bench.simulate import STIFF, SimOptions, check_gains, choose_method, simulate
 
 __all__ = [
     "BatchTrajectory",
     "batch_metrics",
-    "batch_settling_time",
-    "choose_method",
     "digital_matrix",
     "simulate_batch",
     "simulate_digital_batch",
@@ -74,6 +72,10 @@ class BatchTrajectory:
         Seconds spent integrating.
     nfev : int
         Right-hand-side evaluations (each on the whole batch).
+    method : str
+        The ``solve_ivp`` method used (continuous batches).
+    u : ndarray (m, N, T), optional
+        The inputs ``F x_hat``.
     """
 
     t: np.ndarray
@@ -85,6 +87,7 @@ class BatchTrajectory:
     wall_s: float
     nfev: int
     method: str = ""
+    u: np.ndarray | None = None
 
     @property
     def e(self) -> np.ndarray:
@@ -114,30 +117,6 @@ def _horizon(plant, t_final) -> float:
     if not (math.isfinite(T) and T > 0):
         raise ValueError(f"t_final: must be finite and > 0, got {t_final!r}")
     return T
-
-
-#: ``method="auto"`` switches to BDF when ``max(-Re lambda) * t_final`` of the linear closed loop exceeds this.
-STIFF = 5000.0
-
-
-def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float) -> str:
-    """``"BDF"`` if the linear part of the closed loop (6) is stiff over the horizon, else ``"DOP853"``.
-
-    DOP853 (8th order, as the harness's single-trajectory simulator) rather than RK45: on the
-    flexible link's 1000-member batch at rtol 1e-6 it took 8852 right-hand sides and 0.56-0.60 s
-    with the paper's gains against 13 574 and 0.83-0.94 s with RK45 (thm1: 5897 vs 6920, lqr+lqe:
-    1424 vs 1934; trajectories agree to 1.3e-6 relative; ``python benchmarks/montecarlo_speed.py``).
-
-    Stiff means ``max(-Re lambda) * t_final > STIFF`` for the eigenvalues lambda of
-    ``[[A, BF], [KC, A + BF - KC]]``: an explicit method would then need more than ~STIFF/3
-    steps for stability alone (measured: a Theorem 1 observer with an eigenvalue at -1121 took
-    47 000 RK45 right-hand sides for 20 s and 690 with BDF).
-    """
-    A, B, C = plant.A, plant.B, plant.C
-    BF, KC = B @ F, K @ C
-    L = np.block([[A, BF], [KC, A + BF - KC]])
-    fast = float(np.max(-np.linalg.eigvals(L).real))
-    return "BDF" if fast * t_final > STIFF else "DOP853"
 
 
 def _batch_sparsity(n: int, N: int):
@@ -245,7 +224,7 @@ def simulate_batch(
     norms = np.sqrt(np.sum(xs * xs, axis=0) + np.sum(xhs * xhs, axis=0))
     diverged = ~np.all(norms <= limit[:, None], axis=1)
     return BatchTrajectory(sol.t, xs, xhs, diverged, status, "" if status == "ok" else sol.message,
-                           wall, int(sol.nfev), method)
+                           wall, int(sol.nfev), method, u=np.einsum("mi,ijk->mjk", F, xhs))
 
 
 def simulate_loop(
@@ -269,78 +248,28 @@ def simulate_loop(
     x, x_hat : ndarray (n, N, T)
     wall_s : float
     """
-    from scipy.integrate import solve_ivp
-
     K, F = check_gains(plant, K, F)
     X, XH = _check_ics(plant, x0, x_hat0)
     T = _horizon(plant, t_final)
     n, N = X.shape
-    A, B, C, f = plant.A, plant.B, plant.C, plant.f
-    BF = B @ F
-    L = np.block([[A, BF], [K @ C, A + BF - K @ C]])
+    opts = SimOptions(method=method, rtol=rtol, atol=atol, n_points=int(n_points))
+    xs = np.full((n, N, int(n_points)), np.nan)
+    xhs = np.full((n, N, int(n_points)), np.nan)
     t_eval = np.linspace(0.0, T, int(n_points))
-
-    def rhs(t, z):
-        nl = np.asarray(f(z.reshape(2, n).T), dtype=float).T.ravel()
-        return L @ z + nl
-
-    xs = np.full((n, N, t_eval.size), np.nan)
-    xhs = np.full((n, N, t_eval.size), np.nan)
     t0 = time.perf_counter()
     for j in range(N):
-        sol = solve_ivp(rhs, (0.0, T), np.concatenate([X[:, j], XH[:, j]]), method=method, t_eval=t_eval,
-                        rtol=rtol, atol=atol)
-        k = sol.y.shape[1]
-        xs[:, j, :k] = sol.y[:n]
-        xhs[:, j, :k] = sol.y[n:]
+        tr = simulate(plant, K, F, t_final=T, x0=X[:, j], x_hat0=XH[:, j], options=opts)
+        k = tr.t.size
+        xs[:, j, :k] = tr.x
+        xhs[:, j, :k] = tr.x_hat
     return t_eval, xs, xhs, time.perf_counter() - t0
 
 
-def batch_settling_time(t: np.ndarray, s: np.ndarray, fraction: float = SETTLING_FRACTION) -> np.ndarray:
-    """Vectorised :func:`bench.metrics.settling_time` over the rows of ``s`` (N, T).
-
-    The first time after which each row stays at or below ``fraction`` of its peak; NaN if it
-    never does by the end (or the row is not finite), 0 for an all-zero row.
-    """
-    t = np.asarray(t, dtype=float)
-    s = np.asarray(s, dtype=float)
-    N, Tn = s.shape
-    out = np.full(N, np.nan)
-    finite = np.all(np.isfinite(s), axis=1)
-    peak = np.where(finite, np.max(np.where(np.isfinite(s), s, -np.inf), axis=1), np.nan)
-    outside = s > fraction * peak[:, None]
-    any_out = outside.any(axis=1)
-    last = Tn - 1 - np.argmax(outside[:, ::-1], axis=1)
-    ok = finite & any_out & (last < Tn - 1)
-    out[ok] = t[np.minimum(last[ok] + 1, Tn - 1)]
-    out[finite & ~any_out] = t[0]
-    out[finite & (peak == 0)] = 0.0
-    return out
-
-
-def batch_metrics(traj: BatchTrajectory) -> dict[str, np.ndarray]:
-    """Per-member metrics of a batch, as :func:`bench.metrics.trajectory_metrics` (noise-free).
-
-    Returns
-    -------
-    dict of ndarray (N,)
-        ``converged`` (both ``||x||`` and ``||e||`` at the end at most 1e-3 times their peaks,
-        not diverged, integration finished), ``settling_x_s``, ``settling_e_s`` (2 % settling,
-        NaN if not settled or not converged-finite), ``final_x``, ``final_e``, ``peak_x``, ``peak_e``.
-    """
-    nx = np.sqrt(np.einsum("ijk,ijk->jk", traj.x, traj.x))
-    e = traj.e
-    ne = np.sqrt(np.einsum("ijk,ijk->jk", e, e))
-    finite = np.all(np.isfinite(nx), axis=1) & np.all(np.isfinite(ne), axis=1)
-    ok = finite & ~traj.diverged & (traj.status == "ok")
-    px = np.where(finite, nx.max(axis=1, initial=0.0), np.nan)
-    pe = np.where(finite, ne.max(axis=1, initial=0.0), np.nan)
-    fx, fe = nx[:, -1], ne[:, -1]
-    conv = ok & (fx <= CONVERGED_RATIO * np.maximum(px, 1e-300)) & (fe <= CONVERGED_RATIO * np.maximum(pe, 1e-300))
-    sx = np.where(ok, batch_settling_time(traj.t, nx), np.nan)
-    se = np.where(ok, batch_settling_time(traj.t, ne), np.nan)
-    return {"converged": conv, "settling_x_s": sx, "settling_e_s": se, "final_x": fx, "final_e": fe,
-            "peak_x": px, "peak_e": pe}
+def batch_metrics(traj: BatchTrajectory, *, noisy: bool = False) -> dict[str, np.ndarray]:
+    """Per-member metrics of a batch trajectory: :func:`bench.metrics.batch_metrics` (one
+    implementation for single trajectories and batches)."""
+    return _batch_metrics(traj.t, traj.x, traj.x_hat, traj.u, finished=traj.status == "ok",
+                          diverged=traj.diverged, noisy=noisy)
 
 
 # -- digital implementation -------------------------------------------------------------------
@@ -464,7 +393,7 @@ def simulate_digital_batch(
     t = np.array([kk * h for kk in rec_idx])
     final = np.sqrt(np.sum(x * x, axis=0) + np.sum(xh * xh, axis=0))
     diverged = ~active | ~(final <= limit)
-    return BatchTrajectory(t, xs, xhs, diverged, "ok", "", wall, nfev)
+    return BatchTrajectory(t, xs, xhs, diverged, "ok", "", wall, nfev, u=np.einsum("mi,ijk->mjk", F, xhs))
 
 
 def digital_matrix(A: np.ndarray, B: np.ndarray, C: np.ndarray, K: np.ndarray, F: np.ndarray, h: float,

@@ -1,0 +1,110 @@
+"""What a run found, in a few lines: computed from the records and the constants, rendered by the report.
+
+:func:`findings` reads the results table (one row per pair, :data:`bench.pipeline.COLUMNS`) and
+the plants' :class:`bench.constants.ConstantsReport`; it decides nothing new about a pair (the
+pipeline did), it only selects and counts: per plant, the best certified design and the designs
+that converge without a certificate; every claimed constant a sample violated; every analytic
+constant or channel slope a sample disproved; every printed form that is infeasible, with why;
+and any row whose verdicts disagree (which should never happen). run.json stores the result.
+"""
+
+from __future__ import annotations
+
+__all__ = ["constants_rows", "findings"]
+
+
+def _best(sub) -> dict | None:
+    cert = sub[sub["certified"].astype(bool)]
+    if not len(cert):
+        return None
+    r = cert.loc[cert["decay_rate"].astype(float).idxmax()]
+    return {"design": r["design"], "level": r["cert_level"], "decay_rate": float(r["decay_rate"]),
+            "scope": r["cert_scope"], "peak_u": float(r["peak_u"]), "converged": bool(r["converged"])}
+
+
+def findings(frame, constants: dict) -> dict:
+    """The run's findings.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The results table.
+    constants : dict
+        Plant id -> :class:`bench.constants.ConstantsReport`.
+
+    Returns
+    -------
+    dict
+        ``plants`` (per plant: ``best`` certified design or None, ``uncertified_converging``,
+        ``certified_pairs``, ``pairs``), ``violated_claims``, ``disproved``, ``printed_infeasible``,
+        ``inconsistent`` (lists of dicts, JSON-ready).
+    """
+    plants = {}
+    for pid in dict.fromkeys(frame["plant"]):
+        sub = frame[frame["plant"] == pid]
+        conv_uncert = sub[sub["converged"].astype(bool) & ~sub["certified"].astype(bool)]
+        plants[pid] = {"best": _best(sub), "uncertified_converging": list(conv_uncert["design"]),
+                       "certified_pairs": int(sub["certified"].astype(bool).sum()), "pairs": int(len(sub))}
+    violated, disproved = [], []
+    for pid, rep in constants.items():
+        violated += [{"plant": pid, "constant": v.name, "claimed": v.claimed, "sampled": v.sampled,
+                      "text": v.describe("claimed")} for v in rep.violations]
+        disproved += [{"plant": pid, "constant": v.name, "stated": v.claimed, "sampled": v.sampled,
+                       "text": v.describe("analytic")} for v in rep.disproved]
+        disproved += [{"plant": pid, "constant": v.name, "stated": v.claimed, "sampled": v.sampled,
+                       "text": v.describe("declared")} for v in rep.channel_violations]
+    printed = frame[frame["design"].astype(str).str.endswith("_printed") & (frame["status"] == "infeasible")]
+    printed_rows = [{"plant": r.plant, "design": r.design, "reason": r.reason} for r in printed.itertuples()]
+    bad = frame[frame["reason"].astype(str).str.contains("INCONSISTENT")]
+    return {"plants": plants, "violated_claims": violated, "disproved": disproved,
+            "printed_infeasible": printed_rows,
+            "inconsistent": [{"plant": r.plant, "design": r.design, "reason": r.reason} for r in bad.itertuples()]}
+
+
+def constants_rows(constants: dict, errors: dict) -> list[dict]:
+    """One row per plant and constant: claimed, analytic, sampled, used, and the flags (as data).
+
+    Parameters
+    ----------
+    constants : dict
+        Plant id -> :class:`bench.constants.ConstantsReport`.
+    errors : dict
+        Plant id -> error message for plants whose constants failed.
+
+    Returns
+    -------
+    list of dict
+        Keys ``plant``, ``constant``, ``claimed``, ``analytic``, ``sampled``, ``used``,
+        ``source``, ``region``, ``flag``.
+    """
+    rows = []
+    for pid, rep in constants.items():
+        for name in ("alpha", "rho", "beta", "gamma"):
+            flags = []
+            v = rep.violated(name)
+            if v:
+                flags.append(f"CLAIM VIOLATED: {v.describe('claimed')}")
+            d = next((x for x in rep.disproved if x.name == name), None)
+            if d:
+                flags.append(f"ANALYTIC BOUND DISPROVED: {d.describe('analytic')}")
+            if name in rep.unbounded:
+                flags.append(rep.unbounded[name])
+            rows.append({
+                "plant": pid, "constant": name, "claimed": getattr(rep.claimed, name),
+                "analytic": getattr(rep.analytic, name) if rep.analytic is not None else None,
+                "sampled": getattr(rep.sampled, name), "used": getattr(rep.valid, name),
+                "source": rep.source.get(name, "fixed" if name == "gamma" else ""),
+                "region": "everywhere" if rep.valid.radius is None else f"||x|| <= {rep.valid.radius:g}",
+                "flag": "; ".join(flags),
+            })
+        for v in rep.channel_violations:
+            rows.append({"plant": pid, "constant": v.name, "claimed": None, "analytic": v.claimed,
+                         "sampled": v.sampled, "used": None, "source": "declared channels", "region": "",
+                         "flag": f"CHANNEL SLOPE DISPROVED: {v.describe('declared')}"})
+        for msg in rep.prechecks:
+            rows.append({"plant": pid, "constant": "(A, B, C)", "claimed": None, "analytic": None, "sampled": None,
+                         "used": None, "source": "", "region": "", "flag": msg})
+    for pid, err in errors.items():
+        rows.append({"plant": pid, "constant": "(error)", "claimed": None, "analytic": None, "sampled": None,
+                     "used": None, "source": "", "region": "", "flag": err})
+    return rows

@@ -1,0 +1,107 @@
+"""Time limits of the runner: a pair's ``--timeout``, checked where the time goes.
+
+A limit is a scope (:func:`time_limit`) held in a context variable, so threads (Dask workers)
+each have their own. Code that spends time checks it: every SDP solve gets the remaining time
+as the solver's own limit (:func:`bench.lmi.solve_timed`), the simulators check a wall-clock
+budget, and :func:`hard_stop` raises from a ``SIGALRM`` for code that checks nothing (main
+thread only). A limit that runs out raises :class:`DeadlineExceeded`, a ``BaseException``, so
+that no ``except Exception`` in a design can turn a timeout into an "infeasible" row.
+"""
+
+from __future__ import annotations
+
+import contextvars
+import math
+import time
+from contextlib import contextmanager
+from typing import Iterator
+
+__all__ = ["DeadlineExceeded", "check_deadline", "hard_stop", "remaining_time", "time_limit"]
+
+
+class DeadlineExceeded(BaseException):
+    """The time limit of the current :func:`time_limit` scope ran out.
+
+    Parameters
+    ----------
+    where : str
+        What was running when the limit ran out (for the row's reason).
+    """
+
+    def __init__(self, where: str):
+        super().__init__(where)
+        self.where = where
+
+
+#: (monotonic deadline, limit in seconds) of the innermost scope of this thread or task.
+_DEADLINE: contextvars.ContextVar[tuple[float, float] | None] = contextvars.ContextVar("oslbench_deadline",
+                                                                                       default=None)
+
+
+@contextmanager
+def time_limit(seconds: float | None) -> Iterator[None]:
+    """Scope with a wall-clock limit of ``seconds`` (None: no limit).
+
+    Parameters
+    ----------
+    seconds : float or None
+        The limit; must be finite and > 0.
+
+    Raises
+    ------
+    ValueError
+        If ``seconds`` is not None and not a finite number > 0.
+    """
+    if seconds is None:
+        yield
+        return
+    if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"timeout: must be a finite number of seconds > 0, got {seconds!r}")
+    token = _DEADLINE.set((time.monotonic() + float(seconds), float(seconds)))
+    try:
+        yield
+    finally:
+        _DEADLINE.reset(token)
+
+
+def remaining_time() -> float | None:
+    """Seconds left in the current :func:`time_limit` scope (None: no limit; may be negative)."""
+    d = _DEADLINE.get()
+    return None if d is None else d[0] - time.monotonic()
+
+
+def check_deadline(where: str) -> None:
+    """Raise :class:`DeadlineExceeded` if the current :func:`time_limit` has run out."""
+    left = remaining_time()
+    if left is not None and left <= 0:
+        raise DeadlineExceeded(where)
+
+
+@contextmanager
+def hard_stop(seconds: float | None) -> Iterator[None]:
+    """Raise :class:`DeadlineExceeded` from a ``SIGALRM`` after ``seconds`` (main thread only).
+
+    Does nothing for ``seconds=None``, off the main thread, without ``setitimer`` (Windows), or
+    when someone else already uses ``SIGALRM`` (e.g. pytest-timeout).
+    """
+    import signal
+    import threading
+
+    usable = (seconds is not None and hasattr(signal, "setitimer")
+              and threading.current_thread() is threading.main_thread()
+              and signal.getsignal(signal.SIGALRM) in (signal.SIG_DFL, None)
+              and signal.getitimer(signal.ITIMER_REAL)[0] == 0)
+    if not usable:
+        yield
+        return
+
+    def stop(signum, frame):
+        raise DeadlineExceeded("code that checks no time limit (hard stop by SIGALRM)")
+
+    signal.signal(signal.SIGALRM, stop)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, signal.SIG_DFL)

@@ -1,0 +1,478 @@
+"""Where a pair is judged: design -> verify -> certify -> simulate -> metrics -> verdicts.
+
+:func:`evaluate_pair` is the only place a (plant, design) pair is designed, checked, certified,
+simulated and measured; it returns one :class:`PairOutcome` whose ``record`` is a flat row with
+the columns :data:`COLUMNS` (NaN where a value does not apply). The harness maps it over every
+pair; each study maps it over its own parameter (the scale of f, the sample period, a batch of
+initial conditions, the noise level) with its own :class:`RunOptions` and :class:`Scenario`;
+perf times it. Every verdict is computed here (the rules are in :mod:`bench.verdicts`) and
+stored in the record, so results.csv says everything the report shows.
+
+A failure inside a pair becomes a row with status ``error`` and the message (``fail_fast``
+re-raises); a pair over its ``timeout`` becomes a ``timeout`` row that claims nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+import traceback
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from bench.certify import LEVELS, Certificate, certify, linearised_rate
+from bench.constants import ConstantsReport, resolve_constants
+from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
+from bench.metrics import batch_metrics, trajectory_metrics
+from bench.simulate import SimOptions, simulate_controller
+from bench.verdicts import certificate_scope, convergence_note, horizon
+from designs import GAIN_STATUSES, Design, DesignResult
+from plants import Plant
+
+__all__ = ["COLUMNS", "PairOutcome", "RunOptions", "Scenario", "blank_record", "evaluate_pair"]
+
+#: Columns of every record, in order.
+COLUMNS = [
+    "plant", "design", "status", "reason", "feasible", "stabilizing", "certified", "cert_level", "decay_rate",
+    "cert_scope", "converged",
+    *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")],
+    "cert_margin", "cert_radius", "level_set", "level_x0", "in_region", "max_norm",
+    "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "compile_s", "solve_s", "design_s",
+    "cert_s", "sim_s", "max_re_eig_x", "max_re_eig_e", "horizon_s", "horizon_rule", "sim_status", "settling_x_s",
+    "settling_e_s", "final_x", "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "norm_K", "norm_F",
+    "constants", "params",
+]
+
+#: What the ``certificate`` option computes: every level with its rate, or only whether some
+#: level certifies at rate 0 (the strongest first; for bisections over a parameter), or nothing.
+CERTIFICATE_MODES = ("ladder", "verdict", "none")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunOptions:
+    """Options of a pair (and of a run).
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the constants sampler and of the measurement noise.
+    use_claimed : bool
+        Design with the constants the source claims instead of the valid ones (certificates
+        always use the trusted ones).
+    n_samples : int
+        Random pairs for the sampled constants.
+    sim : SimOptions
+    fail_fast : bool
+        Re-raise the first exception instead of recording an ``error`` row.
+    t_final : float, optional
+        A fixed simulation horizon for every plant (default: the rule of
+        :func:`bench.verdicts.horizon`, from the certified or linearised rate).
+    horizon_cap : float
+        The rule's horizon is at most this many times the plant's ``t_final``.
+    noise : float
+        Standard deviation of a seeded Gaussian measurement noise (0: noise-free).
+    noise_dt : float
+        Sample period of the noise for fixed-gain observers.
+    timeout : float, optional
+        Wall-clock limit in seconds of each pair; a pair over it becomes a ``timeout`` row.
+    certificate : {"ladder", "verdict", "none"}
+        See :data:`CERTIFICATE_MODES`.
+    simulate : bool
+        Simulate the closed loop (False: design and certificate only).
+    """
+
+    seed: int = 0
+    use_claimed: bool = False
+    n_samples: int = 20000
+    sim: SimOptions = field(default_factory=SimOptions)
+    fail_fast: bool = False
+    t_final: float | None = None
+    horizon_cap: float = 10.0
+    noise: float = 0.0
+    noise_dt: float = 0.01
+    timeout: float | None = None
+    certificate: str = "ladder"
+    simulate: bool = True
+
+    def __post_init__(self) -> None:
+        if self.timeout is not None and not (isinstance(self.timeout, (int, float)) and math.isfinite(self.timeout)
+                                             and self.timeout > 0):
+            raise ValueError(f"timeout: must be None or a finite number of seconds > 0, got {self.timeout!r}")
+        for name, lo in (("noise", 0.0), ("noise_dt", None), ("horizon_cap", None)):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and (v >= 0 if lo == 0.0 else v > 0)):
+                raise ValueError(f"{name}: must be finite and {'>= 0' if lo == 0.0 else '> 0'}, got {v!r}")
+        if self.horizon_cap < 1:
+            raise ValueError(f"horizon_cap: must be >= 1 (a multiple of the plant's horizon), got {self.horizon_cap!r}")
+        if self.t_final is not None and not (math.isfinite(self.t_final) and self.t_final > 0):
+            raise ValueError(f"t_final: must be finite and > 0, got {self.t_final!r}")
+        if self.n_samples < 1:
+            raise ValueError(f"n_samples: must be >= 1, got {self.n_samples!r}")
+        if self.certificate not in CERTIFICATE_MODES:
+            raise ValueError(f"certificate: must be one of {CERTIFICATE_MODES}, got {self.certificate!r}")
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """What to simulate besides the plant's own initial condition (studies).
+
+    Parameters
+    ----------
+    x0, x_hat0 : ndarray (n, N), optional
+        A batch of initial conditions, simulated as one ODE (:mod:`bench.batch`); None: the
+        plant's own.
+    sample_period : float, optional
+        Run observer and controller in discrete time at this period (zero-order hold;
+        :func:`bench.batch.simulate_digital_batch`); None: continuous.
+    discretisation : {"zoh", "euler"}
+        Observer discretisation of the digital loop.
+    method, rtol, atol
+        ``solve_ivp`` settings of a continuous batch (:func:`bench.batch.simulate_batch`).
+    """
+
+    x0: np.ndarray | None = None
+    x_hat0: np.ndarray | None = None
+    sample_period: float | None = None
+    discretisation: str = "zoh"
+    method: str = "auto"
+    rtol: float = 1e-6
+    atol: float = 1e-9
+
+    @property
+    def batch(self) -> bool:
+        """True when the scenario needs the batch simulators."""
+        return self.x0 is not None or self.sample_period is not None
+
+
+@dataclass
+class PairOutcome:
+    """One pair's record plus what reports and studies need beyond the table.
+
+    Attributes
+    ----------
+    record : dict
+        The flat row (:data:`COLUMNS`).
+    result : DesignResult or None
+    trajectory : Trajectory or BatchTrajectory or None
+    plant : Plant or None
+    certificate : Certificate or None
+    metrics : dict or None
+        Per-member metric arrays (:func:`bench.metrics.batch_metrics`) of a batch scenario.
+    """
+
+    record: dict
+    result: DesignResult | None = None
+    trajectory: object = None
+    plant: Plant | None = None
+    certificate: Certificate | None = None
+    metrics: dict | None = None
+
+
+def blank_record(plant_id: str, design_id: str) -> dict:
+    """A record with every column NaN (flags False, text empty)."""
+    rec = {c: math.nan for c in COLUMNS}
+    rec.update(plant=plant_id, design=design_id, status="", reason="", solver="", solver_status="", route="",
+               sim_status="", constants="", params="", cert_level="", cert_scope="", horizon_rule="",
+               feasible=False, stabilizing=None, certified=False, converged=False, in_region=None,
+               **{f"cert_{lv}": "" for lv in LEVELS})
+    return rec
+
+
+def _note(rec: dict, text: str) -> None:
+    if text:
+        rec["reason"] = (rec["reason"] + "; " if rec["reason"] else "") + text
+
+
+def _jsonable(d: dict) -> str:
+    def conv(v):
+        if isinstance(v, (np.floating, float)):
+            return None if not math.isfinite(float(v)) else float(v)
+        if isinstance(v, np.integer):
+            return int(v)
+        return v
+
+    return json.dumps({k: conv(v) for k, v in d.items()}, sort_keys=True)
+
+
+# -- the steps ---------------------------------------------------------------------------------
+def _design(rec: dict, plant: Plant, design: Design, report: ConstantsReport,
+            options: RunOptions) -> DesignResult | None:
+    """Applicability, then the design (timed); None when there is nothing to design."""
+    rec["constants"] = ("claimed by the source, checked: " if options.use_claimed else "") + report.trust
+    if report.prechecks:
+        rec.update(status="inapplicable", reason="; ".join(report.prechecks)
+                   + ": no observer-based controller stabilizes the linear part")
+        return None
+    consts = resolve_constants(report, use_claimed=options.use_claimed)
+    why = design.applicable(plant, consts)
+    if why is not None:
+        missing = [report.unbounded[k] for k in getattr(design, "needs", ()) if k in report.unbounded]
+        rec.update(status="inapplicable", reason="; ".join([why, *missing]))
+        return None
+    t0 = time.perf_counter()
+    res = design.design(plant, consts)
+    rec["design_s"] = time.perf_counter() - t0
+    sampled = [k for k in getattr(design, "needs", ()) if report.source.get(k, "").startswith("sampled")]
+    _record_design(rec, res)
+    if sampled and res.status in GAIN_STATUSES:
+        _note(rec, f"designed with sampled {', '.join(sampled)} (lower bounds): the design itself guarantees nothing")
+    return res
+
+
+def _record_design(rec: dict, res: DesignResult) -> None:
+    rec.update(status=res.status, reason=res.reason, feasible=res.status == "feasible", route=res.route or "",
+               lmi_margin=res.margin, lmi_size=res.lmi_size or math.nan, solver=res.solver or "",
+               solver_status=res.solver_status or "", n_solves=res.n_solves, compile_s=res.compile_s,
+               solve_s=res.solve_s, params=_jsonable(res.params))
+
+
+def _verify(rec: dict, plant: Plant, res: DesignResult) -> None:
+    """Shapes and the eigenvalues of the gains' linear closed loop."""
+    F = np.asarray(res.F, dtype=float)
+    if F.shape != (plant.m, plant.n):
+        raise ValueError(f"the design returned F of shape {F.shape}; expected ({plant.m}, {plant.n})")
+    ex = float(np.linalg.eigvals(plant.A + plant.B @ F).real.max())
+    rec.update(max_re_eig_x=ex, norm_F=float(np.linalg.norm(F, 2)))
+    if res.K is None:  # a run-time estimator: no fixed observer matrix to check
+        return
+    K = np.asarray(res.K, dtype=float)
+    if K.shape != (plant.n, plant.p):
+        raise ValueError(f"the design returned K of shape {K.shape}; expected ({plant.n}, {plant.p})")
+    ee = float(np.linalg.eigvals(plant.A - K @ plant.C).real.max())
+    rec.update(max_re_eig_e=ee, stabilizing=bool(ex < 0 and ee < 0), norm_K=float(np.linalg.norm(K, 2)))
+
+
+def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport,
+             options: RunOptions) -> Certificate | None:
+    """The certificate ladder (or its verdict only), recorded level by level."""
+    if options.certificate == "none":
+        return None
+    if res.K is None:
+        for lv in LEVELS:
+            rec[f"cert_{lv}"] = "inapplicable"
+        _note(rec, "certificate: no fixed observer gain (the estimator is time-varying): no quadratic certificate "
+                   "applies")
+        return None
+    know = report.knowledge(plant)
+    t0 = time.perf_counter()
+    if options.certificate == "ladder":
+        cert = certify(plant, res.K, res.F, know)
+    else:  # strongest level first, at rate 0, until one certifies
+        cert = Certificate({})
+        for lv in reversed(LEVELS):
+            cert.levels.update(certify(plant, res.K, res.F, know, levels=(lv,), rates=False).levels)
+            if cert.levels[lv].certified:
+                break
+        cert.levels = {lv: cert.levels[lv] for lv in LEVELS if lv in cert.levels}
+    rec["cert_s"] = time.perf_counter() - t0
+    for lv, r in cert.levels.items():
+        rec[f"cert_{lv}"], rec[f"decay_{lv}"] = r.status, r.decay_rate
+    best = cert.best
+    applicable = [r for r in cert.levels.values() if r.status != "inapplicable"]
+    shown = best or (applicable[-1] if applicable else None)
+    rec.update(certified=best is not None, cert_level=best.level if best else "",
+               decay_rate=best.decay_rate if best else math.nan,
+               cert_margin=shown.margin if shown is not None else math.nan)
+    rec.update(certificate_scope(best.P if best else None, best.radius if best else None, plant.x0, plant.x_hat0))
+    if best is None:
+        _note(rec, f"certificate: {cert.reason()}")
+    elif rec["cert_scope"] == "local":
+        _note(rec, f"certified locally: the level set V <= {rec['level_set']:.3g} stays in ||x||, ||x_hat|| <= "
+                   f"{rec['cert_radius']:g}, but V(x0, e0) = {rec['level_x0']:.3g} lies outside it")
+    return cert
+
+
+def _horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions) -> float:
+    if res.estimator is not None:  # sampled-time estimator: the plant's horizon (a multiple of its dt)
+        T, rule = (options.t_final or plant.t_final), ("fixed" if options.t_final else "plant")
+    else:
+        best = cert.best if cert is not None else None
+        cond = float(np.linalg.cond(best.P)) if best is not None and best.P is not None else math.nan
+        T, rule = horizon(plant.t_final, fixed=options.t_final, cap_factor=options.horizon_cap,
+                          cert_rate=best.decay_rate if best is not None else math.nan, cond_p=cond,
+                          linear_rate=linearised_rate(plant, res.K, res.F))
+    rec.update(horizon_s=T, horizon_rule=rule)
+    return T
+
+
+def _sim_options(options: RunOptions, T: float, t_plant: float) -> SimOptions:
+    """``options.sim`` with an output grid as dense as over the plant's horizon and a wall-clock
+    budget of what is left of the pair's time limit."""
+    sim = options.sim
+    if T > t_plant:
+        sim = replace(sim, n_points=int(min(20 * sim.n_points, math.ceil(sim.n_points * T / t_plant))))
+    left = remaining_time()
+    if left is not None:
+        own = sim.max_wall_s
+        sim = replace(sim, max_wall_s=max(min(left, own if own is not None else math.inf), 1e-3))
+    return sim
+
+
+def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
+              scenario: Scenario | None) -> None:
+    """Simulate (one trajectory, or the scenario's batch) and record the metrics."""
+    rec = out.record
+    T = _horizon(rec, plant, res, cert, options)
+    sim = _sim_options(options, T, plant.t_final)
+    rec["noise"] = options.noise
+    if scenario is not None and scenario.batch:
+        m = _simulate_batch(out, plant, res, T, scenario)
+    else:
+        traj = simulate_controller(plant, res.F, K=res.K, estimator=res.estimator, t_final=T, noise=options.noise,
+                                   noise_dt=options.noise_dt, seed=options.seed, options=sim)
+        out.trajectory = traj
+        rec.update(sim_s=traj.wall_s, sim_status=traj.status)
+        if traj.status == "timeout" and options.timeout is not None:
+            raise DeadlineExceeded(f"the simulation ({traj.message})")
+        m = trajectory_metrics(traj.t, traj.x, traj.x_hat, traj.u, finished=traj.status == "ok",
+                               noisy=options.noise > 0)
+        if traj.status != "ok":
+            _note(rec, f"simulation {traj.status}: {traj.message}")
+    rec.update({k: m[k] for k in ("converged", "settling_x_s", "settling_e_s", "final_x", "final_e", "tail_rate",
+                                  "iae_e", "rms_e", "peak_u", "max_norm")})
+    radius = rec["cert_radius"]
+    rec["in_region"] = None if not math.isfinite(radius) else bool(rec["max_norm"] <= radius)
+
+
+def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float, scenario: Scenario) -> dict:
+    """A batch scenario: per-member metrics in ``out.metrics``; the record holds the worst member."""
+    from bench.batch import batch_metrics as traj_metrics
+    from bench.batch import simulate_batch, simulate_digital_batch
+
+    if res.K is None:
+        raise ValueError("a batch scenario needs fixed gains K, F (the estimator is not a fixed gain)")
+    X = scenario.x0 if scenario.x0 is not None else plant.x0[:, None]
+    XH = scenario.x_hat0 if scenario.x_hat0 is not None else plant.x_hat0[:, None]
+    if scenario.sample_period is not None:
+        tr = simulate_digital_batch(plant, res.K, res.F, X, XH, h=scenario.sample_period, t_final=T,
+                                    discretisation=scenario.discretisation)
+    else:
+        tr = simulate_batch(plant, res.K, res.F, X, XH, t_final=T, method=scenario.method, rtol=scenario.rtol,
+                            atol=scenario.atol)
+    out.trajectory = tr
+    m = traj_metrics(tr)
+    out.metrics = m
+    out.record.update(sim_s=tr.wall_s, sim_status=tr.status if not tr.diverged.any() else "diverged")
+    worst = {k: float(np.max(v)) for k, v in m.items() if k != "converged"}
+    worst["tail_rate"] = float(np.min(m["tail_rate"]))
+    for k in ("settling_x_s", "settling_e_s"):
+        if np.isnan(m[k]).any():
+            worst[k] = math.nan
+    return {"converged": bool(np.all(m["converged"])), **worst}
+
+
+def _judge(rec: dict) -> None:
+    """The verdicts that read the whole record."""
+    if rec["sim_status"]:
+        _note(rec, convergence_note(rec))
+
+
+# -- the pair ----------------------------------------------------------------------------------
+def evaluate_pair(
+    plant: Plant,
+    design: Design | str,
+    report: ConstantsReport,
+    options: RunOptions = RunOptions(),
+    *,
+    design_id: str | None = None,
+    prior: PairOutcome | None = None,
+    scenario: Scenario | None = None,
+) -> PairOutcome:
+    """Evaluate one (plant, design) pair: design, verify, certify, simulate, measure, judge.
+
+    Never raises (unless ``options.fail_fast``): a failure is a row with status ``error``.
+
+    Parameters
+    ----------
+    plant : Plant
+    design : Design or str
+        The design object, or a registry id.
+    report : ConstantsReport
+        The plant's constants (computed once per plant, :func:`bench.constants.compute_constants`).
+    options : RunOptions
+    design_id : str, optional
+        The id shown in the record (default: ``design`` when it is an id, else its class name).
+    prior : PairOutcome, optional
+        An earlier outcome of the same pair: its design result and certificate are re-used (they
+        do not depend on the scenario, the noise or the sample period), so a study sweeping one
+        of those designs and certifies once.
+    scenario : Scenario, optional
+        A batch of initial conditions or a digital implementation to simulate.
+
+    Returns
+    -------
+    PairOutcome
+    """
+    if design_id is None:
+        design_id = design if isinstance(design, str) else type(design).__name__
+    if options.timeout is None:
+        return _evaluate(plant, design, design_id, report, options, prior, scenario)
+    try:
+        with time_limit(options.timeout), hard_stop(1.1 * options.timeout + 0.5):
+            return _evaluate(plant, design, design_id, report, options, prior, scenario)
+    except DeadlineExceeded as exc:  # the hard stop fired outside the pair's own handler
+        rec = blank_record(plant.id, design_id)
+        _timed_out(rec, exc, options, "pair")
+        return PairOutcome(rec, plant=plant)
+
+
+def _timed_out(rec: dict, exc: DeadlineExceeded, options: RunOptions, phase: str) -> None:
+    """Turn ``rec`` into a ``timeout`` row: no claim survives, the reason says how far it got."""
+    got = [rec["status"]] if rec["status"] else []
+    if rec["certified"]:
+        got.append("certified")
+    note = f" (reached before: {', '.join(got)})" if got else ""
+    rec.update(status="timeout", feasible=False, certified=False, converged=False, stabilizing=None,
+               reason=f"timeout: the pair exceeded {options.timeout:g} s during the {phase}, in {exc.where}{note}")
+
+
+#: Record columns that come from the design and the certificate (re-used with a ``prior``).
+_PRIOR_COLUMNS = ("status", "reason", "feasible", "route", "lmi_margin", "lmi_size", "solver", "solver_status",
+                  "n_solves", "compile_s", "solve_s", "design_s", "params", "constants", "stabilizing", "max_re_eig_x",
+                  "max_re_eig_e", "norm_K", "norm_F", "certified", "cert_level", "decay_rate", "cert_margin",
+                  "cert_scope", "cert_radius", "level_set", "level_x0", "cert_s",
+                  *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")])
+
+
+def _evaluate(plant, design, design_id, report, options, prior, scenario) -> PairOutcome:
+    from bench.registry import DESIGNS
+
+    rec = blank_record(plant.id, design_id)
+    out = PairOutcome(rec, plant=plant)
+    phase = "design"
+    try:
+        if prior is not None:
+            rec.update({k: prior.record[k] for k in _PRIOR_COLUMNS})
+            out.result, out.certificate = prior.result, prior.certificate
+            if out.result is None or not out.result.has_controller:
+                return out
+        else:
+            obj = DESIGNS.create(design) if isinstance(design, str) else design
+            out.result = _design(rec, plant, obj, report, options)
+            if out.result is None or not out.result.has_controller:
+                return out
+            phase = "verification"
+            _verify(rec, plant, out.result)
+            phase = "certificate"
+            out.certificate = _certify(rec, plant, out.result, report, options)
+        result = out.result
+        if options.simulate:
+            phase = "simulation"
+            _simulate(out, plant, result, out.certificate, options, scenario)
+        _judge(rec)
+    except DeadlineExceeded as exc:  # --timeout: a row, never a claim
+        if options.timeout is None:
+            raise
+        _timed_out(rec, exc, options, phase)
+        out.result = out.trajectory = out.certificate = None
+    except Exception as exc:  # one failing pair never kills a run
+        if options.fail_fast:
+            raise
+        rec.update(status="error", reason=f"{type(exc).__name__}: {exc}", feasible=False, certified=False,
+                   converged=False, stabilizing=None)
+        tb = traceback.extract_tb(exc.__traceback__)
+        if tb:
+            rec["reason"] += f" (at {tb[-1].filename.rsplit('/', 1)[-1]}:{tb[-1].lineno}, during the {phase})"
+    return out

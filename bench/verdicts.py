@@ -1,0 +1,135 @@
+"""The judgements of a pair, each in one place: how long to simulate, what a certificate proves,
+and why a pair did or did not converge.
+
+Every rule here is a pure function of numbers the pipeline already has (:mod:`bench.pipeline`
+calls them and stores what they return in the record); the report only renders the record.
+
+- :func:`horizon`: a pair is simulated long enough to decay by the convergence threshold
+  (:data:`bench.metrics.CONVERGED_RATIO`) at its certified rate
+  (``||z(t)|| <= sqrt(cond P) e^{-lam t} ||z(0)||``), or, uncertified, at the rate of its
+  linearisation, never shorter than the plant's horizon and at most ``horizon_cap`` times it;
+- :func:`certificate_scope`: a certificate built on constants that hold on ``||x|| <= r`` is
+  local; it proves convergence *from the initial condition* only when the sublevel set of
+  ``V`` through ``(x0, e0)`` keeps ``x`` and ``x_hat`` in the region;
+- :func:`convergence_note`: the reason a pair did not converge (diverged, left the region,
+  horizon cut, slow tail), and a flag when a certified pair fails to converge for none of them
+  (which would mean a bug: the suite's verdicts must agree).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bench.metrics import CONVERGED_RATIO
+
+__all__ = ["LINEAR_FACTOR", "certificate_scope", "convergence_note", "horizon"]
+
+#: An uncertified pair is simulated ``LINEAR_FACTOR * ln(1 / CONVERGED_RATIO) / rate`` seconds
+#: (its linearisation's rate: no bound on the transient, so a margin of 2).
+LINEAR_FACTOR = 2.0
+
+
+def horizon(t_plant: float, *, fixed: float | None, cap_factor: float, cert_rate: float, cond_p: float,
+            linear_rate: float) -> tuple[float, str]:
+    """The simulation horizon of a pair and the rule that set it.
+
+    Parameters
+    ----------
+    t_plant : float
+        The plant's own horizon (the shortest the rule gives).
+    fixed : float, optional
+        A horizon the user fixed (``--t-final``): used as it is.
+    cap_factor : float
+        The rule gives at most ``cap_factor * t_plant``.
+    cert_rate : float
+        Certified decay rate (NaN or <= 0: none).
+    cond_p : float
+        Condition number of the certificate's P (its transient bound ``sqrt(cond P)``).
+    linear_rate : float
+        Decay rate of the loop linearised at the origin (NaN or <= 0: not stable).
+
+    Returns
+    -------
+    T : float
+    rule : str
+        ``"fixed"``, ``"plant"``, ``"certified rate"``, ``"linearised rate"``, or
+        ``"cut at cap (... asks for ... s)"``.
+    """
+    if fixed is not None:
+        return float(fixed), "fixed"
+    decades = math.log(1.0 / CONVERGED_RATIO)
+    need, rule = None, "plant"
+    if math.isfinite(cert_rate) and cert_rate > 0:
+        kappa = cond_p if math.isfinite(cond_p) and cond_p >= 1 else 1.0
+        need, rule = (decades + 0.5 * math.log(kappa)) / cert_rate, "certified rate"
+    elif math.isfinite(linear_rate) and linear_rate > 0:
+        need, rule = LINEAR_FACTOR * decades / linear_rate, "linearised rate"
+    if need is None or need <= t_plant:
+        return float(t_plant), "plant"
+    cap = cap_factor * t_plant
+    if need > cap:
+        return float(cap), f"cut at cap ({rule} asks for {need:.3g} s)"
+    return float(math.ceil(need)), rule
+
+
+def certificate_scope(P: np.ndarray | None, radius: float | None, x0: np.ndarray, x_hat0: np.ndarray) -> dict:
+    """What a certificate with Lyapunov matrix ``P`` proves from ``(x0, x_hat0)``.
+
+    Parameters
+    ----------
+    P : ndarray (2n, 2n) or None
+        ``V = z' P z``, ``z = (x, e)``; None when nothing is certified.
+    radius : float or None
+        The certificate's constraints hold on ``||x|| <= radius`` (None: globally).
+    x0, x_hat0 : ndarray (n,)
+
+    Returns
+    -------
+    dict
+        ``cert_scope`` (``"global"``, ``"from x0"``, ``"local"`` or ``""``), ``cert_radius``,
+        ``level_set`` (the largest certified ``v``: ``{V <= v}`` inside the region),
+        ``level_x0`` (``V`` at the initial condition).
+    """
+    from bench.certify import level_set
+
+    out = {"cert_scope": "", "cert_radius": math.nan, "level_set": math.nan, "level_x0": math.nan}
+    if P is None:
+        return out
+    z0 = np.concatenate([x0, x0 - x_hat0])
+    out["level_x0"] = float(z0 @ P @ z0)
+    if radius is None:
+        out["cert_scope"] = "global"
+        return out
+    v = level_set(P, radius)
+    out.update(cert_radius=float(radius), level_set=v,
+               cert_scope="from x0" if out["level_x0"] <= v else "local")
+    return out
+
+
+def convergence_note(rec: dict) -> str:
+    """Why the pair of record ``rec`` did not converge (empty when it converged).
+
+    Reads ``converged``, ``sim_status``, ``certified``, ``cert_scope``, ``in_region``,
+    ``horizon_rule``, ``horizon_s``, ``tail_rate`` and ``final_x``/``final_e`` of the record.
+    """
+    if rec.get("converged"):
+        return ""
+    status = rec.get("sim_status", "")
+    if status and status != "ok":
+        return f"not converged: the simulation {status}"
+    why = []
+    if rec.get("in_region") is False:
+        why.append("the trajectory left the region where the constants hold")
+    rule = str(rec.get("horizon_rule", ""))
+    tail = rec.get("tail_rate", math.nan)
+    if rule.startswith("cut"):
+        why.append(f"the horizon was {rule} at {rec.get('horizon_s', math.nan):.3g} s")
+    if isinstance(tail, float) and math.isfinite(tail):
+        why.append(f"tail rate {tail:.3g} /s ({'decaying' if tail > 0 else 'not decaying'})")
+    note = "not converged within the horizon: " + "; ".join(why) if why else "not converged within the horizon"
+    if rec.get("certified") and rec.get("cert_scope") in ("global", "from x0") and not rule.startswith("cut") \
+            and rec.get("in_region") is not False:
+        note += " (INCONSISTENT with the certificate: please report this pair)"
+    return note
