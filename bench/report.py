@@ -98,70 +98,65 @@ def _table(df, columns: list[str], headers: list[str] | None = None) -> str:
     return "\n".join(out)
 
 
+#: Short words for a design status in the feasibility matrix.
+_SHORT = {"feasible": "feasible", "computed": "computed", "given": "given", "infeasible": "infeasible",
+          "marginal": "marginal", "inapplicable": "n/a", "undecided": "undecided", "error": "ERROR",
+          "timeout": "timeout"}
+
+
 def _cell(rec) -> str:
-    s = rec["status"]
-    if s == "feasible":
-        tags = ["cert" if rec["certified"] else "not cert", "conv" if rec["converged"] else "no conv"]
-        return f"feasible ({', '.join(tags)})"
-    return s
+    s = _SHORT.get(rec["status"], rec["status"])
+    if rec["status"] not in ("feasible", "computed", "given"):
+        return s
+    cert = f"cert {rec['cert_level']}" if rec["certified"] else "no cert"
+    if rec["certified"] and rec["cert_scope"] == "local":
+        cert += " (local)"
+    conv = "conv" if rec["converged"] else "no conv"
+    return f"{s}: {cert}, {conv}"
 
 
-def _feasibility(df) -> str:
+def _matrix(df, cell) -> str:
     plants = list(dict.fromkeys(df["plant"]))
     designs = list(dict.fromkeys(df["design"]))
     lines = ["| plant | " + " | ".join(designs) + " |", "|---|" + "|".join("---" for _ in designs) + "|"]
     for p in plants:
         sub = df[df["plant"] == p].set_index("design")
-        cells = [_cell(sub.loc[d]) if d in sub.index else "" for d in designs]
-        lines.append(f"| {p} | " + " | ".join(cells) + " |")
-    reasons = df[(df["reason"] != "") & df["reason"].notna()]
-    if len(reasons):
-        lines += ["", "Reasons:", ""]
-        for r in reasons.itertuples(index=False):
-            lines.append(f"- **{r.plant} x {r.design}** ({r.status}): {_fmt(r.reason)}")
+        lines.append(f"| {p} | " + " | ".join(cell(sub.loc[d]) if d in sub.index else "" for d in designs) + " |")
+    return "\n".join(lines)
+
+
+def _ladder(df) -> str:
+    """Certified decay rate per plant x design x level (blank: not certified at that level)."""
+    from bench.certify import LEVELS
+
+    sub = df[df[[f"cert_{lv}" for lv in LEVELS]].ne("").any(axis=1)]
+    if not len(sub):
+        return "No pair has fixed gains to certify."
+
+    def rate(r, lv):
+        st = r[f"cert_{lv}"]
+        if st == "certified":
+            return _fmt(r[f"decay_{lv}"])
+        return {"inapplicable": "n/a", "not certified": "no", "marginal": "marginal", "undecided": "undecided"}.get(st, st)
+
+    heads = ["plant", "design", *[f"{lv}" for lv in LEVELS], "headline (strongest level)", "scope"]
+    lines = ["| " + " | ".join(heads) + " |", "|" + "|".join("---" for _ in heads) + "|"]
+    for r in sub.to_dict("records"):
+        head = f"{_fmt(r['decay_rate'])} ({r['cert_level']})" if r["certified"] else "not certified"
+        lines.append(f"| {r['plant']} | {r['design']} | " + " | ".join(rate(r, lv) for lv in LEVELS)
+                     + f" | {head} | {r['cert_scope']} |")
     return "\n".join(lines)
 
 
 def _constants_table(result: RunResult) -> str:
-    lines = [
-        "| plant | constant | claimed | analytic | sampled (lower bound) | used | flag |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    region = lambda r: "everywhere" if r is None else f"\\|\\|x\\|\\| <= {r:g}"  # noqa: E731
-    for pid, rep in result.constants.items():
-        for name in ("alpha", "rho", "beta", "gamma"):
-            claimed = getattr(rep.claimed, name)
-            analytic = getattr(rep.analytic, name) if rep.analytic is not None else None
-            sampled = getattr(rep.sampled, name)
-            used = getattr(rep.valid, name)
-            src = rep.source.get(name, "") if name != "gamma" else ""
-            v = rep.violated(name)
-            flags = [f"VIOLATED: {v.describe()}"] if v else []
-            # a sample above an analytic bound means the plant's bound is wrong (beta only when
-            # it was sampled at the analytic gamma)
-            comparable = name != "gamma" and (name != "beta" or (rep.analytic is not None
-                                                                 and rep.analytic.gamma == rep.sampled.gamma))
-            if comparable and analytic is not None and sampled is not None and math.isfinite(sampled) and \
-                    sampled > analytic + 1e-7 * max(1.0, abs(analytic)):
-                flags.append(f"ANALYTIC BOUND EXCEEDED by a sample ({sampled:.4g} > {analytic:.4g})")
-            if name == "gamma":
-                sampled_s = f"{_fmt(sampled)} (fixed)"
-            else:
-                sampled_s = _fmt(sampled)
-            lines.append(
-                f"| {pid} | {name} | {_fmt(claimed)} | {_fmt(analytic)} | {sampled_s} | "
-                f"{_fmt(used)}{f' ({src})' if src else ''} | {'; '.join(flags)} |"
-            )
-        a_radius = rep.analytic.radius if rep.analytic is not None else None
-        has_claims = any(getattr(rep.claimed, k) is not None for k in ("alpha", "rho", "beta"))
-        if rep.claimed.radius is not None or rep.valid.radius is not None or a_radius is not None:
-            lines.append(
-                f"| {pid} | region | {region(rep.claimed.radius) if has_claims else ''} | "
-                f"{region(a_radius) if rep.analytic is not None else ''} | {region(rep.sampled.radius)} | "
-                f"{region(rep.valid.radius)} | |"
-            )
-    for pid, err in result.constants_errors.items():
-        lines.append(f"| {pid} | (error) | | | | | {_fmt(err)} |")
+    from bench.findings import constants_rows
+
+    rows = constants_rows(result.constants, result.constants_errors)
+    heads = ["plant", "constant", "claimed", "analytic", "sampled (lower bound)", "used", "source", "region", "flag"]
+    lines = ["| " + " | ".join(heads) + " |", "|" + "|".join("---" for _ in heads) + "|"]
+    for r in rows:
+        lines.append("| " + " | ".join(_fmt(r[k]) for k in ("plant", "constant", "claimed", "analytic", "sampled",
+                                                                "used", "source", "region", "flag")) + " |")
     return "\n".join(lines)
 
 
@@ -221,54 +216,96 @@ def _figures(result: RunResult, figdir: Path) -> list[tuple[str, str]]:
     return made
 
 
-def _uncertified(df) -> str:
-    sub = df[df["converged"] & ~df["certified"]]
-    if not len(sub):
-        return "Every converging pair is also certified."
-    pairs = ", ".join(f"{r.plant} x {r.design}" for r in sub.itertuples(index=False))
-    return (f"**Converge without a certificate** ({len(sub)}): {pairs}. Simulation from one initial condition "
-            "is evidence, not proof: these gains have no quadratic certificate of (20) with the valid constants "
-            "(or, for the EKF, none applies).")
+def _summary(found: dict) -> str:
+    """The report's first screen: what the run found (from :func:`bench.findings.findings`)."""
+    lines = []
+    for pid, f in found["plants"].items():
+        b = f["best"]
+        if b is None:
+            best = "no design certified"
+        else:
+            best = (f"best certified: **{b['design']}**, decay {_fmt(b['decay_rate'])} at the {b['level']} level"
+                    f"{' (local)' if b['scope'] == 'local' else ''}, peak |u| {_fmt(b['peak_u'])}")
+        unc = f["uncertified_converging"]
+        tail = f"; converge without a certificate: {', '.join(unc)}" if unc else ""
+        lines.append(f"- **{pid}**: {best}; {f['certified_pairs']} of {f['pairs']} pairs certified{tail}.")
+    for v in found["violated_claims"]:
+        lines.append(f"- Claimed constant violated on {v['plant']}: {v['text']}.")
+    for v in found["disproved"]:
+        lines.append(f"- Declared bound disproved on {v['plant']} (not used by certificates): {v['text']}.")
+    seen = set()
+    for r in found["printed_infeasible"]:
+        key = (r["design"], r["reason"].split(";")[0][:80])
+        if key in seen:
+            continue
+        seen.add(key)
+        plants = [x["plant"] for x in found["printed_infeasible"] if (x["design"], x["reason"].split(";")[0][:80]) == key]
+        lines.append(f"- {r['design']} (as printed) is infeasible on {', '.join(plants)}: {_fmt(r['reason'])[:300]}")
+    for r in found["inconsistent"]:
+        lines.append(f"- **Inconsistent verdicts** on {r['plant']} x {r['design']}: {_fmt(r['reason'])}")
+    return "\n".join(lines)
+
+
+_LEGEND = (
+    "How to read a row. *Status*: `feasible` (an LMI or Riccati condition solved and verified), `computed` "
+    "(LQR/Kalman gains: no feasibility question), `given` (printed gains), `infeasible` (under the stated "
+    "normalisation), `marginal` (best margin within the verification tolerance of zero), `inapplicable`, "
+    "`undecided` (solver trouble), `error`, `timeout`. *Stabilizing*: A+BF and A-KC Hurwitz (blank for an "
+    "estimator with no fixed gain). **The certificate ladder** checks the gains (K, F) as they are, with "
+    "quadratic Lyapunov functions V = z'Pz of z = (x, e), at three levels of what is known about f: *paper* is "
+    "the paper's (20) (block-diagonal P, the OSL and QIB constants); *full* lets P couple x and e and adds every "
+    "scalar constant (Lipschitz, OSL, QIB), one multiplier each; *structured* adds the plant's declared channels "
+    "f = G phi(Hx) with their slope bounds, one multiplier per channel. Each level contains the one below, so "
+    "rates can only grow up the ladder; the headline *certified* is the strongest level that certifies, and "
+    "*decay rate* its rate lam (V' <= -2 lam V). Only analytic constants and channels that no sample disproved "
+    "are used; sampled constants are lower bounds and never certify. With constants that hold on ||x|| <= r the "
+    "certificate is local: *scope* is `from x0` when the level set of V through the initial condition stays in "
+    "the region, else `local`. *Converged*: at the end of the horizon ||x|| and ||e|| are below 1e-3 of the peak "
+    "of ||z|| (with noise: both norms settled). The horizon follows the rates: long enough for the certified rate "
+    "(or, uncertified, twice the linearisation's) to decay by 1e-3, at least the plant's own, at most 10 times it "
+    "(*horizon_rule* says which); a certified pair that does not converge says why in its reason.")
 
 
 def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info: dict) -> str:
-    """The REPORT.md text (tables from the DataFrame only, no timestamps in table bodies)."""
+    """The REPORT.md text, rendered from the records and the findings (no timestamps in table bodies)."""
+    from bench.findings import findings
+
     df = result.frame()
     o = result.options
-    conv_cols = ["plant", "design", "stabilizing", "max_re_eig_x", "max_re_eig_e", "certified", "decay_rate",
-                 "converged", "sim_status", "settling_x_s", "settling_e_s", "final_x", "final_e", "iae_e", "rms_e",
-                 "peak_u"]
-    time_cols = ["plant", "design", "solver", "solver_status", "n_solves", "lmi_size", "lmi_margin", "compile_s",
-                 "solve_s", "design_s", "cert_s", "sim_s"]
+    found = run_info.get("findings") or findings(df, result.constants)
+    conv_cols = ["plant", "design", "stabilizing", "certified", "cert_level", "decay_rate", "cert_scope",
+                 "converged", "horizon_s", "horizon_rule", "sim_status", "settling_x_s", "settling_e_s", "final_x",
+                 "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "in_region"]
+    time_cols = ["plant", "design", "route", "solver", "n_solves", "lmi_size", "lmi_margin", "compile_s", "solve_s",
+                 "design_s", "cert_s", "sim_s"]
     with_gains = df[df["max_re_eig_x"].notna()]
+    reasons = df[(df["reason"] != "") & df["reason"].notna()]
     parts = [
         "# oslbench report",
         "",
-        f"Command: `{run_info['command']}`. Seed {o.seed}; measurement noise sigma = {o.noise:g}; "
-        "constants used by designs: "
-        f"{'claimed by the sources' if o.use_claimed else 'valid (analytic where known, else sampled)'}; "
-        f"{len(df)} pairs. Package versions and settings are in `run.json`; one row per pair in "
-        "`results.csv`; gains in `gains.json`.",
+        f"Command: `{run_info['command']}`. Seed {o.seed}; measurement noise sigma = {o.noise:g}; designs use the "
+        f"{'constants claimed by the sources' if o.use_claimed else 'valid constants (analytic, else sampled)'}; "
+        f"{len(df)} pairs. One row per pair in `results.csv` (every verdict below is a column there), gains and "
+        "certificates in `gains.json`, settings, versions and these findings in `run.json`, LaTeX tables in "
+        "`tables.tex`.",
         "",
-        "Observer gain K (n x p), feedback F (m x n), u = F x_hat. *Stabilizing*: A+BF and A-KC Hurwitz. "
-        "*Certified*: the analysis LMI of the paper's (20) with K, F fixed has a verified negative margin with "
-        "the valid constants (for a plant whose constants hold only on a region ||x|| <= r, the certificate is "
-        "local: it holds while x and x_hat stay in that region); *decay_rate*: the largest certified lambda with "
-        "V' <= -2 lambda V (bisection). "
-        "*Converged*: the nonlinear closed loop (plant + observer (6)) from the plant's initial conditions ends "
-        "with ||x|| and ||e|| below 1e-3 of their peaks. Settling times are 2 % of the peak norm. "
-        "*lmi_margin* is the largest eigenvalue of the design LMI recomputed with numpy (negative = strictly "
-        "feasible).",
+        "## What the suite found",
         "",
-        "## Feasibility",
+        _summary(found),
         "",
-        _feasibility(df),
+        _LEGEND,
+        "",
+        "## Feasibility and verdicts",
+        "",
+        _matrix(df, _cell),
+        "",
+        "## Certified decay rate by level",
+        "",
+        _ladder(df),
         "",
         "## Convergence",
         "",
         _table(with_gains, conv_cols) if len(with_gains) else "No design produced gains.",
-        "",
-        _uncertified(df),
         "",
         "## Timing (seconds)",
         "",
@@ -276,14 +313,20 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         "",
         "## Constants",
         "",
-        "Sampled values are lower bounds from seeded random pairs refined by local optimisation; a claimed "
-        "constant that a sample exceeds is flagged with the violating pair. Beta is sampled at the gamma in use.",
+        "Sampled values are lower bounds from seeded random pairs refined by local optimisation. A claimed constant "
+        "a sample exceeds is flagged with the violating pair; an analytic bound a sample exceeds is disproved and "
+        "never used by certificates. Beta is sampled at the gamma in use.",
         "",
         _constants_table(result),
         "",
-        "## Figures",
+        "## Reasons, per plant",
         "",
     ]
+    for pid in dict.fromkeys(reasons["plant"]):
+        parts += [f"### {pid}", ""]
+        parts += [f"- **{r.design}** ({r.status}): {_fmt(r.reason)}" for r in reasons[reasons["plant"] == pid].itertuples()]
+        parts.append("")
+    parts += ["## Figures", ""]
     if figures:
         for caption, path in figures:
             parts += [f"![{caption}]({path})", "", f"*{caption}*", ""]
@@ -297,15 +340,25 @@ def _gains(result: RunResult) -> list[dict]:
     for o in result.outcomes:
         r = o.result
         if r is not None and r.has_controller:
-            dr = o.record["decay_rate"]
+            rec = o.record
+            cert = o.certificate
+            levels = {}
+            if cert is not None:
+                for lv, lr in cert.levels.items():
+                    levels[lv] = {"status": lr.status, "decay_rate": None if not math.isfinite(lr.decay_rate)
+                                  else float(lr.decay_rate),
+                                  "P": None if lr.P is None else np.asarray(lr.P).tolist()}
             out.append({
-                "plant": o.record["plant"],
-                "design": o.record["design"],
+                "plant": rec["plant"],
+                "design": rec["design"],
+                "route": rec["route"],
                 "K": None if r.K is None else np.asarray(r.K).tolist(),
                 "F": np.asarray(r.F).tolist(),
                 "estimator": None if r.estimator is None else repr(r.estimator),
-                "certified": bool(o.record["certified"]),
-                "decay_rate": None if not math.isfinite(dr) else float(dr),
+                "certified": bool(rec["certified"]),
+                "cert_level": rec["cert_level"],
+                "decay_rate": None if not math.isfinite(rec["decay_rate"]) else float(rec["decay_rate"]),
+                "certificate": levels,
             })
     return out
 

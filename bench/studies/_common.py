@@ -32,10 +32,11 @@ __all__ = [
     "check_levels",
     "check_range",
     "default_box",
-    "design_for",
+    "evaluate",
     "fmt",
     "md_table",
     "random_ics",
+    "study_constants",
     "study_header",
     "write_study",
 ]
@@ -255,48 +256,53 @@ def random_ics(plant, n_ics: int, box: float, seed: int) -> tuple[np.ndarray, np
     return X, XH
 
 
-def plant_constants(plant):
-    """The constants designs use in the studies: the plant's analytic bounds, else computed ones."""
-    if plant.bounds is not None and plant.bounds.has_osl and plant.bounds.alpha is not None:
-        return plant.bounds
+#: Sampled pairs of a study's constants check (the catalog's constants are analytic; the
+#: sampler only checks them, and a bisection evaluates hundreds of scales of f).
+STUDY_SAMPLES = 1000
+
+_CONSTANTS: dict[tuple, object] = {}
+
+
+def study_constants(plant, *, seed: int = 0, n_samples: int = STUDY_SAMPLES):
+    """The plant's :class:`bench.constants.ConstantsReport` (computed once per plant and parameters).
+
+    The same function the harness uses (:func:`bench.constants.compute_constants`), with fewer
+    sampled pairs: what certificates trust is the same (analytic constants and channels that no
+    sample disproved).
+    """
     from bench.constants import compute_constants
 
-    return compute_constants(plant, seed=0).valid
+    key = (plant.id, tuple(sorted(plant.params.items())), seed, n_samples)
+    if key not in _CONSTANTS:
+        _CONSTANTS[key] = compute_constants(plant, seed=seed, n_samples=n_samples, n_refine=2)
+    return _CONSTANTS[key]
 
 
-@dataclass
-class Designed:
-    """A design run on one plant for a study."""
+def evaluate(plant, design_id: str, options=None, *, overrides: dict | None = None, prior=None, scenario=None):
+    """One pair through :func:`bench.pipeline.evaluate_pair`, with the study's constants.
 
-    design_id: str
-    status: str
-    reason: str
-    K: np.ndarray | None
-    F: np.ndarray | None
-    estimator: Any
-    design_s: float
+    Parameters
+    ----------
+    plant : Plant
+    design_id : str
+        Registry id of the design.
+    options : bench.pipeline.RunOptions, optional
+    overrides : dict, optional
+        Hyperparameters of the design (e.g. ``{"cap": 100.0}``).
+    prior : PairOutcome, optional
+        Re-use the design and certificate of an earlier evaluation of the pair.
+    scenario : bench.pipeline.Scenario, optional
 
-    @property
-    def has_gains(self) -> bool:
-        """Both fixed gains K and F are present."""
-        return self.K is not None and self.F is not None
-
-
-def design_for(plant, design_id: str, constants=None, **overrides) -> Designed:
-    """Run a registered design on ``plant`` (status ``inapplicable`` with the reason if it does not apply)."""
+    Returns
+    -------
+    bench.pipeline.PairOutcome
+    """
+    from bench.pipeline import RunOptions, evaluate_pair
     from bench.registry import DESIGNS
 
-    consts = plant_constants(plant) if constants is None else constants
-    design = DESIGNS.create(design_id, **overrides)
-    why = design.applicable(plant, consts)
-    if why is not None:
-        return Designed(design_id, "inapplicable", why, None, None, None, 0.0)
-    t0 = time.perf_counter()
-    res = design.design(plant, consts)
-    wall = time.perf_counter() - t0
-    K = None if res.K is None else np.asarray(res.K, dtype=float)
-    F = None if res.F is None else np.asarray(res.F, dtype=float)
-    return Designed(design_id, res.status, res.reason, K, F, res.estimator, wall)
+    design = design_id if not overrides else DESIGNS.create(design_id, **overrides)
+    return evaluate_pair(plant, design, study_constants(plant), options or RunOptions(), design_id=design_id,
+                         prior=prior, scenario=scenario)
 
 
 # -- rendering ---------------------------------------------------------------------------------
