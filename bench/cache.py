@@ -95,7 +95,7 @@ import numpy as np
 __all__ = ["CACHE_FORMAT", "PROBE_POINTS", "Cache", "default_cache_dir"]
 
 #: Bumped when the layout or the meaning of an entry changes.
-CACHE_FORMAT = 2
+CACHE_FORMAT = 3
 
 #: Packages whose modules are hashed by source (plus plugin modules and local modules).
 _PROJECT = ("bench", "designs", "plants")
@@ -334,6 +334,7 @@ class Cache:
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
         self.hits = self.misses = self.constants_hits = self.constants_misses = self.stored = 0
+        self.stored_pairs = 0
         self.errors: list[str] = []
         self._sources: dict[str, str] = {}
         self._deps: dict[str, set[str]] = {}
@@ -643,10 +644,11 @@ class Cache:
             return False
         arrays: dict[str, np.ndarray] = {}
         meta: dict[str, Any] = {"format": CACHE_FORMAT, "record": {k: _plain(v) for k, v in rec.items()},
-                                "result": None, "trajectory": None}
+                                "result": None, "trajectory": None, "certificate": None}
         res = outcome.result
         if res is not None:
-            d = {f.name: getattr(res, f.name) for f in dataclasses.fields(res) if f.name not in ("K", "F", "estimator")}
+            skip = ("K", "F", "estimator", "certificate")
+            d = {f.name: getattr(res, f.name) for f in dataclasses.fields(res) if f.name not in skip}
             d["min_eig"] = {k: _plain(v) for k, v in d["min_eig"].items()}
             d["params"] = {k: _plain(v) for k, v in d["params"].items()}
             est = res.estimator
@@ -655,10 +657,18 @@ class Cache:
                     return False  # cannot be rebuilt without pickling
                 d["estimator"] = {"type": [type(est).__module__, type(est).__qualname__],
                                   "fields": {k: _plain(v) for k, v in dataclasses.asdict(est).items()}}
+            if res.certificate is not None:
+                d["certificate"] = {k: _plain(v) for k, v in res.certificate.items() if k != "P"}
+                arrays["design_cert_P"] = np.asarray(res.certificate["P"], dtype=float)
             meta["result"] = d
             for name in ("K", "F"):
                 if getattr(res, name) is not None:
                     arrays[name] = np.asarray(getattr(res, name), dtype=float)
+        cert = outcome.certificate
+        if cert is not None:
+            meta["certificate"] = {lv: {f.name: _plain(getattr(r, f.name)) for f in dataclasses.fields(r) if f.name != "P"}
+                                   for lv, r in cert.levels.items()}
+            arrays.update({f"P_{lv}": np.asarray(r.P, dtype=float) for lv, r in cert.levels.items() if r.P is not None})
         tr = outcome.trajectory
         if tr is not None:
             meta["trajectory"] = {"status": tr.status, "message": tr.message, "wall_s": tr.wall_s, "nfev": int(tr.nfev)}
@@ -668,7 +678,9 @@ class Cache:
         except (TypeError, ValueError):
             return False
         arrays["meta"] = np.array(text)
-        return self._write(self.root / "pairs" / f"{key}.npz", lambda fh: np.savez_compressed(fh, **arrays))
+        ok = self._write(self.root / "pairs" / f"{key}.npz", lambda fh: np.savez_compressed(fh, **arrays))
+        self.stored_pairs += int(ok)
+        return ok
 
     def _load_pair(self, key: str):
         path = self.root / "pairs" / f"{key}.npz"
@@ -682,9 +694,10 @@ class Cache:
 
     @staticmethod
     def _read_pair(path: Path):
+        from bench.certify import Certificate, LevelResult
         from bench.harness import COLUMNS, PairOutcome
         from bench.simulate import Trajectory
-        from designs._core import DesignResult
+        from designs import DesignResult
 
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
@@ -702,35 +715,29 @@ class Cache:
                 for part in qual.split("."):
                     obj = getattr(obj, part)
                 est = obj(**est["fields"])
-            result = DesignResult(**d, K=arrays.get("K"), F=arrays.get("F"), estimator=est)
+            dcert = d.pop("certificate", None)
+            if dcert is not None:
+                dcert = {**dcert, "P": arrays["design_cert_P"]}
+            result = DesignResult(**d, K=arrays.get("K"), F=arrays.get("F"), estimator=est, certificate=dcert)
         traj = None
         if meta["trajectory"] is not None:
             tm = meta["trajectory"]
             traj = Trajectory(arrays["t"], arrays["x"], arrays["x_hat"], arrays["u"], tm["status"], tm["message"],
                               tm["wall_s"], tm["nfev"])
-        return PairOutcome(rec, result=result, trajectory=traj)
+        cert = None
+        if meta.get("certificate") is not None:
+            cert = Certificate({lv: LevelResult(**f, P=arrays.get(f"P_{lv}")) for lv, f in meta["certificate"].items()})
+        return PairOutcome(rec, result=result, trajectory=traj, certificate=cert)
 
     def _store_constants(self, key: str, report) -> bool:
-        doc = {
-            "format": CACHE_FORMAT,
-            **{k: (None if getattr(report, k) is None else getattr(report, k).as_dict())
-               for k in ("claimed", "analytic", "sampled", "valid")},
-            "source": report.source,
-            "violations": [{"name": v.name, "claimed": _plain(v.claimed), "sampled": _plain(v.sampled),
-                            "x1": [_plain(a) for a in v.x1], "x2": [_plain(a) for a in v.x2]}
-                           for v in report.violations],
-            "seed": report.seed,
-            "n_samples": report.n_samples,
-        }
         try:
-            text = json.dumps(doc).encode()
+            text = json.dumps({"format": CACHE_FORMAT, **report.to_dict()}).encode()
         except (TypeError, ValueError):
             return False
         return self._write(self.root / "constants" / f"{key}.json", lambda fh: fh.write(text))
 
     def _load_constants(self, key: str):
-        from bench.constants import ConstantsReport, Violation
-        from plants._core import Constants
+        from bench.constants import ConstantsReport
 
         path = self.root / "constants" / f"{key}.json"
         rep = None
@@ -738,12 +745,7 @@ class Cache:
             try:
                 doc = json.loads(path.read_text(encoding="utf-8"))
                 if doc.get("format") == CACHE_FORMAT:
-                    cs = {k: None if doc[k] is None else Constants(**doc[k])
-                          for k in ("claimed", "analytic", "sampled", "valid")}
-                    viol = [Violation(v["name"], v["claimed"], v["sampled"], tuple(v["x1"]), tuple(v["x2"]))
-                            for v in doc["violations"]]
-                    rep = ConstantsReport(**cs, source=doc["source"], violations=viol, seed=doc["seed"],
-                                          n_samples=doc["n_samples"])
+                    rep = ConstantsReport.from_dict(doc)
             except Exception as exc:  # noqa: BLE001 - a damaged entry is a miss
                 self.errors.append(f"unreadable cache entry {path.name}: {type(exc).__name__}: {exc}")
         return rep

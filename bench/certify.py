@@ -53,8 +53,8 @@ from bench import lmi
 from bench.constants import Knowledge
 from plants import Plant
 
-__all__ = ["LEVELS", "LEVEL_TITLES", "Certificate", "Knowledge", "LevelResult", "certify", "level_set",
-           "linearised_rate"]
+__all__ = ["LADDER_MAX_N", "LEVELS", "LEVEL_TITLES", "Certificate", "Knowledge", "LevelResult", "adopt", "certify",
+           "level_set", "linearised_rate"]
 
 #: The ladder, weakest first.
 LEVELS = ("paper", "full", "structured")
@@ -65,6 +65,15 @@ LEVEL_TITLES = {
     "full": "full P, every scalar constant (Lipschitz, OSL, QIB)",
     "structured": "full P, the declared channel slopes and the scalar constants",
 }
+
+#: Beyond this many states the ladder's SDPs (size 4n or 2n + 2q) are not attempted: an
+#: interior-point solve at n = 32 already takes seconds and grows like n^5 (a design's own
+#: certificate, verified by eigenvalues, is kept: :func:`adopt`).
+LADDER_MAX_N = 32
+
+#: :func:`adopt` replaces a certified level only when its rate is below this fraction of the
+#: design's own (the two are the same certificate up to the bisection's tolerance otherwise).
+ADOPT_RATIO = 0.9
 
 #: Statuses of one level.
 LEVEL_STATUSES = ("certified", "not certified", "marginal", "inapplicable", "undecided")
@@ -492,6 +501,8 @@ def certify(
     prev: LevelResult | None = None
     for lv in (lv for lv in LEVELS if lv in levels):
         spec, why = _spec(lv, plant.n, knowledge)
+        if spec is not None and plant.n > LADDER_MAX_N:
+            spec, why = None, f"n = {plant.n} is beyond the SDP certificate's reach (LADDER_MAX_N = {LADDER_MAX_N})"
         if spec is None:
             out[lv] = LevelResult(lv, "inapplicable", reason=why)
             continue
@@ -524,3 +535,41 @@ def level_set(P: np.ndarray, radius: float) -> float:
     Th = np.hstack([np.eye(n), -np.eye(n)])
     worst = max(float(np.linalg.eigvalsh(T @ Pinv @ T.T)[-1]) for T in (Tx, Th))
     return radius**2 / worst
+
+
+def adopt(cert: Certificate, candidate: dict | None) -> Certificate:
+    """Keep a design's own verified certificate where the ladder's LMI certifies less.
+
+    A design may verify a joint certificate of its own (``DesignResult.certificate``: its level,
+    P, decay rate, margin, radius); it uses that level's knowledge, so it is a certificate at that
+    level (and, by inclusion, at every level above). Where the ladder's own LMI certified clearly
+    less (below :data:`ADOPT_RATIO` of its rate: numerical trouble, or ``n`` beyond
+    :data:`LADDER_MAX_N`), the level takes it, and the levels above inherit it.
+
+    Parameters
+    ----------
+    cert : Certificate
+    candidate : dict or None
+        ``level``, ``P``, ``decay_rate``, ``margin``, ``radius``, ``how``.
+
+    Returns
+    -------
+    Certificate
+        ``cert``, updated in place.
+    """
+    if not candidate or candidate.get("level") not in cert.levels:
+        return cert
+    lv = candidate["level"]
+    cur = cert.levels[lv]
+    if cur.certified and cur.decay_rate >= ADOPT_RATIO * candidate["decay_rate"]:
+        return cert  # the ladder's own P (normalised, usually better conditioned) is kept
+    own = f"the ladder's own LMI: {cur.status}" + (f", rate {cur.decay_rate:.3g}" if cur.certified else "")
+    cert.levels[lv] = LevelResult(lv, "certified", decay_rate=float(candidate["decay_rate"]),
+                                  margin=float(candidate["margin"]), reason=f"{candidate['how']} ({own})",
+                                  P=candidate["P"], radius=candidate.get("radius"), solve_s=cur.solve_s,
+                                  n_solves=cur.n_solves)
+    above = LEVELS[LEVELS.index(lv) + 1:]
+    for up in above:
+        if up in cert.levels:
+            cert.levels[up] = _inherit(cert.levels[up], cert.levels[lv])
+    return cert

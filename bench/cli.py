@@ -79,6 +79,8 @@ def _build_parser() -> argparse.ArgumentParser:
     r.add_argument("--noise", type=_nonneg_float, default=0.0, metavar="SIGMA",
                    help="standard deviation of a seeded Gaussian measurement noise (default 0)")
     r.add_argument("--no-figures", action="store_true", help="skip the figures")
+    r.add_argument("--figure-format", action="append", choices=("png", "pdf"), default=None,
+                   help="figure format, repeatable (default png; the report links the PNG)")
     r.add_argument("--fail-fast", action="store_true", help="stop at the first exception (for debugging)")
     r.add_argument("-j", "--jobs", type=_positive_int, default=None, metavar="N",
                    help="local worker processes (default: all cores; 1 = serial)")
@@ -118,6 +120,7 @@ def _cmd_list() -> int:
 
 
 def _cmd_run(args, argv: list[str]) -> int:
+    """``python -m bench run``: :func:`bench.api.run`, then :meth:`bench.api.Results.write`."""
     try:
         plant_ids = PLANTS.select(args.plant)
         design_ids = DESIGNS.select(args.design)
@@ -131,31 +134,23 @@ def _cmd_run(args, argv: list[str]) -> int:
     except OutDirError as exc:
         print(f"python -m bench run: error: {exc}", file=sys.stderr)
         return 2
-    from bench.cache import Cache, default_cache_dir
-    from bench.executors import ExecutorError, default_jobs
-    from bench.harness import ProgressBar, RunOptions, run
-    from bench.report import write_report
+    from bench.api import run
+    from bench.cache import default_cache_dir
+    from bench.executors import ExecutorError
 
-    options = RunOptions(seed=args.seed, use_claimed=args.claimed_constants, fail_fast=args.fail_fast,
-                         t_final=args.t_final, noise=args.noise, timeout=args.timeout)
     t0 = time.perf_counter()
-    # never more workers than tasks (a huge -j would fork that many processes)
-    jobs = min(args.jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
-    cache = None if args.no_cache else Cache(default_cache_dir(args.out))
-    bar = None if args.quiet else ProgressBar()
+    cache = None if args.no_cache else default_cache_dir(args.out)
     try:
-        try:
-            result = run(plant_ids, design_ids, options, progress=bar, jobs=jobs, scheduler=args.scheduler,
-                         cache=cache)
-        finally:
-            if bar is not None:
-                bar.close()
+        results = run(plant_ids, design_ids, seed=args.seed, claimed_constants=args.claimed_constants,
+                      t_final=args.t_final, noise=args.noise, timeout=args.timeout, jobs=args.jobs,
+                      scheduler=args.scheduler, cache=cache, progress=not args.quiet, fail_fast=args.fail_fast,
+                      command="python -m bench " + shlex.join(argv))
     except ExecutorError as exc:
         print(f"python -m bench run: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        kept = (f"finished pairs are kept in {cache.root} ({cache.stored} new): run the same command again to "
-                "resume" if cache is not None else "nothing was cached (--no-cache)")
+        kept = (f"finished pairs are kept in {cache}: run the same command again to resume" if cache is not None
+                else "nothing was cached (--no-cache)")
         print(f"python -m bench run: interrupted; the previous report in {args.out!r}, if any, is unchanged; {kept}",
               file=sys.stderr)
         return 130
@@ -167,34 +162,34 @@ def _cmd_run(args, argv: list[str]) -> int:
         traceback.print_exc()
         print(f"python -m bench run: error (--fail-fast): {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
-    info = {"command": "python -m bench " + shlex.join(argv), "plants": plant_ids, "designs": design_ids,
-            "jobs": jobs, "scheduler": args.scheduler}
+    return _write_run(results, args, t0)
+
+
+def _write_run(results, args, t0: float) -> int:
+    """Write a finished run's report (Ctrl-C deferred until it is whole) and print the summary."""
     path = None
     try:
         with _sigint_deferred("python -m bench run: finishing the report before stopping (Ctrl-C again to abort "
                               "at once)"):
-            path = write_report(result, args.out, info, figures=not args.no_figures)
+            path = results.write(args.out, figures=not args.no_figures, figure_format=args.figure_format or ("png",))
     except KeyboardInterrupt:
         where = (f"after writing {path}" if path is not None else
                  f"while writing the report; the previous report in {args.out!r}, if any, is unchanged")
         print(f"python -m bench run: interrupted {where}", file=sys.stderr)
         return 130
-    except Exception as exc:  # the previous report stays intact (atomic write)
+    except Exception as exc:  # the previous report stays intact (whole or nothing)
         print(f"python -m bench run: error: could not write the report to {args.out!r} "
               f"({type(exc).__name__}: {exc}); the previous report, if any, is unchanged", file=sys.stderr)
         return 1
-    df = result.frame()
     if not args.quiet:
-        n_feas = int(df["feasible"].sum())
-        n_cert = int(df["certified"].sum())
-        n_conv = int(df["converged"].sum())
-        n_err = int((df["status"] == "error").sum())
-        n_to = int((df["status"] == "timeout").sum())
-        cached = f"; {result.cache_hits} from the cache" if cache is not None else ""
-        timeouts = f", {n_to} timeouts" if n_to else ""
-        print(f"{len(df)} pairs: {n_feas} feasible, {n_cert} certified, {n_conv} converged, {n_err} errors"
-              f"{timeouts}{cached}; {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-        for msg in (cache.errors if cache is not None else [])[:3]:
+        df, rr = results.table, results.run_result
+        counts = {k: int((df["status"] == k).sum()) for k in ("error", "timeout")}
+        cached = f"; {rr.cache_hits} from the cache" if rr.cache_dir else ""
+        timeouts = f", {counts['timeout']} timeouts" if counts["timeout"] else ""
+        print(f"{len(df)} pairs: {int(df['feasible'].sum())} feasible, {int(df['certified'].sum())} certified, "
+              f"{int(df['converged'].sum())} converged, {counts['error']} errors{timeouts}{cached}; "
+              f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)
+        for msg in results.info.get("cache_errors", [])[:3]:
             print(f"python -m bench run: warning: {msg}", file=sys.stderr)
         print(f"wrote {path}", file=sys.stderr)
     return 0

@@ -129,6 +129,30 @@ class ConstantsReport:
         """The violation of claimed constant ``name``, if any."""
         return next((v for v in self.violations if v.name == name), None)
 
+    def to_dict(self) -> dict:
+        """A JSON-ready description (for the cache and run.json); :meth:`from_dict` inverts it."""
+        def viol(vs):
+            return [{"name": v.name, "claimed": float(v.claimed), "sampled": float(v.sampled),
+                     "x1": [float(a) for a in v.x1], "x2": [float(a) for a in v.x2]} for v in vs]
+
+        return {**{k: (None if getattr(self, k) is None else getattr(self, k).as_dict())
+                   for k in ("claimed", "analytic", "sampled", "valid")},
+                "source": dict(self.source), "violations": viol(self.violations), "disproved": viol(self.disproved),
+                "channel_violations": viol(self.channel_violations), "unbounded": dict(self.unbounded),
+                "prechecks": list(self.prechecks), "seed": self.seed, "n_samples": self.n_samples,
+                "trust": self.trust}
+
+    @classmethod
+    def from_dict(cls, doc: dict) -> "ConstantsReport":
+        """The report :meth:`to_dict` described."""
+        def viol(vs):
+            return [Violation(v["name"], v["claimed"], v["sampled"], tuple(v["x1"]), tuple(v["x2"])) for v in vs]
+
+        cs = {k: None if doc[k] is None else Constants(**doc[k]) for k in ("claimed", "analytic", "sampled", "valid")}
+        return cls(**cs, source=doc["source"], violations=viol(doc["violations"]), disproved=viol(doc["disproved"]),
+                   channel_violations=viol(doc["channel_violations"]), unbounded=doc["unbounded"],
+                   prechecks=doc["prechecks"], seed=doc["seed"], n_samples=doc["n_samples"])
+
     def knowledge(self, plant: Plant) -> Knowledge:
         """The trusted part for ``plant``: analytic constants no sample disproved, and the plant's
         channels unless a sample disproved their slopes."""

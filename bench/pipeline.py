@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bench.certify import LEVELS, Certificate, certify, linearised_rate
+from bench.certify import LEVELS, Certificate, adopt, certify, linearised_rate
 from bench.constants import ConstantsReport, resolve_constants
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
 from bench.metrics import batch_metrics, trajectory_metrics
@@ -266,6 +266,7 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
             if cert.levels[lv].certified:
                 break
         cert.levels = {lv: cert.levels[lv] for lv in LEVELS if lv in cert.levels}
+    adopt(cert, res.certificate)
     rec["cert_s"] = time.perf_counter() - t0
     for lv, r in cert.levels.items():
         rec[f"cert_{lv}"], rec[f"decay_{lv}"] = r.status, r.decay_rate

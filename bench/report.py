@@ -1,8 +1,8 @@
-"""Reports: markdown tables and figures rendered from a run's records, written atomically.
+"""Reports: the run's records and findings rendered as markdown, CSV, JSON, LaTeX and figures.
 
-``write_report`` renders everything into a temporary folder next to the destination and only
-then moves the files into place (``os.replace``), REPORT.md last: an exception while rendering
-leaves the previous report untouched.
+The report computes no verdict: every judgement comes from the records (:mod:`bench.pipeline`) and
+the findings (:mod:`bench.findings`); this module only renders them. ``write_report`` renders
+everything into a staging folder and publishes it whole or not at all (:mod:`bench.outdir`).
 """
 
 from __future__ import annotations
@@ -11,9 +11,7 @@ import json
 import math
 import os
 import platform
-import shutil
 import sys
-import tempfile
 from importlib import metadata
 from pathlib import Path
 
@@ -160,8 +158,8 @@ def _constants_table(result: RunResult) -> str:
     return "\n".join(lines)
 
 
-def _figures(result: RunResult, figdir: Path) -> list[tuple[str, str]]:
-    """Draw the figures; return (caption, relative path) pairs."""
+def _figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png",)) -> list[tuple[str, str]]:
+    """Draw the figures in each format; return (caption, relative path of the first format) pairs."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -184,8 +182,7 @@ def _figures(result: RunResult, figdir: Path) -> list[tuple[str, str]]:
         for ax in axes:
             ax.grid(True, which="both", alpha=0.3)
         axes[0].legend(fontsize=8)
-        name = f"{pid}__norms.png"
-        fig.savefig(figdir / name, dpi=110)
+        name = _save(fig, figdir, f"{pid}__norms", fmts, dpi=110)
         plt.close(fig)
         made.append((f"{pid}: state and error norms of every converging design (log scale)", f"figures/{name}"))
         if pid not in FIGURE_PLANTS:
@@ -209,11 +206,17 @@ def _figures(result: RunResult, figdir: Path) -> list[tuple[str, str]]:
                 ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", xlim=(0, t_show))
                 ax.grid(True, alpha=0.3)
             fig.suptitle(f"{pid} with {did} (cf. the paper's Figures 2-5; first {t_show:.3g} s of {tr.t[-1]:.3g} s)")
-            name = f"{pid}__{did}.png"
-            fig.savefig(figdir / name, dpi=100)
+            name = _save(fig, figdir, f"{pid}__{did}", fmts, dpi=100)
             plt.close(fig)
             made.append((f"{pid} with {did}: states, estimates (dashed) and estimation errors", f"figures/{name}"))
     return made
+
+
+def _save(fig, figdir: Path, stem: str, fmts: tuple[str, ...], *, dpi: int) -> str:
+    """Save a figure in every format; return the file name of the first."""
+    for fmt in fmts:
+        fig.savefig(figdir / f"{stem}.{fmt}", dpi=dpi)
+    return f"{stem}.{fmts[0]}"
 
 
 def _summary(found: dict) -> str:
@@ -235,11 +238,11 @@ def _summary(found: dict) -> str:
         lines.append(f"- Declared bound disproved on {v['plant']} (not used by certificates): {v['text']}.")
     seen = set()
     for r in found["printed_infeasible"]:
-        key = (r["design"], r["reason"].split(";")[0][:80])
+        key = (r["design"], r["reason"])
         if key in seen:
             continue
         seen.add(key)
-        plants = [x["plant"] for x in found["printed_infeasible"] if (x["design"], x["reason"].split(";")[0][:80]) == key]
+        plants = [x["plant"] for x in found["printed_infeasible"] if (x["design"], x["reason"]) == key]
         lines.append(f"- {r['design']} (as printed) is infeasible on {', '.join(plants)}: {_fmt(r['reason'])[:300]}")
     for r in found["inconsistent"]:
         lines.append(f"- **Inconsistent verdicts** on {r['plant']} x {r['design']}: {_fmt(r['reason'])}")
@@ -363,57 +366,93 @@ def _gains(result: RunResult) -> list[dict]:
     return out
 
 
-def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, *, figures: bool = True) -> Path:
-    """Write REPORT.md, results.csv, gains.json, run.json and figures/ into ``out_dir``, atomically.
+def _run_json(result: RunResult, run_info: dict) -> dict:
+    """run.json: the command, settings, versions, git revision, the findings and the constants."""
+    o = result.options
+    return {
+        **run_info,
+        "seed": o.seed,
+        "use_claimed_constants": o.use_claimed,
+        "n_samples_constants": o.n_samples,
+        "t_final_override": o.t_final,
+        "horizon_cap": o.horizon_cap,
+        "noise": o.noise,
+        "noise_dt": o.noise_dt,
+        "timeout": o.timeout,
+        "sim": {k: getattr(o.sim, k) for k in ("method", "rtol", "atol", "n_points", "blowup", "max_nfev")},
+        "constants": {pid: rep.to_dict() for pid, rep in result.constants.items()},
+        "constants_errors": result.constants_errors,
+        **{f"git_{k}": v for k, v in git_revision().items()},
+        "cache": {"dir": result.cache_dir, "hits": result.cache_hits, "misses": result.cache_misses},
+        "versions": package_versions(),
+        "platform": platform.platform(),
+        "executable": sys.executable,
+        "wall_s": round(result.wall_s, 3),
+    }
+
+
+def _formats(figure_format) -> tuple[str, ...]:
+    fmts = (figure_format,) if isinstance(figure_format, str) else tuple(figure_format)
+    bad = [f for f in fmts if f not in ("png", "pdf")]
+    if bad or not fmts:
+        raise ValueError(f"figure_format: each format must be 'png' or 'pdf', got {figure_format!r}")
+    return fmts
+
+
+def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: tuple[str, ...]) -> list[str]:
+    """Render every file of the report into ``tmp``; return their paths relative to it."""
+    from bench.findings import findings
+    from bench.latex import tables_tex
+
+    (tmp / "figures").mkdir()
+    df = result.frame()
+    info = {**run_info, "findings": run_info.get("findings") or findings(df, result.constants)}
+    figs = _figures(result, tmp / "figures", fmts) if figures else []
+    (tmp / "REPORT.md").write_text(render_markdown(result, figs, info), encoding="utf-8")
+    df.to_csv(tmp / "results.csv", index=False)
+    (tmp / "gains.json").write_text(json.dumps(_gains(result), indent=1) + "\n", encoding="utf-8")
+    (tmp / "run.json").write_text(json.dumps(_run_json(result, info), indent=1, default=str) + "\n",
+                                  encoding="utf-8")
+    (tmp / "tables.tex").write_text(tables_tex(df), encoding="utf-8")
+    files = [f"figures/{p.name}" for p in sorted((tmp / "figures").iterdir())]
+    return files + ["results.csv", "gains.json", "run.json", "tables.tex", "REPORT.md"]
+
+
+def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, *, figures: bool = True,
+                 figure_format="png") -> Path:
+    """Write REPORT.md, results.csv, gains.json, run.json, tables.tex and figures/ into ``out_dir``, whole or not at all.
 
     Parameters
     ----------
     result : RunResult
     out_dir : path
     run_info : dict
-        Must hold ``command``; extended with versions and settings into run.json.
+        Must hold ``command``; extended with settings, versions, the findings and the constants
+        into run.json.
     figures : bool
         Draw the figures.
+    figure_format : str or iterable of str
+        ``"png"``, ``"pdf"`` or both; REPORT.md links the PNG when there is one.
 
     Returns
     -------
     Path
         The REPORT.md path.
+
+    Raises
+    ------
+    ValueError
+        An unknown figure format.
     """
     from bench.outdir import publish, staged
 
+    fmts = _formats(figure_format)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with staged(out, "report") as tmp:  # a folder of its own; stale ones are removed by publish
-        (tmp / "figures").mkdir()
-        figs = _figures(result, tmp / "figures") if figures else []
-        md = render_markdown(result, figs, run_info)
-        (tmp / "REPORT.md").write_text(md, encoding="utf-8")
-        result.frame().to_csv(tmp / "results.csv", index=False)
-        (tmp / "gains.json").write_text(json.dumps(_gains(result), indent=1) + "\n", encoding="utf-8")
-        info = {
-            **run_info,
-            "seed": result.options.seed,
-            "use_claimed_constants": result.options.use_claimed,
-            "n_samples_constants": result.options.n_samples,
-            "t_final_override": result.options.t_final,
-            "noise": result.options.noise,
-            "noise_dt": result.options.noise_dt,
-            "timeout": result.options.timeout,
-            "sim": {k: getattr(result.options.sim, k) for k in ("method", "rtol", "atol", "n_points", "blowup",
-                                                                 "max_nfev")},
-            **{f"git_{k}": v for k, v in git_revision().items()},
-            "cache": {"dir": result.cache_dir, "hits": result.cache_hits, "misses": result.cache_misses},
-            "versions": package_versions(),
-            "platform": platform.platform(),
-            "executable": sys.executable,
-            "wall_s": round(result.wall_s, 3),
-        }
-        (tmp / "run.json").write_text(json.dumps(info, indent=1, default=str) + "\n", encoding="utf-8")
-        # everything rendered: swap it in whole or not at all (bench.outdir), REPORT.md last; stale figures
-        # of the main report (figures/*__*.png) go, the studies' and perf's stay
-        files = [f"figures/{p.name}" for p in sorted((tmp / "figures").iterdir())]
-        files += ["results.csv", "gains.json", "run.json", "REPORT.md"]
+        files = _render(result, tmp, run_info, figures, fmts)
+        # swap it in whole or not at all (bench.outdir), REPORT.md last; stale figures of the main report
+        # (figures/*__*.png|pdf) go, the studies' and perf's stay
         publish(out, tmp, files, dirs=("figures",),
-                owned=lambda rel: rel.startswith("figures/") and "__" in rel and rel.endswith(".png"))
+                owned=lambda rel: rel.startswith("figures/") and "__" in rel and rel.endswith((".png", ".pdf")))
     return out / "REPORT.md"

@@ -185,6 +185,11 @@ class DesignResult:
     estimator : object, optional
         A run-time estimator specification (e.g. :class:`designs.ekf.EKFSpec`) for designs whose
         estimator is not a fixed gain K; the harness simulates it in sampled time.
+    certificate : dict, optional
+        The design's own joint certificate, verified by the design with numpy: ``level`` (the
+        certificate ladder's level whose knowledge it uses), ``P`` (2n x 2n, ``V = z' P z``),
+        ``decay_rate``, ``margin``, ``radius``, ``how``. The pipeline keeps it where the ladder's
+        own LMI certifies less (or cannot run, for large n).
     """
 
     status: str
@@ -202,6 +207,7 @@ class DesignResult:
     min_eig: dict[str, float] = field(default_factory=dict)
     params: dict[str, float] = field(default_factory=dict)
     estimator: Any = None
+    certificate: dict | None = None
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:

@@ -27,6 +27,13 @@ minimises a bound on its gain: ``||Y|| <= kF`` gives ``||F|| <= ||Y|| ||Q^-1|| <
 ``rtol``) for the largest value at which both gains stay within ``max_gain``: a faster
 certified rate bought with a huge gain is no win, so the bound is part of the design.
 
+Two routes solve the sides (``route``): ``"sdp"`` (the LMIs above, Clarabel or SCS) and
+``"riccati"`` (one scalar multiplier per side and ``F = -tau B' P``, ``K = tau' X C'``: each side is
+an algebraic Riccati equation, :func:`designs._riccati_route.structured_riccati`; O(n^3), for
+large n; sufficient, not necessary, and with the decay target fixed at ``decay`` (default 0)
+since each try costs two AREs). ``"auto"`` takes the Riccati route from
+:data:`RICCATI_FROM_N` states on.
+
 The joint certificate is then verified: ``V = x' Q^-1 x + mu e' R e`` with multipliers
 ``S^-1`` (x-side) and ``mu T`` (e-side) makes the joint matrix in ``(x, e, psi, delta psi)``
 negative definite for ``mu`` large enough to absorb the cross term ``-P B F`` (a cascade);
@@ -52,7 +59,11 @@ from bench.registry import register_design
 from designs._core import Design, DesignResult, check_choice, check_positive
 from plants import Constants, Plant
 
-__all__ = ["Structured", "joint_matrix"]
+__all__ = ["RICCATI_FROM_N", "Structured", "joint_matrix"]
+
+#: ``route="auto"`` solves the sides by Riccati equations from this n on (the SDP sides'
+#: interior-point cost grows like n^4 - n^6; measured by ``python -m bench perf``).
+RICCATI_FROM_N = 64
 
 
 def _loop(plant: Plant) -> dict:
@@ -128,6 +139,8 @@ class Structured(Design):
         Relative tolerance of the decay search.
     solver : {"auto", "CLARABEL", "SCS"}
         SDP solver of the sides (:func:`bench.lmi.solve_side`).
+    route : {"auto", "sdp", "riccati"}
+        How the sides are solved (see the module docstring).
     """
 
     decay: float | None = None
@@ -135,6 +148,7 @@ class Structured(Design):
     max_decay: float = 10.0
     rtol: float = 0.05
     solver: str = "auto"
+    route: str = "auto"
 
     def __post_init__(self) -> None:
         if self.decay is not None:
@@ -143,6 +157,7 @@ class Structured(Design):
         check_positive("max_decay", self.max_decay)
         check_positive("rtol", self.rtol)
         check_choice("solver", self.solver, ("auto", "CLARABEL", "SCS"))
+        check_choice("route", self.route, ("auto", "sdp", "riccati"))
 
     def applicable(self, plant: Plant, constants: Constants) -> str | None:
         if plant.channels is None:
@@ -200,6 +215,9 @@ class Structured(Design):
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Search the decay target, then verify the joint certificate of the gains."""
+        route = self.route if self.route != "auto" else ("riccati" if plant.n >= RICCATI_FROM_N else "sdp")
+        if route == "riccati":
+            return self._design_riccati(plant)
         progs = self._programs(plant)
         best, tries = self._search(progs)
         compile_s = sum(p.compile_s for p in progs)
@@ -211,6 +229,30 @@ class Structured(Design):
             return DesignResult(status="infeasible", reason=(
                 "structured design: a side is not strictly feasible at decay 0 (Q, R >= I normalisation)"), **base)
         return _conclude(plant, best, tries, self, base)
+
+
+    def _design_riccati(self, plant: Plant) -> DesignResult:
+        """The Riccati route at the fixed decay target ``decay`` (default 0)."""
+        import time
+
+        from designs._riccati_route import structured_riccati
+
+        ch = plant.channels
+        lam = float(self.decay or 0.0)
+        t0 = time.perf_counter()
+        rr = structured_riccati(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi, lam=lam)
+        wall = time.perf_counter() - t0
+        params = {"decay_target": lam, "mu": rr.mu, "tau": rr.tau, "tau_e": rr.tau_e, "x_margin": rr.margin_x,
+                  "e_margin": rr.margin_e, "residual_x": rr.residual_x, "residual_e": rr.residual_e}
+        base = dict(route="riccati", solver="scipy.linalg.schur (ARE)", solver_status=rr.status, solve_s=wall,
+                    n_solves=2, margin=rr.margin, lmi_size=2 * plant.n, params=params)
+        if not rr.ok:
+            return DesignResult(status=rr.status, reason=f"structured design (Riccati route): {rr.reason}", **base)
+        n = plant.n
+        P = np.block([[rr.P, np.zeros((n, n))], [np.zeros((n, n)), rr.mu * rr.R]])
+        cert = {"level": "structured", "P": P, "decay_rate": lam, "margin": rr.margin, "radius": ch.radius,
+                "how": "the design's own joint certificate (Riccati route), verified by an eigenvalue test"}
+        return DesignResult(status="feasible", K=rr.K, F=rr.F, certificate=cert, **base)
 
 
 def _x_program(d: dict, n: int, m: int, q: int) -> lmi.Program:
@@ -267,25 +309,30 @@ def _conclude(plant: Plant, best: dict, tries: int, design: Structured, base: di
     d = _loop(plant)
     P, R, F, K = best["P"], best["R"], best["F"], best["K"]
     s, t = np.maximum(best["s"], 1e-12), np.maximum(best["t"], 1e-12)
-    Mx = joint_matrix(d, K, F, P, R, s, t, mu=0.0)
+    lam = best["lam"]
+    Mx = joint_matrix(d, K, F, P, R, s, t, mu=0.0, lam=lam)
     n, q = plant.n, plant.channels.q
     ix = np.r_[0:n, 2 * n:2 * n + q]
     ie = np.r_[n:2 * n, 2 * n + q:2 * n + 2 * q]
     ax = -lmi.max_eig(Mx[np.ix_(ix, ix)])
-    Me = joint_matrix(d, K, F, P, R, s, t, mu=1.0)[np.ix_(ie, ie)]
+    Me = joint_matrix(d, K, F, P, R, s, t, mu=1.0, lam=lam)[np.ix_(ie, ie)]
     ae = -lmi.max_eig(Me)
     cross = float(np.linalg.norm(P @ plant.B @ F, 2))
     mu = 2 * cross**2 / (ax * ae) if ax > 0 and ae > 0 else math.nan
-    margin, Meq = _equilibrated_margin(joint_matrix(d, K, F, P, R, s, t, mu=mu)) if math.isfinite(mu) else (
-        math.inf, None)
+    margin, Meq = _equilibrated_margin(joint_matrix(d, K, F, P, R, s, t, mu=mu, lam=lam)) if math.isfinite(mu) \
+        else (math.inf, None)
     params = {"decay_target": best["lam"], "gain_norm": best["gain"], "max_gain": design.max_gain, "mu": mu,
               "x_margin": ax, "e_margin": ae, "decay_searches": tries}
     if Meq is not None and lmi.classify(margin, Meq) == "verified":
         note = "" if best["gain"] <= design.max_gain else (
             f"the gains exceed max_gain = {design.max_gain:g} already at decay 0 (||F||, ||K|| up to "
             f"{best['gain']:.3g}): the smallest gains found are returned")
+        Pj = np.block([[P, np.zeros((n, n))], [np.zeros((n, n)), mu * R]])
+        cert = {"level": "structured", "P": Pj, "decay_rate": lam, "margin": margin, "radius": plant.channels.radius,
+                "how": "the design's own joint certificate (V = x'Q^-1 x + mu e'Re), verified by eigenvalues"}
         return DesignResult(status="feasible", reason=note, K=K, F=F, margin=margin, lmi_size=2 * n + 2 * q,
-                            min_eig={"Q^-1": lmi.min_eig(P), "R": lmi.min_eig(R)}, params=params, **base)
+                            min_eig={"Q^-1": lmi.min_eig(P), "R": lmi.min_eig(R)}, params=params, certificate=cert,
+                            **base)
     return DesignResult(status="undecided", reason=(
         f"structured design: both sides verified at decay {best['lam']:.3g}, but the joint certificate with "
         f"mu = {mu:.3g} has max eig {margin:.3g} (equilibrated)"), margin=margin, params=params, **base)

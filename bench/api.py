@@ -1,0 +1,200 @@
+"""The suite as a library: :func:`run` from a notebook or a script, the command line on top of it.
+
+Example
+-------
+>>> import bench
+>>> r = bench.run(plants=["flexible_link"], designs=["thm1", "structured"], jobs=1)  # doctest: +SKIP
+>>> r.table[["design", "certified", "decay_rate", "converged"]]  # doctest: +SKIP
+>>> r.gains["flexible_link", "thm1"]["K"]  # doctest: +SKIP
+>>> r.write("my_report")  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable
+
+__all__ = ["Results", "run"]
+
+
+@dataclass
+class Results:
+    """What :func:`run` returns.
+
+    Attributes
+    ----------
+    table : pandas.DataFrame
+        One row per (plant, design) pair, the columns of results.csv
+        (:data:`bench.pipeline.COLUMNS`).
+    gains : dict
+        ``(plant, design) -> {"K", "F", "result", "certificate", "trajectory", "plant"}`` for every
+        pair with a controller (``result`` is the :class:`designs.DesignResult`, ``certificate``
+        the :class:`bench.certify.Certificate` ladder).
+    constants : dict
+        Plant id -> :class:`bench.constants.ConstantsReport`.
+    findings : dict
+        What the run found (:func:`bench.findings.findings`).
+    run_result : bench.harness.RunResult
+        Everything, including the outcomes and timings.
+    command : str
+        How the run was asked for (recorded in run.json).
+    """
+
+    table: object
+    gains: dict
+    constants: dict
+    findings: dict
+    run_result: object
+    command: str = ""
+    info: dict = field(default_factory=dict)
+
+    def write(self, out_dir: str | os.PathLike = "reports", *, figures: bool = True,
+              figure_format: str | Iterable[str] = "png") -> Path:
+        """Write the report files (REPORT.md, results.csv, gains.json, run.json, tables.tex, figures/).
+
+        Parameters
+        ----------
+        out_dir : path
+            The report folder; written whole or not at all (:mod:`bench.outdir`).
+        figures : bool
+            Draw the figures.
+        figure_format : str or iterable of str
+            ``"png"``, ``"pdf"`` or both (``("png", "pdf")``); the report links the PNG.
+
+        Returns
+        -------
+        Path
+            The REPORT.md path.
+        """
+        from bench.outdir import check_out_dir
+        from bench.report import write_report
+
+        check_out_dir(out_dir)
+        info = {"command": self.command or "bench.run(...)", **self.info, "findings": self.findings}
+        return write_report(self.run_result, out_dir, info, figures=figures, figure_format=figure_format)
+
+    def controller(self, plant: str, design: str):
+        """The observer-based controller of a pair as a python-control system (:func:`bench.interop.controller_ss`)."""
+        from bench.interop import controller_ss
+
+        g = self.gains[plant, design]
+        return controller_ss(g["plant"], g["K"], g["F"])
+
+    def closed_loop(self, plant: str, design: str):
+        """The nonlinear closed loop of a pair as a python-control ``NonlinearIOSystem``."""
+        from bench.interop import closed_loop_nlsys
+
+        g = self.gains[plant, design]
+        return closed_loop_nlsys(g["plant"], g["K"], g["F"])
+
+
+def _register_objects(items, registry, kind: str) -> list[str]:
+    """Ids and globs as they are; Plant or Design objects registered under their id for this process."""
+    from plants import Plant
+
+    out = []
+    for it in items:
+        if isinstance(it, str):
+            out.append(it)
+            continue
+        obj_id = it.id if isinstance(it, Plant) else type(it).__name__.lower()
+        if obj_id in registry:
+            if getattr(registry[obj_id].factory, "_bench_object", None) is not it:
+                raise ValueError(f"{kind}s: the id {obj_id!r} is already registered (the catalog's, or another "
+                                 f"object's); give your {kind} another id")
+        else:
+            def factory(obj=it):
+                return obj
+
+            factory._bench_object = it
+            factory.__doc__ = f"{kind} passed to bench.run"
+            registry.register(obj_id, factory, f"{kind} passed to bench.run", order=200)
+        out.append(obj_id)
+    return out
+
+
+def _progress(progress):
+    if progress is True:
+        from bench.progress import Progress
+
+        return Progress(desc="pairs")
+    return progress or None
+
+
+def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed: int = 0,
+        claimed_constants: bool = False, t_final: float | None = None, noise: float = 0.0,
+        timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
+        cache: str | os.PathLike | None = None, progress: bool | Callable = True, fail_fast: bool = False,
+        command: str = "") -> Results:
+    """Run (plant, design) pairs and return the results (the library form of ``python -m bench run``).
+
+    Parameters
+    ----------
+    plants, designs : iterable, optional
+        Registry ids or globs (``"flexible_link*"``), or :class:`plants.Plant` objects (e.g. from
+        :meth:`plants.Plant.from_statespace`); default: every registered one.
+    seed : int
+        Seed of the constants sampler and of the noise.
+    claimed_constants : bool
+        Design with the constants the sources claim (certificates still use the trusted ones).
+    t_final : float, optional
+        A fixed horizon (default: each pair's horizon follows its certified rate).
+    noise : float
+        Standard deviation of a seeded measurement noise.
+    timeout : float, optional
+        Wall-clock limit per pair, seconds.
+    jobs : int, optional
+        Local worker processes (default: all cores; 1: in this process).
+    scheduler : str, optional
+        A Dask scheduler address.
+    cache : path, optional
+        A cache folder of finished pairs (None: no cache).
+    progress : bool or callable
+        True: a progress bar (terminal or notebook, :class:`bench.progress.Progress`); or a
+        callable ``progress(done, total, label)``.
+    fail_fast : bool
+        Raise the first exception instead of recording an ``error`` row.
+    command : str
+        Recorded in run.json (the command line passes its own).
+
+    Returns
+    -------
+    Results
+
+    Raises
+    ------
+    bench.registry.UnknownIdError
+        An id or glob that matches nothing (with a "did you mean").
+    ValueError
+        A bad option (the message names it).
+    """
+    from bench.cache import Cache
+    from bench.executors import default_jobs
+    from bench.findings import findings
+    from bench.harness import RunOptions
+    from bench.harness import run as run_pairs
+    from bench.registry import DESIGNS, PLANTS
+
+    plant_ids = PLANTS.select(_register_objects(plants or [], PLANTS, "plant") or None)
+    design_ids = DESIGNS.select(_register_objects(designs or [], DESIGNS, "design") or None)
+    options = RunOptions(seed=seed, use_claimed=claimed_constants, fail_fast=fail_fast, t_final=t_final, noise=noise,
+                         timeout=timeout)
+    jobs = min(jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
+    bar = _progress(progress)
+    store = None if cache is None else Cache(cache)
+    try:
+        result = run_pairs(plant_ids, design_ids, options, progress=bar, jobs=jobs, scheduler=scheduler, cache=store)
+    finally:
+        if hasattr(bar, "close"):
+            bar.close()
+    table = result.frame()
+    gains = {(o.record["plant"], o.record["design"]): {"K": o.result.K, "F": o.result.F, "result": o.result,
+                                                         "certificate": o.certificate, "trajectory": o.trajectory,
+                                                         "plant": o.plant}
+             for o in result.outcomes if o.result is not None and o.result.has_controller}
+    info = {"plants": plant_ids, "designs": design_ids, "jobs": jobs, "scheduler": scheduler,
+            "cache_errors": list(store.errors) if store is not None else []}
+    return Results(table, gains, dict(result.constants), findings(table, result.constants), result,
+                   command=command, info=info)
