@@ -40,6 +40,7 @@ import numpy as np
 
 from bench.studies._common import (StudyError, bisect_largest, check_range, fmt, md_table, pyplot, study_header,
                                    write_study)
+from designs import GAIN_STATUSES
 
 __all__ = ["DEFAULT_DESIGNS", "KNOBS", "AdmissibleResult", "evaluate_at", "knob_of",
            "run_admissible", "write_admissible"]
@@ -99,22 +100,53 @@ def hinf_resolvent(M: np.ndarray) -> float:
     return best
 
 
-def small_gain_bound(plant_id: str, knob: str, F: np.ndarray) -> float:
-    """Knob value at which the Lipschitz small-gain test of the state-feedback side fails:
-    ``alpha(knob) ||(sI - A - BF)^{-1}||_inf = 1`` (NaN unless alpha is linear in the knob).
+def small_gain_bound(plant_id: str, knob: str, K: np.ndarray, F: np.ndarray) -> float:
+    """Knob value at which the channel small-gain test of fixed gains fails (NaN where it does not apply).
 
-    An independent check on the certificate for fixed F: with ``(beta, gamma) = (alpha^2, 0)``
-    the x-side of the analysis LMI is the bounded-real lemma of ``(A + BF, I, alpha I)``.
+    For a plant with one channel and a symmetric slope sector ``[-r, r]`` (``c0 = 0``) whose half
+    width ``r`` is linear in the knob, the structured certificate with fixed gains exists iff both
+    sides pass the circle criterion (a cascade: Lur'e x-side, Lur'e e-side):
+    ``r ||H (sI - A - BF)^-1 G||_inf < 1`` and ``r ||H (sI - A + KC)^-1 G||_inf < 1``. The bound is
+    the knob value where the larger of the two gains reaches 1, computed on a frequency grid: an
+    independent check on the bisection, which uses the certificate's LMI.
     """
     from bench.registry import PLANTS
 
-    a1 = PLANTS.create(plant_id, **{knob: 1.0}).bounds
-    a2 = PLANTS.create(plant_id, **{knob: 2.0}).bounds
-    if a1 is None or a1.alpha is None or not math.isclose(a2.alpha, 2 * a1.alpha) or a1.alpha == 0:
+    p1, p2 = PLANTS.create(plant_id, **{knob: 1.0}), PLANTS.create(plant_id, **{knob: 2.0})
+    ch1, ch2 = p1.channels, p2.channels
+    if ch1 is None or ch1.q != 1 or np.any(ch1.center != 0) or not np.allclose(ch2.spread, 2 * ch1.spread) \
+            or ch1.spread[0] == 0:
         return math.nan
-    plant = PLANTS.create(plant_id)
-    h = hinf_resolvent(plant.A + plant.B @ F)
-    return 1.0 / (a1.alpha * h) if math.isfinite(h) else math.nan
+    G, H = ch1.G, ch1.H
+    worst = 0.0
+    for M in (p1.A + p1.B @ F, p1.A - K @ p1.C):
+        h = _siso_peak(M, G, H)
+        if not math.isfinite(h):
+            return math.nan
+        worst = max(worst, h)
+    return 1.0 / (float(ch1.spread[0]) * worst)
+
+
+def _siso_peak(M: np.ndarray, G: np.ndarray, H: np.ndarray) -> float:
+    """``sup_w |H (j w I - M)^-1 G|`` on a log grid refined near its peak (``inf`` if M is not Hurwitz)."""
+    from scipy.optimize import minimize_scalar
+
+    if float(np.linalg.eigvals(M).real.max()) >= 0:
+        return math.inf
+    n = M.shape[0]
+
+    def gain(w: float) -> float:
+        return float(np.abs(H @ np.linalg.solve(1j * w * np.eye(n) - M, G))[0, 0])
+
+    ws = np.concatenate([[0.0], np.logspace(-4, 4, 4000)])
+    vals = np.array([gain(w) for w in ws])
+    k = int(np.argmax(vals))
+    best = float(vals[k])
+    if 0 < k < ws.size - 1:
+        res = minimize_scalar(lambda w: -gain(w), bounds=(ws[k - 1], ws[k + 1]), method="bounded",
+                              options={"xatol": 1e-10})
+        best = max(best, -float(res.fun))
+    return best
 
 
 def knob_of(plant_id: str) -> str | None:
@@ -150,7 +182,8 @@ def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, override
     Returns
     -------
     dict
-        ``value``, ``ok`` (feasible and certified at some level), ``status`` (the design's, or
+        ``value``, ``ok`` (gains designed - feasible, computed or given - and certified at some level),
+        ``status`` (the design's, or
         ``invalid`` when the plant cannot be built at that value), ``feasible``, ``certified``,
         ``cert_level``, ``lmi_margin``, ``cert_margin``, ``compile_s``, ``solve_s``,
         ``n_solves``, ``design_s``, ``cert_s``, ``reason``.
@@ -158,6 +191,7 @@ def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, override
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
     from bench.studies._common import evaluate
+    from designs import GAIN_STATUSES
     from plants import PlantError
 
     rec: dict[str, Any] = {"value": float(value), "ok": False, "status": "", "feasible": False, "certified": False,
@@ -173,7 +207,7 @@ def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, override
     for k in ("compile_s", "solve_s", "design_s", "cert_s"):
         rec[k] = 0.0 if not math.isfinite(rec[k]) else rec[k]
     rec["n_solves"] = 0 if not math.isfinite(rec["n_solves"]) else int(rec["n_solves"])
-    rec["ok"] = bool(rec["feasible"] and rec["certified"])
+    rec["ok"] = bool(rec["status"] in GAIN_STATUSES and rec["certified"])  # designed (solved or computed) and certified
     return rec
 
 
@@ -194,25 +228,25 @@ def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds
     fail = [e for e in ev if not e["ok"] and e["value"] == out["hi"]]
     if fail:
         f = fail[-1]
-        row["fails_by"] = ("not certified" if f["feasible"] else f["status"])
+        row["fails_by"] = ("not certified" if f["status"] in GAIN_STATUSES else f["status"])
         row["fail_reason"] = f["reason"][:300]
     else:
         row["fails_by"] = ""
         row["fail_reason"] = ""
     default_ev = [e for e in ev if e["value"] == default]
-    row["at_default"] = ("ok" if default_ev[0]["ok"] else ("not certified" if default_ev[0]["feasible"]
+    row["at_default"] = ("ok" if default_ev[0]["ok"] else ("not certified" if default_ev[0]["status"] in GAIN_STATUSES
                                                             else default_ev[0]["status"])) if default_ev else ""
     if math.isfinite(out["lo"]):
         b = PLANTS.create(plant_id, **{knob: out["lo"]}).bounds
         row.update(alpha_at_lo=b.alpha, rho_at_lo=b.rho, beta_at_lo=b.beta, gamma_at_lo=b.gamma)
     for e in ev:
         e.update(plant=plant_id, design=design_id, knob=knob, variant=row["variant"])
-    if design_id.startswith("lqr+") and not overrides:  # LQR's F does not depend on the knob
-        from designs.lqr import LQRFeedback
+    if design_id in ("lqr+lqe",) and not overrides:  # neither gain depends on the knob
+        from bench.registry import DESIGNS
 
         plant = PLANTS.create(plant_id)
-        F = LQRFeedback().compute(plant, plant.bounds).F
-        row["small_gain"] = small_gain_bound(plant_id, knob, F) if F is not None else math.nan
+        res = DESIGNS.create(design_id).design(plant, plant.bounds)
+        row["small_gain"] = small_gain_bound(plant_id, knob, res.K, res.F) if res.has_gains else math.nan
     return {"row": row, "evals": ev}
 
 
@@ -340,7 +374,7 @@ def _draw_plant(pid: str, rows: list[dict], evals: list[dict]):
         seen = set()
         for i, r in enumerate(rows):
             for e in (e for e in evals if e["plant"] == pid and e["design"] == r["design"] and e["variant"] == r["variant"]):
-                key = ("ok" if e["ok"] else "nc" if e["feasible"] else
+                key = ("ok" if e["ok"] else "nc" if e["status"] in GAIN_STATUSES else
                        "na" if e["status"] in ("inapplicable", "invalid") else "no")
                 m, c, lab = styles[key]
                 ax.plot(e["value"], i, m, color=c, ms=6, label=None if key in seen else lab)
@@ -376,7 +410,7 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
     cols = ["plant", "knob", "default", "design", "at_default", "admissible", "fails_by", "alpha", "rho", "gamma",
             "small_gain", "n_evals", "compile_s", "solve_s", "cert_s", "wall_s"]
     heads = ["plant", "knob", "default", "design", "at default", "admissible value [lo] (first failure)",
-             "fails by", "alpha at lo", "rho at lo", "gamma at lo", "small-gain bound (LQR x-side)", "evals",
+             "fails by", "alpha at lo", "rho at lo", "gamma at lo", "small-gain bound (lqr+lqe)", "evals",
              "compile s", "solve s", "cert s", "wall s"]
     # matrix plant x design
     designs = list(dict.fromkeys(r["design"] for r in rows))
@@ -449,10 +483,11 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
         "`at default`: the outcome at the plant's default knob value. `fails by`: why the first failing value fails "
         "(`infeasible`, `undecided` = solver trouble, `not certified` = feasible gains that the analysis LMI does "
         "not certify). Reasons at the failing value are in `study_admissible.csv` (`fail_reason`). "
-        "`small-gain bound`: for the LQR pairings (F does not depend on the knob) the knob value at which "
-        "`alpha ||(sI - A - BF)^{-1}||_inf = 1`, computed on a frequency grid: an independent check, since with "
-        "`(beta, gamma) = (alpha^2, 0)` the certificate's state-feedback side is the bounded-real lemma; where the "
-        "pairings fail by `not certified`, the bisection's bracket should contain it.",
+        "`small-gain bound`: for `lqr+lqe` (neither gain depends on the knob) on a plant with one channel and a "
+        "symmetric slope sector `[-r, r]`, the knob value at which `r max(||H (sI - A - BF)^-1 G||_inf, "
+        "||H (sI - A + KC)^-1 G||_inf) = 1`, computed on a frequency grid: an independent check, since the "
+        "structured certificate of fixed gains exists iff both sides pass this circle criterion (a cascade); where "
+        "the pair fails by `not certified`, the bisection's bracket should contain it.",
         "",
         "## Theorem 1 (OSL/QIB) vs Corollary 1 (Lipschitz)",
         "",

@@ -1,0 +1,101 @@
+"""The pipeline's verdicts: the horizon rule, local certificates, agreement of studies and the main table."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bench.constants import compute_constants
+from bench.harness import run
+from bench.pipeline import RunOptions, evaluate_pair
+from bench.registry import PLANTS
+from bench.verdicts import LINEAR_FACTOR, horizon
+
+
+def test_horizon_rule_closed_forms():
+    d = math.log(1000.0)
+    assert horizon(20.0, fixed=None, cap_factor=10, cert_rate=0.1, cond_p=100.0, linear_rate=5.0) == \
+        (math.ceil((d + 0.5 * math.log(100.0)) / 0.1), "certified rate")
+    assert horizon(20.0, fixed=None, cap_factor=10, cert_rate=2.0, cond_p=1.0, linear_rate=5.0) == (20.0, "plant")
+    T, rule = horizon(20.0, fixed=None, cap_factor=10, cert_rate=1e-3, cond_p=1.0, linear_rate=5.0)
+    assert T == 200.0 and rule.startswith("cut at cap")
+    assert horizon(20.0, fixed=None, cap_factor=10, cert_rate=math.nan, cond_p=math.nan, linear_rate=0.1) == \
+        (math.ceil(LINEAR_FACTOR * d / 0.1), "linearised rate")
+    assert horizon(20.0, fixed=7.0, cap_factor=10, cert_rate=0.01, cond_p=1.0, linear_rate=0.1) == (7.0, "fixed")
+
+
+@pytest.fixture(scope="module")
+def small_run():
+    plants = ["flexible_link", "random_osl_v1", "moving_object_v1"]
+    designs = ["thm1_sep", "lqr+lqe", "lqr+zhang_osl", "lqr+ekf"]
+    return run(plants, designs, RunOptions(n_samples=2000), jobs=1)
+
+
+def test_a_certified_pair_converges_unless_the_row_says_why(small_run):
+    df = small_run.frame()
+    for r in df.itertuples():
+        if r.certified and r.cert_scope in ("global", "from x0") and not str(r.horizon_rule).startswith("cut"):
+            assert r.converged, (r.plant, r.design, r.reason)
+        if r.certified and not r.converged:
+            assert "not converged" in r.reason
+
+
+def test_local_certificates_say_what_they_prove(small_run):
+    """random_osl_v1 (constants on ||x|| <= 1): 'from x0' only when the level set through (x0, e0) stays in the
+    region; checked here by sampling the boundary of that level set."""
+    for o in small_run.outcomes:
+        rec = o.record
+        if rec["plant"] != "random_osl_v1" or not rec["certified"]:
+            continue
+        P = o.certificate.best.P
+        plant = o.plant
+        z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0])
+        v0 = float(z0 @ P @ z0)
+        rng = np.random.default_rng(0)
+        Z = rng.standard_normal((P.shape[0], 4000))
+        Z *= np.sqrt(v0 / np.einsum("ij,ij->j", Z, P @ Z))  # points on {V = V(z0)}
+        n = plant.n
+        reach = max(np.linalg.norm(Z[:n], axis=0).max(), np.linalg.norm(Z[:n] - Z[n:], axis=0).max())
+        if reach > 1.0 + 1e-9:  # the level set leaves the region: the certificate is not a proof from x0
+            assert rec["cert_scope"] == "local"
+            assert "certified locally" in rec["reason"]
+        assert rec["in_region"] == bool(rec["max_norm"] <= 1.0)
+
+
+def test_the_ekf_row_is_an_estimator_the_simulator_runs(small_run):
+    df = small_run.frame().set_index(["plant", "design"])
+    r = df.loc[("flexible_link", "lqr+ekf")]
+    assert r["status"] == "computed" and r["stabilizing"] is None
+    assert not r["certified"] and r["cert_paper"] == "inapplicable"
+    assert "no fixed observer gain" in r["reason"]
+    assert r["converged"] and r["sim_status"] == "ok"
+
+
+def test_studies_and_the_main_table_agree_on_shared_pairs(small_run):
+    """The admissible study at the default knob, the Monte Carlo study and the main table judge a pair alike."""
+    from bench.studies.admissible import evaluate_at
+    from bench.studies.montecarlo import run_montecarlo
+
+    df = small_run.frame().set_index(["plant", "design"])
+    for did in ("thm1_sep", "lqr+lqe"):
+        main = df.loc[("flexible_link", did)]
+        adm = evaluate_at("flexible_link", "c", 0.333, did)
+        assert adm["certified"] == bool(main["certified"]) and adm["status"] == main["status"]
+    mc = run_montecarlo(["flexible_link"], ["thm1_sep", "lqr+lqe"], n=20, jobs=1)
+    for row in mc.rows:
+        main = df.loc[("flexible_link", row["design"])]
+        assert row["certified"] == bool(main["certified"])
+        assert row["decay_rate"] == pytest.approx(main["decay_rate"], rel=1e-9)
+        assert row["horizon_s"] == main["horizon_s"]
+
+
+def test_a_pair_reused_with_prior_keeps_its_design_and_certificate():
+    plant = PLANTS.create("flexible_link")
+    rep = compute_constants(plant, n_samples=1000)
+    first = evaluate_pair(plant, "thm1_sep", rep, RunOptions(simulate=False))
+    again = evaluate_pair(plant, "thm1_sep", rep, RunOptions(noise=1e-3, certificate="none"), prior=first)
+    assert again.result is first.result and again.certificate is first.certificate
+    assert again.record["decay_rate"] == first.record["decay_rate"]
+    assert again.record["sim_status"] == "ok" and again.record["noise"] == 1e-3
