@@ -17,6 +17,12 @@ def flex_constants(flex):
 
 
 @pytest.fixture(scope="session")
+def flex_knowledge(flex, flex_constants):
+    """What the certificate may trust about the flexible link (analytic constants, channels)."""
+    return flex_constants.knowledge(flex)
+
+
+@pytest.fixture(scope="session")
 def designed(flex, flex_constants):
     """Results of the LMI designs on the flexible link, computed once."""
     from bench.registry import DESIGNS
@@ -27,3 +33,131 @@ def designed(flex, flex_constants):
 
 def hurwitz(M):
     return float(np.linalg.eigvals(M).real.max()) < 0
+
+
+# -- independent rebuilds of the paper's matrices (numpy and cvxpy, written from the paper and MATH.md) ----
+# Nothing below imports the suite's LMI code: these are the tests' own readings of the formulas.
+
+def _stack(blocks, numeric):
+    if numeric:
+        return np.block(blocks)
+    import cvxpy as cp
+
+    return cp.bmat(blocks)
+
+
+def equilibrated_max_eig(M):
+    """Largest eigenvalue of ``D M D``, ``D = diag(|M_ii|^-1/2)`` (same inertia as M by Sylvester's law;
+    +inf when a diagonal entry is >= 0, since M is then not negative definite)."""
+    M = (np.asarray(M, dtype=float) + np.asarray(M, dtype=float).T) / 2
+    d = np.diag(M)
+    if np.any(d >= 0):
+        return float("inf")
+    s = 1 / np.sqrt(-d)
+    return float(np.linalg.eigvalsh(M * s[:, None] * s[None, :])[-1])
+
+
+def paper20_blocks(v, lam, numeric):
+    """The paper's (20) with a decay rate: ``V = x'Px + e'Re``, multipliers eps1..eps4 of (16)-(19),
+    ``V' + 2 lam V <= xi' M xi`` for ``xi = (x, e, f, f - f_hat)``; the pair is certified at rate
+    ``lam`` when M < 0 with P, R > 0 and eps >= 0."""
+    A, B, C, K, F = v["A"], v["B"], v["C"], v["K"], v["F"]
+    P, R = v["P1"], v["P2"]
+    rho, beta, gamma = v["rho"], v["beta"], v["gamma"]
+    e1, e2, e3, e4 = v["eps1"], v["eps2"], v["eps3"], v["eps4"]
+    n = A.shape[0]
+    I, Z = np.eye(n), np.zeros((n, n))
+    Ax, Ae = A + B @ F, A - K @ C
+    eta1, eta2, eta3 = 2 * (e1 * rho + e2 * beta), e2 * gamma - e1, e4 * gamma - e3
+    S11 = Ax.T @ P + P @ Ax + eta1 * I + 2 * lam * P
+    S22 = Ae.T @ R + R @ Ae + 2 * (e3 * rho + e4 * beta) * I + 2 * lam * R
+    S12 = -P @ B @ F
+    S13 = P + eta2 * I
+    S24 = R + eta3 * I
+    blocks = [[S11, S12, S13, Z],
+              [S12.T, S22, Z, S24],
+              [S13.T, Z, -2 * e2 * I, Z],
+              [Z, S24.T, Z, -2 * e4 * I]]
+    return _stack(blocks, numeric)
+
+
+def paper20_certificate(plant, K, F, constants, lam):
+    """Search P, R, eps1..eps4 for the paper's (20) at rate ``lam`` (cvxpy + Clarabel, trace(P) + trace(R) = 1)
+    and return ``(equilibrated max eig of the numpy-rebuilt matrix, min eig P, min eig R)``."""
+    import cvxpy as cp
+
+    n = plant.n
+    v = {"A": plant.A, "B": plant.B, "C": plant.C, "K": np.asarray(K, float), "F": np.asarray(F, float),
+         "rho": constants.rho, "beta": constants.beta, "gamma": constants.gamma}
+    var = {"P1": cp.Variable((n, n), symmetric=True), "P2": cp.Variable((n, n), symmetric=True),
+           **{f"eps{i}": cp.Variable(nonneg=True) for i in range(1, 5)}}
+    t = cp.Variable()
+    M = paper20_blocks({**v, **var}, lam, numeric=False)
+    M = (M + M.T) / 2
+    cons = [M << -t * np.eye(4 * n), var["P1"] >> t * np.eye(n), var["P2"] >> t * np.eye(n),
+            cp.trace(var["P1"]) + cp.trace(var["P2"]) == 1]
+    cp.Problem(cp.Maximize(t), cons).solve(solver=cp.CLARABEL)
+    num = {k: (np.array(x.value, dtype=float) if np.ndim(x.value) else float(x.value)) for k, x in var.items()}
+    Mn = paper20_blocks({**v, **num}, lam, numeric=True)
+    return (equilibrated_max_eig(Mn), float(np.linalg.eigvalsh(num["P1"])[0]),
+            float(np.linalg.eigvalsh(num["P2"])[0]))
+
+
+def thm1_joint_blocks(v, numeric):
+    """MATH.md's corrected Theorem 1 (gamma >= 0), 6n x 6n, as printed there::
+
+        [ S11+kappa I  0        0        B Fh'    0        Q                   ]
+        [ 0            S22      R+eta3 I 0        I        0                   ]
+        [ 0            *        -2eps4 I 0        0        0                   ]
+        [ Fh B'        0        0        -Q/phi1  0        0                   ]
+        [ 0            I        0        0        -phi1 Q  0                   ]
+        [ Q            0        0        0        0        -(kappa/beta_eff) I ]
+
+    S11 = AQ + QA' + B Fh' + Fh B', S22 = A'R + RA - C'Kh - Kh'C + 2(eps3 rho + eps4 beta) I,
+    eta3 = eps4 gamma - eps3, beta_eff = beta + gamma rho.
+    """
+    A, B, C = v["A"], v["B"], v["C"]
+    Q, R, Fh, Kh = v["Q"], v["R"], v["Fh"], v["Kh"]
+    kappa, e3, e4, phi = v["kappa"], v["eps3"], v["eps4"], v["phi"]
+    rho, beta, gamma = v["rho"], v["beta"], v["gamma"]
+    n = A.shape[0]
+    I, Z = np.eye(n), np.zeros((n, n))
+    beff = beta + gamma * rho
+    S11 = A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T
+    S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (e3 * rho + e4 * beta) * I
+    X = R + (e4 * gamma - e3) * I
+    BF = B @ Fh.T
+    blocks = [[S11 + kappa * I, Z, Z, BF, Z, Q],
+              [Z, S22, X, Z, I, Z],
+              [Z, X.T, -2 * e4 * I, Z, Z, Z],
+              [BF.T, Z, Z, -Q / phi, Z, Z],
+              [Z, I, Z, Z, -phi * Q, Z],
+              [Q, Z, Z, Z, Z, -(kappa / beff) * I]]
+    return _stack(blocks, numeric)
+
+
+def thm1_joint_holds_for_gains(plant, K, F, constants, phi, cap=1e3):
+    """Do the gains (K, F) satisfy MATH.md's corrected Theorem 1 at Young weight ``phi``?
+
+    With K, F fixed, ``Fh = Q F'`` and ``Kh = K' R`` make the 6n matrix linear in (Q, R, kappa, eps3,
+    eps4): search them (cvxpy + Clarabel), rebuild the matrix with numpy and return
+    ``(equilibrated max eig, min eig Q, min eig R)``.
+    """
+    import cvxpy as cp
+
+    n = plant.n
+    K, F = np.asarray(K, float), np.asarray(F, float)
+    Q, R = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True)
+    sc = {k: cp.Variable(nonneg=True) for k in ("kappa", "eps3", "eps4")}
+    t = cp.Variable()
+    base = {"A": plant.A, "B": plant.B, "C": plant.C, "phi": phi, "rho": constants.rho, "beta": constants.beta,
+            "gamma": constants.gamma}
+    M = thm1_joint_blocks({**base, "Q": Q, "R": R, "Fh": Q @ F.T, "Kh": K.T @ R, **sc}, numeric=False)
+    M = (M + M.T) / 2
+    cons = [M << -t * np.eye(6 * n), Q >> t * np.eye(n), R >> t * np.eye(n), Q << cap * np.eye(n),
+            R << cap * np.eye(n), t <= 1]
+    cp.Problem(cp.Maximize(t), cons).solve(solver=cp.CLARABEL)
+    Qn, Rn = np.array(Q.value), np.array(R.value)
+    num = {**base, "Q": Qn, "R": Rn, "Fh": Qn @ F.T, "Kh": K.T @ Rn, **{k: float(x.value) for k, x in sc.items()}}
+    Mn = thm1_joint_blocks(num, numeric=True)
+    return equilibrated_max_eig(Mn), float(np.linalg.eigvalsh(Qn)[0]), float(np.linalg.eigvalsh(Rn)[0])

@@ -1,33 +1,131 @@
+"""Certificates and simulation of the flexible link's closed loop.
+
+The decay rate of the certificate ladder is checked from both sides with quantities computed
+here: above by the linearisation's rate (a quadratic V with V' <= -2 lam V makes the loop
+linearised at 0 decay at rate lam), below by re-solving the paper's (20), written here from the
+paper, at 0.9 times the rate, and along trajectories integrated here with scipy: V(z(t)) must stay
+under V(z(0)) e^{-2 lam t}.
+"""
+
 import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from bench.certify import certify
+from bench.certify import Knowledge, certify
 from bench.metrics import settling_time, trajectory_metrics
 from bench.simulate import simulate
 from plants.flexible_link import PAPER_F, PAPER_K
+from tests.conftest import paper20_certificate
 
 
-def test_paper_gains_certified_and_converge(flex, flex_constants):
-    cert = certify(flex, PAPER_K, PAPER_F, flex_constants.valid)
-    assert cert.certified
-    # a certified decay rate of V can never beat the slowest closed-loop eigenvalue
-    slowest = min(-np.linalg.eigvals(flex.A + flex.B @ PAPER_F).real.max(),
-                  -np.linalg.eigvals(flex.A - PAPER_K @ flex.C).real.max())
-    assert 0 < cert.decay_rate <= slowest
+def jacobian_at_zero(f, n, h=1e-6):
+    """Central differences of f at 0 (the test's own, not the plant's jacobian)."""
+    J = np.zeros((n, n))
+    for j in range(n):
+        e = np.zeros(n)
+        e[j] = h
+        J[:, j] = (f(e) - f(-e)) / (2 * h)
+    return J
+
+
+def linearised_rate(plant, K, F):
+    """-max Re eig of A + Df(0) + BF and A + Df(0) - KC (the loop in (x, e) linearised at 0)."""
+    A = plant.A + jacobian_at_zero(plant.f, plant.n)
+    eig = np.concatenate([np.linalg.eigvals(A + plant.B @ F), np.linalg.eigvals(A - K @ plant.C)])
+    return float(-eig.real.max())
+
+
+def closed_loop(plant, K, F):
+    """The closed loop (1) + (6) in (x, x_hat), for scipy's integrator."""
+    n = plant.n
+
+    def rhs(_, z):
+        x, xh = z[:n], z[n:]
+        u = F @ xh
+        dx = plant.A @ x + plant.B @ u + plant.f(x)
+        dxh = plant.A @ xh + plant.B @ u + plant.f(xh) + K @ (plant.C @ (x - xh))
+        return np.concatenate([dx, dxh])
+
+    return rhs
+
+
+@pytest.fixture(scope="module")
+def paper_cert(flex, flex_knowledge):
+    return certify(flex, PAPER_K, PAPER_F, flex_knowledge)
+
+
+def test_paper_gains_certified_and_converge(flex, paper_cert):
+    assert paper_cert.certified and paper_cert.levels["paper"].certified
     tr = simulate(flex, PAPER_K, PAPER_F)
     assert tr.status == "ok" and tr.t[-1] == 20.0
+    # MATH.md: ||x(20)|| ~ 1e-9 from the paper's initial conditions
     assert np.linalg.norm(tr.x[:, -1]) < 1e-6
     np.testing.assert_allclose(tr.x[:, 0], [-2, -2, -1.5, 2])
     np.testing.assert_allclose(tr.x_hat[:, 0], [0.5, 1, 1, -1])
 
 
-def test_destabilizing_gain_not_certified(flex, flex_constants):
+def test_decay_rate_below_the_linearisation(flex, paper_cert):
+    """Upper bound: V' <= -2 lam V near 0 forces every eigenvalue of the linearised loop to Re <= -lam."""
+    lin = linearised_rate(flex, PAPER_K, PAPER_F)
+    # the test's own Df(0): f4 = -c sin(x3) gives d f4 / d x3 = -c at 0
+    J = jacobian_at_zero(flex.f, 4)
+    assert J[3, 2] == pytest.approx(-flex.params["c"], rel=1e-8) and np.count_nonzero(np.abs(J) > 1e-12) == 1
+    for lv in paper_cert.levels.values():
+        if lv.certified:
+            assert 0 < lv.decay_rate <= lin * (1 + 1e-9), lv
+
+
+def test_decay_rate_reverified_by_the_papers_20(flex, flex_knowledge, paper_cert):
+    """Lower bound: the paper's (20), rebuilt here, is negative definite at 0.9 x the paper level's rate."""
+    lam = paper_cert.levels["paper"].decay_rate
+    assert lam > 0
+    margin, p_min, r_min = paper20_certificate(flex, PAPER_K, PAPER_F, flex_knowledge.constants, 0.9 * lam)
+    assert margin < -1e-7 and p_min > 0 and r_min > 0
+    # and the rate is not far from the best (20) gives: at twice the rate, no certificate
+    margin2, _, _ = paper20_certificate(flex, PAPER_K, PAPER_F, flex_knowledge.constants, 2 * lam)
+    assert margin2 > 0
+
+
+def test_certified_rate_holds_along_trajectories(flex, paper_cert):
+    """V(z(t)) <= V(z(0)) e^{-2 lam t} for the best level's P and rate, on trajectories integrated here."""
+    best = paper_cert.best
+    assert best.radius is None  # the flexible link's constants are global: any initial condition
+    P, lam = best.P, best.decay_rate
+    assert np.linalg.eigvalsh((P + P.T) / 2)[0] > 0
+    rng = np.random.default_rng(0)
+    starts = [np.concatenate([flex.x0, flex.x_hat0])] + [rng.normal(0, 3, 8) for _ in range(4)]
+    t = np.linspace(0, 6, 601)
+    for z0 in starts:
+        sol = solve_ivp(closed_loop(flex, PAPER_K, PAPER_F), (0, t[-1]), z0, t_eval=t, method="DOP853",
+                        rtol=1e-10, atol=1e-12)
+        assert sol.success
+        x, xh = sol.y[:4], sol.y[4:]
+        z = np.vstack([x, x - xh])
+        V = np.einsum("it,ij,jt->t", z, P, z)
+        bound = V[0] * np.exp(-2 * lam * t)
+        assert np.all(V <= bound * (1 + 1e-6) + 1e-12 * V[0])
+
+
+def test_destabilizing_gain_not_certified(flex, flex_knowledge):
     F = -PAPER_F  # A + BF has an eigenvalue in the right half plane: no quadratic certificate exists
     assert np.linalg.eigvals(flex.A + flex.B @ F).real.max() > 0
-    assert not certify(flex, PAPER_K, F, flex_constants.valid).certified
+    cert = certify(flex, PAPER_K, F, flex_knowledge)
+    assert not cert.certified and math.isnan(cert.decay_rate)
+    for lv in cert.levels.values():
+        assert lv.status in ("not certified", "marginal") and lv.reason and math.isnan(lv.decay_rate)
+
+
+@pytest.mark.xfail(reason="source: an exponentially unstable A + BF is labelled 'marginal' (sup t -> 0 with an "
+                          "indefinite P), although no P > 0 exists: it is provably 'not certified'", strict=False)
+def test_destabilizing_gain_is_provably_not_certified(flex, flex_knowledge):
+    # v* (Acl' P + P Acl) v = 2 Re(lam) v* P v > 0 at an unstable eigenvector v of A + BF (z = (v, 0), w = 0):
+    # no P > 0 makes the certificate's matrix negative definite, so the level is decided, not marginal
+    cert = certify(flex, PAPER_K, -PAPER_F, flex_knowledge, rates=False)
+    assert {lv.status for lv in cert.levels.values()} == {"not certified"}
 
 
 def test_linear_simulation_matches_matrix_exponential(flex):
@@ -61,8 +159,14 @@ def test_metrics_closed_forms():
     m = trajectory_metrics(t, x, xh, u)
     assert abs(m["iae_e"] - (1 - math.exp(-10)) / 2) < 1e-6
     assert abs(m["peak_u"] - 3.0) < 1e-6
-    # ||x(5)|| / peak = e^-5 = 6.7e-3 > 1e-3: not converged on [0, 5]; on [0, 8] e^-8 = 3.4e-4 is
+    # peak of ||z|| = ||(x, e)|| is sqrt(2) at t = 0; ||x(5)|| = e^-5 = 6.7e-3 > 1e-3 sqrt(2): not converged
     assert not m["converged"]
+    # on [0, 8]: e^-8 = 3.4e-4 < 1.4e-3 and ||e(8)|| = e^-16: converged
     t8 = np.linspace(0, 8, 8001)
     x8 = np.vstack([np.exp(-t8)])
     assert trajectory_metrics(t8, x8, x8 - np.exp(-2 * t8), x8)["converged"]
+
+
+def test_trusting_knowledge_is_the_plants_declaration(flex):
+    k = Knowledge.trusting(flex)
+    assert k.constants == flex.bounds and k.channels is flex.channels
