@@ -96,7 +96,13 @@ def paper20_certificate(plant, K, F, constants, lam):
     M = (M + M.T) / 2
     cons = [M << -t * np.eye(4 * n), var["P1"] >> t * np.eye(n), var["P2"] >> t * np.eye(n),
             cp.trace(var["P1"]) + cp.trace(var["P2"]) == 1]
-    cp.Problem(cp.Maximize(t), cons).solve(solver=cp.CLARABEL)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "solution may be inaccurate": the numpy check decides
+        cp.Problem(cp.Maximize(t), cons).solve(solver=cp.CLARABEL)
+    if any(x.value is None for x in var.values()):
+        return float("inf"), float("nan"), float("nan")
     num = {k: (np.array(x.value, dtype=float) if np.ndim(x.value) else float(x.value)) for k, x in var.items()}
     Mn = paper20_blocks({**v, **num}, lam, numeric=True)
     return (equilibrated_max_eig(Mn), float(np.linalg.eigvalsh(num["P1"])[0]),
@@ -136,28 +142,81 @@ def thm1_joint_blocks(v, numeric):
     return _stack(blocks, numeric)
 
 
-def thm1_joint_holds_for_gains(plant, K, F, constants, phi, cap=1e3):
-    """Do the gains (K, F) satisfy MATH.md's corrected Theorem 1 at Young weight ``phi``?
+def cor1_joint_blocks(v, numeric):
+    """MATH.md's corrected Corollary 1, 6n x 6n, as printed there::
 
-    With K, F fixed, ``Fh = Q F'`` and ``Kh = K' R`` make the 6n matrix linear in (Q, R, kappa, eps3,
-    eps4): search them (cvxpy + Clarabel), rebuild the matrix with numpy and return
-    ``(equilibrated max eig, min eig Q, min eig R)``.
+        [ S11+kappa I  0     0      Q                  B Fh'    0        ]
+        [ 0            W22   R      0                  0        I        ]
+        [ 0            R     -mu2 I 0                  0        0        ]
+        [ Q            0     0      -(kappa/alpha^2) I 0        0        ]
+        [ Fh B'        0     0      0                  -Q/phi2  0        ]
+        [ 0            I     0      0                  0        -phi2 Q  ]
+
+    W22 = A'R + RA - C'Kh - Kh'C + mu2 alpha^2 I.
+    """
+    A, B, C = v["A"], v["B"], v["C"]
+    Q, R, Fh, Kh = v["Q"], v["R"], v["Fh"], v["Kh"]
+    kappa, mu2, phi, a2 = v["kappa"], v["mu2"], v["phi"], v["alpha"] ** 2
+    n = A.shape[0]
+    I, Z = np.eye(n), np.zeros((n, n))
+    S11 = A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T
+    W22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + mu2 * a2 * I
+    BF = B @ Fh.T
+    blocks = [[S11 + kappa * I, Z, Z, Q, BF, Z],
+              [Z, W22, R, Z, Z, I],
+              [Z, R, -mu2 * I, Z, Z, Z],
+              [Q, Z, Z, -(kappa / a2) * I, Z, Z],
+              [BF.T, Z, Z, Z, -Q / phi, Z],
+              [Z, I, Z, Z, Z, -phi * Q]]
+    return _stack(blocks, numeric)
+
+
+def joint_holds_for_gains(kind, plant, K, F, constants, phi, cap=1e3):
+    """Do the gains (K, F) satisfy MATH.md's corrected Theorem 1 (``kind="thm1"``, gamma >= 0,
+    beta_eff > 0) or Corollary 1 (``"cor1"``, alpha > 0) at Young weight ``phi``?
+
+    With K, F fixed, ``Fh = Q F'`` and ``Kh = K' R`` make the 6n matrix linear in Q, R and the
+    multipliers: search them (cvxpy + Clarabel, ``Q, R << cap I``), rebuild the matrix with numpy
+    at the solution and return ``(equilibrated max eig, min eig Q, min eig R)``.
     """
     import cvxpy as cp
 
     n = plant.n
     K, F = np.asarray(K, float), np.asarray(F, float)
     Q, R = cp.Variable((n, n), symmetric=True), cp.Variable((n, n), symmetric=True)
-    sc = {k: cp.Variable(nonneg=True) for k in ("kappa", "eps3", "eps4")}
+    if kind == "thm1":
+        assert constants.beta + constants.gamma * constants.rho > 0 and constants.gamma >= 0
+        names, blocks = ("kappa", "eps3", "eps4"), thm1_joint_blocks
+        base = {"rho": constants.rho, "beta": constants.beta, "gamma": constants.gamma}
+    else:
+        assert constants.alpha > 0
+        names, blocks = ("kappa", "mu2"), cor1_joint_blocks
+        base = {"alpha": constants.alpha}
+    base.update(A=plant.A, B=plant.B, C=plant.C, phi=phi)
+    sc = {k: cp.Variable(nonneg=True) for k in names}
     t = cp.Variable()
-    base = {"A": plant.A, "B": plant.B, "C": plant.C, "phi": phi, "rho": constants.rho, "beta": constants.beta,
-            "gamma": constants.gamma}
-    M = thm1_joint_blocks({**base, "Q": Q, "R": R, "Fh": Q @ F.T, "Kh": K.T @ R, **sc}, numeric=False)
+    M = blocks({**base, "Q": Q, "R": R, "Fh": Q @ F.T, "Kh": K.T @ R, **sc}, numeric=False)
     M = (M + M.T) / 2
     cons = [M << -t * np.eye(6 * n), Q >> t * np.eye(n), R >> t * np.eye(n), Q << cap * np.eye(n),
             R << cap * np.eye(n), t <= 1]
-    cp.Problem(cp.Maximize(t), cons).solve(solver=cp.CLARABEL)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "solution may be inaccurate": the numpy check decides
+        cp.Problem(cp.Maximize(t), cons).solve(solver=cp.CLARABEL)
+    if Q.value is None or R.value is None:
+        return float("inf"), float("nan"), float("nan")
     Qn, Rn = np.array(Q.value), np.array(R.value)
     num = {**base, "Q": Qn, "R": Rn, "Fh": Qn @ F.T, "Kh": K.T @ Rn, **{k: float(x.value) for k, x in sc.items()}}
-    Mn = thm1_joint_blocks(num, numeric=True)
+    Mn = blocks(num, numeric=True)
     return equilibrated_max_eig(Mn), float(np.linalg.eigvalsh(Qn)[0]), float(np.linalg.eigvalsh(Rn)[0])
+
+
+def gains_satisfy_joint_lmi(kind, plant, K, F, constants, phis=(1e-3, 1e-2, 1e-1)):
+    """True when, at some Young weight of ``phis``, :func:`joint_holds_for_gains` verifies with numpy:
+    the joint matrix is negative definite and Q, R are positive definite."""
+    for phi in phis:
+        margin, qmin, rmin = joint_holds_for_gains(kind, plant, K, F, constants, phi)
+        if margin < -1e-7 and qmin > 0 and rmin > 0:
+            return True
+    return False
