@@ -220,3 +220,28 @@ def gains_satisfy_joint_lmi(kind, plant, K, F, constants, phis=(1e-3, 1e-2, 1e-1
         if margin < -1e-7 and qmin > 0 and rmin > 0:
             return True
     return False
+
+
+def thm1_synthesis_margin(plant, constants, phi, cap=1e3):
+    """The test's own solve of MATH.md's corrected Theorem 1 (gamma >= 0) as a synthesis LMI at a fixed
+    Young weight: max t s.t. M(Q, R, Fh, Kh, kappa, eps3, eps4) << -t I, Q, R >> t I, Q, R << cap I,
+    t <= 1. Returns t (> 0: strictly feasible under this normalisation; < 0: not)."""
+    import warnings
+
+    import cvxpy as cp
+
+    n, m, p = plant.n, plant.m, plant.p
+    v = {"Q": cp.Variable((n, n), symmetric=True), "R": cp.Variable((n, n), symmetric=True),
+         "Fh": cp.Variable((n, m)), "Kh": cp.Variable((p, n)),
+         **{k: cp.Variable(nonneg=True) for k in ("kappa", "eps3", "eps4")}}
+    t = cp.Variable()
+    M = thm1_joint_blocks({**v, "A": plant.A, "B": plant.B, "C": plant.C, "phi": phi, "rho": constants.rho,
+                           "beta": constants.beta, "gamma": constants.gamma}, numeric=False)
+    M = (M + M.T) / 2
+    cons = [M << -t * np.eye(6 * n), t <= 1]
+    for X in (v["Q"], v["R"]):
+        cons += [X >> t * np.eye(n), X << cap * np.eye(n)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        cp.Problem(cp.Maximize(t), cons).solve(solver=cp.CLARABEL)
+    return float(t.value)
