@@ -245,3 +245,35 @@ def thm1_synthesis_margin(plant, constants, phi, cap=1e3):
         warnings.simplefilter("ignore", UserWarning)
         cp.Problem(cp.Maximize(t), cons).solve(solver=cp.CLARABEL)
     return float(t.value)
+
+
+# -- the closed loop, written here from (1) and (6) --------------------------------------------------------
+def jacobian_at_zero(f, n, h=1e-6):
+    """Central differences of f at 0 (the test's own, not the plant's jacobian)."""
+    J = np.zeros((n, n))
+    for j in range(n):
+        e = np.zeros(n)
+        e[j] = h
+        J[:, j] = (f(e) - f(-e)) / (2 * h)
+    return J
+
+
+def linearised_rate(plant, K, F):
+    """-max Re eig of A + Df(0) + BF and A + Df(0) - KC (the loop in (x, e) linearised at 0)."""
+    A = plant.A + jacobian_at_zero(plant.f, plant.n)
+    eig = np.concatenate([np.linalg.eigvals(A + plant.B @ F), np.linalg.eigvals(A - K @ plant.C)])
+    return float(-eig.real.max())
+
+
+def closed_loop(plant, K, F):
+    """The closed loop (1) + (6) in (x, x_hat), for scipy's integrator."""
+    n = plant.n
+
+    def rhs(_, z):
+        x, xh = z[:n], z[n:]
+        u = F @ xh
+        dx = plant.A @ x + plant.B @ u + plant.f(x)
+        dxh = plant.A @ xh + plant.B @ u + plant.f(xh) + K @ (plant.C @ (x - xh))
+        return np.concatenate([dx, dxh])
+
+    return rhs

@@ -19,38 +19,7 @@ from bench.certify import Knowledge, certify
 from bench.metrics import settling_time, trajectory_metrics
 from bench.simulate import simulate
 from plants.flexible_link import PAPER_F, PAPER_K
-from tests.conftest import paper20_certificate
-
-
-def jacobian_at_zero(f, n, h=1e-6):
-    """Central differences of f at 0 (the test's own, not the plant's jacobian)."""
-    J = np.zeros((n, n))
-    for j in range(n):
-        e = np.zeros(n)
-        e[j] = h
-        J[:, j] = (f(e) - f(-e)) / (2 * h)
-    return J
-
-
-def linearised_rate(plant, K, F):
-    """-max Re eig of A + Df(0) + BF and A + Df(0) - KC (the loop in (x, e) linearised at 0)."""
-    A = plant.A + jacobian_at_zero(plant.f, plant.n)
-    eig = np.concatenate([np.linalg.eigvals(A + plant.B @ F), np.linalg.eigvals(A - K @ plant.C)])
-    return float(-eig.real.max())
-
-
-def closed_loop(plant, K, F):
-    """The closed loop (1) + (6) in (x, x_hat), for scipy's integrator."""
-    n = plant.n
-
-    def rhs(_, z):
-        x, xh = z[:n], z[n:]
-        u = F @ xh
-        dx = plant.A @ x + plant.B @ u + plant.f(x)
-        dxh = plant.A @ xh + plant.B @ u + plant.f(xh) + K @ (plant.C @ (x - xh))
-        return np.concatenate([dx, dxh])
-
-    return rhs
+from tests.conftest import closed_loop, jacobian_at_zero, linearised_rate, paper20_certificate
 
 
 @pytest.fixture(scope="module")
