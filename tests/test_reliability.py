@@ -21,8 +21,9 @@ from bench.cache import Cache, default_cache_dir
 from bench.cli import main
 from bench.harness import RunOptions, run
 from bench.registry import DESIGNS, PLANTS
-from designs import _lmi
-from designs._core import Design, DesignResult
+from bench import limits
+from bench import lmi as _lmi
+from designs import Design, DesignResult
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMING = ["compile_s", "solve_s", "design_s", "cert_s", "sim_s"]
@@ -82,9 +83,9 @@ class _BigSolve(Design):
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_a_stuck_design_becomes_a_timeout_row(register, jobs):
     register("_sleeps", _Sleeps)
-    t0 = time.perf_counter()
+    # no wall-clock assertion (project rule): the design sleeps 60 s and would return "infeasible",
+    # so a "timeout" row is itself the proof that it was stopped
     res = run(["flexible_link"], ["thm1_printed", "_sleeps"], dataclasses.replace(FAST, timeout=1.0), jobs=jobs)
-    assert time.perf_counter() - t0 < 20
     df = res.frame().set_index("design")
     row = df.loc["_sleeps"]
     assert row["status"] == "timeout" and not row["feasible"] and not row["certified"] and not row["converged"]
@@ -93,10 +94,17 @@ def test_a_stuck_design_becomes_a_timeout_row(register, jobs):
 
 
 def test_a_stuck_solve_is_stopped_by_the_solver_time_limit(register):
+    import signal
+
     register("_big_solve", _BigSolve)
-    t0 = time.perf_counter()
-    res = run(["flexible_link"], ["_big_solve"], dataclasses.replace(FAST, timeout=0.4))
-    assert time.perf_counter() - t0 < 15
+    # Isolate the solver's own limit from the SIGALRM fallback: bench.limits.hard_stop stands aside
+    # when SIGALRM already has a handler. Clarabel checks its limit between iterations, and on a
+    # loaded machine its first iteration alone can outlast the hard stop (1.1 * 0.4 + 0.5 s).
+    old = signal.signal(signal.SIGALRM, signal.SIG_IGN)
+    try:
+        res = run(["flexible_link"], ["_big_solve"], dataclasses.replace(FAST, timeout=0.4))
+    finally:
+        signal.signal(signal.SIGALRM, old)
     row = res.frame().iloc[0]
     assert row["status"] == "timeout" and "SDP solve" in row["reason"], row["reason"]
 
@@ -115,7 +123,7 @@ def test_the_solver_gets_the_remaining_time_as_its_own_limit(monkeypatch):
     monkeypatch.setattr(cp.Problem, "solve", fake_solve)
     monkeypatch.setattr(cp.Problem, "status", property(lambda self: getattr(self, "_status", None)))
     monkeypatch.setattr(cp.Problem, "value", property(lambda self: 1.0))
-    with _lmi.time_limit(30.0):
+    with limits.time_limit(30.0):
         _lmi.solve_timed(prob, "CLARABEL")
         assert 25 < seen["time_limit"] <= 30
         _lmi.solve_timed(prob, "SCS")
@@ -141,10 +149,10 @@ def _slow_in_simulation():
 
 
 def test_a_stuck_simulation_becomes_a_timeout_row(register, monkeypatch):
-    from bench import harness
+    from bench import pipeline
 
     register("_slow_sim", _slow_in_simulation, registry=PLANTS)
-    real = harness.simulate
+    real = pipeline.simulate_controller  # every pair's simulation goes through the pipeline
 
     def slow(*a, **k):
         SLOW["on"] = True
@@ -153,13 +161,12 @@ def test_a_stuck_simulation_becomes_a_timeout_row(register, monkeypatch):
         finally:
             SLOW["on"] = False
 
-    monkeypatch.setattr(harness, "simulate", slow)
-    t0 = time.perf_counter()
+    monkeypatch.setattr(pipeline, "simulate_controller", slow)
     res = run(["_slow_sim"], ["paper_gains"], dataclasses.replace(FAST, timeout=1.5))
-    assert time.perf_counter() - t0 < 15
     row = res.frame().iloc[0]
     assert row["status"] == "timeout" and row["sim_status"] == "timeout"
-    assert "during the simulation" in row["reason"] and "reached before: feasible, certified" in row["reason"]
+    # the printed gains are "given" now ("feasible" is only for a solved feasibility problem)
+    assert "during the simulation" in row["reason"] and "reached before: given, certified" in row["reason"]
     assert not row["certified"] and not row["converged"] and not row["feasible"]
 
 
@@ -255,7 +262,7 @@ PLUGIN = '''
 import os, pathlib, time
 from dataclasses import dataclass
 from bench.registry import register_design
-from designs._core import Design, DesignResult
+from designs import Design, DesignResult
 
 
 @register_design("zz_stuck", order=1000)
@@ -297,10 +304,9 @@ def test_sigint_and_sigkill_mid_run(tmp_path, monkeypatch, capsys):
 
     # Ctrl-C in a terminal: SIGINT to the whole process group, two worker processes busy
     proc = _start([*stuck, "-j", "2"], tmp_path / "mark1", pairs, 2)  # lqr+lqe is cached by now
-    t0 = time.monotonic()
     os.killpg(proc.pid, signal.SIGINT)
+    # the stuck worker sleeps 120 s: communicate's 60 s guard raises if it were waited for
     stdout, stderr = proc.communicate(timeout=60)
-    assert time.monotonic() - t0 < 20  # the stuck worker is stopped, not waited for
     assert proc.returncode == 130, stderr
     assert "interrupted" in stderr and "unchanged" in stderr and "resume" in stderr and "Traceback" not in stderr
     assert _snapshot(out) == before
@@ -357,7 +363,9 @@ def test_cache_keys_follow_content(tmp_path, monkeypatch):
     other = Cache(tmp_path)
     other._sources["designs.thm1"] = "edited"
     assert other.pair_key(flex, "flexible_link", thm1, "thm1", FAST) != key
-    # cor1 imports helpers from designs.thm1: its key follows thm1's source too
+    # cor1 imports its helpers from designs._separated (they moved there from designs.thm1 in the
+    # refactor): its key follows that module's source too
+    other._sources["designs._separated"] = "edited"
     cor1 = DESIGNS.create("cor1")
     assert other.pair_key(flex, "flexible_link", cor1, "cor1", FAST) != cache.pair_key(flex, "flexible_link", cor1,
                                                                                         "cor1", FAST)
