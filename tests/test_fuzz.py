@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from bench.registry import DESIGNS
-from designs._core import STATUSES, Design, DesignError
+from designs import GAIN_STATUSES, STATUSES, Design, DesignError
 from designs._parts import ESTIMATORS, FEEDBACKS, Part
 from plants._core import Constants, Plant, PlantError
 
@@ -337,8 +337,12 @@ def test_fuzz_accepted_part_parameters_are_usable(args):
         part = reg.create(pid, **kw)
         res = part.compute(SMALL, SMALL_C)
         assert res.status in STATUSES
-        if res.status == "feasible":
-            assert res.gain is not None or res.estimator is not None
+        # a part returns a DesignResult holding its half: F (feedback) or K / a run-time estimator;
+        # gains may be "feasible", "computed" (LQR, LQE) or "given" (the EKF's settings), and only
+        # a result without gains must say why
+        if res.status in GAIN_STATUSES:
+            half = res.F if reg is FEEDBACKS else (res.K if res.K is not None else res.estimator)
+            assert half is not None
         else:
             assert res.reason
         return res
@@ -352,6 +356,7 @@ def cli_sandbox(tmp_path, monkeypatch):
     """A temporary cwd, with the expensive work (pairs, perf) stubbed so each argv costs milliseconds."""
     import bench.harness as harness
     import bench.perf as perf
+    from bench.pipeline import blank_record
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "afile").write_text("not a folder")
@@ -363,7 +368,7 @@ def cli_sandbox(tmp_path, monkeypatch):
         outs = []
         for pid in plant_ids:
             for did in design_ids:
-                rec = harness._blank(pid, did)
+                rec = blank_record(pid, did)
                 rec.update(status="inapplicable", reason="stubbed by the fuzz test")
                 outs.append(harness.PairOutcome(rec))
         return harness.RunResult(outs, {}, {}, options, 0.0)
