@@ -8,7 +8,7 @@ from bench import report as report_mod
 from bench.cli import main
 from bench.harness import COLUMNS, RunOptions, run
 from bench.registry import DESIGNS, PLANTS, RegistryError, UnknownIdError
-from designs._core import Design
+from designs import Design
 
 
 def test_list(capsys):
