@@ -54,15 +54,18 @@ def _same(a, b, *, exact: bool = False):
             assert list(x) == list(y), c
 
 
-def _in_fresh_process(code: str, timeout: float):
-    """Run ``code`` in a new interpreter (own session, so a hung worker is killed with it) and
-    return what it pickled to ``OUT``; None when it did not finish within ``timeout`` seconds."""
+def _in_fresh_process(code: str, timeout: float, *, drop_env: tuple[str, ...] = ()):
+    """Run ``code`` in a new interpreter (own session, so a hung worker is killed with it; without
+    the variables ``drop_env``) and return what it pickled to ``OUT``; None when it did not finish
+    within ``timeout`` seconds."""
     import tempfile
 
+    env = {k: v for k, v in os.environ.items() if k not in drop_env}
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out.pkl"
         proc = subprocess.Popen([sys.executable, "-c", f"OUT = {str(out)!r}\n" + textwrap.dedent(code)], cwd=ROOT,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
         try:
             _, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
@@ -147,8 +150,9 @@ _DEADLOCK = """
     "(RAYON_NUM_THREADS=1, or a 'forkserver'/'spawn' context, avoids it)"))
 def test_workers_forked_after_a_solve_in_the_parent_finish():
     """A library user (or a test session) that solved an SDP in-process and then runs pairs with
-    jobs > 1: the workers must finish (the task takes ~2 s; 20 s is the hang guard)."""
-    assert _in_fresh_process(_DEADLOCK, timeout=20) == (True, True)
+    jobs > 1: the workers must finish (the task takes ~2 s; 20 s is the hang guard). The process
+    runs as a user's would: without a RAYON_NUM_THREADS the test session may set for itself."""
+    assert _in_fresh_process(_DEADLOCK, timeout=20, drop_env=("RAYON_NUM_THREADS",)) == (True, True)
 
 
 def test_dask_local_cluster_gives_identical_results():
