@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.metrics import batch_metrics as _batch_metrics
-from bench.simulate import STIFF, SimOptions, check_gains, choose_method, simulate
+from bench.simulate import SimOptions, check_gains, choose_method, simulate
 
 __all__ = [
     "BatchTrajectory",

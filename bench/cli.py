@@ -103,6 +103,11 @@ def _build_parser() -> argparse.ArgumentParser:
     pf.add_argument("--no-run", action="store_true", help="skip timing the default run with --jobs 1 and 2")
     pf.add_argument("--no-sweeps", action="store_true",
                     help="skip the design-call sweeps (bisection over c, random family; compiled vs rebuilt)")
+    pf.add_argument("--route-sizes", default="16,32,64,128,256,512,1024", metavar="N,N,...",
+                    help="chain sizes n for the structured design's Riccati and SDP routes ('' skips)")
+    pf.add_argument("--no-sims", action="store_true", help="skip the n = 1000 trajectory and n = 100 batch")
+    pf.add_argument("--repeats", type=_positive_int, default=3, metavar="K",
+                    help="runs per job count when timing the default run (default 3)")
     from bench.studies.cli import add_study_parser
 
     add_study_parser(sub)  # python -m bench study {admissible,sampling,montecarlo,noise}
@@ -225,19 +230,29 @@ def _sigint_deferred(message: str) -> Iterator[None]:
         raise KeyboardInterrupt
 
 
+def _sizes(text: str, option: str, *, allow_empty: bool) -> list[int]:
+    """Comma-separated state dimensions (each >= 2), or ValueError naming the option."""
+    try:
+        sizes = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ValueError(f"{option}: expected integers like 4,8,16, got {text!r}") from None
+    if (not sizes and not allow_empty) or any(n < 2 for n in sizes):
+        raise ValueError(f"{option}: each n must be >= 2, got {text!r}")
+    return sizes
+
+
 def _cmd_perf(args) -> int:
     try:
-        sizes = [int(x) for x in args.sizes.split(",") if x.strip()]
-    except ValueError:
-        print(f"python -m bench perf: error: --sizes: expected integers like 4,8,16, got {args.sizes!r}", file=sys.stderr)
-        return 2
-    if not sizes or min(sizes) < 2:
-        print(f"python -m bench perf: error: --sizes: each n must be >= 2, got {args.sizes!r}", file=sys.stderr)
+        sizes = _sizes(args.sizes, "--sizes", allow_empty=False)
+        route_sizes = _sizes(args.route_sizes, "--route-sizes", allow_empty=True)
+    except ValueError as exc:
+        print(f"python -m bench perf: error: {exc}", file=sys.stderr)
         return 2
     from bench.perf import perf_main
 
     path = perf_main(args.out, sizes, args.max_joint_n, not args.no_run,
-                     echo=lambda line: print(line, file=sys.stderr, flush=True), with_sweeps=not args.no_sweeps)
+                     echo=lambda line: print(line, file=sys.stderr, flush=True), with_sweeps=not args.no_sweeps,
+                     route_sizes=route_sizes, with_sims=not args.no_sims, repeats=args.repeats)
     print(f"wrote {path}", file=sys.stderr)
     return 0
 

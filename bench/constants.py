@@ -16,7 +16,6 @@ everywhere), with pairs of their own when that region differs from the analytic 
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -281,8 +280,9 @@ def _best_pairs(f, x1, x2, gamma, radius, n, n_refine) -> dict[str, tuple[float,
     best: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
     for which, name in enumerate(("alpha", "rho", "beta")):
         r = np.where(np.isfinite(ratios[which]), ratios[which], -np.inf)
-        order = np.argsort(r)[::-1][:n_refine]
+        order = np.argsort(r)[::-1][:max(n_refine, 1)]
         top = (float(r[order[0]]), x1[:, order[0]], x2[:, order[0]])
+        order = order[:n_refine]
         for k in order:
             a, b, val = _local_max(f, which, gamma, x1[:, k], x2[:, k], radius, n)
             if val > top[0]:

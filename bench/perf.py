@@ -1,9 +1,13 @@
-"""``python -m bench perf``: how design time grows with n, joint vs separated, and parallel speed-up.
+"""``python -m bench perf``: how the designs scale with n, and how long the default run takes.
 
 Writes ``PERF.md``, ``perf.csv`` and ``figures/perf_scaling.png`` into the output folder
-(default ``reports/``), atomically. Every figure is a measurement on this machine, printed as it
-is taken:
+(default ``reports/``), whole or not at all. Every figure is a measurement on this machine,
+printed as it is taken:
 
+- the structured design on the chain family (n = 2N up to 1024): the Riccati route at every
+  size and the SDP route where it finishes, design plus certificate, with status, certified or
+  not, peak memory and the fitted growth exponent;
+- one closed-loop trajectory at n = 1000 and a Monte Carlo batch at n = 100;
 - design time vs n (``random_lipschitz_v1`` plants, m = p = max(1, n // 4), c = 0.1, seed 0) for
   the corrected Theorem 1 joint LMI at a fixed phi1 (one solve) and separated (two solves),
   split into compile and solve seconds, with the peak memory of the process that ran it
@@ -12,7 +16,8 @@ is taken:
 - compile overhead of a parameter sweep (one compiled DPP problem, many solves), and of whole
   design calls in a sweep (a bisection over the scale of f, a random family over seeds) with
   the program cache and with every call rebuilding its problem;
-- the default run's wall time with ``--jobs 1`` and ``--jobs 2`` (the parallel speed-up).
+- the default run's wall time (a fresh ``python -m bench run --no-cache`` process) with
+  ``--jobs 1`` and ``--jobs 2``, median, min and max over several runs.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["measure_design", "perf_main"]
+__all__ = ["default_run_times", "measure_design", "perf_main", "route_rows", "sim_rows", "theorem1_rows"]
 
 
 def _measure_child(design_id: str, n: int, kw: dict, queue) -> None:
@@ -69,9 +74,10 @@ def measure_design(design_id: str, n: int, kw: dict | None = None, *, timeout: f
         return {"design": design_id, "n": n, "status": f"worker exit {proc.exitcode}", "wall_s": float("nan")}
 
 
-def _exponent(rows: list[dict], design: str) -> float:
-    pts = [(r["n"], r["wall_s"]) for r in rows if r["design"] == design and r["n"] >= 8
-           and isinstance(r.get("wall_s"), float) and math.isfinite(r["wall_s"])]
+def _exponent(rows: list[dict], name: str, key: str = "design", n_min: int = 8) -> float:
+    """Least-squares slope of log wall time vs log n over the rows with ``row[key] == name`` and n >= n_min."""
+    pts = [(r["n"], r["wall_s"]) for r in rows if r.get(key) == name and r["n"] >= n_min
+           and isinstance(r.get("wall_s"), float) and math.isfinite(r["wall_s"]) and r["wall_s"] > 0]
     if len(pts) < 2:
         return float("nan")
     x, y = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
@@ -155,16 +161,124 @@ def design_sweeps(echo=print) -> list[dict]:
     return rows
 
 
-def _default_run_times(jobs_list=(1, 2)) -> dict[int, float]:
-    from bench.harness import RunOptions, run
-    from bench.registry import DESIGNS, PLANTS
+#: The structured design on the chain family, per route: sizes n = 2N and a per-measurement limit.
+ROUTE_SIZES = (16, 32, 64, 128, 256, 512, 1024)
+#: The SDP route is measured up to this n (interior-point cost grows like n^4 - n^6).
+SDP_MAX_N = 64
 
-    out = {}
+
+def _route_child(route: str, n: int, queue) -> None:
+    """One structured design + certificate on the chain of n = 2N states (in a forked process)."""
+    from bench.constants import compute_constants
+    from bench.lmi import clear_program_cache
+    from bench.pipeline import RunOptions, evaluate_pair
+    from designs.structured import Structured
+    from plants.chain import chain_plant
+
+    clear_program_cache()
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    plant = chain_plant(N=n // 2)
+    t0 = time.perf_counter()
+    report = compute_constants(plant, n_samples=200, n_refine=0)
+    t1 = time.perf_counter()
+    rec = evaluate_pair(plant, Structured(route=route), report, RunOptions(simulate=False),
+                        design_id=f"structured ({route})").record
+    wall = time.perf_counter() - t1
+    queue.put({"route": route, "n": n, "status": rec["status"], "certified": bool(rec["certified"]),
+               "cert_level": rec["cert_level"], "decay_rate": rec["decay_rate"], "wall_s": wall,
+               "design_s": rec["design_s"], "cert_s": rec["cert_s"], "constants_s": t1 - t0,
+               "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+               "rss_increase_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base) / 1024,
+               "reason": rec["reason"][:200]})
+
+
+def _forked(target, args: tuple, timeout: float, label: dict) -> dict:
+    """Run ``target(*args, queue)`` in a forked process; its result, or a ``timeout`` row."""
+    ctx = multiprocessing.get_context("fork")
+    q = ctx.Queue()
+    proc = ctx.Process(target=target, args=(*args, q))
+    proc.start()
+    proc.join(timeout)
+    if proc.is_alive():
+        proc.kill()
+        proc.join()
+        return {**label, "status": f"timeout (> {timeout:g} s)", "wall_s": float("nan")}
+    try:
+        return q.get(timeout=5)
+    except Exception:
+        return {**label, "status": f"worker exit {proc.exitcode}", "wall_s": float("nan")}
+
+
+def route_rows(sizes=ROUTE_SIZES, *, sdp_max_n: int = SDP_MAX_N, timeout: float = 600.0, echo=print) -> list[dict]:
+    """The structured design on the chain family, Riccati route at every size, SDP route up to ``sdp_max_n``.
+
+    Each row: route, n, status, certified, level, decay rate, wall seconds (design + certificate),
+    peak memory of the forked process.
+    """
+    rows = []
+    for n in sizes:
+        for route in ("sdp", "riccati"):
+            if route == "sdp" and n > sdp_max_n:
+                rows.append({"route": route, "n": n, "status": f"skipped (n > {sdp_max_n})", "wall_s": float("nan")})
+                continue
+            r = _forked(_route_child, (route, n), timeout, {"route": route, "n": n})
+            rows.append(r)
+            echo(f"structured, {route:7s} n = {n:5d}: {r['status']:12s} certified {r.get('certified')} wall "
+                 f"{_fmt(r['wall_s'])} s peak {_fmt(r.get('peak_rss_mb', float('nan')))} MB")
+    return rows
+
+
+def _sim_child(kind: str, n: int, queue) -> None:
+    """A closed-loop trajectory (or a Monte Carlo batch) of the chain of n states with Riccati-route gains."""
+    from bench.batch import simulate_batch
+    from bench.simulate import SimOptions, simulate
+    from designs.structured import Structured
+    from plants.chain import chain_plant
+
+    plant = chain_plant(N=n // 2)
+    res = Structured(route="riccati").design(plant, plant.bounds)
+    t0 = time.perf_counter()
+    if kind == "trajectory":
+        tr = simulate(plant, res.K, res.F, options=SimOptions(n_points=401))
+        status, what = tr.status, "one trajectory, 20 s"
+    else:
+        rng = np.random.default_rng(0)
+        X = rng.uniform(-0.5, 0.5, (n, 200))
+        tr = simulate_batch(plant, res.K, res.F, X, np.zeros_like(X))
+        status, what = tr.status, "Monte Carlo batch, 200 initial conditions, 20 s"
+    queue.put({"kind": what, "n": n, "status": status, "wall_s": time.perf_counter() - t0})
+
+
+def sim_rows(echo=print) -> list[dict]:
+    """One n = 1000 closed-loop trajectory and an n = 100 Monte Carlo batch (issue 14)."""
+    rows = []
+    for kind, n in (("trajectory", 1000), ("batch", 100)):
+        r = _forked(_sim_child, (kind, n), 600.0, {"kind": kind, "n": n})
+        rows.append(r)
+        echo(f"simulation {r.get('kind', kind)} n = {n}: {r['status']} {_fmt(r['wall_s'])} s")
+    return rows
+
+
+def default_run_times(jobs_list=(1, 2), repeats: int = 3) -> list[dict]:
+    """``python -m bench run --no-cache`` (cold: a fresh process, imports, constants, figures, report),
+    ``repeats`` times per job count; rows with the median, min and max wall seconds."""
+    import statistics
+    import subprocess
+    import sys
+
+    rows = []
     for jobs in jobs_list:
-        t0 = time.perf_counter()
-        run(PLANTS.ids(), DESIGNS.ids(), RunOptions(), jobs=jobs)
-        out[jobs] = time.perf_counter() - t0
-    return out
+        walls = []
+        for _ in range(repeats):
+            out = tempfile.mkdtemp(prefix="oslbench-perf-")
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "bench", "run", "--no-cache", "-q", "--jobs", str(jobs), "--out",
+                            out], check=True, capture_output=True)
+            walls.append(time.perf_counter() - t0)
+            shutil.rmtree(out, ignore_errors=True)
+        rows.append({"jobs": jobs, "runs": repeats, "median_s": statistics.median(walls), "min_s": min(walls),
+                     "max_s": max(walls)})
+    return rows
 
 
 def _sweep_table(rows: list[dict]) -> str:
@@ -191,111 +305,132 @@ def _fmt(v) -> str:
     return str(v)
 
 
-def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, echo=print, *,
-              with_sweeps: bool = True) -> Path:
-    """Measure and write the performance report; returns the PERF.md path."""
-    import matplotlib
+def _md_table(rows: list[dict], cols: list[str]) -> str:
+    out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    out += ["| " + " | ".join(_fmt(r.get(c, "")) for c in cols) + " |" for r in rows]
+    return "\n".join(out)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import pandas as pd
 
-    from bench.executors import _warm_imports
-    from bench.registry import DESIGNS, PLANTS
-
-    _warm_imports()  # forked measurements must not pay for imports
-    PLANTS.ids()
-    DESIGNS.ids()
+def theorem1_rows(sizes: list[int], max_joint_n: int, echo=print) -> list[dict]:
+    """Corrected Theorem 1, joint (one solve at phi1 = 0.01) vs separated, on random_lipschitz_v1 of size n."""
     rows = []
     for n in sizes:
         for did, kw, limit in (("thm1_sep", {}, None), ("thm1", {"phi1": 0.01}, max_joint_n)):
             if limit is not None and n > limit:
                 rows.append({"design": did, "n": n, "status": f"skipped (n > --max-joint-n {limit})",
                              "wall_s": float("nan")})
-                echo(f"n = {n:3d} {did:9s} skipped")
                 continue
             r = measure_design(did, n, kw)
-            r["form"] = "joint 6n LMI, one solve at phi1 = 0.01" if did == "thm1" else "separated, two 2n LMIs"
             rows.append(r)
-            echo(f"n = {n:3d} {did:9s} {r['status']:10s} wall {_fmt(r['wall_s']):>8} s  compile "
-                 f"{_fmt(r.get('compile_s', float('nan'))):>8} s  solve {_fmt(r.get('solve_s', float('nan'))):>8} s  "
-                 f"peak {_fmt(r.get('peak_rss_mb', float('nan')))} MB")
-    df = pd.DataFrame(rows)
-    exp = {d: _exponent(rows, d) for d in ("thm1", "thm1_sep")}
-    sweep = _sweep_overhead()
-    echo(f"sweep: {sweep['solves']} solves at n = {sweep['n']}: compile {sweep['compile_s']:.3f} s, "
-         f"solve {sweep['solve_s']:.3f} s, overhead {100 * sweep['overhead']:.1f} %")
-    dsweeps = design_sweeps(echo) if with_sweeps else []
-    runs = _default_run_times() if with_run else {}
-    for j, w in runs.items():
-        echo(f"default run, --jobs {j}: {w:.1f} s")
+            echo(f"n = {n:3d} {did:9s} {r['status']:10s} wall {_fmt(r['wall_s']):>8} s")
+    return rows
 
-    ratio_lines = []
-    for n in sizes:
-        j = df[(df.design == "thm1") & (df.n == n)]["wall_s"]
-        s = df[(df.design == "thm1_sep") & (df.n == n)]["wall_s"]
-        if len(j) and len(s) and math.isfinite(j.iloc[0]) and math.isfinite(s.iloc[0]):
-            ratio_lines.append(f"| {n} | {j.iloc[0]:.3g} | {s.iloc[0]:.3g} | {j.iloc[0] / s.iloc[0]:.3g} |")
+
+def _figure(path: Path, thm_rows: list[dict], routes: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+    for did, label in (("thm1", "joint 6n LMI"), ("thm1_sep", "separated 2n LMIs")):
+        pts = [(r["n"], r["wall_s"]) for r in thm_rows if r["design"] == did and math.isfinite(r["wall_s"])]
+        if pts:
+            axes[0].loglog(*zip(*pts), "o-", label=f"{label}, slope {_exponent(thm_rows, did, 'design'):.2g}")
+    axes[0].set(xlabel="n", ylabel="design time [s]", title="corrected Theorem 1 (random_lipschitz_v1)")
+    for route in ("sdp", "riccati"):
+        pts = [(r["n"], r["wall_s"]) for r in routes if r["route"] == route and math.isfinite(r["wall_s"])]
+        if pts:
+            axes[1].loglog(*zip(*pts), "o-", label=f"{route}, slope {_exponent(routes, route, 'route'):.2g}")
+    axes[1].set(xlabel="n", ylabel="design + certificate [s]", title="structured design (chain, n = 2N)")
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs) -> str:
+    cert = [r for r in routes if r["route"] == "riccati" and "certified" in r]
+    frac = sum(r["certified"] for r in cert) / len(cert) if cert else float("nan")
+    run_md = _md_table(runs, ["jobs", "runs", "median_s", "min_s", "max_s"]) if runs else "Not measured (--no-run)."
+    return "\n".join([
+        "# oslbench performance",
+        "",
+        f"Machine: {os.cpu_count()} cores. Produced by `python -m bench perf`; every number is a measurement of "
+        "this run (forked processes for the design timings, so peak memory is the measurement's own).",
+        "",
+        "## Structured design: Riccati route vs SDP route (chain family, n = 2N)",
+        "",
+        "Design plus certificate (the ladder's SDPs up to n = 32; beyond, the design's own joint certificate, "
+        "verified by an eigenvalue test). The SDP route is skipped above n = 64.",
+        "",
+        _md_table(routes, ["route", "n", "status", "certified", "cert_level", "decay_rate", "wall_s", "design_s",
+                           "cert_s", "peak_rss_mb", "reason"]),
+        "",
+        f"Growth exponent (log time vs log n, n >= 64): Riccati route {_exponent(routes, 'riccati', 'route', 64):.2f}; "
+        f"SDP route {_exponent(routes, 'sdp', 'route', 16):.2f}. Certified Riccati rows: {100 * frac:.0f} %.",
+        "",
+        "![time vs n](figures/perf_scaling.png)",
+        "",
+        "## Simulation at scale",
+        "",
+        _md_table(sims, ["kind", "n", "status", "wall_s"]),
+        "",
+        "## Corrected Theorem 1: time vs n (random_lipschitz_v1, m = p = max(1, n // 4), c = 0.1)",
+        "",
+        _md_table(thm_rows, ["design", "n", "status", "wall_s", "compile_s", "solve_s", "n_solves", "peak_rss_mb"]),
+        "",
+        f"Growth exponents (n >= 8): joint {_exponent(thm_rows, 'thm1', 'design'):.2f}, separated "
+        f"{_exponent(thm_rows, 'thm1_sep', 'design'):.2f}.",
+        "",
+        "## Compile overhead in a sweep",
+        "",
+        f"One compiled DPP problem (corrected Theorem 1 with phi1 as a cvxpy parameter), n = {sweep['n']}, "
+        f"{sweep['solves']} solves: compile {sweep['compile_s']:.3f} s, solve {sweep['solve_s']:.3f} s, overhead "
+        f"{100 * sweep['overhead']:.1f} % of solve time.",
+        "",
+        _sweep_table(dsweeps),
+        "",
+        "## Default run",
+        "",
+        "`python -m bench run --no-cache` in a fresh process (imports, constants, every pair with the certificate "
+        "ladder, figures, report), wall seconds over several runs:",
+        "",
+        run_md,
+        "",
+    ])
+
+
+def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, echo=print, *,
+              with_sweeps: bool = True, route_sizes=ROUTE_SIZES, with_sims: bool = True, repeats: int = 3) -> Path:
+    """Measure and write the performance report (PERF.md, perf.csv, figures/perf_scaling.png); returns PERF.md."""
+    import pandas as pd
+
+    from bench.executors import _warm_imports
+    from bench.outdir import publish, staged
+    from bench.registry import DESIGNS, PLANTS
+
+    _warm_imports()  # forked measurements must not pay for imports
+    PLANTS.ids()
+    DESIGNS.ids()
+    routes = route_rows(route_sizes, echo=echo) if route_sizes else []
+    sims = sim_rows(echo) if with_sims else []
+    thm_rows = theorem1_rows(sizes, max_joint_n, echo)
+    sweep = _sweep_overhead()
+    dsweeps = design_sweeps(echo) if with_sweeps else []
+    runs = default_run_times(repeats=repeats) if with_run else []
+    for r in runs:
+        echo(f"default run, --jobs {r['jobs']}: median {r['median_s']:.1f} s (min {r['min_s']:.1f}, max {r['max_s']:.1f})")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".tmp-perf-", dir=out))
-    try:
+    with staged(out, "perf") as tmp:
         (tmp / "figures").mkdir()
-        fig, ax = plt.subplots(figsize=(6, 4), constrained_layout=True)
-        for did, label in (("thm1", "joint (one solve)"), ("thm1_sep", "separated (two solves)")):
-            sub = df[(df.design == did) & df.wall_s.notna()]
-            ax.loglog(sub.n, sub.wall_s, "o-", label=f"{label}, slope {exp[did]:.2g}")
-        ax.set(xlabel="n (states)", ylabel="design time [s]", title="Corrected Theorem 1: time vs n")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-        fig.savefig(tmp / "figures" / "perf_scaling.png", dpi=110)
-        plt.close(fig)
-        cols = ["design", "n", "status", "wall_s", "compile_s", "solve_s", "n_solves", "peak_rss_mb",
-                "rss_increase_mb", "lmi_margin"]
-        table = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-        for r in df.reindex(columns=cols).itertuples(index=False):
-            table.append("| " + " | ".join(_fmt(v) for v in r) + " |")
-        speed = ""
-        if runs:
-            speed = (f"| jobs | wall s |\n|---|---|\n" + "\n".join(f"| {j} | {w:.1f} |" for j, w in runs.items())
-                     + (f"\n\nSpeed-up of --jobs 2 over --jobs 1: {runs[1] / runs[2]:.2f}x" if 1 in runs and 2 in runs else ""))
-        md = "\n".join([
-            "# oslbench performance",
-            "",
-            f"Machine: {os.cpu_count()} cores. Produced by `python -m bench perf`; each number is one measurement.",
-            "",
-            "## Design time vs n (random_lipschitz_v1, m = p = max(1, n // 4), c = 0.1, seed 0)",
-            "",
-            "\n".join(table),
-            "",
-            f"Fitted growth exponents (log time vs log n, n >= 8): joint {exp['thm1']:.2f}, "
-            f"separated {exp['thm1_sep']:.2f}.",
-            "",
-            "| n | joint s | separated s | ratio |",
-            "|---|---|---|---|",
-            "\n".join(ratio_lines),
-            "",
-            "![time vs n](figures/perf_scaling.png)",
-            "",
-            "## Compile overhead in a sweep",
-            "",
-            f"One compiled DPP problem (corrected Theorem 1 with phi1 as a cvxpy parameter), n = {sweep['n']}, "
-            f"{sweep['solves']} solves: compile {sweep['compile_s']:.3f} s, solve {sweep['solve_s']:.3f} s, "
-            f"overhead {100 * sweep['overhead']:.1f} % of solve time.",
-            "",
-            _sweep_table(dsweeps),
-            "",
-            "## Default run",
-            "",
-            speed or "Not measured (--no-run).",
-            "",
-        ])
-        (tmp / "PERF.md").write_text(md, encoding="utf-8")
-        df.to_csv(tmp / "perf.csv", index=False)
-        (out / "figures").mkdir(exist_ok=True)
-        os.replace(tmp / "figures" / "perf_scaling.png", out / "figures" / "perf_scaling.png")
-        os.replace(tmp / "perf.csv", out / "perf.csv")
-        os.replace(tmp / "PERF.md", out / "PERF.md")
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        _figure(tmp / "figures" / "perf_scaling.png", thm_rows, routes)
+        (tmp / "PERF.md").write_text(_markdown(thm_rows, routes, sweep, dsweeps, sims, runs), encoding="utf-8")
+        pd.DataFrame([*({"section": "structured", **r} for r in routes), *({"section": "theorem1", **r} for r in thm_rows),
+                      *({"section": "simulation", **r} for r in sims), *({"section": "default run", **r} for r in runs)]
+                     ).to_csv(tmp / "perf.csv", index=False)
+        publish(out, tmp, ["figures/perf_scaling.png", "perf.csv", "PERF.md"])
     return out / "PERF.md"

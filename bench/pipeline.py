@@ -25,7 +25,7 @@ import numpy as np
 from bench.certify import LEVELS, Certificate, adopt, certify, linearised_rate
 from bench.constants import ConstantsReport, resolve_constants
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
-from bench.metrics import batch_metrics, trajectory_metrics
+from bench.metrics import trajectory_metrics
 from bench.simulate import SimOptions, simulate_controller
 from bench.verdicts import certificate_scope, convergence_note, horizon
 from designs import GAIN_STATUSES, Design, DesignResult

@@ -174,8 +174,22 @@ def equilibrated_max_eig(M: np.ndarray) -> float:
     d = np.maximum(d, 1e-300 * max(float(d.max(initial=0.0)), 1e-300))
     s = 1.0 / np.sqrt(d)
     E = M * s[:, None] * s[None, :]
-    k = E.shape[0]
-    return float(sla.eigvalsh(E, subset_by_index=[k - 1, k - 1], check_finite=False)[0])
+    return _eig_at(E, -1)
+
+
+def _eig_at(M: np.ndarray, index: int) -> float:
+    """The ``index``-th smallest eigenvalue of a symmetric M (``-1``: the largest).
+
+    LAPACK's subset driver (``evr``) is O(k^2) for one eigenvalue but can stop with "Internal
+    Error" on tightly clustered spectra (seen on a near-identity Gram matrix at n = 16); the full
+    divide-and-conquer driver is the fallback.
+    """
+    k = M.shape[0]
+    i = index % k
+    try:
+        return float(sla.eigvalsh(M, subset_by_index=[i, i], check_finite=False)[0])
+    except (np.linalg.LinAlgError, ValueError):
+        return float(np.linalg.eigvalsh(M)[i])
 
 
 def _norm2(X: np.ndarray) -> float:
@@ -184,7 +198,7 @@ def _norm2(X: np.ndarray) -> float:
     if X.size == 0:
         return 0.0
     Gm = X.T @ X if X.shape[0] >= X.shape[1] else X @ X.T
-    return float(math.sqrt(max(float(sla.eigvalsh(Gm, subset_by_index=[Gm.shape[0] - 1] * 2)[0]), 0.0)))
+    return float(math.sqrt(max(_eig_at(Gm, -1), 0.0)))
 
 
 # -- the ARE ------------------------------------------------------------------------------------
@@ -402,9 +416,7 @@ def _reduce_channels(G, H, r):
 
 def _pos_def(P: np.ndarray) -> float:
     """Smallest over largest eigenvalue of a symmetric P (negative or 0: not positive definite)."""
-    n = P.shape[0]
-    lo = float(sla.eigvalsh(P, subset_by_index=[0, 0], check_finite=False)[0])
-    hi = float(sla.eigvalsh(P, subset_by_index=[n - 1, n - 1], check_finite=False)[0])
+    lo, hi = _eig_at(P, 0), _eig_at(P, -1)
     return lo / hi if hi > 0 else -math.inf
 
 
@@ -797,8 +809,7 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float = 0.0, taus: Sequenc
     # Normalise P and R to unit largest eigenvalue: (P, s, Mx) -> (P/a, s a, Mx/a) and
     # (R, t, Me) -> (R/b, t/b, Me/b) leave both sides' matrices negative definite (scaled by 1/a, 1/b)
     # and make mu the relative weight of two unit-size quadratic forms.
-    a_x = float(sla.eigvalsh(xs.P, subset_by_index=[n - 1, n - 1], check_finite=False)[0])
-    a_e = float(sla.eigvalsh(es.P, subset_by_index=[n - 1, n - 1], check_finite=False)[0])
+    a_x, a_e = _eig_at(xs.P, -1), _eig_at(es.P, -1)
     P, R, Mx, Me = xs.P / a_x, es.P / a_e, xs.side_matrix / a_x, es.side_matrix / a_e
     res.s, res.t = s * a_x, t / a_e
     res.F, res.P, res.K, res.R = xs.gain, P, es.gain, R

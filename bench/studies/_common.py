@@ -13,10 +13,6 @@ from __future__ import annotations
 import math
 import os
 import platform
-import shutil
-import tempfile
-import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -111,7 +107,7 @@ def check_levels(name: str, values: Any) -> list[float]:
     """
     vals = list(values)
     if not vals:
-        raise StudyError(name, f"at least one level is needed")
+        raise StudyError(name, "at least one level is needed")
     out = []
     for v in vals:
         x = _finite(name, v)

@@ -131,10 +131,9 @@ def run_noise(
         A noise level that is negative, zero or not finite; a bad ``noise_dt`` or horizon.
     """
     from concurrent.futures import as_completed
-    from dataclasses import replace
 
     from bench.executors import executor
-    from bench.registry import DESIGNS, PLANTS
+    from bench.registry import DESIGNS
 
     t_start = time.perf_counter()
     levels = check_levels("levels", levels)
