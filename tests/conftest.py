@@ -1,18 +1,9 @@
-import os
+import bench._env  # noqa: F401  (BLAS and Rayon threads before numpy and Clarabel; see bench/_env.py)
+import numpy as np
+import pytest
 
-# Clarabel (through faer/rayon) starts a thread pool at its first parallel solve; the harness forks its
-# workers (bench/executors.py, "fork" start method), and a forked worker's Clarabel solve then waits forever
-# on pool threads that do not exist in the child (reproduced: test_certify_simulate's certify, then
-# test_cli_harness's `run` hangs in a worker inside clarabel_conif.solve_via_data). One rayon thread keeps
-# the solves sequential, so no pool is inherited. The source should set this (or not fork after solving).
-os.environ.setdefault("RAYON_NUM_THREADS", "1")
-
-import bench._env  # noqa: E402,F401  (BLAS threads before numpy; see bench/_env.py)
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-
-from bench.constants import compute_constants  # noqa: E402
-from bench.registry import PLANTS  # noqa: E402
+from bench.constants import compute_constants
+from bench.registry import PLANTS
 
 
 @pytest.fixture(scope="session")

@@ -25,10 +25,11 @@ SMALL = (["flexible_link"], ["thm1_printed", "paper_gains", "lqr+lqe"])
 OPTS = RunOptions(n_samples=500, t_final=5.0)
 #: the certificate's rate bisection stops within this relative tolerance (certify's rate_rtol)
 RATE_RTOL = 0.03
-#: Numbers that come out of an SDP solve (design LMI or certificate ladder). A compiled program
-#: is reused by later pairs of the same process (bench.lmi.cached_program) and cvxpy hands
-#: Clarabel's cached solver the new data (warm_start), so these depend on what the process solved
-#: before: equal to solver tolerance, not bit for bit (see the xfail test below).
+#: Numbers that come out of an SDP solve (design LMI or certificate ladder). A compiled program is
+#: reused by later pairs of the same process (bench.lmi.cached_program); every solve starts cold
+#: (warm_start=False), so they are bit for bit the same whichever pairs a worker solved before
+#: (test_a_certificate_does_not_depend_on_what_the_process_solved_before); the tolerant branches
+#: of _same are for comparisons across machines.
 SDP_MARGINS = {"lmi_margin", "cert_margin"}
 SDP_RATES = {"decay_rate", *[f"decay_{lv}" for lv in LEVELS]}
 SDP_P = {"level_set", "level_x0"}  # V at x0 and the certified level: P is the last verified point
@@ -79,8 +80,8 @@ def _in_fresh_process(code: str, timeout: float, *, drop_env: tuple[str, ...] = 
 @pytest.fixture(scope="module")
 def serial_and_processes():
     """The SMALL run with 2 worker processes, then serially, in a fresh interpreter. Processes
-    first: a process whose Clarabel already ran multi-threaded must not fork workers (they
-    deadlock, see the xfail test below); this pytest process has run many solves already."""
+    first, in a process of its own (this pytest process has run many solves already; the case of
+    forking after a solve is test_workers_forked_after_a_solve_in_the_parent_finish)."""
     frames = _in_fresh_process(f"""
         import pickle
         from bench.harness import RunOptions, run
@@ -97,14 +98,9 @@ def serial_and_processes():
 def test_processes_give_identical_results(serial_and_processes):
     ser, par = serial_and_processes
     assert len(ser) == 3 and set(ser["status"]) >= {"given", "computed"}  # the rows are not all errors
-    _same(ser, par)
+    _same(ser, par, exact=True)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "source bug: bench/lmi.py solve_timed calls problem.solve() with cvxpy's default warm_start=True; a "
-    "program reused from bench.lmi.cached_program then hands Clarabel's cached solver the new data, so a "
-    "certificate depends on what the process certified before (e.g. the structured rate of paper_gains on "
-    "flexible_link 1.2165 cold, 1.1977 after certifying the lqr+lqe gains); warm_start=False makes it exact"))
 def test_a_certificate_does_not_depend_on_what_the_process_solved_before(flex, flex_constants, flex_knowledge):
     """What makes results identical whatever the executor: the same pair gives the same
     certificate, bit for bit, whichever pairs the worker certified before it."""
@@ -143,11 +139,6 @@ _DEADLOCK = """
 """
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "source bug: bench/executors.py forks its workers (multiprocessing 'fork' context) and bench/_env.py "
-    "does not limit Clarabel's Rayon thread pool (clarabel 0.11 solves with faer on 2 threads); a worker "
-    "forked from a process that already used the pool waits forever inside Clarabel's solve "
-    "(RAYON_NUM_THREADS=1, or a 'forkserver'/'spawn' context, avoids it)"))
 def test_workers_forked_after_a_solve_in_the_parent_finish():
     """A library user (or a test session) that solved an SDP in-process and then runs pairs with
     jobs > 1: the workers must finish (the task takes ~2 s; 20 s is the hang guard). The process
@@ -160,7 +151,7 @@ def test_dask_local_cluster_gives_identical_results():
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
                                   dashboard_address=None) as cluster:
         res = run(*SMALL, OPTS, scheduler=cluster.scheduler_address)
-    _same(run(*SMALL, OPTS, jobs=1).frame(), res.frame())
+    _same(run(*SMALL, OPTS, jobs=1).frame(), res.frame(), exact=True)
 
 
 def test_unreachable_scheduler_fails_fast(capsys, tmp_path):
