@@ -46,6 +46,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
@@ -74,6 +75,12 @@ LADDER_MAX_N = 32
 #: :func:`adopt` replaces a certified level only when its rate is below this fraction of the
 #: design's own (the two are the same certificate up to the bisection's tolerance otherwise).
 ADOPT_RATIO = 0.9
+
+#: A level is decided "not certified" without a solve when a linear f = L x that meets every
+#: constraint of the level (L = 0, or the channels' midpoint slopes) leaves the closed loop with an
+#: eigenvalue whose real part is above this (relative to the size of A, BF and KC): a certificate
+#: would make that linear loop exponentially stable.
+UNSTABLE_TOL = 1e-9
 
 #: Statuses of one level.
 LEVEL_STATUSES = ("certified", "not certified", "marginal", "inapplicable", "undecided")
@@ -193,87 +200,92 @@ def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
 
 def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge) -> lmi.Program:
     """The level's analysis program (compiled once per structure; see :func:`bench.lmi.cached_program`)."""
-    n, nw = spec.n, spec.nw
     ch = know.channels if spec.channels else None
-    Gw = ch.G if ch is not None else np.eye(n)
-    GtG = Gw.T @ Gw
+    Gw = ch.G if ch is not None else np.eye(spec.n)
     Hc = ch.H if ch is not None else None
-
-    def build():
-        import cvxpy as cp
-
-        v = {"t": cp.Variable(name="t")}
-        if spec.full_p:
-            v["P"] = cp.Variable((2 * n, 2 * n), symmetric=True, name="P")
-        else:
-            v["P1"] = cp.Variable((n, n), symmetric=True, name="P1")
-            v["P2"] = cp.Variable((n, n), symmetric=True, name="P2")
-        for side in ("x", "e"):
-            for k in spec.scalars:
-                v[f"{k}_{side}"] = cp.Variable(name=f"tau_{k}_{side}")
-            if spec.channels:
-                v[f"ch_{side}"] = cp.Variable(nw, name=f"tau_channels_{side}")
-        prm = {"lam": cp.Parameter(nonneg=True, name="lam"), **mats.parameters(),
-               **lmi.scalar_parameters("rho", "beta", "gamma", "a2")}
-        if spec.channels:
-            prm["lohi"] = cp.Parameter(nw, name="lo_times_hi")
-            prm["losum"] = cp.Parameter(nw, name="lo_plus_hi")
-        t_build = time.perf_counter()
-        M = lmi.sym(lmi.assemble(blocks, {**v, **prm}, numeric=False))
-        t = v["t"]
-        pos = ("P",) if spec.full_p else ("P1", "P2")
-        cons = [M << -t * np.eye(M.shape[0])]
-        cons += [v[k] >> t * np.eye(v[k].shape[0]) for k in pos]
-        cons.append(sum(cp.trace(v[k]) for k in pos) == 1)
-        cons += [v[k] >= 0 for k in v if k not in pos and k != "t"]
-        prob = cp.Problem(cp.Maximize(t), cons)
-        return lmi.Program(prob, v, prm, blocks, pos, build_s=time.perf_counter() - t_build)
-
-    def blocks(d):
-        """The 4 x 4 block matrix in (x, e, w_x, w_e), numeric or cvxpy (``d``: values)."""
-        I, Zn, Zw, Znw = np.eye(n), np.zeros((n, n)), np.zeros((nw, nw)), np.zeros((n, nw))
-        if spec.full_p:
-            P = d["P"]
-            P11, P12, P22 = P[:n, :n], P[:n, n:], P[n:, n:]
-        else:
-            P11, P12, P22 = d["P1"], Zn, d["P2"]
-        Ax, Ae, BF, lam = d["Ax"], d["Ae"], d["BF"], d["lam"]
-        # V' terms: Acl' P + P Acl + 2 lam P, Acl = [[Ax, -BF], [0, Ae]]
-        xx = Ax.T @ P11 + P11 @ Ax + 2 * lam * P11
-        xe = -P11 @ BF + Ax.T @ P12 + P12 @ Ae + 2 * lam * P12
-        ee = -BF.T @ P12 - P12.T @ BF + Ae.T @ P22 + P22 @ Ae + 2 * lam * P22
-        xwx, xwe = P11 @ Gw, P12 @ Gw
-        ewx, ewe = P12.T @ Gw, P22 @ Gw
-        ww = {"x": Zw, "e": Zw}
-        diag = {"x": 0 * I, "e": 0 * I}
-        cross = {"x": Znw, "e": Znw}
-        for side in ("x", "e"):
-            for k in spec.scalars:
-                tau = d[f"{k}_{side}"]
-                if k == "osl":
-                    diag[side] = diag[side] + tau * d["rho"] * I
-                    cross[side] = cross[side] - (tau / 2) * Gw
-                elif k == "qib":
-                    diag[side] = diag[side] + tau * d["beta"] * I
-                    cross[side] = cross[side] + (tau * d["gamma"] / 2) * Gw
-                    ww[side] = ww[side] - tau * GtG
-                else:  # lip
-                    diag[side] = diag[side] + tau * d["a2"] * I
-                    ww[side] = ww[side] - tau * GtG
-            if spec.channels:
-                tau = d[f"ch_{side}"]
-                diag[side] = diag[side] + Hc.T @ _diag(-_times(tau, d["lohi"])) @ Hc
-                cross[side] = cross[side] + Hc.T @ _diag(_times(tau, d["losum"]) / 2)
-                ww[side] = ww[side] - _diag(tau)
-        return [
-            [xx + diag["x"], xe, xwx + cross["x"], xwe],
-            [xe.T, ee + diag["e"], ewx, ewe + cross["e"]],
-            [(xwx + cross["x"]).T, ewx.T, ww["x"], Zw],
-            [xwe.T, (ewe + cross["e"]).T, Zw, ww["e"]],
-        ]
-
+    blocks = partial(_blocks, spec, Gw, Hc)
     key = ("certify", spec, mats.key, _digest(Gw), _digest(Hc))
-    return lmi.cached_program(key, build)
+    return lmi.cached_program(key, lambda: _build(spec, mats, blocks))
+
+
+def _build(spec: _Spec, mats: lmi.Matrices, blocks) -> lmi.Program:
+    """Variables, parameters and constraints of a level: maximise ``t`` with ``M << -t I``,
+    ``P >> t I``, ``trace(P) = 1`` and nonnegative multipliers."""
+    import cvxpy as cp
+
+    n, nw = spec.n, spec.nw
+    v = {"t": cp.Variable(name="t")}
+    if spec.full_p:
+        v["P"] = cp.Variable((2 * n, 2 * n), symmetric=True, name="P")
+    else:
+        v["P1"] = cp.Variable((n, n), symmetric=True, name="P1")
+        v["P2"] = cp.Variable((n, n), symmetric=True, name="P2")
+    for side in ("x", "e"):
+        for k in spec.scalars:
+            v[f"{k}_{side}"] = cp.Variable(name=f"tau_{k}_{side}")
+        if spec.channels:
+            v[f"ch_{side}"] = cp.Variable(nw, name=f"tau_channels_{side}")
+    prm = {"lam": cp.Parameter(nonneg=True, name="lam"), **mats.parameters(),
+           **lmi.scalar_parameters("rho", "beta", "gamma", "a2")}
+    if spec.channels:
+        prm["lohi"] = cp.Parameter(nw, name="lo_times_hi")
+        prm["losum"] = cp.Parameter(nw, name="lo_plus_hi")
+    t_build = time.perf_counter()
+    M = lmi.sym(lmi.assemble(blocks, {**v, **prm}, numeric=False))
+    t = v["t"]
+    pos = ("P",) if spec.full_p else ("P1", "P2")
+    cons = [M << -t * np.eye(M.shape[0])]
+    cons += [v[k] >> t * np.eye(v[k].shape[0]) for k in pos]
+    cons.append(sum(cp.trace(v[k]) for k in pos) == 1)
+    cons += [v[k] >= 0 for k in v if k not in pos and k != "t"]
+    prob = cp.Problem(cp.Maximize(t), cons)
+    return lmi.Program(prob, v, prm, blocks, pos, build_s=time.perf_counter() - t_build)
+
+
+def _blocks(spec: _Spec, Gw: np.ndarray, Hc: np.ndarray | None, d: dict) -> list[list]:
+    """The 4 x 4 block matrix in (x, e, w_x, w_e), numeric or cvxpy (``d``: values)."""
+    n, nw = spec.n, spec.nw
+    I, Zn, Zw, Znw = np.eye(n), np.zeros((n, n)), np.zeros((nw, nw)), np.zeros((n, nw))
+    GtG = Gw.T @ Gw
+    if spec.full_p:
+        P = d["P"]
+        P11, P12, P22 = P[:n, :n], P[:n, n:], P[n:, n:]
+    else:
+        P11, P12, P22 = d["P1"], Zn, d["P2"]
+    Ax, Ae, BF, lam = d["Ax"], d["Ae"], d["BF"], d["lam"]
+    # V' terms: Acl' P + P Acl + 2 lam P, Acl = [[Ax, -BF], [0, Ae]]
+    xx = Ax.T @ P11 + P11 @ Ax + 2 * lam * P11
+    xe = -P11 @ BF + Ax.T @ P12 + P12 @ Ae + 2 * lam * P12
+    ee = -BF.T @ P12 - P12.T @ BF + Ae.T @ P22 + P22 @ Ae + 2 * lam * P22
+    xwx, xwe = P11 @ Gw, P12 @ Gw
+    ewx, ewe = P12.T @ Gw, P22 @ Gw
+    ww = {"x": Zw, "e": Zw}
+    diag = {"x": 0 * I, "e": 0 * I}
+    cross = {"x": Znw, "e": Znw}
+    for side in ("x", "e"):
+        for k in spec.scalars:
+            tau = d[f"{k}_{side}"]
+            if k == "osl":
+                diag[side] = diag[side] + tau * d["rho"] * I
+                cross[side] = cross[side] - (tau / 2) * Gw
+            elif k == "qib":
+                diag[side] = diag[side] + tau * d["beta"] * I
+                cross[side] = cross[side] + (tau * d["gamma"] / 2) * Gw
+                ww[side] = ww[side] - tau * GtG
+            else:  # lip
+                diag[side] = diag[side] + tau * d["a2"] * I
+                ww[side] = ww[side] - tau * GtG
+        if spec.channels:
+            tau = d[f"ch_{side}"]
+            diag[side] = diag[side] + Hc.T @ _diag(-_times(tau, d["lohi"])) @ Hc
+            cross[side] = cross[side] + Hc.T @ _diag(_times(tau, d["losum"]) / 2)
+            ww[side] = ww[side] - _diag(tau)
+    return [
+        [xx + diag["x"], xe, xwx + cross["x"], xwe],
+        [xe.T, ee + diag["e"], ewx, ewe + cross["e"]],
+        [(xwx + cross["x"]).T, ewx.T, ww["x"], Zw],
+        [xwe.T, (ewe + cross["e"]).T, Zw, ww["e"]],
+    ]
 
 
 def _digest(M) -> str:
@@ -372,6 +384,44 @@ def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
     A = plant.A + np.asarray(J, dtype=float)
     eig = np.concatenate([np.linalg.eigvals(A + plant.B @ F), np.linalg.eigvals(A - K @ plant.C)])
     return float(-eig.real.max())
+
+
+def _admits(L: np.ndarray, spec: _Spec, know: Knowledge) -> bool:
+    """True when ``f(x) = L x`` meets every constraint of the level (the scalar constants it uses and,
+    with channels, ``L = G diag(c) H`` with each slope ``c_i`` in ``[lo_i, hi_i]``: checked by the caller)."""
+    c, S = know.constants, (L + L.T) / 2
+    tol = 1e-12 * max(1.0, float(np.abs(L).max(initial=0.0)))
+    ok = {"osl": lambda: lmi.max_eig(S - (c.rho or 0.0) * np.eye(len(L))) <= tol,
+          "qib": lambda: lmi.max_eig(L.T @ L - (c.beta or 0.0) * np.eye(len(L)) - (c.gamma or 0.0) * S) <= tol,
+          "lip": lambda: float(np.linalg.norm(L, 2)) <= (c.alpha or 0.0) + tol}
+    return all(ok[k]() for k in spec.scalars)
+
+
+def _unstable_admissible(spec: _Spec, know: Knowledge, plant: Plant, K: np.ndarray, F: np.ndarray) -> str:
+    """Why no certificate of this level can exist (empty if this quick test decides nothing).
+
+    Every constraint of a level holds for some linear ``f = L x`` (here ``L = 0`` and, with channels,
+    ``L = G diag((lo + hi) / 2) H``, when they meet all of the level's constraints); a certificate
+    would make the loop with that ``f`` exponentially stable, so an eigenvalue with ``Re >= 0``
+    there settles the level as not certified without a solve.
+    """
+    n = plant.n
+    cands = []
+    ch = know.channels if spec.channels else None
+    if ch is None or np.all((ch.lo <= 0) & (ch.hi >= 0)):
+        cands.append(("f = 0", np.zeros((n, n))))
+    if ch is not None:
+        cands.append(("f = G diag(mid-slopes) H x", ch.G @ np.diag((ch.lo + ch.hi) / 2) @ ch.H))
+    scale = max(1.0, *(float(np.abs(M).max(initial=0.0)) for M in (plant.A, plant.B @ F, K @ plant.C)))
+    for name, L in cands:
+        if not _admits(L, spec, know):
+            continue
+        AL = plant.A + L
+        eig = np.concatenate([np.linalg.eigvals(AL + plant.B @ F), np.linalg.eigvals(AL - K @ plant.C)])
+        worst = float(eig.real.max())
+        if worst > UNSTABLE_TOL * scale:
+            return f"with {name} the closed loop has an eigenvalue with Re = {worst:+.3g}"
+    return ""
 
 
 def _fd_jacobian(f, n: int, h: float = 1e-6) -> np.ndarray:
@@ -505,6 +555,12 @@ def certify(
             spec, why = None, f"n = {plant.n} is beyond the SDP certificate's reach (LADDER_MAX_N = {LADDER_MAX_N})"
         if spec is None:
             out[lv] = LevelResult(lv, "inapplicable", reason=why)
+            continue
+        unstable = _unstable_admissible(spec, knowledge, plant, K, F)
+        if unstable:
+            out[lv] = prev = LevelResult(lv, "not certified", reason=(
+                f"provably: {unstable}, and that linear f meets every constraint of this level, so no quadratic "
+                f"certificate exists"))
             continue
         start = prev.decay_rate if prev is not None and prev.certified else 0.0
         res = _level(spec, plant, K, F, knowledge, start=start, hi=hi, rates=rates, rtol=rate_rtol)

@@ -194,12 +194,18 @@ def _values(f: Callable, X: np.ndarray) -> np.ndarray:
     naming the state (the sampler never skips a broken value silently)."""
     import warnings
 
+    raw = np.asarray(f(X.copy()))
+    if np.iscomplexobj(raw):
+        bad = np.flatnonzero(np.any(raw.imag != 0, axis=0)) if raw.shape == X.shape else []
+        where = (f" at the sampled state x = {np.round(X[:, bad[0]], 6).tolist()}: {np.round(raw[:, bad[0]], 6).tolist()}"
+                 if len(bad) else " on sampled states")
+        raise PlantError(f"f: returned complex values{where}; f must be real")
     with warnings.catch_warnings():
         warnings.simplefilter("error", np.exceptions.ComplexWarning)
         try:
-            out = np.asarray(f(X.copy()), dtype=float)
-        except np.exceptions.ComplexWarning:
-            raise PlantError("f: returned complex values on sampled states; f must be real") from None
+            out = np.asarray(raw, dtype=float)
+        except (np.exceptions.ComplexWarning, TypeError, ValueError) as exc:
+            raise PlantError(f"f: returned values that are not real numbers ({exc})") from None
     if out.shape != X.shape:
         raise PlantError(f"f: a batch of shape {X.shape} gave shape {out.shape}")
     bad = ~np.all(np.isfinite(out), axis=0)

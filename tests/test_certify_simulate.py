@@ -88,8 +88,6 @@ def test_destabilizing_gain_not_certified(flex, flex_knowledge):
         assert lv.status in ("not certified", "marginal") and lv.reason and math.isnan(lv.decay_rate)
 
 
-@pytest.mark.xfail(reason="source: an exponentially unstable A + BF is labelled 'marginal' (sup t -> 0 with an "
-                          "indefinite P), although no P > 0 exists: it is provably 'not certified'", strict=False)
 def test_destabilizing_gain_is_provably_not_certified(flex, flex_knowledge):
     # v* (Acl' P + P Acl) v = 2 Re(lam) v* P v > 0 at an unstable eigenvector v of A + BF (z = (v, 0), w = 0):
     # no P > 0 makes the certificate's matrix negative definite, so the level is decided, not marginal
