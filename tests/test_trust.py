@@ -137,8 +137,6 @@ def test_f_breaking_the_contract_is_a_plant_error(f, pattern):
         assert np.abs(x).max() > 20 and not np.all(np.isfinite(_nan_far(x)))
 
 
-@pytest.mark.xfail(reason="source: compute_constants's complex-value PlantError does not name the state (the "
-                          "non-finite one does)", strict=False)
 def test_complex_value_error_names_the_state():
     with pytest.raises(PlantError, match=r"complex.*x = \["):
         compute_constants(double_integrator(_complex_far, id="broken"), seed=0, n_samples=2000)
