@@ -98,6 +98,11 @@ class Composite(Design):
     feedback: Part
     estimator: Part
 
+    @property
+    def needs(self) -> tuple[str, ...]:
+        """The constants either part needs (feedback part's first, no repeats)."""
+        return tuple(dict.fromkeys((*self.feedback.needs, *self.estimator.needs)))
+
     def applicable(self, plant: Plant, constants: Constants) -> str | None:
         for role, part in (("feedback", self.feedback), ("estimator", self.estimator)):
             why = part.applicable(plant, constants)

@@ -196,9 +196,6 @@ def test_global_cubic_without_bounds_is_not_lipschitz():
     assert rep_local.unbounded == {} and rep_local.disproved == [] and rep_local.valid.alpha == 3.0
 
 
-@pytest.mark.xfail(reason="source: bench.pipeline._design reads `design.needs`, which a pairing (designs._parts."
-                          "Composite) leaves empty, so pairings needing alpha miss the 'not globally Lipschitz' "
-                          "explanation", strict=False)
 def test_pairing_needing_alpha_explains_the_unbounded_constant():
     plant = Plant(id="cubic", A=[[0.0, 1.0], [-1.0, -1.0]], B=B2, C=C2, f=_cubic, x0=[0.5, 0.0], x_hat0=[0.0, 0.0])
     rep = compute_constants(plant, seed=0, n_samples=2000)
