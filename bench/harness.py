@@ -105,23 +105,31 @@ def _stop_workers(ex) -> None:
 
 
 def _drain(ex, tasks, finish) -> None:
-    """Submit ``(fn, args, tag)`` tasks and call ``finish(future, tag)`` as each completes.
+    """Submit ``(fn, args, tag)`` tasks and call ``finish(future, tag)`` as each completes;
+    ``finish`` may return more tasks, which are submitted at once (a plant's pairs follow its
+    constants without waiting for the other plants' constants).
 
     A future already done when submitted (the serial executor runs the task inside
     ``submit``) is finished at once: a serial run stores each pair as it finishes and stops
     at a ``KeyboardInterrupt`` where it happens.
     """
-    from concurrent.futures import as_completed
+    from concurrent.futures import FIRST_COMPLETED, wait
 
     pending = {}
-    for fn, args, tag in tasks:
-        fut = ex.submit(fn, *args)
-        if fut.done():
-            finish(fut, tag)
-        else:
-            pending[fut] = tag
-    for fut in as_completed(pending):
-        finish(fut, pending[fut])
+
+    def submit(batch) -> None:
+        for fn, args, tag in batch or ():
+            fut = ex.submit(fn, *args)
+            if fut.done():
+                submit(finish(fut, tag))
+            else:
+                pending[fut] = tag
+
+    submit(tasks)
+    while pending:
+        done, _ = wait(pending, return_when=FIRST_COMPLETED)
+        for fut in done:
+            submit(finish(fut, pending.pop(fut)))
 
 
 class _Run:
@@ -150,6 +158,7 @@ class _Run:
 
     # -- constants ------------------------------------------------------------------------------
     def constants_tasks(self):
+        """The constants tasks of the plants not in the cache (cached plants' pairs follow at once)."""
         for pid in self.plant_ids:
             key = None
             if self.cache is not None and pid in self.plants:
@@ -158,12 +167,14 @@ class _Run:
                 if rep is not None:
                     self.constants[pid] = rep
                     self.tick(f"constants of {pid} (cached)")
+                    yield from self.pair_tasks([pid])
                     continue
             self.keys[pid] = key
             limit = None if self.options.timeout is None else CONSTANTS_TIMEOUT_FACTOR * self.options.timeout
             yield _constants_task, (pid, self.options.seed, self.options.n_samples, limit), pid
 
-    def finish_constants(self, fut, pid: str) -> None:
+    def finish_constants(self, fut, pid: str):
+        """Store a plant's constants; return the tasks of its pairs."""
         try:
             rep, err = fut.result()
         except Exception as exc:  # a worker died
@@ -177,6 +188,7 @@ class _Run:
             if self.keys.get(pid):
                 self.cache.store_constants(self.keys[pid], rep)
         self.tick(f"constants of {pid}" + (f": error ({err})" if err else ""))
+        return self.pair_tasks([pid])
 
     # -- pairs ----------------------------------------------------------------------------------
     def _pair_key(self, pid: str, did: str) -> str | None:
@@ -195,9 +207,11 @@ class _Run:
         self.keys[(pid, did)] = key
         return False
 
-    def pair_tasks(self):
+    def pair_tasks(self, plant_ids) -> list:
+        """The pair tasks of these plants (longest first); pairs from the cache or of a plant whose
+        constants failed are recorded at once."""
         todo = []
-        for pid in self.plant_ids:
+        for pid in plant_ids:
             for did in self.design_ids:
                 if pid in self.errors:
                     rec = blank_record(pid, did)
@@ -208,8 +222,7 @@ class _Run:
                 elif not (self.cache is not None and pid in self.plants and self._from_cache(pid, did)):
                     todo.append((pid, did))
         todo.sort(key=lambda pd: -expected_cost(self.plants.get(pd[0]), pd[1]))
-        for pid, did in todo:
-            yield _pair_task, (pid, did, self.constants[pid], self.options), (pid, did)
+        return [(_pair_task, (pid, did, self.constants[pid], self.options), (pid, did)) for pid, did in todo]
 
     def finish_pair(self, fut, tag: tuple[str, str]) -> None:
         pid, did = tag
@@ -225,6 +238,10 @@ class _Run:
         if self.keys.get((pid, did)):
             self.cache.store_pair(self.keys[(pid, did)], o)
         self.tick(f"{pid} x {did}: {_flags(o.record)}")
+
+    def finish(self, fut, tag):
+        """Finish a constants task (tag: a plant id) or a pair task (tag: (plant, design))."""
+        return self.finish_pair(fut, tag) if isinstance(tag, tuple) else self.finish_constants(fut, tag)
 
     def outcomes(self) -> list[PairOutcome]:
         out = []
@@ -280,8 +297,7 @@ def run(
     state = _Run(plant_ids, design_ids, options, progress, cache)
     with executor(jobs, scheduler) as ex:
         try:
-            _drain(ex, state.constants_tasks(), state.finish_constants)
-            _drain(ex, state.pair_tasks(), state.finish_pair)
+            _drain(ex, state.constants_tasks(), state.finish)
         except KeyboardInterrupt:
             _stop_workers(ex)
             raise

@@ -408,11 +408,11 @@ def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, 
     """Measure and write the performance report (PERF.md, perf.csv, figures/perf_scaling.png); returns PERF.md."""
     import pandas as pd
 
-    from bench.executors import _warm_imports
+    from bench.executors import warm_imports
     from bench.outdir import publish, staged
     from bench.registry import DESIGNS, PLANTS
 
-    _warm_imports()  # forked measurements must not pay for imports
+    warm_imports()  # forked measurements must not pay for imports
     PLANTS.ids()
     DESIGNS.ids()
     routes = route_rows(route_sizes, echo=echo) if route_sizes else []

@@ -12,6 +12,7 @@ import math
 import os
 import platform
 import sys
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
@@ -158,58 +159,98 @@ def _constants_table(result: RunResult) -> str:
     return "\n".join(lines)
 
 
-def _figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png",)) -> list[tuple[str, str]]:
-    """Draw the figures in each format; return (caption, relative path of the first format) pairs."""
+@dataclass(frozen=True)
+class _FigureJob:
+    """One figure to draw: its file stem, caption and the data it plots (picklable)."""
+
+    kind: str  # "norms" (one plant, every converging design) or "states" (one pair)
+    stem: str
+    caption: str
+    title: str
+    data: tuple
+
+
+def _figure_jobs(result: RunResult) -> list[_FigureJob]:
+    """The figures of a run, in report order: per plant the norms of every converging design, and
+    for :data:`FIGURE_PLANTS` each design's states, estimates and errors (the paper's Figures 2-5)."""
+    by_plant: dict[str, list] = {}
+    for o in result.outcomes:
+        if o.trajectory is not None and o.record["converged"] and o.plant is not None:
+            by_plant.setdefault(o.plant.id, []).append(o)
+    jobs = []
+    for pid, outs in by_plant.items():
+        norms = tuple((o.record["design"], o.trajectory.t, np.linalg.norm(o.trajectory.x, axis=0),
+                       np.linalg.norm(o.trajectory.e, axis=0)) for o in outs)
+        jobs.append(_FigureJob("norms", f"{pid}__norms", f"{pid}: state and error norms of every converging design "
+                               "(log scale)", pid, norms))
+        if pid not in FIGURE_PLANTS:
+            continue
+        for o in outs:
+            tr, did = o.trajectory, o.record["design"]
+            settle = [s for s in (o.record["settling_x_s"], o.record["settling_e_s"])
+                      if isinstance(s, float) and math.isfinite(s)]
+            t_show = min(float(tr.t[-1]), max(1.0, 2.0 * max(settle))) if settle else float(tr.t[-1])
+            title = f"{pid} with {did} (cf. the paper's Figures 2-5; first {t_show:.3g} s of {tr.t[-1]:.3g} s)"
+            keep = tr.t <= t_show
+            jobs.append(_FigureJob("states", f"{pid}__{did}", f"{pid} with {did}: states, estimates (dashed) and "
+                                   "estimation errors", title, (tr.t[keep], tr.x[:, keep], tr.x_hat[:, keep], t_show)))
+    return jobs
+
+
+def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
+    """Draw one figure into ``figdir`` in every format; return the first file's name."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    made: list[tuple[str, str]] = []
-    by_plant: dict[str, list] = {}
-    for o in result.outcomes:
-        if o.trajectory is not None and o.record["converged"] and o.plant is not None:
-            by_plant.setdefault(o.plant.id, []).append(o)
-    for pid, outs in by_plant.items():
-        # comparison of norms across designs
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
-        for o in outs:
-            tr = o.trajectory
-            axes[0].semilogy(tr.t, np.maximum(np.linalg.norm(tr.x, axis=0), 1e-16), label=o.record["design"])
-            axes[1].semilogy(tr.t, np.maximum(np.linalg.norm(tr.e, axis=0), 1e-16), label=o.record["design"])
-        axes[0].set(title=f"{pid}: ||x(t)||", xlabel="t [s]")
-        axes[1].set(title=f"{pid}: ||e(t)|| = ||x - x_hat||", xlabel="t [s]")
+    if job.kind == "norms":
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+        fig.subplots_adjust(left=0.06, right=0.99, bottom=0.13, top=0.91, wspace=0.15)
+        for k, (did, t, nx, ne) in enumerate(job.data):  # ten colours, then the same ten dashed
+            style = "-" if k < 10 else "--"
+            axes[0].semilogy(t, np.maximum(nx, 1e-16), style, label=did)
+            axes[1].semilogy(t, np.maximum(ne, 1e-16), style, label=did)
+        axes[0].set(title=f"{job.title}: ||x(t)||", xlabel="t [s]")
+        axes[1].set(title=f"{job.title}: ||e(t)|| = ||x - x_hat||", xlabel="t [s]")
         for ax in axes:
             ax.grid(True, which="both", alpha=0.3)
         axes[0].legend(fontsize=8)
-        name = _save(fig, figdir, f"{pid}__norms", fmts, dpi=110)
-        plt.close(fig)
-        made.append((f"{pid}: state and error norms of every converging design (log scale)", f"figures/{name}"))
-        if pid not in FIGURE_PLANTS:
-            continue
-        for o in outs:
-            tr, did = o.trajectory, o.record["design"]
-            n = tr.x.shape[0]
-            settle = [o.record["settling_x_s"], o.record["settling_e_s"]]
-            settle = [s for s in settle if isinstance(s, float) and math.isfinite(s)]
-            t_show = min(float(tr.t[-1]), max(1.0, 2.0 * max(settle))) if settle else float(tr.t[-1])
-            fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), constrained_layout=True, squeeze=False)
-            for i in range(n):
-                ax = axes[0, i]
-                ax.plot(tr.t, tr.x[i], label=f"x{i + 1}")
-                ax.plot(tr.t, tr.x_hat[i], "--", label=f"x_hat{i + 1}")
-                ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", xlim=(0, t_show))
-                ax.legend(fontsize=8)
-                ax.grid(True, alpha=0.3)
-                ax = axes[1, i]
-                ax.plot(tr.t, tr.e[i], color="C3")
-                ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", xlim=(0, t_show))
-                ax.grid(True, alpha=0.3)
-            fig.suptitle(f"{pid} with {did} (cf. the paper's Figures 2-5; first {t_show:.3g} s of {tr.t[-1]:.3g} s)")
-            name = _save(fig, figdir, f"{pid}__{did}", fmts, dpi=100)
-            plt.close(fig)
-            made.append((f"{pid} with {did}: states, estimates (dashed) and estimation errors", f"figures/{name}"))
-    return made
+        dpi = 110
+    else:
+        t, x, x_hat, t_show = job.data
+        n = x.shape[0]
+        fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
+        fig.subplots_adjust(left=0.05, right=0.99, bottom=0.09, top=0.88, wspace=0.25, hspace=0.4)
+        for i in range(n):
+            ax = axes[0, i]
+            ax.plot(t, x[i], label=f"x{i + 1}")
+            ax.plot(t, x_hat[i], "--", label=f"x_hat{i + 1}")
+            ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", xlim=(0, t_show))
+            ax.legend(fontsize=8)
+            ax.grid(True, alpha=0.3)
+            ax = axes[1, i]
+            ax.plot(t, x[i] - x_hat[i], color="C3")
+            ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", xlim=(0, t_show))
+            ax.grid(True, alpha=0.3)
+        fig.suptitle(job.title)
+        dpi = 100
+    name = _save(fig, figdir, job.stem, fmts, dpi=dpi)
+    plt.close(fig)
+    return name
+
+
+def _figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png",), jobs: int | None = None
+             ) -> list[tuple[str, str]]:
+    """Draw the figures in each format, ``jobs`` at a time (default: all cores); return
+    (caption, relative path of the first format) pairs in report order."""
+    from bench.executors import default_jobs, executor
+
+    todo = _figure_jobs(result)
+    jobs = max(1, min(default_jobs() if jobs is None else jobs, len(todo)))
+    with executor(jobs) as ex:
+        names = list(ex.map(_draw, todo, [figdir] * len(todo), [fmts] * len(todo)))
+    return [(job.caption, f"figures/{name}") for job, name in zip(todo, names)]
 
 
 def _save(fig, figdir: Path, stem: str, fmts: tuple[str, ...], *, dpi: int) -> str:
