@@ -25,6 +25,7 @@ from designs._riccati_route import (
 )
 from plants.chain import chain_plant
 from plants.random_families import random_lipschitz_plant
+from tests.conftest import closed_loop
 
 
 def max_eig(M):
@@ -63,19 +64,6 @@ IDS = [f"{p.id}" for p in PLANTS_SMALL]
 def route(p, **kw):
     ch = p.channels
     return structured_riccati(p.A, p.B, p.C, ch.G, ch.H, ch.lo, ch.hi, **kw)
-
-
-def loop_rhs(p, F, K):
-    n = p.n
-
-    def rhs(_, z):
-        x, xh = z[:n], z[n:]
-        u = F @ xh
-        dx = p.A @ x + p.B @ u + p.f(x)
-        dxh = p.A @ xh + p.B @ u + p.f(xh) + K @ (p.C @ (x - xh))
-        return np.concatenate([dx, dxh])
-
-    return rhs
 
 
 # -- the ARE solver -----------------------------------------------------------------------------
@@ -271,7 +259,7 @@ def test_closed_loop_decays(p):
     T = 10 / abs(sigma)
     z0 = np.concatenate([p.x0, p.x_hat0])
     ts = np.linspace(0, T, 400)
-    sol = solve_ivp(loop_rhs(p, res.F, res.K), (0, T), z0, t_eval=ts, method="LSODA", rtol=1e-9, atol=1e-12)
+    sol = solve_ivp(closed_loop(p, res.K, res.F), (0, T), z0, t_eval=ts, method="LSODA", rtol=1e-9, atol=1e-12)
     assert sol.success
     x, e = sol.y[:n], sol.y[:n] - sol.y[n:]
     assert np.linalg.norm(x[:, -1]) < 1e-2 * np.linalg.norm(p.x0)
@@ -290,7 +278,7 @@ def test_certified_decay_rate_holds_along_the_trajectory():
     n = p.n
     z0 = np.concatenate([p.x0, p.x_hat0])
     ts = np.linspace(0, 10, 201)
-    sol = solve_ivp(loop_rhs(p, res.F, res.K), (0, 10), z0, t_eval=ts, method="LSODA", rtol=1e-10, atol=1e-13)
+    sol = solve_ivp(closed_loop(p, res.K, res.F), (0, 10), z0, t_eval=ts, method="LSODA", rtol=1e-10, atol=1e-13)
     x = sol.y[:n]
     e = x - sol.y[n:]
     V = np.einsum("it,ij,jt->t", x, res.P, x) + res.mu * np.einsum("it,ij,jt->t", e, res.R, e)
