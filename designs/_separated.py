@@ -1,4 +1,4 @@
-"""Separated solves: the x-side and e-side LMIs alone, then a joint certificate rebuilt from them.
+"""The corrected Theorem 1 and Corollary 1 in one layout: the joint LMI, its two sides, their verdicts.
 
 Without the Young coupling the corrected Theorem 1 (and Corollary 1) LMI splits into an x-side
 LMI in (Q, Fh, kappa) and an e-side LMI in (R, Kh, multipliers), each 2n x 2n. The joint LMI
@@ -20,10 +20,24 @@ scale, so its largest eigenvalue (the reported margin) is a well-conditioned tes
 largest eigenvalue is reported too. An interior-point
 solver's cost grows roughly with the cube of the PSD cone's size, so two 2n cones are much
 cheaper than one 6n cone.
+
+Verdict on a side that is not strictly feasible. Each side is homogeneous in its variables
+(scaling (Q, Fh, kappa), or (R, Kh, multipliers), by s > 0 scales its matrix by s). Under the
+solve's normalisation ``t I << Q << cap I`` the best margin t of an infeasible side is therefore
+0, reached as every variable tends to 0 (the margin shrinks with them), so "within the
+verification tolerance of zero" cannot tell an infeasible side from one on the boundary. Such a
+side is decided again under the scale-free normalisation ``I << Q << cap I`` (R for the e-side):
+every strictly feasible point of a homogeneous side scales into it unless cond(Q) > cap, and the
+margin no longer shrinks with the variables, so a clearly negative best margin proves the side
+infeasible (t = -0.32 for an uncontrollable mode at -0.3 with sqrt(beta) = 0.5), while a side on
+the boundary keeps a best margin of 0 and stays marginal. Both sides are principal submatrices of
+the joint matrix, so a side proven infeasible proves the joint LMI infeasible (:func:`settle_joint`).
+The gains always come from the solve's own normalisation: the scale-free solve only labels.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -31,18 +45,35 @@ import numpy as np
 from bench import lmi
 from designs._core import DesignResult
 
-__all__ = ["coordinate_hint", "joint_result", "paper_gains_from", "recombine", "scalar", "separated_design", "synthesis_variables",
-           "young_layout"]
+__all__ = ["YoungForm", "append_schur_column", "coordinate_hint", "joint_result", "paper_gains_from", "recombine",
+           "scalar", "separated_design", "settle_joint", "state_feedback_block", "synthesis_variables", "young_layout"]
+
+#: The decision matrix that sets each side's scale.
+SIDE_MATRIX = {"x-side": "Q", "e-side": "R"}
 
 
-def young_layout(n: int, s11: Callable[[dict], object], eside: Callable[[dict], list],
-                 schur_weight: Callable[[dict], object] | None):
+def state_feedback_block(d: dict):
+    """``AQ + QA' + B Fh' + Fh B'``: the x-side's Lyapunov block (values dict, cvxpy or numpy)."""
+    A, B, Q, Fh = d["A"], d["B"], d["Q"], d["Fh"]
+    return A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T
+
+
+def append_schur_column(rows: list, Q, corner) -> list:
+    """Border the block rows with the Schur column ``[Q; 0; ...; 0]`` and the corner block ``corner``."""
+    Z = np.zeros(Q.shape)
+    for i, row in enumerate(rows):
+        row.append(Q if i == 0 else Z)
+    rows.append([Q, *[Z] * (len(rows) - 1), corner])
+    return rows
+
+
+def young_layout(n: int, eside: Callable[[dict], list], schur_weight: Callable[[dict], object] | None):
     """Block functions ``(joint, xside, eside)`` of a corrected Theorem 1 / Corollary 1 LMI.
 
-    Both LMIs share one layout (MATH.md): the x-side block ``s11`` (``AQ + QA' + B Fh' +
-    Fh B' + kappa I``), an e-side 2 x 2 block matrix ``[[E11, E12], [E12', E22]]``, the Young
-    coupling of ``-B F e`` through ``-Q/phi`` and ``-phi Q``, and, when ``schur_weight`` is
-    given, the Schur column ``Q`` with ``-w I`` (``w = kappa / beta_eff`` or ``kappa / alpha^2``)::
+    Both LMIs share one layout (MATH.md): the x-side block ``s11 = AQ + QA' + B Fh' + Fh B' +
+    kappa I``, an e-side 2 x 2 block matrix ``[[E11, E12], [E12', E22]]``, the Young coupling of
+    ``-B F e`` through ``-Q/phi`` and ``-phi Q``, and, when ``schur_weight`` is given, the Schur
+    column ``Q`` with ``-w I`` (``w = kappa / beta_eff`` or ``kappa / alpha^2``)::
 
         [ s11    0     0     B Fh'    0        Q    ]
         [ 0      E11   E12   0        I        0    ]
@@ -51,14 +82,12 @@ def young_layout(n: int, s11: Callable[[dict], object], eside: Callable[[dict], 
         [ 0      I     0     0        -phi Q   0    ]
         [ Q      0     0     0        0        -w I ]
 
-    The functions read ``B``, ``Q``, ``Fh``, ``phi`` and ``iphi`` (= 1/phi) from the values dict,
-    so they build the cvxpy matrix (Parameters) and the numeric one (arrays) alike.
+    The functions read ``A``, ``B``, ``Q``, ``Fh``, ``kappa``, ``phi`` and ``iphi`` (= 1/phi) from
+    the values dict, so they build the cvxpy matrix (Parameters) and the numeric one (arrays) alike.
 
     Parameters
     ----------
     n : int
-    s11 : callable
-        ``s11(values)``: the x-side (1, 1) block.
     eside : callable
         ``eside(values)``: the e-side blocks ``[[E11, E12], [E21, E22]]``.
     schur_weight : callable or None
@@ -70,6 +99,9 @@ def young_layout(n: int, s11: Callable[[dict], object], eside: Callable[[dict], 
     """
     I, Z = np.eye(n), np.zeros((n, n))
 
+    def s11(d):
+        return state_feedback_block(d) + d["kappa"] * I
+
     def joint(d):
         (E11, E12), (E21, E22) = eside(d)
         B, Q, Fh = d["B"], d["Q"], d["Fh"]
@@ -80,11 +112,7 @@ def young_layout(n: int, s11: Callable[[dict], object], eside: Callable[[dict], 
             [Fh @ B.T, Z, Z, -d["iphi"] * Q, Z],
             [Z, I, Z, Z, -d["phi"] * Q],
         ]
-        if schur_weight is not None:
-            for row, blk in zip(rows, (Q, Z, Z, Z, Z)):
-                row.append(blk)
-            rows.append([Q, Z, Z, Z, Z, -schur_weight(d) * I])
-        return rows
+        return rows if schur_weight is None else append_schur_column(rows, Q, -schur_weight(d) * I)
 
     def xside(d):
         if schur_weight is None:
@@ -94,12 +122,124 @@ def young_layout(n: int, s11: Callable[[dict], object], eside: Callable[[dict], 
     return joint, xside, eside
 
 
+@dataclass(frozen=True)
+class YoungForm:
+    """One corrected LMI in the Young layout (Theorem 1's convex form, or Corollary 1) and its programs.
+
+    Attributes
+    ----------
+    what : str
+        The design's name, for reasons (``"corrected Theorem 1"``).
+    key : tuple
+        Identifies the LMI's structure (e.g. ``("thm1", schur)``); with the shape and the cap it
+        keys the compiled programs (:func:`bench.lmi.cached_program`).
+    blocks : tuple
+        ``(joint, xside, eside)`` block functions (:func:`young_layout`).
+    e_scalars : tuple of str
+        The e-side's nonnegative scalar variables (scaled with R and Kh); the x-side has ``kappa``.
+    constants : dict
+        The scalar constants, each a cvxpy Parameter of every program; the plant's ``A``, ``B``,
+        ``C`` enter as :func:`bench.lmi.plant_matrices`.
+    """
+
+    what: str
+    key: tuple
+    blocks: tuple
+    e_scalars: tuple[str, ...]
+    constants: dict
+
+    def _parameters(self, mats: lmi.Matrices) -> dict:
+        return {**mats.parameters(), **lmi.scalar_parameters(*self.constants)}
+
+    def joint_program(self, plant, *, cap: float, phi_name: str) -> lmi.Program:
+        """The joint program (compiled once per shape), plant and constants set; the Young weight
+        ``phi`` (and ``iphi`` = 1/phi) is left to the caller."""
+        import cvxpy as cp
+
+        n, m, p = plant.n, plant.m, plant.p
+        mats = lmi.plant_matrices(plant)
+        scalars = ("kappa", *self.e_scalars)
+
+        def build():
+            v = synthesis_variables(n, m, p, scalars)
+            prm = {"phi": cp.Parameter(nonneg=True, name=phi_name),
+                   "iphi": cp.Parameter(nonneg=True, name=f"inv_{phi_name}"), **self._parameters(mats)}
+            return lmi.margin_program(self.blocks[0], v, prm, ("Q", "R"), lambda d: [d[k] >= 0 for k in scalars],
+                                      cap=cap)
+
+        prog = lmi.cached_program((*self.key, "joint", n, m, p, float(cap), mats.key), build)
+        prog.set(**mats.settable(), **self.constants)
+        return prog
+
+    def side_program(self, plant, side: str, *, cap: float, scale_free: bool = False) -> lmi.Program:
+        """The x-side (Q, Fh, kappa) or e-side (R, Kh, ``e_scalars``) program, compiled once per shape.
+
+        ``scale_free`` adds ``I << Q`` (``I << R``) to the normalisation (module docstring).
+        """
+        import cvxpy as cp
+
+        n, m, p = plant.n, plant.m, plant.p
+        mats = lmi.plant_matrices(plant)
+        X = SIDE_MATRIX[side]
+
+        def build():
+            if side == "x-side":
+                v = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
+                     "t": cp.Variable()}
+                scalars, blocks = ("kappa",), self.blocks[1]
+            else:
+                v = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "t": cp.Variable()}
+                v.update({k: cp.Variable() for k in self.e_scalars})
+                scalars, blocks = self.e_scalars, self.blocks[2]
+
+            def extra(d):
+                return [d[k] >= 0 for k in scalars] + ([d[X] >> np.eye(n)] if scale_free else [])
+
+            return lmi.margin_program(blocks, v, self._parameters(mats), (X,), extra, cap=cap)
+
+        shape = (n, m, p, tuple(self.constants), float(cap), mats.key)
+        prog = lmi.cached_program((*self.key, side, "scale-free" if scale_free else "capped", *shape), build)
+        prog.set(**mats.settable(), **self.constants)
+        return prog
+
+    def decide_side(self, plant, side: str, *, cap: float, solver: str) -> dict:
+        """Decide a side that is not strictly feasible under the capped normalisation (module docstring).
+
+        Returns
+        -------
+        dict
+            :func:`bench.lmi.conclude` of the scale-free solve (``status`` ``infeasible``,
+            ``marginal``, ``feasible`` or ``undecided``, ``t``, ``margin``), plus ``normalisation``
+            ``cap`` and ``cost`` (compile seconds, solve seconds, solves).
+        """
+        prog = self.side_program(plant, side, cap=cap, scale_free=True)
+        # one accurate solve: a verdict of infeasibility is not left to SCS
+        prog.solve(solver="CLARABEL" if solver == "auto" else solver,
+                   solver_opts=lmi.SCS_OPTS if solver == "SCS" else None)
+        norm = f"I << {SIDE_MATRIX[side]} << {cap:g} I"
+        out = lmi.conclude(prog, what=f"{self.what} {side}", normalisation=norm, searched="(scale-free)")
+        out.update(normalisation=norm, cap=cap, cost=(prog.compile_s, prog.solve_s, prog.n_solves))
+        return out
+
+
+def _scale_free_clause(decided: dict[str, dict]) -> str:
+    """``"not strictly feasible under the normalisation I << Q << cap I (...)"`` for the sides in ``decided``."""
+    norms = " and ".join(d["normalisation"] for d in decided.values())
+    ts = ", ".join(f"{d.get('t', float('nan')):.3g}" for d in decided.values())
+    mats = ", ".join(f"cond({SIDE_MATRIX[side]})" for side in decided)
+    cap = max(d["cap"] for d in decided.values())
+    return (f"not strictly feasible under the normalisation {norms} (best margin t = {ts} there; "
+            f"{'the side is' if len(decided) == 1 else 'each side is'} homogeneous in its variables, so this loses "
+            f"only points with {mats} > {cap:g})")
+
+
 def recombine(
     B: np.ndarray,
     xprog: lmi.Program,
     eprog: lmi.Program,
     e_keys: tuple[str, ...],
     joint_blocks: Callable[[dict], list],
+    decide: Callable[[str], dict],
 ) -> dict:
     """Rebuild and verify the joint certificate from solved x-side and e-side programs.
 
@@ -113,16 +253,21 @@ def recombine(
         The e-side variables, all scaled by s.
     joint_blocks : callable
         Blocks of the joint LMI, taking the values of both sides plus ``phi`` and ``iphi``.
+    decide : callable
+        ``decide(side) -> dict`` (:meth:`YoungForm.decide_side`) for a side that is not strictly
+        feasible.
 
     Returns
     -------
     dict
-        ``status`` (feasible / infeasible / undecided), ``reason``, ``margin`` (largest eigenvalue of
-        the equilibrated joint matrix, verified), ``raw_margin`` (of the joint matrix itself),
-        ``lmi_size``, ``min_eig``, ``phi``, ``scale``, ``x_margin``, ``e_margin``, ``values``.
+        ``status`` (feasible / infeasible / marginal / undecided), ``reason``, ``margin`` (largest
+        eigenvalue of the equilibrated joint matrix, verified), ``raw_margin`` (of the joint matrix
+        itself), ``lmi_size``, ``min_eig``, ``phi``, ``scale``, ``x_margin``, ``e_margin``,
+        ``values``, ``cost`` (of the scale-free solves).
     """
     out: dict = {"margin": float("nan"), "lmi_size": 0, "min_eig": {}, "phi": float("nan"),
-                 "scale": float("nan"), "x_margin": float("nan"), "e_margin": float("nan"), "values": None}
+                 "scale": float("nan"), "x_margin": float("nan"), "e_margin": float("nan"), "values": None,
+                 "cost": (0.0, 0.0, 0)}
     for side, prog in (("x-side", xprog), ("e-side", eprog)):
         if prog.last_status not in ("optimal", "optimal_inaccurate"):
             out.update(status="undecided", reason=f"{side} solver status {prog.last_status!r} {prog.last_error}".strip())
@@ -145,13 +290,7 @@ def recombine(
             f"does not verify ({margins})"))
         return out
     if bad:
-        marginal = all(sides[name][0] == "marginal" for name in bad)
-        status = "marginal" if marginal else "infeasible"
-        what = ("within the verification tolerance of zero (neither strictly feasible nor proven infeasible)"
-                if marginal else "not strictly feasible under the normalisation")
-        out.update(status=status, reason=(
-            f"the {' and '.join(bad)} {'is' if len(bad) == 1 else 'are'} {what} ({margins}); the joint LMI is "
-            "feasible iff both sides are"))
+        out.update(_side_verdict({name: decide(name) for name in bad}, margins))
         return out
     Q, Fh = xv["Q"], xv["Fh"]
     BF = B @ np.linalg.solve(Q, Fh).T  # B Fh' Q^{-1}
@@ -185,80 +324,104 @@ def recombine(
     return out
 
 
-def separated_design(plant, blocks, e_scalars: tuple[str, ...], *, solver: str, cap: float, what: str,
-                     phi_name: str, extra_params, key: tuple, constants: dict):
-    """Solve the x-side (Q, Fh, kappa) and e-side (R, Kh, ``e_scalars``) apart and rebuild the joint.
+def _side_verdict(decided: dict[str, dict], margins: str) -> dict:
+    """Status and reason of a separated design whose sides ``decided`` are not strictly feasible.
+
+    ``infeasible`` when a scale-free solve proves a side infeasible, ``marginal`` when every such
+    side stays within the verification tolerance of zero there, ``undecided`` otherwise (the two
+    normalisations disagree, or the solver failed).
+    """
+    cost = tuple(sum(c) for c in zip(*(d["cost"] for d in decided.values())))
+    proven = {k: d for k, d in decided.items() if d["status"] == "infeasible"}
+    marginal = [k for k, d in decided.items() if d["status"] == "marginal"]
+    clauses = []
+    if proven:
+        clauses.append(f"the {' and '.join(proven)} {'is' if len(proven) == 1 else 'are'} {_scale_free_clause(proven)}")
+    if marginal:
+        clauses.append(f"the {' and '.join(marginal)} {'is' if len(marginal) == 1 else 'are'} within the verification "
+                       "tolerance of zero (neither strictly feasible nor proven infeasible)")
+    if proven or len(marginal) == len(decided):
+        status = "infeasible" if proven else "marginal"
+        return {"status": status, "cost": cost, "reason": (
+            f"{' and '.join(clauses)} ({margins}); the joint LMI is feasible iff both sides are")}
+    other = next(k for k, d in decided.items() if d["status"] not in ("infeasible", "marginal"))
+    return {"status": "undecided", "cost": cost, "reason": (
+        f"the {other} is not strictly feasible under the normalisation {SIDE_MATRIX[other]} << cap I ({margins}), "
+        f"but its scale-free solve is {decided[other]['status']}: {decided[other]['reason']}")}
+
+
+def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_name: str, extra_params) -> DesignResult:
+    """Solve the x-side (Q, Fh, kappa) and e-side (R, Kh, ``form.e_scalars``) apart and rebuild the joint.
 
     Parameters
     ----------
     plant : Plant
-    blocks : tuple
-        ``(joint, xside, eside)`` block functions of the design.
-    e_scalars : tuple of str
-        Nonnegative scalar variables of the e-side (scaled with R and Kh).
+    form : YoungForm
+        The design's LMI.
     solver : str
         ``"auto"``, ``"CLARABEL"`` or ``"SCS"`` (see :func:`bench.lmi.solve_side`).
     cap : float
         Normalisation cap.
-    what : str
-        Name of the design for reasons.
     phi_name : str
         Name under which the recombination's Young weight is reported.
     extra_params : callable
         ``extra_params(values) -> dict`` of design-specific scalars to report.
-    key : tuple
-        Identifies the design's structure (e.g. ``("thm1.sep", schur)``); with the shape and
-        the cap it keys the compiled side programs (:func:`designs.lmi.cached_program`).
-    constants : dict
-        The design's scalar constants (each becomes a cvxpy Parameter of both sides); the
-        plant's ``A``, ``B``, ``C`` enter as :func:`designs.lmi.plant_matrices`.
 
     Returns
     -------
     DesignResult
     """
-    import cvxpy as cp
-
-    n, m, p = plant.n, plant.m, plant.p
-    joint, xside, eside = blocks
-    scalars = tuple(constants)
-    mats = lmi.plant_matrices(plant)
-
-    def params() -> dict:
-        return {**mats.parameters(), **lmi.scalar_parameters(*scalars)}
-
-    def build_x():
-        xv = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
-              "t": cp.Variable()}
-        return lmi.margin_program(xside, xv, params(), ("Q",), lambda d: [d["kappa"] >= 0], cap=cap)
-
-    def build_e():
-        ev = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "t": cp.Variable()}
-        ev.update({k: cp.Variable() for k in e_scalars})
-        return lmi.margin_program(eside, ev, params(), ("R",), lambda d: [d[k] >= 0 for k in e_scalars], cap=cap)
-
-    shape = (n, m, p, scalars, float(cap), mats.key)
-    xprog = lmi.cached_program((*key, "x-side", *shape), build_x)
-    eprog = lmi.cached_program((*key, "e-side", *shape), build_e)
-    xprog.set(**mats.settable(), **constants)
-    eprog.set(**mats.settable(), **constants)
-    xlog = lmi.solve_side(xprog, solver, n)
-    elog = lmi.solve_side(eprog, solver, n)
-    rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, e_keys=("R", "Kh", *e_scalars), joint_blocks=joint)
+    xprog = form.side_program(plant, "x-side", cap=cap)
+    eprog = form.side_program(plant, "e-side", cap=cap)
+    xlog = lmi.solve_side(xprog, solver, plant.n)
+    elog = lmi.solve_side(eprog, solver, plant.n)
+    rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, e_keys=("R", "Kh", *form.e_scalars), joint_blocks=form.blocks[0],
+                   decide=lambda side: form.decide_side(plant, side, cap=cap, solver=solver))
     K = F = None
     vals = rc["values"] or {}
     if rc["status"] == "feasible":
         K, F = paper_gains_from(vals)
     used = "+".join(dict.fromkeys((xprog.solver, eprog.solver)))
+    compile_s, solve_s, n_solves = rc["cost"]
     return DesignResult(
-        status=rc["status"], reason=rc["reason"] and f"{what} (separated): {rc['reason']}", route="sdp",
+        status=rc["status"], reason=rc["reason"] and f"{form.what} (separated): {rc['reason']}", route="sdp",
         K=K, F=F, solver=used, solver_status=f"x {xlog}; e {elog}",
-        compile_s=xprog.compile_s + eprog.compile_s, solve_s=xprog.solve_s + eprog.solve_s,
-        n_solves=xprog.n_solves + eprog.n_solves, margin=rc["margin"], lmi_size=rc["lmi_size"],
+        compile_s=xprog.compile_s + eprog.compile_s + compile_s, solve_s=xprog.solve_s + eprog.solve_s + solve_s,
+        n_solves=xprog.n_solves + eprog.n_solves + n_solves, margin=rc["margin"], lmi_size=rc["lmi_size"],
         min_eig=rc["min_eig"],
         params={"form": "separated (x-side and e-side apart, joint certificate rebuilt)", phi_name: rc["phi"],
                 "e_scale": rc["scale"], "x_margin": rc["x_margin"], "e_margin": rc["e_margin"],
                 "raw_joint_margin": rc.get("raw_margin", float("nan")), "cap": cap, **extra_params(vals)})
+
+
+def settle_joint(plant, form: YoungForm, concl: dict, *, cap: float, solver: str, searched: str,
+                 normalisation: str) -> tuple[dict, tuple]:
+    """Re-decide a joint solve that :func:`bench.lmi.conclude` found marginal, side by side.
+
+    The x-side and e-side blocks are principal submatrices of the joint matrix: a side proven
+    infeasible by its scale-free solve (:meth:`YoungForm.decide_side`) makes the joint LMI
+    infeasible at every Young weight. Otherwise ``concl`` is returned unchanged. ``searched`` and
+    ``normalisation`` describe the joint solve, for the reason.
+
+    Returns
+    -------
+    concl : dict
+    cost : tuple
+        Compile seconds, solve seconds and solves spent deciding.
+    """
+    if concl["status"] != "marginal":
+        return concl, (0.0, 0.0, 0)
+    decided = {side: form.decide_side(plant, side, cap=cap, solver=solver) for side in SIDE_MATRIX}
+    cost = tuple(sum(c) for c in zip(*(d["cost"] for d in decided.values())))
+    proven = {k: d for k, d in decided.items() if d["status"] == "infeasible"}
+    if not proven:
+        return concl, cost
+    block = "block is a principal submatrix" if len(proven) == 1 else "blocks are principal submatrices"
+    reason = (f"{form.what}: infeasible: its {' and '.join(proven)} {block} of the joint LMI and "
+              f"{'is' if len(proven) == 1 else 'are'} {_scale_free_clause(proven)}; the joint LMI's own best margin "
+              f"is within the verification tolerance of zero (max eig {concl['margin']:.3g}) {searched}, under "
+              f"{normalisation}")
+    return {**concl, "status": "infeasible", "reason": reason}, cost
 
 
 # -- helpers shared by the corrected Theorem 1 and Corollary 1 ---------------------------------
@@ -291,15 +454,19 @@ def scalar(vals: dict, k: str) -> float:
     return float(v) if v is not None else float("nan")
 
 
-def joint_result(prog: lmi.Program, concl: dict, params: dict) -> DesignResult:
-    """The :class:`DesignResult` of a joint LMI program concluded by :func:`bench.lmi.conclude`."""
+def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.0, 0.0, 0)) -> DesignResult:
+    """The :class:`DesignResult` of a joint LMI program concluded by :func:`bench.lmi.conclude`.
+
+    ``cost`` (compile seconds, solve seconds, solves) of other solves is added to the program's own
+    (e.g. :func:`settle_joint`'s).
+    """
     K = F = None
     if concl["status"] == "feasible":
         K, F = paper_gains_from(prog.values())
     return DesignResult(
         status=concl["status"], reason=concl["reason"], route="sdp", K=K, F=F, solver=prog.solver,
-        solver_status=concl["solver_status"], compile_s=prog.compile_s, solve_s=prog.solve_s,
-        n_solves=prog.n_solves, margin=concl["margin"], lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
+        solver_status=concl["solver_status"], compile_s=prog.compile_s + cost[0], solve_s=prog.solve_s + cost[1],
+        n_solves=prog.n_solves + cost[2], margin=concl["margin"], lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
         params={**params, "margin_t": concl.get("t", float("nan"))},
     )
 

@@ -14,33 +14,32 @@ import numpy as np
 
 from bench import lmi
 from bench.registry import register_design
-from designs._core import (Design, DesignResult, check_choice, check_int, check_positive, check_range,
-                           check_values_in)
-from designs._separated import coordinate_hint, joint_result, scalar, separated_design, synthesis_variables, young_layout
+from designs._core import Design, DesignResult, check_positive, check_values_in
+from designs._separated import YoungForm, joint_result, scalar, synthesis_variables, young_layout
+from designs._young import YoungDesign
 from plants import Constants, Plant
 
 __all__ = ["Cor1", "Cor1Printed"]
 
 
+def lipschitz_w22(d: dict, I: np.ndarray):
+    """``W22 = A'R + RA - C'Kh - Kh'C + mu2 alpha^2 I`` (values dict; ``a2`` = alpha^2)."""
+    A, C, R, Kh = d["A"], d["C"], d["R"], d["Kh"]
+    return A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * d["a2"] * I
+
+
 @register_design("cor1_sep", order=16, method="separated")
 @register_design("cor1", order=12)
 @dataclass(frozen=True, kw_only=True)
-class Cor1(Design):
+class Cor1(YoungDesign):
     """Corollary 1, corrected (kappa = 1/mu1 exact, MATH.md); Young weight phi2 searched.
 
-    The 6n x 6n LMI, for fixed phi2, in Q, R, Fh, Kh, kappa, mu2 ::
-
-        [ S11+kappa I  0     0      Q                  B Fh'    0        ]
-        [ 0            W22   R      0                  0        I        ]
-        [ 0            R     -mu2 I 0                  0        0        ]
-        [ Q            0     0      -(kappa/alpha^2) I 0        0        ]
-        [ Fh B'        0     0      0                  -Q/phi2  0        ]
-        [ 0            I     0      0                  0        -phi2 Q  ]
-
-    with ``S11 = AQ + QA' + B Fh' + Fh B'`` and
-    ``W22 = A'R + RA - C'Kh - Kh'C + mu2 alpha^2 I``; ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
-    For alpha = 0 (linear plant) the Schur column is dropped. phi2 is searched as Theorem 1's
-    phi1 (log grid, then golden refinement, maximising the normalised margin).
+    For fixed phi2, the 6n x 6n LMI in Q, R, Fh, Kh, kappa, mu2 is the Young layout
+    (:func:`designs._separated.young_layout`) with the e-side ``[[W22, R], [R, -mu2 I]]``,
+    ``W22 = A'R + RA - C'Kh - Kh'C + mu2 alpha^2 I``, and the Schur weight ``kappa / alpha^2``;
+    ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``. For alpha = 0 (linear plant) the Schur column is
+    dropped. phi2 is searched as Theorem 1's phi1 (log grid, then golden refinement, maximising
+    the normalised margin).
 
     Parameters
     ----------
@@ -48,127 +47,43 @@ class Cor1(Design):
         Fixed Young weight; None (default) searches ``phi2_range``.
     phi2_range : tuple of float
         Search interval.
-    n_grid, n_refine : int
-        Search effort.
-    cap : float
-        Normalisation ``Q, R << cap I``, margin ``t <= 1``.
-    method : {"joint", "separated"}
-        ``"separated"`` (registered as ``cor1_sep``) solves the x-side and e-side 2n x 2n LMIs apart
-        and rebuilds a verified joint certificate (:mod:`designs._separated`).
-    solver : {"auto", "CLARABEL", "SCS"}
-        As for :class:`designs.thm1.Thm1`.
+    n_grid, n_refine, cap, method, solver
+        See :class:`designs._young.YoungDesign`; ``method="separated"`` is registered as ``cor1_sep``.
     """
 
     phi2: float | None = None
     phi2_range: tuple[float, float] = (1e-4, 10.0)
-    n_grid: int = 7
-    n_refine: int = 5
-    cap: float = 1e3
-    method: str = "joint"
-    solver: str = "auto"
 
     needs = ("alpha",)
+    phi_name = "phi2"
+    scaled_variant = "cor1_scaled"
 
-    @property
-    def _joint_solver(self) -> str:
-        return "CLARABEL" if self.solver == "auto" else self.solver
-
-    def __post_init__(self) -> None:
-        check_choice("solver", self.solver, ("auto", "CLARABEL", "SCS"))
-        check_choice("method", self.method, ("joint", "separated"))
-        if self.phi2 is not None:
-            check_positive("phi2", self.phi2)
-        check_range("phi2_range", self.phi2_range)
-        check_positive("cap", self.cap)
-        check_int("n_grid", self.n_grid, minimum=2)
-        check_int("n_refine", self.n_refine, minimum=0)
-
-    @staticmethod
-    def _blocks(n: int, schur: bool):
-        """Blocks ``(joint, xside, eside)`` of the joint 6n LMI (5n when alpha = 0).
-
-        ``A``, ``B``, ``C``, ``a2`` (alpha^2) and ``ia2`` (1/alpha^2) are read from the values
-        dict (:func:`designs._separated.young_layout`).
-        """
+    def form(self, plant: Plant, constants: Constants) -> YoungForm:
+        """6n x 6n (5n when alpha = 0), constants ``a2`` = alpha^2 and ``ia2`` = 1/alpha^2."""
+        n = plant.n
         I = np.eye(n)
-
-        def s11(d):
-            A, B, Q, Fh = d["A"], d["B"], d["Q"], d["Fh"]
-            return A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
+        a2 = float(constants.alpha) ** 2
+        schur = a2 > 0
 
         def eside(d):
-            A, C, R, Kh = d["A"], d["C"], d["R"], d["Kh"]
-            W22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * d["a2"] * I
-            return [[W22, R], [R, -d["mu2"] * I]]
+            return [[lipschitz_w22(d, I), d["R"]], [d["R"], -d["mu2"] * I]]
 
-        return young_layout(n, s11, eside, (lambda d: d["kappa"] * d["ia2"]) if schur else None)
+        return YoungForm(what="corrected Corollary 1", key=("cor1", schur),
+                         blocks=young_layout(n, eside, (lambda d: d["kappa"] * d["ia2"]) if schur else None),
+                         e_scalars=("mu2",), constants={"a2": a2, "ia2": 1 / a2 if schur else 0.0})
+
+    def joint_params(self, phi: float, vals: dict, constants: Constants) -> dict:
+        return {"phi2": phi, **self._multipliers(vals, constants), "cap": self.cap}
+
+    def separated_params(self, vals: dict, constants: Constants) -> dict:
+        m = self._multipliers(vals, constants)
+        return {"kappa": m["kappa"], "mu2": m["mu2"], "alpha": constants.alpha, "mu1": m["mu1"]}
 
     @staticmethod
-    def _constants(alpha: float) -> tuple[dict, bool]:
-        """Scalar parameter values (alpha^2, 1/alpha^2) and whether the Schur column is present."""
-        a2 = float(alpha) ** 2
-        schur = a2 > 0
-        return {"a2": a2, "ia2": 1 / a2 if schur else 0.0}, schur
-
-    def _program(self, plant: Plant, alpha: float) -> lmi.Program:
-        """The joint program (compiled once per shape), plant and alpha set; phi2 left to the caller."""
-        import cvxpy as cp
-
-        n, m, p = plant.n, plant.m, plant.p
-        vals, schur = self._constants(alpha)
-        mats = lmi.plant_matrices(plant)
-
-        def build():
-            v = synthesis_variables(n, m, p, ("kappa", "mu2"))
-            prm = {"phi": cp.Parameter(nonneg=True, name="phi2"), "iphi": cp.Parameter(nonneg=True, name="inv_phi2"),
-                   **mats.parameters(), **lmi.scalar_parameters("a2", "ia2")}
-            joint, _, _ = self._blocks(n, schur)
-
-            def extra(d):
-                return [d["kappa"] >= 0, d["mu2"] >= 0]
-
-            return lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
-
-        prog = lmi.cached_program(("cor1.joint", n, m, p, schur, float(self.cap), mats.key), build)
-        prog.set(**mats.settable(), **vals)
-        return prog
-
-    def _design_separated(self, plant: Plant, alpha: float) -> DesignResult:
-        """x-side and e-side solved apart (two 2n LMIs), joint certificate rebuilt and verified."""
-        vals, schur = self._constants(alpha)
-        return separated_design(plant, self._blocks(plant.n, schur), ("mu2",), solver=self.solver, cap=self.cap,
-                                what="corrected Corollary 1", phi_name="phi2", key=("cor1.sep", schur),
-                                constants=vals,
-                                extra_params=lambda v: {"kappa": scalar(v, "kappa"), "mu2": scalar(v, "mu2"),
-                                                        "alpha": alpha,
-                                                        "mu1": 1 / scalar(v, "kappa") if scalar(v, "kappa") > 0
-                                                        else float("nan")})
-
-    def design(self, plant: Plant, constants: Constants) -> DesignResult:
-        """Solve the corrected Corollary 1 for ``plant`` with Lipschitz constant ``constants.alpha``."""
-        alpha = constants.alpha
-        if self.method == "separated":
-            return coordinate_hint(plant, self._design_separated(plant, alpha), "cor1_scaled")
-        prog = self._program(plant, alpha)
-
-        def obj(phi):
-            return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi)
-
-        lo, hi = self.phi2_range
-        if self.phi2 is None:
-            phi, _ = lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
-            searched = f"over phi2 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
-            prog.restore_best()
-        else:
-            phi, searched = self.phi2, f"at phi2 = {self.phi2:g}"
-            obj(phi)
-        concl = lmi.conclude(prog, what="corrected Corollary 1",
-                              normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1", searched=searched)
-        vals = prog.values()
+    def _multipliers(vals: dict, constants: Constants) -> dict:
         kappa = scalar(vals, "kappa")
-        params = {"phi2": phi, "kappa": kappa, "mu1": 1 / kappa if kappa > 0 else float("nan"),
-                  "mu2": scalar(vals, "mu2"), "alpha": alpha, "cap": self.cap}
-        return coordinate_hint(plant, joint_result(prog, concl, params), "cor1_scaled")
+        return {"kappa": kappa, "mu1": 1 / kappa if kappa > 0 else float("nan"), "mu2": scalar(vals, "mu2"),
+                "alpha": constants.alpha}
 
 
 @register_design("cor1_printed", order=13)
@@ -208,10 +123,10 @@ class Cor1Printed(Design):
         mats = lmi.plant_matrices(plant)
 
         def blocks(d):
-            A, B, C = d["A"], d["B"], d["C"]
-            Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
+            A, B = d["A"], d["B"]
+            Q, R, Fh = d["Q"], d["R"], d["Fh"]
             W11 = Q @ A.T + A @ Q + Fh @ B.T + B @ Fh.T
-            W22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * d["a2"] * I
+            W22 = lipschitz_w22(d, I)
             BF = -B @ Fh.T
             return [
                 # W1                                          | W2

@@ -14,33 +14,44 @@ import numpy as np
 
 from bench import lmi
 from bench.registry import register_design
-from designs._core import (Design, DesignResult, check_choice, check_int, check_positive, check_range,
-                           check_values_in)
-from designs._separated import coordinate_hint, joint_result, scalar, separated_design, synthesis_variables, young_layout
+from designs._core import Design, DesignResult, check_int, check_positive, check_range, check_values_in
+from designs._separated import (YoungForm, append_schur_column, joint_result, scalar, state_feedback_block,
+                                synthesis_variables, young_layout)
+from designs._young import YoungDesign
 from plants import Constants, Plant
 
 __all__ = ["Thm1", "Thm1Printed"]
 
 
+def osl_qib_eside(d: dict, I: np.ndarray) -> tuple:
+    """``(S22, X)`` of the e-side with the OSL and QIB multipliers eps3, eps4 (values dict).
+
+    ``S22 = A'R + RA - C'Kh - Kh'C + 2(eps3 rho + eps4 beta) I`` and ``X = R + eta3 I`` with
+    ``eta3 = eps4 gamma - eps3``; the e-side's third block is ``-2 eps4 I``.
+    """
+    A, C, R, Kh = d["A"], d["C"], d["R"], d["Kh"]
+    S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * d["rho"] + d["eps4"] * d["beta"]) * I
+    X = R + (d["eps4"] * d["gamma"] - d["eps3"]) * I
+    return S22, X
+
+
 @register_design("thm1_sep", order=15, method="separated")
 @register_design("thm1", order=10)
 @dataclass(frozen=True, kw_only=True)
-class Thm1(Design):
+class Thm1(YoungDesign):
     """Theorem 1, corrected convex form (MATH.md); Young weight phi1 searched on a log grid.
 
     For ``gamma >= 0`` the OSL multiplier is tied to the QIB one, ``eps1 = gamma eps2`` (so the
     missing condition ``eta2 = 0`` holds), ``kappa = 1 / (2 eps2)`` and
-    ``beta_eff = beta + gamma rho``; for a fixed Young weight ``phi1`` the 6n x 6n matrix ::
+    ``beta_eff = beta + gamma rho``; for a fixed Young weight ``phi1`` the 6n x 6n matrix is the
+    Young layout (:func:`designs._separated.young_layout`) with the e-side ::
 
-        [ S11+kappa I  0        0        B Fh'    0        Q                   ]
-        [ 0            S22      R+eta3 I 0        I        0                   ]
-        [ 0            *        -2eps4 I 0        0        0                   ]
-        [ Fh B'        0        0        -Q/phi1  0        0                   ]
-        [ 0            I        0        0        -phi1 Q  0                   ]
-        [ Q            0        0        0        0        -(kappa/beta_eff) I ]
+        [[S22, R + eta3 I], [R + eta3 I, -2 eps4 I]]
 
-    is an LMI in Q, R, Fh, Kh, kappa, eps3, eps4, with ``S11 = AQ + QA' + B Fh' + Fh B'``,
-    ``S22 = A'R + RA - C'Kh - Kh'C + 2(eps3 rho + eps4 beta) I``, ``eta3 = eps4 gamma - eps3``.
+    and the Schur weight ``kappa / beta_eff`` (no Schur column when ``beta_eff <= 0``), an LMI in
+    Q, R, Fh, Kh, kappa, eps3, eps4, with ``S22 = A'R + RA - C'Kh - Kh'C + 2(eps3 rho + eps4 beta) I``,
+    ``eta3 = eps4 gamma - eps3``.
+
     For ``gamma < 0`` the multipliers eps1 >= 0, eps2 > 0 are fixed and the 7n x 7n form with
     the exact (1,3) block ``I + eta2 Q`` and the Schur column ``Q`` / ``-(1/eta1) I``
     (``eta1 = 2(eps1 rho + eps2 beta)``, dropped when ``eta1 <= 0``) is used; eps2 is then
@@ -51,118 +62,74 @@ class Thm1(Design):
     phi1 : float, optional
         Fixed Young weight; None (default) searches ``phi1_range``.
     phi1_range : tuple of float
-        Search interval for phi1 (log grid of ``n_grid`` points, then ``n_refine`` golden steps
-        on log10 phi1 around the best grid point), maximising the normalised margin t.
-    n_grid, n_refine : int
-        Search effort.
-    cap : float
-        Normalisation ``Q, R << cap I``; the margin t (<= 1) is maximised under it.
+        Search interval for phi1.
     eps1 : float
         OSL multiplier for the ``gamma < 0`` form.
     eps2_range : tuple of float
         Grid (5 log-spaced points) of the QIB multiplier for the ``gamma < 0`` form.
-    method : {"joint", "separated"}
-        ``"joint"`` solves the 6n x 6n LMI; ``"separated"`` (registered as ``thm1_sep``) solves
-        the x-side and e-side 2n x 2n LMIs apart and rebuilds a verified joint certificate
-        (:mod:`designs._separated`); phi1 is then chosen by the recombination, not searched.
-        For ``gamma < 0`` the separated method falls back to the joint fixed-eps form.
-    solver : {"auto", "CLARABEL", "SCS"}
-        ``"auto"``: Clarabel for the joint LMI (SCS is inaccurate there); for the separated sides
-        SCS first (much faster from n ~ 16 on), its point verified with numpy, and Clarabel if it
-        does not verify.
+    n_grid, n_refine, cap, method, solver
+        See :class:`designs._young.YoungDesign`; ``method="separated"`` is registered as
+        ``thm1_sep``. For ``gamma < 0`` the separated method falls back to the joint fixed-eps form.
     """
 
     phi1: float | None = None
     phi1_range: tuple[float, float] = (1e-4, 10.0)
-    n_grid: int = 7
-    n_refine: int = 5
-    cap: float = 1e3
     eps1: float = 0.0
     eps2_range: tuple[float, float] = (1e-2, 1e2)
-    method: str = "joint"
-    solver: str = "auto"
 
     needs = ("rho", "beta", "gamma")
-
-    @property
-    def _joint_solver(self) -> str:
-        return "CLARABEL" if self.solver == "auto" else self.solver
+    phi_name = "phi1"
+    scaled_variant = "thm1_scaled"
 
     def __post_init__(self) -> None:
-        check_choice("solver", self.solver, ("auto", "CLARABEL", "SCS"))
-        check_choice("method", self.method, ("joint", "separated"))
-        if self.phi1 is not None:
-            check_positive("phi1", self.phi1)
-        check_range("phi1_range", self.phi1_range)
-        check_positive("cap", self.cap)
+        super().__post_init__()
         check_positive("eps1", self.eps1, allow_zero=True)
         check_range("eps2_range", self.eps2_range, strict=False)
-        check_int("n_grid", self.n_grid, minimum=2)
-        check_int("n_refine", self.n_refine, minimum=0)
+
+    def _design(self, plant: Plant, constants: Constants) -> DesignResult:
+        """``gamma >= 0``: the convex form (joint or separated); ``gamma < 0``: the fixed-eps form."""
+        if constants.gamma < 0:
+            return self._design_fixed_eps(plant, constants)
+        return super()._design(plant, constants)
 
     # -- gamma >= 0: convex form -------------------------------------------------------------
-    @staticmethod
-    def _convex_blocks(n: int, schur: bool):
-        """Blocks ``(joint, xside, eside)`` of the joint 6n LMI (5n when beta_eff <= 0).
-
-        Plant matrices (``A``, ``B``, ``C``) and constants (``rho``, ``beta``, ``gamma``,
-        ``ibeff`` = 1/beta_eff) are read from the values dict (:func:`designs._separated.young_layout`).
-        """
+    def form(self, plant: Plant, c: Constants) -> YoungForm:
+        """The convex form: 6n x 6n (5n when ``beta_eff <= 0``), constants ``rho``, ``beta``,
+        ``gamma`` and ``ibeff`` = 1/beta_eff."""
+        n = plant.n
         I = np.eye(n)
-
-        def s11(d):
-            A, B, Q, Fh = d["A"], d["B"], d["Q"], d["Fh"]
-            return A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T + d["kappa"] * I
-
-        def eside(d):
-            A, C, R, Kh = d["A"], d["C"], d["R"], d["Kh"]
-            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * d["rho"] + d["eps4"] * d["beta"]) * I
-            X = R + (d["eps4"] * d["gamma"] - d["eps3"]) * I
-            return [[S22, X], [X.T, -2 * d["eps4"] * I]]
-
-        return young_layout(n, s11, eside, (lambda d: d["kappa"] * d["ibeff"]) if schur else None)
-
-    @staticmethod
-    def _constants(c: Constants) -> tuple[dict, bool]:
-        """Scalar parameter values of the convex form and whether its Schur column is present."""
         beff = c.beta + c.gamma * c.rho
         schur = beff > 0
-        return {"rho": c.rho, "beta": c.beta, "gamma": c.gamma, "ibeff": 1 / beff if schur else 0.0}, schur
 
-    def _program_convex(self, plant: Plant, c: Constants) -> lmi.Program:
-        """The joint convex program (compiled once per shape; see :func:`designs.lmi.cached_program`),
-        with the plant's matrices and constants set; phi1 is left to the caller."""
-        import cvxpy as cp
+        def eside(d):
+            S22, X = osl_qib_eside(d, I)
+            return [[S22, X], [X.T, -2 * d["eps4"] * I]]
 
-        n, m, p = plant.n, plant.m, plant.p
-        vals, schur = self._constants(c)
-        mats = lmi.plant_matrices(plant)
+        return YoungForm(what="corrected Theorem 1", key=("thm1", schur),
+                         blocks=young_layout(n, eside, (lambda d: d["kappa"] * d["ibeff"]) if schur else None),
+                         e_scalars=("eps3", "eps4"),
+                         constants={"rho": c.rho, "beta": c.beta, "gamma": c.gamma, "ibeff": 1 / beff if schur else 0.0})
 
-        def build():
-            v = synthesis_variables(n, m, p, ("kappa", "eps3", "eps4"))
-            prm = {"phi": cp.Parameter(nonneg=True, name="phi1"), "iphi": cp.Parameter(nonneg=True, name="inv_phi1"),
-                   **mats.parameters(), **lmi.scalar_parameters("rho", "beta", "gamma", "ibeff")}
-            joint, _, _ = self._convex_blocks(n, schur)
+    def joint_params(self, phi: float, vals: dict, c: Constants) -> dict:
+        kappa = scalar(vals, "kappa")
+        return {
+            "form": "convex (eps1 = gamma eps2)",
+            "phi1": phi,
+            "kappa": kappa,
+            "eps2": 1 / (2 * kappa) if kappa > 0 else float("nan"),
+            "eps1": c.gamma / (2 * kappa) if kappa > 0 else float("nan"),
+            **self._multipliers(vals, c),
+        }
 
-            def extra(d):
-                return [d["kappa"] >= 0, d["eps3"] >= 0, d["eps4"] >= 0]
+    def separated_params(self, vals: dict, c: Constants) -> dict:
+        return {"kappa": scalar(vals, "kappa"), **self._multipliers(vals, c)}
 
-            return lmi.margin_program(joint, v, prm, ("Q", "R"), extra, cap=self.cap)
+    def _multipliers(self, vals: dict, c: Constants) -> dict:
+        """The e-side multipliers solved for, the constants and the cap."""
+        return {"eps3": scalar(vals, "eps3"), "eps4": scalar(vals, "eps4"), "rho": c.rho, "beta": c.beta,
+                "gamma": c.gamma, "cap": self.cap}
 
-        prog = lmi.cached_program(("thm1.convex", n, m, p, schur, float(self.cap), mats.key), build)
-        prog.set(**mats.settable(), **vals)
-        return prog
-
-    def _design_separated(self, plant: Plant, c: Constants) -> DesignResult:
-        """x-side and e-side solved apart (two 2n LMIs), joint certificate rebuilt and verified."""
-        vals, schur = self._constants(c)
-        return separated_design(plant, self._convex_blocks(plant.n, schur), ("eps3", "eps4"), solver=self.solver,
-                                cap=self.cap, what="corrected Theorem 1", phi_name="phi1",
-                                key=("thm1.sep", schur), constants=vals,
-                                extra_params=lambda v: {"kappa": scalar(v, "kappa"), "eps3": scalar(v, "eps3"),
-                                                        "eps4": scalar(v, "eps4"), "rho": c.rho, "beta": c.beta,
-                                                        "gamma": c.gamma})
-
+    # -- gamma < 0: fixed-eps form -----------------------------------------------------------
     def _program_fixed_eps(self, plant: Plant, c: Constants, schur: bool) -> lmi.Program:
         """The fixed-eps program for gamma < 0 (compiled once per shape and Schur flag), plant and
         constants set; phi1, eta2, two_eps2 (and inv_eta1) are left to the caller."""
@@ -173,25 +140,19 @@ class Thm1(Design):
         mats = lmi.plant_matrices(plant)
 
         def blocks(d):
-            A, B, C = d["A"], d["B"], d["C"]
-            Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
-            S11 = A @ Q + Q @ A.T + B @ Fh.T + Fh @ B.T
-            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * d["rho"] + d["eps4"] * d["beta"]) * I
-            X = R + (d["eps4"] * d["gamma"] - d["eps3"]) * I
+            B, Q, Fh = d["B"], d["Q"], d["Fh"]
+            S22, X = osl_qib_eside(d, I)
             Y = I + d["eta2"] * Q
             rows = [
-                [S11, Z, Y, Z, B @ Fh.T, Z],
+                [state_feedback_block(d), Z, Y, Z, B @ Fh.T, Z],
                 [Z, S22, Z, X, Z, I],
                 [Y.T, Z, -d["two_eps2"] * I, Z, Z, Z],
                 [Z, X.T, Z, -2 * d["eps4"] * I, Z, Z],
                 [Fh @ B.T, Z, Z, Z, -d["iphi"] * Q, Z],
                 [Z, I, Z, Z, Z, -d["phi"] * Q],
             ]
-            if schur:  # eta1 Q Q with eta1 > 0; for eta1 <= 0 the term is <= 0 and is dropped
-                for row, blk in zip(rows, (Q, Z, Z, Z, Z, Z)):
-                    row.append(blk)
-                rows.append([Q, Z, Z, Z, Z, Z, -d["inv_eta1"] * I])
-            return rows
+            # eta1 Q Q with eta1 > 0; for eta1 <= 0 the term is <= 0 and is dropped
+            return append_schur_column(rows, Q, -d["inv_eta1"] * I) if schur else rows
 
         def build():
             v = synthesis_variables(n, m, p, ("eps3", "eps4"))
@@ -215,60 +176,8 @@ class Thm1(Design):
         prog.set(**mats.settable(), rho=c.rho, beta=c.beta, gamma=c.gamma)
         return prog
 
-    @property
-    def _normalisation(self) -> str:
-        return f"the normalisation Q, R << {self.cap:g} I, t <= 1"
-
-    def design(self, plant: Plant, constants: Constants) -> DesignResult:
-        """Solve the corrected Theorem 1 for ``plant`` with ``constants``.
-
-        ``gamma >= 0``: the convex form (joint, or separated for ``method="separated"``);
-        ``gamma < 0``: the fixed-eps form (:meth:`_design_fixed_eps`).
-        """
-        if constants.gamma < 0:
-            res = self._design_fixed_eps(plant, constants)
-        elif self.method == "separated":
-            res = self._design_separated(plant, constants)
-        else:
-            res = self._design_convex(plant, constants)
-        return coordinate_hint(plant, res, "thm1_scaled")
-
-    def _search_phi(self, obj) -> tuple[float, str]:
-        """Search (or fix) the Young weight phi1 with the objective ``obj(phi) -> margin``."""
-        lo, hi = self.phi1_range
-        if self.phi1 is not None:
-            obj(self.phi1)
-            return self.phi1, f"at phi1 = {self.phi1:g}"
-        phi, _ = lmi.log_search(obj, lo, hi, n_grid=self.n_grid, n_refine=self.n_refine)
-        return phi, f"over phi1 in [{lo:g}, {hi:g}]"
-
-    def _design_convex(self, plant: Plant, c: Constants) -> DesignResult:
-        """The joint convex form (gamma >= 0), phi1 searched."""
-        prog = self._program_convex(plant, c)
-        phi, searched = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi))
-        prog.restore_best()
-        concl = lmi.conclude(prog, what="corrected Theorem 1", normalisation=self._normalisation,
-                             searched=f"{searched} ({prog.n_solves} solves)")
-        vals = prog.values()
-        kappa = scalar(vals, "kappa")
-        params = {
-            "form": "convex (eps1 = gamma eps2)",
-            "phi1": phi,
-            "kappa": kappa,
-            "eps2": 1 / (2 * kappa) if kappa > 0 else float("nan"),
-            "eps1": c.gamma / (2 * kappa) if kappa > 0 else float("nan"),
-            "eps3": scalar(vals, "eps3"),
-            "eps4": scalar(vals, "eps4"),
-            "rho": c.rho,
-            "beta": c.beta,
-            "gamma": c.gamma,
-            "cap": self.cap,
-        }
-        return joint_result(prog, concl, params)
-
     def _design_fixed_eps(self, plant: Plant, c: Constants) -> DesignResult:
         """The fixed-eps form (gamma < 0): eps2 on a log grid, phi1 searched at each."""
-        lo, hi = self.phi1_range
         progs: dict[bool, lmi.Program] = {}
         eps1 = float(self.eps1)
         best = (-np.inf, None, None, None)
@@ -285,10 +194,7 @@ class Thm1(Design):
             def obj(phi, fixed=fixed, prog=prog):
                 return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi, **fixed)
 
-            if self.phi1 is None:
-                phi, val = lmi.log_search(obj, lo, hi, n_grid=7, n_refine=3)
-            else:
-                phi, val = self.phi1, obj(self.phi1)
+            phi, val, _ = self._search_phi(obj, n_grid=7, n_refine=3)
             if val > best[0] or best[3] is None:
                 best = (val, eps2, phi, prog)
         _, eps2, phi, prog = best
@@ -297,6 +203,7 @@ class Thm1(Design):
         prog.compile_s = sum(p.compile_s for p in progs.values())
         prog.solve_s = sum(p.solve_s for p in progs.values())
         prog.n_solves = sum(p.n_solves for p in progs.values())
+        lo, hi = self.phi1_range
         searched = f"over eps2 in {self.eps2_range} x phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
         concl = lmi.conclude(prog, what="corrected Theorem 1 (fixed eps, gamma < 0)",
                              normalisation=self._normalisation, searched=searched)
@@ -308,12 +215,7 @@ class Thm1(Design):
             "eps2": eps2,
             "eta1": eta1,
             "eta2": eps2 * c.gamma - eps1,
-            "eps3": scalar(vals, "eps3"),
-            "eps4": scalar(vals, "eps4"),
-            "rho": c.rho,
-            "beta": c.beta,
-            "gamma": c.gamma,
-            "cap": self.cap,
+            **self._multipliers(vals, c),
         }
         return joint_result(prog, concl, params)
 
@@ -359,11 +261,10 @@ class Thm1Printed(Design):
         mats = lmi.plant_matrices(plant)
 
         def blocks(d):
-            A, B, C = d["A"], d["B"], d["C"]
-            Q, R, Fh, Kh = d["Q"], d["R"], d["Fh"], d["Kh"]
+            A, B = d["A"], d["B"]
+            Q, Fh = d["Q"], d["Fh"]
             S11 = Q @ A.T + A @ Q + Fh @ B.T + B @ Fh.T
-            S22 = A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + 2 * (d["eps3"] * d["rho"] + d["eps4"] * d["beta"]) * I
-            X = R + (d["eps4"] * d["gamma"] - d["eps3"]) * I
+            S22, X = osl_qib_eside(d, I)
             BF = -B @ Fh.T
             return [
                 # S1                                                  | S2

@@ -106,9 +106,6 @@ def test_a_side_infeasible_so_joint_infeasible(kind, side, B, C):
         assert "under the normalisation" in joint.reason and joint.margin > 0
 
 
-@pytest.mark.xfail(reason="source: an infeasible side of a separated design can be labelled 'marginal' (its LMI is "
-                          "homogeneous, so the best margin tends to 0 with every variable) and the joint design can "
-                          "be 'marginal' where the closed form proves infeasibility", strict=False)
 @pytest.mark.parametrize("side, B, C", [("x-side", E2, I2), ("e-side", I2, E2.T)])
 def test_provably_infeasible_side_is_labelled_infeasible(side, B, C):
     p = two_state(0.3, B, C)

@@ -1,0 +1,130 @@
+"""The design flow shared by the corrected Theorem 1 and Corollary 1 (MATH.md).
+
+Both are one LMI in the Young layout (:func:`designs._separated.young_layout`), solved either
+jointly with the Young weight searched on a log grid (``method="joint"``), or side by side with
+the joint certificate rebuilt (``method="separated"``, :func:`designs._separated.separated_design`).
+A subclass names its Young weight (``phi_name``: the fields ``phi_name`` and ``{phi_name}_range``),
+builds its LMI (:meth:`YoungDesign.form`) and says which scalars it reports.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, ClassVar
+
+from bench import lmi
+from designs._core import Design, DesignResult, check_choice, check_int, check_positive, check_range
+from designs._separated import YoungForm, coordinate_hint, joint_result, separated_design, settle_joint
+from plants import Constants, Plant
+
+__all__ = ["YoungDesign"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class YoungDesign(Design):
+    """Base of :class:`designs.thm1.Thm1` and :class:`designs.cor1.Cor1`.
+
+    Parameters
+    ----------
+    n_grid, n_refine : int
+        Search effort for the Young weight: a log grid of ``n_grid`` points, then ``n_refine``
+        golden steps on its log10 around the best grid point, maximising the normalised margin t.
+    cap : float
+        Normalisation ``Q, R << cap I``; the margin t (<= 1) is maximised under it.
+    method : {"joint", "separated"}
+        ``"joint"`` solves the 6n x 6n LMI; ``"separated"`` solves the x-side and e-side 2n x 2n
+        LMIs apart and rebuilds a verified joint certificate (:mod:`designs._separated`); the
+        Young weight is then chosen by the recombination, not searched.
+    solver : {"auto", "CLARABEL", "SCS"}
+        ``"auto"``: Clarabel for the joint LMI (SCS is inaccurate there); for the separated sides
+        SCS first (much faster from n ~ 16 on), its point verified with numpy, and Clarabel if it
+        does not verify.
+    """
+
+    n_grid: int = 7
+    n_refine: int = 5
+    cap: float = 1e3
+    method: str = "joint"
+    solver: str = "auto"
+
+    #: The Young weight's name: the subclass has the fields ``phi_name`` (None: searched) and
+    #: ``{phi_name}_range``.
+    phi_name: ClassVar[str] = "phi"
+    #: The design that searches a state scaling first (named in the reason of a failure).
+    scaled_variant: ClassVar[str] = ""
+
+    def __post_init__(self) -> None:
+        check_choice("solver", self.solver, ("auto", "CLARABEL", "SCS"))
+        check_choice("method", self.method, ("joint", "separated"))
+        if self._fixed_phi is not None:
+            check_positive(self.phi_name, self._fixed_phi)
+        check_range(f"{self.phi_name}_range", self._phi_range)
+        check_positive("cap", self.cap)
+        check_int("n_grid", self.n_grid, minimum=2)
+        check_int("n_refine", self.n_refine, minimum=0)
+
+    @property
+    def _fixed_phi(self) -> float | None:
+        return getattr(self, self.phi_name)
+
+    @property
+    def _phi_range(self) -> tuple[float, float]:
+        return getattr(self, f"{self.phi_name}_range")
+
+    @property
+    def _joint_solver(self) -> str:
+        return "CLARABEL" if self.solver == "auto" else self.solver
+
+    @property
+    def _normalisation(self) -> str:
+        return f"the normalisation Q, R << {self.cap:g} I, t <= 1"
+
+    # -- what a subclass provides ---------------------------------------------------------------
+    def form(self, plant: Plant, constants: Constants) -> YoungForm:  # pragma: no cover
+        """The design's LMI for ``plant`` with ``constants``."""
+        raise NotImplementedError
+
+    def joint_params(self, phi: float, vals: dict, constants: Constants) -> dict:  # pragma: no cover
+        """The scalars a joint solve reports (Young weight ``phi``, solved values ``vals``)."""
+        raise NotImplementedError
+
+    def separated_params(self, vals: dict, constants: Constants) -> dict:  # pragma: no cover
+        """The design-specific scalars a separated solve reports (solved values ``vals``)."""
+        raise NotImplementedError
+
+    # -- the flow -------------------------------------------------------------------------------
+    def design(self, plant: Plant, constants: Constants) -> DesignResult:
+        """Solve the design for ``plant`` with ``constants``; a failure's reason names the scaled variant."""
+        return coordinate_hint(plant, self._design(plant, constants), self.scaled_variant)
+
+    def _design(self, plant: Plant, constants: Constants) -> DesignResult:
+        form = self.form(plant, constants)
+        if self.method == "separated":
+            return separated_design(plant, form, solver=self.solver, cap=self.cap, phi_name=self.phi_name,
+                                    extra_params=lambda vals: self.separated_params(vals, constants))
+        return self._design_joint(plant, form, constants)
+
+    def _search_phi(self, obj: Callable[[float], float], *, n_grid: int | None = None,
+                    n_refine: int | None = None) -> tuple[float, float, str]:
+        """Search (or fix) the Young weight with the objective ``obj(phi) -> margin``.
+
+        Returns the weight, its margin and, for reasons, where it was searched.
+        """
+        lo, hi = self._phi_range
+        if self._fixed_phi is not None:
+            return self._fixed_phi, obj(self._fixed_phi), f"at {self.phi_name} = {self._fixed_phi:g}"
+        phi, val = lmi.log_search(obj, lo, hi, n_grid=self.n_grid if n_grid is None else n_grid,
+                                  n_refine=self.n_refine if n_refine is None else n_refine)
+        return phi, val, f"over {self.phi_name} in [{lo:g}, {hi:g}]"
+
+    def _design_joint(self, plant: Plant, form: YoungForm, constants: Constants) -> DesignResult:
+        """The joint LMI, the Young weight searched; a marginal verdict is settled side by side."""
+        prog = form.joint_program(plant, cap=self.cap, phi_name=self.phi_name)
+        phi, _, searched = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi))
+        prog.restore_best()
+        if self._fixed_phi is None:
+            searched += f" ({prog.n_solves} solves)"
+        concl = lmi.conclude(prog, what=form.what, normalisation=self._normalisation, searched=searched)
+        concl, cost = settle_joint(plant, form, concl, cap=self.cap, solver=self.solver, searched=searched,
+                                   normalisation=self._normalisation)
+        return joint_result(prog, concl, self.joint_params(phi, prog.values(), constants), cost)
