@@ -375,8 +375,8 @@ def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_nam
     eprog = form.side_program(plant, "e-side", cap=cap)
     xlog = lmi.solve_side(xprog, solver, plant.n)
     elog = lmi.solve_side(eprog, solver, plant.n)
-    rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, e_keys=("R", "Kh", *form.e_scalars), joint_blocks=form.blocks[0],
-                   decide=lambda side: form.decide_side(plant, side, cap=cap, solver=solver))
+    rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, e_keys=("R", "Kh", *form.e_scalars),
+                   joint_blocks=form.blocks[0], decide=lambda side: form.decide_side(plant, side, cap=cap, solver=solver))
     K = F = None
     vals = rc["values"] or {}
     if rc["status"] == "feasible":

@@ -105,10 +105,10 @@ class Thm1(YoungDesign):
             S22, X = osl_qib_eside(d, I)
             return [[S22, X], [X.T, -2 * d["eps4"] * I]]
 
+        constants = {"rho": c.rho, "beta": c.beta, "gamma": c.gamma, "ibeff": 1 / beff if schur else 0.0}
         return YoungForm(what="corrected Theorem 1", key=("thm1", schur),
                          blocks=young_layout(n, eside, (lambda d: d["kappa"] * d["ibeff"]) if schur else None),
-                         e_scalars=("eps3", "eps4"),
-                         constants={"rho": c.rho, "beta": c.beta, "gamma": c.gamma, "ibeff": 1 / beff if schur else 0.0})
+                         e_scalars=("eps3", "eps4"), constants=constants)
 
     def joint_params(self, phi: float, vals: dict, c: Constants) -> dict:
         kappa = scalar(vals, "kappa")
