@@ -7,13 +7,14 @@ package solves LMIs or simulates: that is the job of ``designs`` and ``bench``.
 from __future__ import annotations
 
 import math
+import numbers
 import warnings
 from dataclasses import dataclass, field, fields
 from typing import Callable, Mapping
 
 import numpy as np
 
-__all__ = ["Channels", "Constants", "Plant", "PlantError"]
+__all__ = ["Channels", "Constants", "Plant", "PlantError", "SineTerms", "check_int", "check_real", "sine_terms"]
 
 
 class PlantError(ValueError):
@@ -33,6 +34,39 @@ def _finite_scalar(name: str, value, *, allow_none: bool = True, positive: bool 
         raise PlantError(f"{name}: must be finite, got {v}")
     if positive and v <= 0:
         raise PlantError(f"{name}: must be > 0, got {v}")
+    return v
+
+
+# -- argument checks of the plant factories (each error names the parameter) -------------------
+def check_int(name: str, value, lo: int, hi: int | None = None, *, what: str = "") -> int:
+    """``value`` as an int in ``[lo, hi]`` (no upper bound when ``hi`` is None), else :class:`PlantError`.
+
+    Integers only (Python or numpy, or a float with an integer value; not bool): ``2.5`` or ``"7"``
+    are rejected. ``what`` describes the parameter in the message (``"the number of states "``).
+    """
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)):
+        raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
+    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+        raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
+    v = int(value)
+    if v < lo or (hi is not None and v > hi):
+        rng = f">= {lo}" if hi is None else f"between {lo} and {hi}"
+        raise PlantError(f"{name}: {what}must be {rng}, got {value!r}")
+    return v
+
+
+def check_real(name: str, value, *, lo: float | None = None, strict: bool = False) -> float:
+    """``value`` as a finite float (not bool), ``>= lo`` (``> lo`` if ``strict``), else :class:`PlantError`."""
+    if isinstance(value, bool):
+        raise PlantError(f"{name}: expected a real number, got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise PlantError(f"{name}: expected a real number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise PlantError(f"{name}: must be finite, got {value!r}")
+    if lo is not None and (v < lo or (strict and v == lo)):
+        raise PlantError(f"{name}: must be {'>' if strict else '>='} {lo:g}, got {value!r}")
     return v
 
 
@@ -166,6 +200,89 @@ class Channels:
     def apply(self, x: np.ndarray) -> np.ndarray:
         """``G phi(H x)`` for a state (n,) or a batch (n, N)."""
         return self.G @ np.asarray(self.phi(self.H @ np.asarray(x, dtype=float)), dtype=float)
+
+
+@dataclass(frozen=True)
+class SineTerms:
+    """A nonlinearity of sine terms, ``f_{acts[l]}(x) = (coef / scale) sin(x_{reads[l]})``, as plant fields.
+
+    Build with :func:`sine_terms`; :meth:`fields` gives ``f``, ``jacobian``, ``channels`` and
+    ``bounds`` for :class:`Plant`.
+    """
+
+    f: Callable[[np.ndarray], np.ndarray]
+    jacobian: Callable[[np.ndarray], np.ndarray]
+    channels: Channels | None
+    bounds: Constants
+
+    def fields(self) -> dict:
+        """The keyword arguments ``f``, ``jacobian``, ``channels``, ``bounds`` of :class:`Plant`."""
+        return {"f": self.f, "jacobian": self.jacobian, "channels": self.channels, "bounds": self.bounds}
+
+
+def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> SineTerms:
+    """Sine terms ``f_{acts[l]}(x) = (coef / scale) sin(x_{reads[l]})``: a pendulum (gravity) per channel.
+
+    The flexible link and joint (``f4 = -c sin x3``), the pendulum (``f2 = -(g/l) sin x1``) and the
+    chain of masses (``(c/m) sin q_i`` on each pendulum mass's velocity) are all of this form.
+
+    Parameters
+    ----------
+    n : int
+        Number of states.
+    acts, reads : sequence of int
+        The states each term acts on and reads; each sequence without repeats, and no state in
+        both (the bound on rho below needs it).
+    coef : float
+        Coefficient of the sine in the channels: ``phi_l(z) = coef sin(z)``, slope in ``[-|coef|, |coef|]``.
+    scale : float
+        Divides every term (a mass): ``G = E_acts / scale``.
+
+    Returns
+    -------
+    SineTerms
+        Global constants in closed form, with ``a = |coef| / scale``: alpha = a (``|sin u - sin v| <=
+        |u - v|``); rho = a / 2, since ``<df, dx> = a sum_l s_l d_{acts[l]}`` with ``|s_l| <=
+        |d_{reads[l]}|`` and ``|d_i d_j| <= (d_i^2 + d_j^2) / 2`` over disjoint index pairs;
+        ``(beta, gamma) = (a^2, 0)``. Channels ``G = E_acts / scale``, ``H = E_reads'`` (none when
+        there is no term; every constant is then 0).
+
+    Raises
+    ------
+    PlantError
+        If ``acts`` and ``reads`` differ in length, repeat a state or share one.
+    """
+    acts = np.asarray(acts, dtype=np.intp).reshape(-1)
+    reads = np.asarray(reads, dtype=np.intp).reshape(-1)
+    if acts.size != reads.size or len(set(acts.tolist())) != acts.size or len(set(reads.tolist())) != reads.size \
+            or set(acts.tolist()) & set(reads.tolist()):
+        raise PlantError(f"sine terms: acts {acts.tolist()} and reads {reads.tolist()} must have the same length, "
+                         "no repeats and no common state")
+    gain = coef / scale
+
+    def f(x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        out = np.zeros_like(x)
+        out[acts] = gain * np.sin(x[reads])
+        return out
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float).reshape(-1)
+        J = np.zeros((n, n))
+        J[acts, reads] = gain * np.cos(x[reads])
+        return J
+
+    q = acts.size
+    a = abs(coef) / scale if q else 0.0
+    channels = None
+    if q:
+        G = np.zeros((n, q))
+        G[acts, np.arange(q)] = 1.0 / scale
+        H = np.zeros((q, n))
+        H[np.arange(q), reads] = 1.0
+        channels = Channels(G=G, H=H, phi=lambda z: coef * np.sin(z), lo=-abs(coef), hi=abs(coef))
+    return SineTerms(f=f, jacobian=jacobian, channels=channels, bounds=Constants(alpha=a, rho=a / 2, beta=a**2,
+                                                                                   gamma=0.0))
 
 
 def _short(value, limit: int = 80) -> str:

@@ -86,14 +86,13 @@ References
 
 from __future__ import annotations
 
-import math
 import numbers
 from typing import Iterable
 
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Channels, Constants, Plant, PlantError
+from plants._core import Plant, PlantError, check_int, check_real, sine_terms
 
 __all__ = ["MAX_N", "chain_matrices", "chain_plant", "chain_sparsity", "chain_v1", "default_masses"]
 
@@ -109,31 +108,6 @@ SOURCE = (
 
 
 # -- argument checks (each error names the parameter) -------------------------------------------
-def _int(name: str, value, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)):
-        raise PlantError(f"{name}: must be an integer, got {value!r}")
-    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
-        raise PlantError(f"{name}: must be an integer, got {value!r}")
-    v = int(value)
-    if not lo <= v <= hi:
-        raise PlantError(f"{name}: must be between {lo} and {hi}, got {value!r}")
-    return v
-
-
-def _real(name: str, value, *, lo: float | None = None, strict: bool = False) -> float:
-    if isinstance(value, bool):
-        raise PlantError(f"{name}: expected a real number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise PlantError(f"{name}: expected a real number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise PlantError(f"{name}: must be finite, got {value!r}")
-    if lo is not None and (v < lo or (strict and v == lo)):
-        raise PlantError(f"{name}: must be {'>' if strict else '>='} {lo:g}, got {value!r}")
-    return v
-
-
 def _masses(name: str, value, N: int, *, allow_empty: bool) -> tuple[int, ...]:
     if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
         raise PlantError(f"{name}: expected a sequence of mass indices (0 .. {N - 1}), got {value!r}")
@@ -167,8 +141,8 @@ def default_masses(N: int, stride: int = 5) -> tuple[int, ...]:
         Every ``stride``-th mass, starting at ``min(stride // 2, (N - 1) // 2)`` (so a short chain
         still gets its middle mass).
     """
-    N = _int("N", N, 1, MAX_N)
-    stride = _int("stride", stride, 1, MAX_N)
+    N = check_int("N", N, 1, MAX_N)
+    stride = check_int("stride", stride, 1, MAX_N)
     return tuple(range(min(stride // 2, (N - 1) // 2), N, stride))
 
 
@@ -194,11 +168,11 @@ def chain_matrices(*, N: int, m: float = 1.0, k: float = 1.0, d: float = 0.02, b
     """
     import scipy.sparse as sp
 
-    N = _int("N", N, 1, MAX_N)
-    m = _real("m", m, lo=0.0, strict=True)
-    k = _real("k", k, lo=0.0, strict=True)
-    d = _real("d", d, lo=0.0)
-    b = _real("b", b, lo=0.0)
+    N = check_int("N", N, 1, MAX_N)
+    m = check_real("m", m, lo=0.0, strict=True)
+    k = check_real("k", k, lo=0.0, strict=True)
+    d = check_real("d", d, lo=0.0)
+    b = check_real("b", b, lo=0.0)
     ins = _masses("inputs", inputs, N, allow_empty=False)
     outs = _masses("outputs", outputs, N, allow_empty=False)
     n = 2 * N
@@ -301,14 +275,14 @@ def chain_plant(
     """
     from plants.random_families import is_detectable, is_stabilizable, pbh_margin
 
-    N = _int("N", N, 1, MAX_N)
-    m = _real("m", m, lo=0.0, strict=True)
-    k = _real("k", k, lo=0.0, strict=True)
-    d = _real("d", d, lo=0.0)
-    b = _real("b", b, lo=0.0)
-    c = _real("c", c)
-    amplitude = _real("amplitude", amplitude)
-    stride = _int("stride", stride, 1, MAX_N)
+    N = check_int("N", N, 1, MAX_N)
+    m = check_real("m", m, lo=0.0, strict=True)
+    k = check_real("k", k, lo=0.0, strict=True)
+    d = check_real("d", d, lo=0.0)
+    b = check_real("b", b, lo=0.0)
+    c = check_real("c", c)
+    amplitude = check_real("amplitude", amplitude)
+    stride = check_int("stride", stride, 1, MAX_N)
     layout = default_masses(N, stride)
     nl = layout if nonlinear is None else _masses("nonlinear", nonlinear, N, allow_empty=True)
     ins = layout if inputs is None else _masses("inputs", inputs, N, allow_empty=False)
@@ -325,38 +299,15 @@ def chain_plant(
                          f"(PBH margin {pbh_margin(A.T, C.T):.3g})")
 
     qi = np.array([2 * i for i in nl], dtype=np.intp)
-    vi = qi + 1
-    gain = c / m
-
-    def f(x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
-        out = np.zeros_like(x)
-        out[vi] = gain * np.sin(x[qi])
-        return out
-
-    def jacobian(x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=float).reshape(-1)
-        J = np.zeros((n, n))
-        J[vi, qi] = gain * np.cos(x[qi])
-        return J
-
+    pendula = sine_terms(n, acts=qi + 1, reads=qi, coef=c, scale=m)
     q = len(nl)
-    a = abs(c) / m if q else 0.0
-    consts = Constants(alpha=a, rho=a / 2, beta=a * a, gamma=0.0)
-    channels = None
-    if q:
-        G = np.zeros((n, q))
-        G[vi, np.arange(q)] = 1.0 / m
-        H = np.zeros((q, n))
-        H[np.arange(q), qi] = 1.0
-        channels = Channels(G=G, H=H, phi=lambda z: c * np.sin(z), lo=-abs(c), hi=abs(c))
 
     x0 = np.zeros(n)
     x0[0::2] = amplitude * np.sin(np.pi * np.arange(1, N + 1) / (N + 1))
     return Plant(
         id=id or f"chain_v1_N{N}",
-        A=A, B=B, C=C, f=f, jacobian=jacobian, x0=x0, x_hat0=np.zeros(n),
-        claimed=consts, bounds=consts, channels=channels, t_final=t_final, family="chain",
+        A=A, B=B, C=C, x0=x0, x_hat0=np.zeros(n), **pendula.fields(), claimed=pendula.bounds, t_final=t_final,
+        family="chain",
         params={"N": N, "n": n, "m": m, "k": k, "d": d, "b": b, "c": c, "amplitude": amplitude,
                 "n_inputs": len(ins), "n_outputs": len(outs), "n_channels": q, "version": 1},
         source=SOURCE,
@@ -393,5 +344,5 @@ def chain_v1(*, N: int = 3, c: float = 2.0, t_final: float = 20.0) -> Plant:
     the pendulum's destabilising linear part) settle at another equilibrium; the structured design
     is certified (decay about 0.3) and converges.
     """
-    N = _int("N", N, 1, MAX_N)
+    N = check_int("N", N, 1, MAX_N)
     return chain_plant(N=N, c=c, nonlinear=(0,), inputs=(0,), outputs=(0,), t_final=t_final, id="chain_v1")

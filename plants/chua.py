@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Channels, Constants, Plant, PlantError
+from plants._core import Channels, Constants, Plant, check_real
 
 __all__ = ["chua"]
 
@@ -71,15 +71,7 @@ def chua(
     PlantError
         If a parameter is not finite (the message names it).
     """
-    vals = {}
-    for name, v in (("a", a), ("b", b), ("m0", m0), ("m1", m1)):
-        try:
-            vals[name] = float(v)
-        except (TypeError, ValueError):
-            raise PlantError(f"{name}: expected a real number, got {v!r}") from None
-        if not np.isfinite(vals[name]):
-            raise PlantError(f"{name}: must be finite, got {v!r}")
-    a, b, m0, m1 = vals["a"], vals["b"], vals["m0"], vals["m1"]
+    a, b, m0, m1 = (check_real(name, v) for name, v in (("a", a), ("b", b), ("m0", m0), ("m1", m1)))
     k = -a * (m0 - m1)
 
     def f(x: np.ndarray) -> np.ndarray:
@@ -94,22 +86,10 @@ def chua(
         return J
 
     A = np.array([[-a * (1.0 + m1), a, 0.0], [1.0, -1.0, 1.0], [0.0, -b, 0.0]])
-    return Plant(
-        id="chua_v1",
-        A=A,
-        B=np.array([[1.0], [0.0], [0.0]]),
-        C=np.array([[1.0, 0.0, 0.0]]),
-        f=f,
-        jacobian=jacobian,
-        x0=X0,
-        x_hat0=X_HAT0,
-        claimed=Constants(alpha=abs(a * (m0 - m1))),
-        bounds=Constants(alpha=abs(k), rho=max(k, 0.0), beta=k**2, gamma=0.0),
-        channels=Channels(G=np.array([[1.0], [0.0], [0.0]]), H=np.array([[1.0, 0.0, 0.0]]),
-                          phi=lambda z: k * 0.5 * (np.abs(z + 1.0) - np.abs(z - 1.0)), lo=min(k, 0.0), hi=max(k, 0.0)),
-        t_final=t_final,
-        family="chua",
-        params={"a": a, "b": b, "m0": m0, "m1": m1, "version": 1},
-        source=SOURCE,
-        notes="m1 x1 in A, the saturation in f; B = [1,0,0]', C = [1,0,0]",
-    )
+    channels = Channels(G=np.array([[1.0], [0.0], [0.0]]), H=np.array([[1.0, 0.0, 0.0]]),
+                        phi=lambda z: k * 0.5 * (np.abs(z + 1.0) - np.abs(z - 1.0)), lo=min(k, 0.0), hi=max(k, 0.0))
+    return Plant(id="chua_v1", A=A, B=np.array([[1.0], [0.0], [0.0]]), C=np.array([[1.0, 0.0, 0.0]]), f=f,
+                 jacobian=jacobian, x0=X0, x_hat0=X_HAT0, claimed=Constants(alpha=abs(a * (m0 - m1))),
+                 bounds=Constants(alpha=abs(k), rho=max(k, 0.0), beta=k**2, gamma=0.0), channels=channels,
+                 t_final=t_final, family="chua", params={"a": a, "b": b, "m0": m0, "m1": m1, "version": 1},
+                 source=SOURCE, notes="m1 x1 in A, the saturation in f; B = [1,0,0]', C = [1,0,0]")

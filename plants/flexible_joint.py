@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Channels, Constants, Plant, _finite_scalar
+from plants._core import Constants, Plant, check_real, sine_terms
 
 __all__ = ["A", "B", "C", "X0", "X_HAT0", "flexible_joint"]
 
@@ -69,38 +69,10 @@ def flexible_joint(*, c: float = C_SOURCE, t_final: float = 20.0) -> Plant:
         Version 1 of the plant; claimed constants are the sources' (alpha = 3.33), the analytic
         bounds are global: alpha = |c|, rho = |c|/2, (beta, gamma) = (c^2, 0).
     """
-    c = _finite_scalar("c", c, allow_none=False)
-
-    def f(x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
-        out = np.zeros_like(x)
-        out[3] = -c * np.sin(x[2])
-        return out
-
-    def jacobian(x: np.ndarray) -> np.ndarray:
-        J = np.zeros((4, 4))
-        J[3, 2] = -c * np.cos(float(np.asarray(x, dtype=float)[2]))
-        return J
-
-    ca = abs(c)
-    channels = Channels(G=np.array([[0.0], [0.0], [0.0], [1.0]]), H=np.array([[0.0, 0.0, 1.0, 0.0]]),
-                        phi=lambda z: -c * np.sin(z), lo=-ca, hi=ca)
-    return Plant(
-        id="flexible_joint_v1",
-        A=A,
-        B=B,
-        C=C,
-        f=f,
-        jacobian=jacobian,
-        x0=X0,
-        x_hat0=X_HAT0,
-        # the sources' claim is about their c; for another c there is no claim to check
-        claimed=Constants(alpha=C_SOURCE) if c == C_SOURCE else Constants(),
-        bounds=Constants(alpha=ca, rho=ca / 2, beta=ca**2, gamma=0.0),
-        channels=channels,
-        t_final=t_final,
-        family="flexible_joint",
-        params={"c": c, "version": 1},
-        source=SOURCE,
-        notes="unscaled coordinates (x4 = omega_l); f4 = -c sin(x3); claimed: Lipschitz alpha only",
-    )
+    c = check_real("c", c)
+    gravity = sine_terms(4, acts=[3], reads=[2], coef=-c)
+    # the sources' claim is about their c; for another c there is no claim to check
+    claimed = Constants(alpha=C_SOURCE) if c == C_SOURCE else Constants()
+    return Plant(id="flexible_joint_v1", A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity.fields(), claimed=claimed,
+                 t_final=t_final, family="flexible_joint", params={"c": c, "version": 1}, source=SOURCE,
+                 notes="unscaled coordinates (x4 = omega_l); f4 = -c sin(x3); claimed: Lipschitz alpha only")

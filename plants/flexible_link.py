@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Channels, Constants, Plant, _finite_scalar
+from plants._core import Constants, Plant, check_real, sine_terms
 
 SOURCE = (
     "Observer-based stabilization of one-sided Lipschitz systems with application to flexible "
@@ -44,41 +44,10 @@ PAPER_CLAIMED = Constants(rho=0.1109, beta=0.1109, gamma=0.0, alpha=0.333)
 
 
 def _make(pid: str, c: float, index: int, t_final: float, notes: str) -> Plant:
-    c = _finite_scalar("c", c, allow_none=False)  # a clear PlantError naming c, not a bare float() error
-    def f(x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
-        out = np.zeros_like(x)
-        out[3] = -c * np.sin(x[index])
-        return out
-
-    def jacobian(x: np.ndarray) -> np.ndarray:
-        J = np.zeros((4, 4))
-        J[3, index] = -c * np.cos(float(np.asarray(x)[index]))
-        return J
-
-    c_abs = abs(float(c))
-    H = np.zeros((1, 4))
-    H[0, index] = 1.0
-    channels = Channels(G=np.array([[0.0], [0.0], [0.0], [1.0]]), H=H, phi=lambda z: -c * np.sin(z),
-                        lo=-c_abs, hi=c_abs)
-    return Plant(
-        id=pid,
-        A=A,
-        B=B,
-        C=C,
-        f=f,
-        jacobian=jacobian,
-        x0=X0,
-        x_hat0=X_HAT0,
-        claimed=PAPER_CLAIMED,
-        bounds=Constants(alpha=c_abs, rho=c_abs / 2, beta=c_abs**2, gamma=0.0),
-        channels=channels,
-        t_final=t_final,
-        family="flexible_link",
-        params={"c": float(c)},
-        source=SOURCE,
-        notes=notes,
-    )
+    c = check_real("c", c)  # a clear PlantError naming c, not a bare float() error
+    gravity = sine_terms(4, acts=[3], reads=[index], coef=-c)
+    return Plant(id=pid, A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity.fields(), claimed=PAPER_CLAIMED,
+                 t_final=t_final, family="flexible_link", params={"c": c}, source=SOURCE, notes=notes)
 
 
 @register_plant("flexible_link", order=0)

@@ -45,7 +45,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Constants, Plant, PlantError
+from plants._core import Constants, Plant, PlantError, check_real
 
 __all__ = ["A", "B", "C", "X0", "X_HAT0", "moving_object", "moving_object_bounds"]
 
@@ -92,18 +92,8 @@ def moving_object_bounds(r: float) -> Constants:
     PlantError
         If ``r`` is not a finite number > 0 (the message names ``r``).
     """
-    r = _radius(r)
+    r = check_real("r", r, lo=0.0, strict=True)
     return Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-3 * r**2, radius=r)
-
-
-def _radius(r) -> float:
-    try:
-        v = float(r)
-    except (TypeError, ValueError):
-        raise PlantError(f"r: the region radius must be a real number, got {r!r}") from None
-    if not np.isfinite(v) or v <= 0:
-        raise PlantError(f"r: the region radius must be finite and > 0, got {r!r}")
-    return v
 
 
 @register_plant("moving_object_v1")
@@ -133,20 +123,7 @@ def moving_object(*, r: float = R_SOURCE, t_final: float = 20.0) -> Plant:
     for name, v in (("x0", X0), ("x_hat0", X_HAT0)):
         if np.linalg.norm(v) > r:
             raise PlantError(f"r: the region ||x|| <= {r:g} must contain {name} = {v.tolist()}")
-    return Plant(
-        id="moving_object_v1",
-        A=A,
-        B=B,
-        C=C,
-        f=_f,
-        jacobian=_jacobian,
-        x0=X0,
-        x_hat0=X_HAT0,
-        claimed=Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-4 * r**2, radius=r),
-        bounds=bounds,
-        t_final=t_final,
-        family="moving_object",
-        params={"r": r, "version": 1},
-        source=SOURCE,
-        notes="OSL with rho = 0 globally; Lipschitz only locally (3 r^2 on ||x|| <= r)",
-    )
+    return Plant(id="moving_object_v1", A=A, B=B, C=C, f=_f, jacobian=_jacobian, x0=X0, x_hat0=X_HAT0,
+                 claimed=Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-4 * r**2, radius=r), bounds=bounds,
+                 t_final=t_final, family="moving_object", params={"r": r, "version": 1}, source=SOURCE,
+                 notes="OSL with rho = 0 globally; Lipschitz only locally (3 r^2 on ||x|| <= r)")

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Channels, Constants, Plant, PlantError, _finite_scalar
+from plants._core import Constants, Plant, check_real, sine_terms
 
 __all__ = ["pendulum"]
 
@@ -64,37 +64,11 @@ def pendulum(*, g_over_l: float = G_OVER_L, b: float = DAMPING, t_final: float =
     PlantError
         If ``g_over_l`` or ``b`` is negative or not finite (the message names it).
     """
-    k = _finite_scalar("g_over_l", g_over_l, allow_none=False)
-    b = _finite_scalar("b", b, allow_none=False)
-    for name, v in (("g_over_l", k), ("b", b)):
-        if not np.isfinite(v) or v < 0:
-            raise PlantError(f"{name}: must be finite and >= 0, got {v!r}")
-
-    def f(x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
-        out = np.zeros_like(x)
-        out[1] = -k * np.sin(x[0])
-        return out
-
-    def jacobian(x: np.ndarray) -> np.ndarray:
-        return np.array([[0.0, 0.0], [-k * np.cos(float(np.asarray(x, dtype=float)[0])), 0.0]])
-
-    return Plant(
-        id="pendulum_v1",
-        A=np.array([[0.0, 1.0], [0.0, -b]]),
-        B=np.array([[0.0], [1.0]]),
-        C=np.array([[1.0, 0.0]]),
-        f=f,
-        jacobian=jacobian,
-        x0=X0,
-        x_hat0=X_HAT0,
-        claimed=Constants(alpha=k, rho=k / 2),
-        bounds=Constants(alpha=k, rho=k / 2, beta=k**2, gamma=0.0),
-        channels=Channels(G=np.array([[0.0], [1.0]]), H=np.array([[1.0, 0.0]]), phi=lambda z: -k * np.sin(z),
-                          lo=-k, hi=k),
-        t_final=t_final,
-        family="pendulum",
-        params={"g_over_l": k, "b": b, "version": 1},
-        source=SOURCE,
-        notes="theta measured; the whole sine is in f (A has eigenvalues 0 and -b)",
-    )
+    k = check_real("g_over_l", g_over_l, lo=0.0)
+    b = check_real("b", b, lo=0.0)
+    gravity = sine_terms(2, acts=[1], reads=[0], coef=-k)
+    return Plant(id="pendulum_v1", A=np.array([[0.0, 1.0], [0.0, -b]]), B=np.array([[0.0], [1.0]]),
+                 C=np.array([[1.0, 0.0]]), x0=X0, x_hat0=X_HAT0, **gravity.fields(),
+                 claimed=Constants(alpha=k, rho=k / 2), t_final=t_final, family="pendulum",
+                 params={"g_over_l": k, "b": b, "version": 1}, source=SOURCE,
+                 notes="theta measured; the whole sine is in f (A has eigenvalues 0 and -b)")

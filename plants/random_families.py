@@ -50,12 +50,11 @@ designs accept on this member). Sweeps call :func:`random_lipschitz_plant` and
 from __future__ import annotations
 
 import math
-import numbers
 
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Channels, Constants, Plant, PlantError
+from plants._core import Channels, Constants, Plant, PlantError, check_int, check_real
 
 __all__ = [
     "is_detectable",
@@ -77,35 +76,11 @@ _SOURCE = "oslbench random family (plants/random_families.py), constants in clos
 MAX_N = 4096
 
 
-def _int(name: str, value, lo: int, hi: int | None = None, what: str = "") -> int:
-    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)):
-        raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
-    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
-        raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
-    v = int(value)
-    if v < lo or (hi is not None and v > hi):
-        rng = f">= {lo}" if hi is None else f"between {lo} and {hi}"
-        raise PlantError(f"{name}: {what}must be {rng}, got {value!r}")
-    return v
-
-
-def _real(name: str, value, *, lo: float | None = None, strict: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise PlantError(f"{name}: expected a real number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise PlantError(f"{name}: must be finite, got {value!r}")
-    if lo is not None and (v < lo or (strict and v == lo)):
-        raise PlantError(f"{name}: must be {'>' if strict else '>='} {lo:g}, got {value!r}")
-    return v
-
-
 def _shapes(n, m, p, n_unstable) -> tuple[int, int, int, int]:
-    n = _int("n", n, 1, MAX_N, what="the number of states ")
-    m = _int("m", m, 1, n, what=f"the number of inputs (B is n x m, n = {n}) ")
-    p = _int("p", p, 1, n, what=f"the number of outputs (C is p x n, n = {n}) ")
-    nu = _int("n_unstable", n_unstable, 0, n, what=f"the size of the unstable block (n = {n}) ")
+    n = check_int("n", n, 1, MAX_N, what="the number of states ")
+    m = check_int("m", m, 1, n, what=f"the number of inputs (B is n x m, n = {n}) ")
+    p = check_int("p", p, 1, n, what=f"the number of outputs (C is p x n, n = {n}) ")
+    nu = check_int("n_unstable", n_unstable, 0, n, what=f"the size of the unstable block (n = {n}) ")
     return n, m, p, nu
 
 
@@ -182,10 +157,10 @@ def random_lti(
         On a bad argument (the message names it), or if the PBH check fails (never expected:
         the construction guarantees it; see the module docstring).
     """
-    n = _int("n", n, 1, MAX_N, what="the number of states ")
+    n = check_int("n", n, 1, MAX_N, what="the number of states ")
     n, m, p, nu = _shapes(n, m, p, min(n, 2) if n_unstable is None else n_unstable)
-    seed = _int("seed", seed, 0)
-    max_re = _real("max_re", max_re)
+    seed = check_int("seed", seed, 0)
+    max_re = check_real("max_re", max_re)
     rng = np.random.default_rng([seed, 0])
     ns = n - nu
 
@@ -222,18 +197,9 @@ def _unit(rng: np.random.Generator, n: int) -> np.ndarray:
 
 
 # -- the families -------------------------------------------------------------------------------
-def random_lipschitz_plant(
-    *,
-    n: int = 4,
-    m: int = 1,
-    p: int = 1,
-    c: float = 0.5,
-    seed: int = 0,
-    n_unstable: int | None = None,
-    max_re: float = 0.5,
-    t_final: float = 20.0,
-    id: str | None = None,
-) -> Plant:
+def random_lipschitz_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.5, seed: int = 0,
+                           n_unstable: int | None = None, max_re: float = 0.5, t_final: float = 20.0,
+                           id: str | None = None) -> Plant:
     """A random plant with the globally Lipschitz nonlinearity ``f(x) = c G sin(H x)``, G, H orthogonal.
 
     Parameters
@@ -243,7 +209,7 @@ def random_lipschitz_plant(
     c : float
         Scale of the nonlinearity, >= 0; it is the Lipschitz constant bound.
     seed : int
-        Seed (>= 0) of A, B, C (stream 0) and of G, H, x0 (stream 1).
+        Seed (>= 0) of A, B, C (stream 0) and of the nonlinearity's directions and x0 (stream 1).
     n_unstable, max_re
         Passed to :func:`random_lti`.
     t_final : float
@@ -264,7 +230,7 @@ def random_lipschitz_plant(
     """
     A, B, C = random_lti(n, m, p, seed=seed, n_unstable=n_unstable, max_re=max_re)
     n = A.shape[0]
-    c = _real("c", c, lo=0.0)
+    c = check_real("c", c, lo=0.0)
     rng = np.random.default_rng([int(seed), 1])
     G = _orthogonal(rng, n)
     H = _orthogonal(rng, n).T
@@ -278,49 +244,26 @@ def random_lipschitz_plant(
         z = H @ np.asarray(x, dtype=float).reshape(-1)
         return c * (G * np.cos(z)) @ H
 
-    consts = Constants(alpha=c, rho=c, beta=c**2, gamma=0.0)
-    channels = Channels(G=c * G, H=H, phi=np.sin, lo=-1.0, hi=1.0)
-    return Plant(
-        id=id or f"random_lipschitz_v1_n{n}_s{int(seed)}",
-        A=A, B=B, C=C, f=f, jacobian=jacobian,
-        x0=_unit(rng, n), x_hat0=np.zeros(n),
-        claimed=consts, bounds=consts, channels=channels, t_final=t_final, family="random_lipschitz",
-        params={"n": n, "m": B.shape[1], "p": C.shape[0], "c": c, "seed": int(seed), "max_re": float(max_re),
-                "version": 1},
-        source=_SOURCE,
-        notes="f = c G sin(H x), G and H orthogonal: alpha = rho = c, (beta, gamma) = (c^2, 0), global",
-    )
+    return _member("random_lipschitz", A, B, C, f=f, jacobian=jacobian,
+                   consts=Constants(alpha=c, rho=c, beta=c**2, gamma=0.0),
+                   channels=Channels(G=c * G, H=H, phi=np.sin, lo=-1.0, hi=1.0), x0=_unit(rng, n), t_final=t_final,
+                   id=id, params={"c": c, "seed": int(seed), "max_re": float(max_re)},
+                   notes="f = c G sin(H x), G and H orthogonal: alpha = rho = c, (beta, gamma) = (c^2, 0), global")
 
 
-def random_osl_plant(
-    *,
-    n: int = 4,
-    m: int = 1,
-    p: int = 1,
-    c: float = 1.0,
-    r: float = 1.0,
-    seed: int = 0,
-    n_unstable: int | None = None,
-    max_re: float = 0.5,
-    t_final: float = 20.0,
-    id: str | None = None,
-) -> Plant:
+def random_osl_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 1.0, r: float = 1.0, seed: int = 0,
+                     n_unstable: int | None = None, max_re: float = 0.5, t_final: float = 20.0,
+                     id: str | None = None) -> Plant:
     """A random plant with the one-sided Lipschitz nonlinearity ``f(x) = -c W (W' x)^3``.
 
     Parameters
     ----------
-    n, m, p : int
-        States (>= 1), inputs and outputs (between 1 and n).
+    n, m, p, seed, n_unstable, max_re, t_final
+        As for :func:`random_lipschitz_plant`.
     c : float
         Scale of the nonlinearity, >= 0.
     r : float
         Radius (> 0) of the region ``||x|| <= r`` where the local constants hold.
-    seed : int
-        Seed (>= 0) of A, B, C (stream 0) and of W, x0 (stream 1).
-    n_unstable, max_re
-        Passed to :func:`random_lti`.
-    t_final : float
-        Simulation horizon in seconds.
     id : str, optional
         Plant id (default ``random_osl_v1_n{n}_s{seed}``).
 
@@ -337,8 +280,8 @@ def random_osl_plant(
     """
     A, B, C = random_lti(n, m, p, seed=seed, n_unstable=n_unstable, max_re=max_re)
     n = A.shape[0]
-    c = _real("c", c, lo=0.0)
-    r = _real("r", r, lo=0.0, strict=True)
+    c = check_real("c", c, lo=0.0)
+    r = check_real("r", r, lo=0.0, strict=True)
     rng = np.random.default_rng([int(seed), 1])
     W = _orthogonal(rng, n)
     W.setflags(write=False)
@@ -352,18 +295,22 @@ def random_osl_plant(
         return -3.0 * c * (W * z**2) @ W.T
 
     k = 3.0 * c * r**2
-    consts = Constants(alpha=k, rho=0.0, beta=0.0, gamma=-k, radius=r)
-    channels = Channels(G=W, H=W.T, phi=lambda z: -c * (z * z * z), lo=-k, hi=0.0, radius=r)
-    return Plant(
-        id=id or f"random_osl_v1_n{n}_s{int(seed)}",
-        A=A, B=B, C=C, f=f, jacobian=jacobian,
-        x0=0.5 * r * _unit(rng, n), x_hat0=np.zeros(n),
-        claimed=consts, bounds=consts, channels=channels, t_final=t_final, family="random_osl",
-        params={"n": n, "m": B.shape[1], "p": C.shape[0], "c": c, "r": r, "seed": int(seed),
-                "max_re": float(max_re), "version": 1},
-        source=_SOURCE,
-        notes="f = -c W (W'x)^3, W orthogonal: rho = 0, alpha = 3 c r^2, (beta, gamma) = (0, -3 c r^2) on ||x|| <= r",
-    )
+    return _member("random_osl", A, B, C, f=f, jacobian=jacobian,
+                   consts=Constants(alpha=k, rho=0.0, beta=0.0, gamma=-k, radius=r),
+                   channels=Channels(G=W, H=W.T, phi=lambda z: -c * (z * z * z), lo=-k, hi=0.0, radius=r),
+                   x0=0.5 * r * _unit(rng, n), t_final=t_final, id=id,
+                   params={"c": c, "r": r, "seed": int(seed), "max_re": float(max_re)},
+                   notes="f = -c W (W'x)^3, W orthogonal: rho = 0, alpha = 3 c r^2, (beta, gamma) = (0, -3 c r^2) "
+                         "on ||x|| <= r")
+
+
+def _member(family: str, A, B, C, *, consts: Constants, x0, t_final: float, id: str | None, params: dict,
+            **fields) -> Plant:
+    """A member of a family: constants claimed = analytic, ``x_hat0 = 0``, the common parameters recorded."""
+    n = A.shape[0]
+    return Plant(id=id or f"{family}_v1_n{n}_s{params['seed']}", A=A, B=B, C=C, x0=x0, x_hat0=np.zeros(n),
+                 claimed=consts, bounds=consts, t_final=t_final, family=family, source=_SOURCE,
+                 params={"n": n, "m": B.shape[1], "p": C.shape[0], **params, "version": 1}, **fields)
 
 
 @register_plant("random_lipschitz_v1")
