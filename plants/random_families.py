@@ -228,10 +228,7 @@ def random_lipschitz_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.5
     PlantError
         On a bad argument; the message names it.
     """
-    A, B, C = random_lti(n, m, p, seed=seed, n_unstable=n_unstable, max_re=max_re)
-    n = A.shape[0]
-    c = check_real("c", c, lo=0.0)
-    rng = np.random.default_rng([int(seed), 1])
+    A, B, C, n, c, rng = _start(c, n=n, m=m, p=p, seed=seed, n_unstable=n_unstable, max_re=max_re)
     G = _orthogonal(rng, n)
     H = _orthogonal(rng, n).T
     G.setflags(write=False)
@@ -278,11 +275,8 @@ def random_osl_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 1.0, r: f
     PlantError
         On a bad argument; the message names it.
     """
-    A, B, C = random_lti(n, m, p, seed=seed, n_unstable=n_unstable, max_re=max_re)
-    n = A.shape[0]
-    c = check_real("c", c, lo=0.0)
+    A, B, C, n, c, rng = _start(c, n=n, m=m, p=p, seed=seed, n_unstable=n_unstable, max_re=max_re)
     r = check_real("r", r, lo=0.0, strict=True)
-    rng = np.random.default_rng([int(seed), 1])
     W = _orthogonal(rng, n)
     W.setflags(write=False)
 
@@ -302,6 +296,13 @@ def random_osl_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 1.0, r: f
                    params={"c": c, "r": r, "seed": int(seed), "max_re": float(max_re)},
                    notes="f = -c W (W'x)^3, W orthogonal: rho = 0, alpha = 3 c r^2, (beta, gamma) = (0, -3 c r^2) "
                          "on ||x|| <= r")
+
+
+def _start(c, *, n, m, p, seed, n_unstable, max_re) -> tuple:
+    """A member's linear part (seed stream 0), its n, the checked scale c (>= 0) and the random stream 1
+    of its nonlinearity and x0."""
+    A, B, C = random_lti(n, m, p, seed=seed, n_unstable=n_unstable, max_re=max_re)
+    return A, B, C, A.shape[0], check_real("c", c, lo=0.0), np.random.default_rng([int(seed), 1])
 
 
 def _member(family: str, A, B, C, *, consts: Constants, x0, t_final: float, id: str | None, params: dict,
