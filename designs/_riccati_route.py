@@ -442,6 +442,19 @@ def e_side_matrix(A0, C, K, R, G, DH, lam, t):
     return _sym(M)
 
 
+def _side_are(a, inputs, acts, reads, mult, tau, eps, method):
+    """One side's ARE: ``b = [inputs, acts]``, ``rr = (1/(2 tau), -1/mult)``, ``q = reads' reads / mult + eps I``.
+
+    The x-side is ``(A0 + lam I, B, G, Dr H)`` with multiplier s; the e-side is its dual,
+    ``((A0 + lam I)', C', (Dr H)', G')`` with multiplier t.
+    """
+    n = a.shape[0]
+    bb = np.hstack([inputs, acts])
+    rr = np.concatenate([np.full(inputs.shape[1], 1.0 / (2 * tau)), np.full(acts.shape[1], -1.0 / mult)])
+    qq = reads.T @ reads / mult + eps * np.eye(n)
+    return solve_are(a, bb, rr, qq, method=method)
+
+
 def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "schur") -> tuple[SideSolution | None, str]:
     """x-side: ``F = -tau B' P`` from the ARE with ``a = A0 + lam I``, ``b = [B, G]``, ``rr = (1/(2 tau), -1/s)``.
 
@@ -469,14 +482,9 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "schur") -> 
     """
     A0 = np.asarray(A0, dtype=float)
     B = np.asarray(B, dtype=float)
-    n, m = B.shape
+    n = B.shape[0]
     Gk, DH = _reduce_channels(G, H, r)
-    qk = Gk.shape[1]
-    a = A0 + lam * np.eye(n)
-    bb = np.hstack([B, Gk])
-    rr = np.concatenate([np.full(m, 1.0 / (2 * tau)), np.full(qk, -1.0 / s)])
-    qq = DH.T @ DH / s + eps * np.eye(n)
-    P, info = solve_are(a, bb, rr, qq, method=method)
+    P, info = _side_are(A0 + lam * np.eye(n), B, Gk, DH, s, tau, eps, method)
     if P is None:
         return None, f"x-side ARE: {info.reason}"
     pmin = _pos_def(P)
@@ -515,14 +523,9 @@ def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "schur") -> 
     """
     A0 = np.asarray(A0, dtype=float)
     C = np.asarray(C, dtype=float)
-    p, n = C.shape
+    n = C.shape[1]
     Gk, DH = _reduce_channels(G, H, r)
-    qk = Gk.shape[1]
-    a = (A0 + lam * np.eye(n)).T
-    bb = np.hstack([C.T, DH.T])
-    rr = np.concatenate([np.full(p, 1.0 / (2 * tau)), np.full(qk, -1.0 / t)])
-    qq = Gk @ Gk.T / t + eps * np.eye(n)
-    X, info = solve_are(a, bb, rr, qq, method=method)
+    X, info = _side_are((A0 + lam * np.eye(n)).T, C.T, DH.T, Gk.T, t, tau, eps, method)
     if X is None:
         return None, f"e-side ARE: {info.reason}"
     try:

@@ -14,7 +14,7 @@ python-control, ``control.lqr`` and ``control.lqe``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -38,9 +38,26 @@ def _prevalidate(name: str, W: Any, *, definite: bool) -> None:
         check_weight(name, M, M.shape[0], definite=definite)
 
 
+@dataclass(frozen=True, kw_only=True)
+class _Weighted(Part):
+    """A part with weight matrices: ``weights`` lists ``(field, definite, dimension)`` (the plant's
+    ``n``, ``m`` or ``p`` sizes the matrix). Checked when the part is built, and against the plant."""
+
+    weights: ClassVar[tuple[tuple[str, bool, str], ...]] = ()
+
+    def __post_init__(self) -> None:
+        for name, definite, _ in self.weights:
+            _prevalidate(name, getattr(self, name), definite=definite)
+
+    def _matrices(self, plant: Plant) -> list[np.ndarray]:
+        """The weights for ``plant`` (None is the identity, a scalar s is s I)."""
+        return [check_weight(name, getattr(self, name), getattr(plant, dim), definite=definite)
+                for name, definite, dim in self.weights]
+
+
 @register_feedback("lqr")
 @dataclass(frozen=True, kw_only=True)
-class LQRFeedback(Part):
+class LQRFeedback(_Weighted):
     """LQR state feedback F = -K_lqr from ``control.lqr(A, B, Q, R, method="scipy")``.
 
     Minimises the integral of ``x'Qx + u'Ru`` for the linear part. ``Q`` (n x n, symmetric
@@ -51,17 +68,14 @@ class LQRFeedback(Part):
     Q: Any = None
     R: Any = None
 
-    def __post_init__(self) -> None:
-        _prevalidate("Q", self.Q, definite=False)
-        _prevalidate("R", self.R, definite=True)
+    weights = (("Q", False, "n"), ("R", True, "m"))
 
     def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """F = -K_lqr for ``plant``'s (A, B)."""
         import control
 
         A, B = plant.A, plant.B
-        Q = check_weight("Q", self.Q, plant.n, definite=False)
-        R = check_weight("R", self.R, plant.m, definite=True)
+        Q, R = self._matrices(plant)
         try:
             K_lqr, S, _ = control.lqr(A, B, Q, R, method="scipy")
         except Exception as exc:  # not stabilizable, Hamiltonian on the axis, ...
@@ -77,7 +91,7 @@ class LQRFeedback(Part):
 
 @register_estimator("lqe")
 @dataclass(frozen=True, kw_only=True)
-class LQEObserver(Part):
+class LQEObserver(_Weighted):
     """Kalman-gain observer K = L from ``control.lqe(A, I, C, QN, RN, method="scipy")``.
 
     ``QN`` (n x n, process noise, symmetric PSD) defaults to I_n and ``RN`` (p x p,
@@ -88,16 +102,13 @@ class LQEObserver(Part):
     QN: Any = None
     RN: Any = None
 
-    def __post_init__(self) -> None:
-        _prevalidate("QN", self.QN, definite=False)
-        _prevalidate("RN", self.RN, definite=True)
+    weights = (("QN", False, "n"), ("RN", True, "p"))
 
     def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """K = L for ``plant``'s (A, C)."""
         import control
 
-        QN = check_weight("QN", self.QN, plant.n, definite=False)
-        RN = check_weight("RN", self.RN, plant.p, definite=True)
+        QN, RN = self._matrices(plant)
         try:
             L, _, _ = control.lqe(plant.A, np.eye(plant.n), plant.C, QN, RN, method="scipy")
         except Exception as exc:

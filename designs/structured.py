@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -169,8 +170,8 @@ class Structured(Design):
         d = _loop(plant)
         n, m, p, q = plant.n, plant.m, plant.p, plant.channels.q
         key = ("structured", n, m, p, q, lmi.matrices(**d).key)
-        return (lmi.cached_program((*key, "x"), lambda: _x_program(d, n, m, q)),
-                lmi.cached_program((*key, "e"), lambda: _e_program(d, n, p, q)))
+        return (lmi.cached_program((*key, "x"), lambda: _side_program("x", d, n, m, q)),
+                lmi.cached_program((*key, "e"), lambda: _side_program("e", d, n, p, q)))
 
     def _try(self, progs, lam: float) -> dict | None:
         """Both sides at ``lam``: the gains and multipliers, or None when a side fails."""
@@ -255,41 +256,47 @@ class Structured(Design):
         return DesignResult(status="feasible", K=rr.K, F=rr.F, certificate=cert, **base)
 
 
-def _x_program(d: dict, n: int, m: int, q: int) -> lmi.Program:
+def _diag(v):
+    """``diag(v)`` of a cvxpy vector or of a numpy array (the blocks build both)."""
     import cvxpy as cp
 
+    return np.diag(v) if isinstance(v, np.ndarray) else cp.diag(v)
+
+
+def _x_blocks(d: dict, x: dict) -> list:
+    """x-side: ``[[A0 Q + Q A0' + B Y + Y' B' + G S G' + 2 lam Q, Q H' Dr], [Dr H Q, -S]]``."""
     A0, B, G, H, Dr = d["A0"], d["B"], d["G"], d["H"], d["Dr"]
-    v = {"Q": cp.Variable((n, n), symmetric=True), "Y": cp.Variable((m, n)), "s": cp.Variable(q),
-         "k": cp.Variable()}
-    prm = {"lam": cp.Parameter(nonneg=True, name="lam")}
-
-    def blocks(x):
-        Q, Y, s = x["Q"], x["Y"], x["s"]
-        S = cp.diag(s) if not isinstance(s, np.ndarray) else np.diag(s)
-        return [[A0 @ Q + Q @ A0.T + B @ Y + Y.T @ B.T + G @ S @ G.T + 2 * x["lam"] * Q, Q @ H.T @ Dr],
-                [Dr @ H @ Q, -S]]
-
-    return _min_gain_program(blocks, v, prm, "Q", "Y", n + q, scale=1.0 + np.linalg.norm(A0, 2))
+    Q, Y, S = x["Q"], x["Y"], _diag(x["s"])
+    return [[A0 @ Q + Q @ A0.T + B @ Y + Y.T @ B.T + G @ S @ G.T + 2 * x["lam"] * Q, Q @ H.T @ Dr],
+            [Dr @ H @ Q, -S]]
 
 
-def _e_program(d: dict, n: int, p: int, q: int) -> lmi.Program:
+def _e_blocks(d: dict, x: dict) -> list:
+    """e-side: ``[[A0' R + R A0 - Kh C - C' Kh' + H' Dr T Dr H + 2 lam R, R G], [G' R, -T]]``."""
+    A0, C, G, H, Dr = d["A0"], d["C"], d["G"], d["H"], d["Dr"]
+    R, Kh, T = x["R"], x["Kh"], _diag(x["t"])
+    return [[A0.T @ R + R @ A0 - Kh @ C - C.T @ Kh.T + H.T @ Dr @ T @ Dr @ H + 2 * x["lam"] * R, R @ G],
+            [G.T @ R, -T]]
+
+
+#: Each side's blocks, decision matrix, gain variable and channel multipliers.
+_SIDES = {"x": (_x_blocks, "Q", "Y", "s"), "e": (_e_blocks, "R", "Kh", "t")}
+
+
+def _side_program(side: str, d: dict, n: int, k: int, q: int) -> lmi.Program:
+    """The min-gain program of one side; the gain is ``Y`` (k = m inputs, m x n) or ``Kh`` (k = p outputs, n x p)."""
     import cvxpy as cp
 
-    A0, C, G, H, Dr = d["A0"], d["C"], d["G"], d["H"], d["Dr"]
-    v = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((n, p)), "t": cp.Variable(q),
-         "k": cp.Variable()}
+    blocks, pos, gain, mult = _SIDES[side]
+    v = {pos: cp.Variable((n, n), symmetric=True), gain: cp.Variable((k, n) if side == "x" else (n, k)),
+         mult: cp.Variable(q), "k": cp.Variable()}
     prm = {"lam": cp.Parameter(nonneg=True, name="lam")}
-
-    def blocks(x):
-        R, Kh, t = x["R"], x["Kh"], x["t"]
-        T = cp.diag(t) if not isinstance(t, np.ndarray) else np.diag(t)
-        return [[A0.T @ R + R @ A0 - Kh @ C - C.T @ Kh.T + H.T @ Dr @ T @ Dr @ H + 2 * x["lam"] * R, R @ G],
-                [G.T @ R, -T]]
-
-    return _min_gain_program(blocks, v, prm, "R", "Kh", n + q, scale=1.0 + np.linalg.norm(A0, 2))
+    return _min_gain_program(partial(blocks, d), v, prm, pos, gain, mult, n + q,
+                             scale=1.0 + np.linalg.norm(d["A0"], 2))
 
 
-def _min_gain_program(blocks, v: dict, prm: dict, pos: str, gain: str, size: int, *, scale: float) -> lmi.Program:
+def _min_gain_program(blocks, v: dict, prm: dict, pos: str, gain: str, mult: str, size: int, *,
+                      scale: float) -> lmi.Program:
     """``min k`` s.t. ``M << -eps I``, ``pos >= I``, ``||gain|| <= k``, multipliers >= 0."""
     import cvxpy as cp
 
@@ -297,7 +304,6 @@ def _min_gain_program(blocks, v: dict, prm: dict, pos: str, gain: str, size: int
     g = v[gain]
     r, c = g.shape
     eps = 1e-3 * scale
-    mult = "s" if "s" in v else "t"
     cons = [M << -eps * np.eye(size), v[pos] >> np.eye(v[pos].shape[0]), v[mult] >= 0,
             cp.bmat([[v["k"] * np.eye(r), g], [g.T, v["k"] * np.eye(c)]]) >> 0]
     prob = cp.Problem(cp.Minimize(v["k"]), cons)
