@@ -491,12 +491,7 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "schur") -> 
     if not pmin > 0:
         return None, f"x-side: P is not positive definite (min/max eigenvalue {pmin:.3g})"
     F = -tau * (B.T @ P)
-    Mx = x_side_matrix(A0, B, F, P, Gk, DH, lam, s)
-    margin = equilibrated_max_eig(Mx)
-    if not margin < -MARGIN_TOL:
-        return None, f"x-side matrix not negative definite (equilibrated max eigenvalue {margin:.3g})"
-    return SideSolution(P=P, gain=F, side_matrix=Mx, margin=margin, min_eig=pmin, multiplier=s, tau=tau,
-                        eps=eps, are=info), ""
+    return _verified_side("x-side", x_side_matrix(A0, B, F, P, Gk, DH, lam, s), P, F, pmin, s, tau, eps, info)
 
 
 def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "schur") -> tuple[SideSolution | None, str]:
@@ -537,11 +532,16 @@ def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "schur") -> 
     if not rmin > 0:
         return None, f"e-side: R = X^-1 is not positive definite (min/max eigenvalue {rmin:.3g})"
     K = tau * (X @ C.T)
-    Me = e_side_matrix(A0, C, K, R, Gk, DH, lam, t)
-    margin = equilibrated_max_eig(Me)
+    return _verified_side("e-side", e_side_matrix(A0, C, K, R, Gk, DH, lam, t), R, K, rmin, t, tau, eps, info)
+
+
+def _verified_side(side: str, M, P, gain, pmin, mult, tau, eps, info) -> tuple[SideSolution | None, str]:
+    """The side's solution when its matrix ``M`` is negative definite (equilibrated eigenvalues), else
+    None and the reason."""
+    margin = equilibrated_max_eig(M)
     if not margin < -MARGIN_TOL:
-        return None, f"e-side matrix not negative definite (equilibrated max eigenvalue {margin:.3g})"
-    return SideSolution(P=R, gain=K, side_matrix=Me, margin=margin, min_eig=rmin, multiplier=t, tau=tau,
+        return None, f"{side} matrix not negative definite (equilibrated max eigenvalue {margin:.3g})"
+    return SideSolution(P=P, gain=gain, side_matrix=M, margin=margin, min_eig=pmin, multiplier=mult, tau=tau,
                         eps=eps, are=info), ""
 
 
