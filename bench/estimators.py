@@ -116,10 +116,18 @@ class ContinuousDiscreteEKF:
         """Current covariance."""
         return self._ekf.P.copy()
 
+    def _measurement_jacobian(self, x: np.ndarray) -> np.ndarray:
+        """H = C (the measurement is linear)."""
+        return self._C
+
+    def _measurement(self, x: np.ndarray) -> np.ndarray:
+        """``C x``."""
+        return self._C @ x
+
     def update(self, y: np.ndarray) -> None:
         """Measurement update with ``y = C x + v`` (linear measurement: H = C)."""
-        C = self._C
-        self._ekf.update(np.asarray(y, dtype=float).reshape(-1, 1), HJacobian=lambda x: C, Hx=lambda x: C @ x)
+        self._ekf.update(np.asarray(y, dtype=float).reshape(-1, 1), HJacobian=self._measurement_jacobian,
+                         Hx=self._measurement)
 
     #: The prediction is the plant model's flow from the estimate (u held): a simulator may
     #: integrate it together with the plant and pass it to :meth:`predict` as ``x_next``.

@@ -119,6 +119,13 @@ def check_gains(plant: Plant, K, F) -> tuple[np.ndarray, np.ndarray]:
 STIFF = 5000.0
 
 
+def _loop_matrix(plant, K: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """The linear part ``[[A, BF], [KC, A + BF - KC]]`` of the closed loop (6) in ``z = (x, x_hat)``."""
+    A, B, C = plant.A, plant.B, plant.C
+    BF, KC = B @ F, K @ C
+    return np.block([[A, BF], [KC, A + BF - KC]])
+
+
 def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: str = "BDF") -> str:
     """``stiff`` if the linear part of the closed loop (6) is stiff over the horizon, else ``"DOP853"``.
 
@@ -132,17 +139,61 @@ def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: st
     steps for stability alone (measured: a Theorem 1 observer with an eigenvalue at -1121 took
     47 000 RK45 right-hand sides for 20 s and 690 with BDF).
     """
-    A, B, C = plant.A, plant.B, plant.C
-    BF, KC = B @ F, K @ C
-    L = np.block([[A, BF], [KC, A + BF - KC]])
-    fast = float(np.max(-np.linalg.eigvals(L).real))
+    fast = float(np.max(-np.linalg.eigvals(_loop_matrix(plant, K, F)).real))
     return stiff if fast * t_final > STIFF else "DOP853"
 
 
 class _Stop(Exception):
+    """A run stopped by its right-hand side: ``status`` is the trajectory's."""
+
     def __init__(self, status: str, message: str):
         super().__init__(message)
         self.status = status
+
+
+def _all_finite(v: np.ndarray) -> bool:
+    """Whether every entry of ``v`` is finite (counting is cheaper than ``np.all`` on the small arrays
+    of a right-hand side, which runs a dozen times per integration step)."""
+    return np.count_nonzero(np.isfinite(v)) == v.size
+
+
+def _finite(v: np.ndarray, t: float, what: str = "the right-hand side") -> np.ndarray:
+    """``v``, or FloatingPointError when it is not finite (a NaN derivative would stall solve_ivp)."""
+    if not _all_finite(v):
+        raise FloatingPointError(f"{what} is not finite (t = {t:.4g} within the sample interval)")
+    return v
+
+
+class _LoopRHS:
+    """The right-hand side of the continuous loop (6) in ``z = (x, x_hat)``; it counts its calls and
+    stops the run (:class:`_Stop`) past the budget of calls or wall time, or at a non-finite state."""
+
+    def __init__(self, L: np.ndarray, f, n: int, options: SimOptions):
+        self.L, self.f, self.n, self.options = L, f, n, options
+        self.count = 0
+        self.wall_end = None if options.max_wall_s is None else time.perf_counter() + options.max_wall_s
+
+    def __call__(self, t, z):
+        self.count += 1
+        options = self.options
+        if self.count > options.max_nfev:
+            raise _Stop("budget", f"more than {options.max_nfev} right-hand-side evaluations by t = {t:.4g}")
+        if self.wall_end is not None and time.perf_counter() > self.wall_end:
+            raise _Stop("timeout", f"more than {options.max_wall_s:.3g} s of wall time by t = {t:.4g}")
+        if not _all_finite(z):
+            raise _Stop("diverged", f"non-finite state at t = {t:.4g}")
+        nl = np.asarray(self.f(z.reshape(2, self.n).T), dtype=float).T.ravel()
+        return self.L @ z + nl
+
+
+def _blowup_event(limit: float):
+    """The terminal event of ``solve_ivp``: ``||z||`` reaches ``limit``."""
+
+    def blow(t, z):
+        return np.linalg.norm(z) - limit
+
+    blow.terminal = True
+    return blow
 
 
 def simulate(
@@ -182,37 +233,16 @@ def simulate(
         raise ValueError(f"t_final: must be finite and > 0, got {t_final!r}")
     x0 = np.asarray(plant.x0 if x0 is None else x0, dtype=float)
     xh0 = np.asarray(plant.x_hat0 if x_hat0 is None else x_hat0, dtype=float)
-    A, B, C = plant.A, plant.B, plant.C
-    BF = B @ F
-    L = np.block([[A, BF], [K @ C, A + BF - K @ C]])
-    f = plant.f
     z0 = np.concatenate([x0, xh0])
     limit = options.blowup * max(1.0, float(np.linalg.norm(z0)))
-    count = [0]
-    wall_end = None if options.max_wall_s is None else time.perf_counter() + options.max_wall_s
-
-    def rhs(t, z):
-        count[0] += 1
-        if count[0] > options.max_nfev:
-            raise _Stop("budget", f"more than {options.max_nfev} right-hand-side evaluations by t = {t:.4g}")
-        if wall_end is not None and time.perf_counter() > wall_end:
-            raise _Stop("timeout", f"more than {options.max_wall_s:.3g} s of wall time by t = {t:.4g}")
-        if not np.all(np.isfinite(z)):
-            raise _Stop("diverged", f"non-finite state at t = {t:.4g}")
-        nl = np.asarray(f(z.reshape(2, n).T), dtype=float).T.ravel()
-        return L @ z + nl
-
-    def blow(t, z):
-        return np.linalg.norm(z) - limit
-
-    blow.terminal = True
+    rhs = _LoopRHS(_loop_matrix(plant, K, F), plant.f, n, options)
     t_eval = np.linspace(0.0, T, int(options.n_points))
     t0 = time.perf_counter()
     status, message = "ok", ""
     try:
         method = choose_method(plant, K, F, T, stiff="Radau") if options.method == "auto" else options.method
         sol = solve_ivp(rhs, (0.0, T), z0, method=method, t_eval=t_eval, rtol=options.rtol,
-                        atol=options.atol, events=blow)
+                        atol=options.atol, events=_blowup_event(limit))
         t_out, z = sol.t, sol.y
         if sol.status == 1:
             status, message = "diverged", f"||z|| exceeded {limit:.3g} at t = {sol.t_events[0][0]:.4g}"
@@ -225,14 +255,7 @@ def simulate(
     if status == "ok" and not np.all(np.isfinite(z)):
         status, message = "diverged", "non-finite state"
     x, xh = z[:n], z[n:]
-    return Trajectory(t_out, x, xh, F @ xh, status, message, wall, count[0])
-
-
-def _finite(v: np.ndarray, t: float, what: str = "the right-hand side") -> np.ndarray:
-    """``v``, or FloatingPointError when it is not finite (a NaN derivative would stall solve_ivp)."""
-    if not np.all(np.isfinite(v)):
-        raise FloatingPointError(f"{what} is not finite (t = {t:.4g} within the sample interval)")
-    return v
+    return Trajectory(t_out, x, xh, F @ xh, status, message, wall, rhs.count)
 
 
 def simulate_controller(
@@ -260,9 +283,9 @@ def simulate_controller(
     ----------
     plant : Plant
     F : ndarray (m, n)
-    K : ndarray (n, p), optional
-    estimator : object, optional
-        Exactly one of ``K`` and ``estimator``.
+        The feedback, ``u = F x_hat``.
+    K, estimator : ndarray (n, p) or specification, optional
+        Exactly one: the observer gain, or the specification of a run-time estimator.
     t_final : float
     noise, noise_dt, seed
         Measurement noise (standard deviation 0: none), its hold period for a fixed gain, seed.
@@ -329,97 +352,134 @@ def simulate_sampled(
     Trajectory
         Sampled at ``t_k`` (``x_hat`` is the estimate used at ``t_k``).
     """
-    from scipy.integrate import solve_ivp
-
     if (K is None) == (estimator is None):
         raise ValueError("simulate_sampled: give exactly one of K and estimator")
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: must be finite and > 0, got {dt!r}")
     if not (np.isfinite(noise) and noise >= 0):
         raise ValueError(f"noise: must be finite and >= 0, got {noise!r}")
-    n = plant.n
     T = float(plant.t_final if t_final is None else t_final)
     steps = T / dt
     if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:
         raise ValueError(f"dt: the sample time {dt:g} must divide the horizon {T:g}")
     N = int(round(steps))
-    A, B, C, f = plant.A, plant.B, plant.C, plant.f
-    F = np.asarray(F, dtype=float)
-    rng = np.random.default_rng(seed)
-    V = noise * rng.standard_normal((N + 1, plant.p))
-    x = np.asarray(plant.x0, dtype=float).copy()
-    xh = np.asarray(plant.x_hat0, dtype=float).copy()
-    limit = options.blowup * max(1.0, float(np.linalg.norm(np.concatenate([x, xh]))))
-    ts, xs, xhs, us = [], [], [], []
-    status, message = "ok", ""
-    t0 = time.perf_counter()
-    wall_end = None if options.max_wall_s is None else t0 + options.max_wall_s
-    nfev = 0
-    if K is not None:
-        K = np.asarray(K, dtype=float)
-        BF = B @ F
-        L = np.block([[A, BF], [K @ C, A + BF - K @ C]])
-    method = "DOP853" if options.method == "auto" else options.method
-    first = None
-    for k in range(N + 1):
-        tk = k * dt
-        if estimator is not None:
-            estimator.update(C @ x + V[k])
-            xh = estimator.x
-        u = F @ xh
-        ts.append(tk)
-        xs.append(x.copy())
-        xhs.append(xh.copy())
-        us.append(u)
-        z = np.concatenate([x, xh])
-        if not np.all(np.isfinite(z)) or np.linalg.norm(z) > limit:
-            status, message = "diverged", f"||z|| exceeded {limit:.3g} (or became non-finite) at t = {tk:.4g}"
-            break
-        if k == N:
-            break
-        if wall_end is not None and time.perf_counter() > wall_end:
-            status, message = "timeout", f"more than {options.max_wall_s:.3g} s of wall time by t = {tk:.4g}"
-            break
-        try:
-            if estimator is not None:
-                # a NaN derivative at the start of an interval makes solve_ivp's first step NaN and
-                # its step-size loop endless: check f where the filter's prediction starts
-                xe = np.asarray(estimator.x, dtype=float)
-                _finite(np.asarray(f(xe), dtype=float), 0.0, "f at the estimate")
-                if getattr(estimator, "predicts_with_model", False):  # plant and prediction: one ODE
-                    Bu = np.repeat((B @ u)[:, None], 2, axis=1)
+    V = noise * np.random.default_rng(seed).standard_normal((N + 1, plant.p))
+    return _SampledLoop(plant, F, K, estimator, dt, options).run(N, V)
 
-                    def rhs(t, s, Bu=Bu):
-                        S = s.reshape(n, 2)
-                        return _finite(A @ S + Bu + np.asarray(f(S), dtype=float), t).ravel()
 
-                    sol = solve_ivp(rhs, (0.0, dt), np.stack([x, xe], axis=1).ravel(), method=method,
-                                    rtol=options.rtol, atol=options.atol, first_step=first)
-                    S = sol.y[:, -1].reshape(n, 2)
-                    x = S[:, 0].copy()
-                    estimator.predict(u, x_next=S[:, 1].copy())
-                else:
-                    sol = solve_ivp(lambda t, s: _finite(A @ s + B @ u + f(s), t), (0.0, dt), x, method=method,
-                                    rtol=options.rtol, atol=options.atol, first_step=first)
-                    x = sol.y[:, -1]
-                    estimator.predict(u)
-            else:
-                w = np.concatenate([np.zeros(n), K @ V[k]])
+class _SampledLoop:
+    """One run of :func:`simulate_sampled`: the plant continuous, the estimator (or the continuous
+    observer with the measurement noise held) advanced one sample interval at a time.
 
-                def rhs(t, s):
-                    return _finite(L @ s + w + np.asarray(f(s.reshape(2, n).T), dtype=float).T.ravel(), t)
+    The right-hand sides are methods reading what is held over the interval from ``held``, so
+    nothing is rebuilt per interval; ``first`` carries the largest step of an interval into the
+    next one as its first step.
+    """
 
-                sol = solve_ivp(rhs, (0.0, dt), z, method=method, rtol=options.rtol, atol=options.atol,
-                                first_step=first)
-                x, xh = sol.y[:n, -1], sol.y[n:, -1]
-            nfev += sol.nfev
-            first = min(dt, float(np.max(np.diff(sol.t)))) if sol.t.size > 1 else None  # the last step size
-        except (FloatingPointError, OverflowError, np.linalg.LinAlgError) as exc:
-            status, message = "diverged", f"{type(exc).__name__} at t = {tk:.4g}: {exc}"
-            break
-        if nfev > options.max_nfev:
-            status, message = "budget", f"more than {options.max_nfev} right-hand-side evaluations by t = {tk:.4g}"
-            break
-    wall = time.perf_counter() - t0
-    X, XH = np.array(xs).T, np.array(xhs).T
-    return Trajectory(np.array(ts), X, XH, np.array(us).T, status, message, wall, nfev)
+    def __init__(self, plant: Plant, F, K, estimator, dt: float, options: SimOptions):
+        from scipy.integrate import solve_ivp
+
+        self._solve_ivp = solve_ivp
+        self.A, self.B, self.C, self.f, self.n = plant.A, plant.B, plant.C, plant.f, plant.n
+        self.F = np.asarray(F, dtype=float)
+        self.K = None if K is None else np.asarray(K, dtype=float)
+        self.L = None if K is None else _loop_matrix(plant, self.K, self.F)
+        self.x0 = np.asarray(plant.x0, dtype=float).copy()
+        self.xh0 = np.asarray(plant.x_hat0, dtype=float).copy()
+        self.estimator, self.dt, self.options = estimator, dt, options
+        self.method = "DOP853" if options.method == "auto" else options.method
+        self.held = None  # B u_k ((n, 1) beside the model, (n,) alone), or (0, K v_k) for the observer
+        self.first = None  # the first step of the next interval
+        self.nfev = 0
+
+    # -- right-hand sides over one interval ------------------------------------------------------
+    def _model_rhs(self, t, s):
+        """Plant and the estimator's model flow as one ODE, ``s`` the (n, 2) array ``[x, x_hat]`` raveled."""
+        S = s.reshape(self.n, 2)
+        return _finite(self.A @ S + self.held + np.asarray(self.f(S), dtype=float), t).ravel()
+
+    def _plant_rhs(self, t, s):
+        """The plant alone, ``B u_k`` held."""
+        return _finite(self.A @ s + self.held + self.f(s), t)
+
+    def _observer_rhs(self, t, s):
+        """Plant and continuous observer (6) in ``z = (x, x_hat)``, the noise injection held."""
+        return _finite(self.L @ s + self.held + np.asarray(self.f(s.reshape(2, self.n).T), dtype=float).T.ravel(), t)
+
+    # -- one interval ----------------------------------------------------------------------------
+    def _solve(self, fun, y0):
+        """``solve_ivp`` over one sample interval from ``y0``."""
+        o = self.options
+        return self._solve_ivp(fun, (0.0, self.dt), y0, method=self.method, rtol=o.rtol, atol=o.atol,
+                               first_step=self.first)
+
+    def _estimator_step(self, x, xh, u):
+        """The plant with ``u`` held and the estimator's prediction over one interval; the next plant state."""
+        est = self.estimator
+        # a NaN derivative at the start of an interval makes solve_ivp's first step NaN and
+        # its step-size loop endless: check f where the filter's prediction starts
+        xe = np.asarray(xh, dtype=float)
+        _finite(np.asarray(self.f(xe), dtype=float), 0.0, "f at the estimate")
+        bu = self.B @ u
+        if getattr(est, "predicts_with_model", False):  # plant and prediction: one ODE
+            self.held = bu[:, None]
+            sol = self._solve(self._model_rhs, np.stack([x, xe], axis=1).ravel())
+            S = sol.y[:, -1].reshape(self.n, 2)
+            est.predict(u, x_next=S[:, 1])  # the filter keeps a copy
+            return S[:, 0].copy(), sol
+        self.held = bu
+        sol = self._solve(self._plant_rhs, x)
+        est.predict(u)
+        return sol.y[:, -1], sol
+
+    def _step(self, x, xh, u, z, v):
+        """Advance over one interval (measurement noise ``v``); count its right-hand sides."""
+        if self.estimator is not None:
+            x, sol = self._estimator_step(x, xh, u)
+        else:
+            self.held = np.concatenate([np.zeros(self.n), self.K @ v])
+            sol = self._solve(self._observer_rhs, z)
+            x, xh = sol.y[:self.n, -1], sol.y[self.n:, -1]
+        self.nfev += sol.nfev
+        self.first = min(self.dt, float(np.max(np.diff(sol.t)))) if sol.t.size > 1 else None  # the largest step
+        return x, xh
+
+    def run(self, N: int, V: np.ndarray) -> Trajectory:
+        """Simulate ``N`` intervals with the measurement noise ``V`` ((N + 1, p)); the trajectory at the samples."""
+        est, C, F, dt, o = self.estimator, self.C, self.F, self.dt, self.options
+        x, xh = self.x0, self.xh0
+        limit = o.blowup * max(1.0, float(np.linalg.norm(np.concatenate([x, xh]))))
+        ts, xs, xhs, us = [], [], [], []
+        status, message = "ok", ""
+        t0 = time.perf_counter()
+        wall_end = None if o.max_wall_s is None else t0 + o.max_wall_s
+        for k in range(N + 1):
+            tk = k * dt
+            if est is not None:
+                est.update(C @ x + V[k])
+                xh = est.x
+            u = F @ xh
+            ts.append(tk)
+            xs.append(x.copy())
+            xhs.append(xh.copy())
+            us.append(u)
+            z = np.concatenate([x, xh])
+            if not np.linalg.norm(z) <= limit:  # above the limit, or not finite (a NaN norm)
+                status, message = "diverged", f"||z|| exceeded {limit:.3g} (or became non-finite) at t = {tk:.4g}"
+                break
+            if k == N:
+                break
+            if wall_end is not None and time.perf_counter() > wall_end:
+                status, message = "timeout", f"more than {o.max_wall_s:.3g} s of wall time by t = {tk:.4g}"
+                break
+            try:
+                x, xh = self._step(x, xh, u, z, V[k])
+            except (FloatingPointError, OverflowError, np.linalg.LinAlgError) as exc:
+                status, message = "diverged", f"{type(exc).__name__} at t = {tk:.4g}: {exc}"
+                break
+            if self.nfev > o.max_nfev:
+                status, message = "budget", f"more than {o.max_nfev} right-hand-side evaluations by t = {tk:.4g}"
+                break
+        wall = time.perf_counter() - t0
+        return Trajectory(np.array(ts), np.array(xs).T, np.array(xhs).T, np.array(us).T, status, message, wall,
+                          self.nfev)
