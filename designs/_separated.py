@@ -239,7 +239,7 @@ def recombine(
     eprog: lmi.Program,
     e_keys: tuple[str, ...],
     joint_blocks: Callable[[dict], list],
-    decide: Callable[[str], dict],
+    decide: Callable[[str], dict] | None,
 ) -> dict:
     """Rebuild and verify the joint certificate from solved x-side and e-side programs.
 
@@ -253,9 +253,9 @@ def recombine(
         The e-side variables, all scaled by s.
     joint_blocks : callable
         Blocks of the joint LMI, taking the values of both sides plus ``phi`` and ``iphi``.
-    decide : callable
+    decide : callable or None
         ``decide(side) -> dict`` (:meth:`YoungForm.decide_side`) for a side that is not strictly
-        feasible.
+        feasible; None leaves such a side undecided (for searches that read only the margins).
 
     Returns
     -------
@@ -288,6 +288,11 @@ def recombine(
         out.update(status="undecided", reason=(
             f"the solver reported a positive margin on the {' and '.join(claimed)} but the recomputed matrix "
             f"does not verify ({margins})"))
+        return out
+    if bad and decide is None:
+        out.update(status="undecided", reason=(
+            f"the {' and '.join(bad)} {'is' if len(bad) == 1 else 'are'} not strictly feasible under the "
+            f"normalisation ({margins}), not decided further"))
         return out
     if bad:
         out.update(_side_verdict({name: decide(name) for name in bad}, margins))
@@ -350,7 +355,8 @@ def _side_verdict(decided: dict[str, dict], margins: str) -> dict:
         f"but its scale-free solve is {decided[other]['status']}: {decided[other]['reason']}")}
 
 
-def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_name: str, extra_params) -> DesignResult:
+def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_name: str, extra_params,
+                     decide: bool = True) -> DesignResult:
     """Solve the x-side (Q, Fh, kappa) and e-side (R, Kh, ``form.e_scalars``) apart and rebuild the joint.
 
     Parameters
@@ -366,6 +372,9 @@ def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_nam
         Name under which the recombination's Young weight is reported.
     extra_params : callable
         ``extra_params(values) -> dict`` of design-specific scalars to report.
+    decide : bool
+        Decide a side that is not strictly feasible by its scale-free solve (module docstring);
+        False leaves the result ``undecided`` there (for a search that reads only the margins).
 
     Returns
     -------
@@ -376,7 +385,8 @@ def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_nam
     xlog = lmi.solve_side(xprog, solver, plant.n)
     elog = lmi.solve_side(eprog, solver, plant.n)
     rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, e_keys=("R", "Kh", *form.e_scalars),
-                   joint_blocks=form.blocks[0], decide=lambda side: form.decide_side(plant, side, cap=cap, solver=solver))
+                   joint_blocks=form.blocks[0],
+                   decide=(lambda side: form.decide_side(plant, side, cap=cap, solver=solver)) if decide else None)
     K = F = None
     vals = rc["values"] or {}
     if rc["status"] == "feasible":

@@ -98,11 +98,20 @@ class YoungDesign(Design):
         return coordinate_hint(plant, self._design(plant, constants), self.scaled_variant)
 
     def _design(self, plant: Plant, constants: Constants) -> DesignResult:
-        form = self.form(plant, constants)
         if self.method == "separated":
-            return separated_design(plant, form, solver=self.solver, cap=self.cap, phi_name=self.phi_name,
-                                    extra_params=lambda vals: self.separated_params(vals, constants))
-        return self._design_joint(plant, form, constants)
+            return self.separated(plant, constants)
+        return self._design_joint(plant, self.form(plant, constants), constants)
+
+    def separated(self, plant: Plant, constants: Constants, *, decide: bool = True) -> DesignResult:
+        """The x-side and e-side solved apart and the joint certificate rebuilt, whatever ``method`` is.
+
+        ``decide=False`` skips the scale-free solves that label a side which is not strictly
+        feasible (the result is then ``undecided``), for a search that reads only the sides'
+        margins (:class:`designs.scaled.Scaled`).
+        """
+        return separated_design(plant, self.form(plant, constants), solver=self.solver, cap=self.cap,
+                                phi_name=self.phi_name, extra_params=lambda vals: self.separated_params(vals, constants),
+                                decide=decide)
 
     def _search_phi(self, obj: Callable[[float], float], *, n_grid: int | None = None,
                     n_refine: int | None = None) -> tuple[float, float, str]:

@@ -113,7 +113,7 @@ class Scaled(Design):
     def _score(self, plant: Plant, d: np.ndarray) -> tuple[float, DesignResult]:
         sp, consts = scaled_plant(plant, d)
         sep = self.inner if self.inner.endswith("_sep") else f"{self.inner}_sep"
-        res = DESIGNS.create(sep).design(sp, consts)
+        res = DESIGNS.create(sep).separated(sp, consts, decide=False)  # the margins score it; no label needed
         if res.status == "feasible":  # any verified design beats every unverified one; then the smaller gains
             gain = np.linalg.norm(res.F @ np.diag(1 / d), 2) + np.linalg.norm(np.diag(d) @ res.K, 2)
             return 1.0 + 1.0 / (1.0 + gain), res

@@ -14,7 +14,7 @@ import numpy as np
 
 from bench import lmi
 from bench.registry import register_design
-from designs._core import Design, DesignResult, check_int, check_positive, check_range, check_values_in
+from designs._core import Design, DesignError, DesignResult, check_int, check_positive, check_range, check_values_in
 from designs._separated import (YoungForm, append_schur_column, joint_result, scalar, state_feedback_block,
                                 synthesis_variables, young_layout)
 from designs._young import YoungDesign
@@ -94,8 +94,10 @@ class Thm1(YoungDesign):
 
     # -- gamma >= 0: convex form -------------------------------------------------------------
     def form(self, plant: Plant, c: Constants) -> YoungForm:
-        """The convex form: 6n x 6n (5n when ``beta_eff <= 0``), constants ``rho``, ``beta``,
-        ``gamma`` and ``ibeff`` = 1/beta_eff."""
+        """The convex form (``gamma >= 0``): 6n x 6n (5n when ``beta_eff <= 0``), constants ``rho``,
+        ``beta``, ``gamma`` and ``ibeff`` = 1/beta_eff."""
+        if c.gamma < 0:
+            raise DesignError(f"gamma: the convex form needs gamma >= 0, got {c.gamma:g} (use the fixed-eps form)")
         n = plant.n
         I = np.eye(n)
         beff = c.beta + c.gamma * c.rho
