@@ -372,8 +372,8 @@ class _SampledLoop:
     observer with the measurement noise held) advanced one sample interval at a time.
 
     The right-hand sides are methods reading what is held over the interval from ``held``, so
-    nothing is rebuilt per interval; ``first`` carries the largest step of an interval into the
-    next one as its first step.
+    nothing is rebuilt per interval; ``first`` carries twice the largest step of an interval into
+    the next one as its first step.
     """
 
     def __init__(self, plant: Plant, F, K, estimator, dt: float, options: SimOptions):
@@ -389,7 +389,7 @@ class _SampledLoop:
         self.estimator, self.dt, self.options = estimator, dt, options
         self.method = "DOP853" if options.method == "auto" else options.method
         self.held = None  # B u_k ((n, 1) beside the model, (n,) alone), or (0, K v_k) for the observer
-        self.first = None  # the first step of the next interval
+        self.first = None  # the first step of the next interval (see _step)
         self.nfev = 0
 
     # -- right-hand sides over one interval ------------------------------------------------------
@@ -441,7 +441,10 @@ class _SampledLoop:
             sol = self._solve(self._observer_rhs, z)
             x, xh = sol.y[:self.n, -1], sol.y[self.n:, -1]
         self.nfev += sol.nfev
-        self.first = min(self.dt, float(np.max(np.diff(sol.t)))) if sol.t.size > 1 else None  # the largest step
+        # the next interval tries twice this one's largest step (at most the interval): a step cut short by
+        # the interval's end is taken whole next time (carrying the largest step alone kept the integrator
+        # at two steps per sample for good), and one too long is shrunk by the integrator's error control
+        self.first = min(self.dt, 2.0 * float(np.max(np.diff(sol.t)))) if sol.t.size > 1 else None
         return x, xh
 
     def run(self, N: int, V: np.ndarray) -> Trajectory:
