@@ -96,6 +96,7 @@ class BatchTrajectory:
 
 
 def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
+    """The initial states and estimates as (n, N) float arrays, or ValueError naming the bad one."""
     n = plant.n
     X = np.asarray(x0, dtype=float)
     XH = np.asarray(x_hat0, dtype=float)
@@ -113,10 +114,23 @@ def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _horizon(plant, t_final) -> float:
+    """The horizon (default the plant's), or ValueError unless finite and > 0."""
     T = float(plant.t_final if t_final is None else t_final)
     if not (math.isfinite(T) and T > 0):
         raise ValueError(f"t_final: must be finite and > 0, got {t_final!r}")
     return T
+
+
+def _check_inputs(plant, K, F, x0, x_hat0, t_final):
+    """Gains, initial conditions and horizon of a batch, checked: ``K, F, X, XH, T``."""
+    K, F = check_gains(plant, K, F)
+    X, XH = _check_ics(plant, x0, x_hat0)
+    return K, F, X, XH, _horizon(plant, t_final)
+
+
+def _norms(x: np.ndarray, xh: np.ndarray) -> np.ndarray:
+    """``||z_j|| = sqrt(||x_j||^2 + ||x_hat_j||^2)`` of every member (columns; further axes kept)."""
+    return np.sqrt(np.sum(x * x, axis=0) + np.sum(xh * xh, axis=0))
 
 
 def _batch_sparsity(n: int, N: int):
@@ -178,42 +192,19 @@ def simulate_batch(
     """
     from scipy.integrate import solve_ivp
 
-    K, F = check_gains(plant, K, F)
-    X, XH = _check_ics(plant, x0, x_hat0)
-    T = _horizon(plant, t_final)
+    K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
     if int(n_points) < 2:
         raise ValueError(f"n_points: must be >= 2, got {n_points!r}")
     n, N = X.shape
-    A, B, C, f = plant.A, plant.B, plant.C, plant.f
-    BF, KC = B @ F, K @ C
-    # state layout: y.reshape(n, 2N) = [x_1 .. x_N, x_hat_1 .. x_hat_N], so f takes it as it is
-    Y0 = np.concatenate([X, XH], axis=1)
-    limit = blowup * np.maximum(1.0, np.sqrt(np.sum(X * X, axis=0) + np.sum(XH * XH, axis=0)))
-    fast2 = float(limit.min()) ** 2  # while ||y||^2 <= fast2, no member can exceed its limit
-    Px = np.vstack([A, KC])  # linear part: [x'; x_hat'] = Px x + Ph x_hat
-    Ph = np.vstack([BF, A + BF - KC])
-
-    def rhs(t, y):
-        Y = y.reshape(n, 2 * N)
-        x, xh = Y[:, :N], Y[:, N:]
-        lin = Px @ x + Ph @ xh  # (2n, N)
-        fY = np.asarray(f(Y), dtype=float)
-        dY = np.empty((n, 2 * N))
-        np.add(fY[:, :N], lin[:n], out=dY[:, :N])
-        np.add(fY[:, N:], lin[n:], out=dY[:, N:])
-        if not (y @ y) <= fast2:  # rare path (also taken on NaN): freeze the members that blew up
-            norms = np.sqrt(np.sum(x * x, axis=0) + np.sum(xh * xh, axis=0))
-            frozen = ~(norms <= limit)
-            if frozen.any():
-                dY[:, :N][:, frozen] = 0.0
-                dY[:, N:][:, frozen] = 0.0
-        return dY.ravel()
-
+    limit = blowup * np.maximum(1.0, _norms(X, XH))
+    rhs = _BatchRHS(plant, K, F, N, limit)
     if method == "auto":
         method = choose_method(plant, K, F, T)
     extra = {}
     if method in ("BDF", "Radau"):
         extra["jac_sparsity"] = _batch_sparsity(n, N)
+    # state layout: y.reshape(n, 2N) = [x_1 .. x_N, x_hat_1 .. x_hat_N], so f takes it as it is
+    Y0 = np.concatenate([X, XH], axis=1)
     t_eval = np.linspace(0.0, T, int(n_points))
     t0 = time.perf_counter()
     sol = solve_ivp(rhs, (0.0, T), Y0.ravel(), method=method, t_eval=t_eval, rtol=rtol, atol=atol, **extra)
@@ -221,10 +212,40 @@ def simulate_batch(
     status = "ok" if sol.status == 0 else "failed"
     Yt = sol.y.reshape(n, 2 * N, -1)
     xs, xhs = Yt[:, :N], Yt[:, N:]
-    norms = np.sqrt(np.sum(xs * xs, axis=0) + np.sum(xhs * xhs, axis=0))
-    diverged = ~np.all(norms <= limit[:, None], axis=1)
+    diverged = ~np.all(_norms(xs, xhs) <= limit[:, None], axis=1)
     return BatchTrajectory(sol.t, xs, xhs, diverged, status, "" if status == "ok" else sol.message,
                            wall, int(sol.nfev), method, u=np.einsum("mi,ijk->mjk", F, xhs))
+
+
+class _BatchRHS:
+    """Right-hand side of the batch closed loop (6) on the (n, 2N) layout ``[x_1 .. x_N, x_hat_1 .. x_hat_N]``.
+
+    A member above its limit (or non-finite) is frozen: its derivative is zero.
+    """
+
+    def __init__(self, plant, K: np.ndarray, F: np.ndarray, N: int, limit: np.ndarray):
+        A, B, C = plant.A, plant.B, plant.C
+        BF, KC = B @ F, K @ C
+        self.Px = np.vstack([A, KC])  # linear part: [x'; x_hat'] = Px x + Ph x_hat
+        self.Ph = np.vstack([BF, A + BF - KC])
+        self.f, self.n, self.N, self.limit = plant.f, plant.n, N, limit
+        self.fast2 = float(limit.min()) ** 2  # while ||y||^2 <= fast2, no member can exceed its limit
+
+    def __call__(self, t, y):
+        n, N = self.n, self.N
+        Y = y.reshape(n, 2 * N)
+        x, xh = Y[:, :N], Y[:, N:]
+        lin = self.Px @ x + self.Ph @ xh  # (2n, N)
+        fY = np.asarray(self.f(Y), dtype=float)
+        dY = np.empty((n, 2 * N))
+        np.add(fY[:, :N], lin[:n], out=dY[:, :N])
+        np.add(fY[:, N:], lin[n:], out=dY[:, N:])
+        if not (y @ y) <= self.fast2:  # rare path (also taken on NaN): freeze the members that blew up
+            frozen = ~(_norms(x, xh) <= self.limit)
+            if frozen.any():
+                dY[:, :N][:, frozen] = 0.0
+                dY[:, N:][:, frozen] = 0.0
+        return dY.ravel()
 
 
 def simulate_loop(
@@ -248,9 +269,7 @@ def simulate_loop(
     x, x_hat : ndarray (n, N, T)
     wall_s : float
     """
-    K, F = check_gains(plant, K, F)
-    X, XH = _check_ics(plant, x0, x_hat0)
-    T = _horizon(plant, t_final)
+    K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
     n, N = X.shape
     opts = SimOptions(method=method, rtol=rtol, atol=atol, n_points=int(n_points))
     xs = np.full((n, N, int(n_points)), np.nan)
@@ -277,6 +296,7 @@ DISCRETISATIONS = ("zoh", "euler")
 
 
 def _dt_max(A: np.ndarray) -> float:
+    """The default largest RK4 sub-step: ``min(5e-3, 0.1 / rho(A))``."""
     rho = float(np.abs(np.linalg.eigvals(A)).max())
     return min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
 
@@ -322,43 +342,17 @@ def simulate_digital_batch(
     BatchTrajectory
         States at the recorded sample instants; ``x_hat`` is the estimate used at that sample.
     """
-    K, F = check_gains(plant, K, F)
-    X, XH = _check_ics(plant, x0, x_hat0)
-    T = _horizon(plant, t_final)
-    if not (isinstance(h, (int, float, np.floating)) and math.isfinite(h) and h > 0):
-        raise ValueError(f"h: the sample period must be finite and > 0, got {h!r}")
-    if discretisation not in DISCRETISATIONS:
-        raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
-    A, B, C, f = plant.A, plant.B, plant.C, plant.f
-    n, N = X.shape
-    dtm = _dt_max(A) if dt_max is None else float(dt_max)
-    if not (math.isfinite(dtm) and dtm > 0):
-        raise ValueError(f"dt_max: must be finite and > 0, got {dt_max!r}")
-    n_steps = max(1, math.ceil(T / h - 1e-9))
-    n_sub = max(1, math.ceil(h / dtm - 1e-9))
-    dt = h / n_sub
-    stride = max(1, math.ceil((n_steps + 1) / max(int(max_records), 2)))
-    rec_idx = list(range(0, n_steps + 1, stride))
-    if rec_idx[-1] != n_steps:
-        rec_idx.append(n_steps)
+    K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
+    n_steps, n_sub = _periods(plant.A, T, h, discretisation, dt_max)
+    loop = _DigitalLoop(plant, K, F, h, n_sub, zoh=discretisation == "zoh")
+    rec_idx = _record_indices(n_steps, max_records)
     rec_pos = {k: i for i, k in enumerate(rec_idx)}
+    n, N = X.shape
     xs = np.empty((n, N, len(rec_idx)))
     xhs = np.empty((n, N, len(rec_idx)))
     limit = blowup * np.maximum(1.0, np.linalg.norm(np.vstack([X, XH]), axis=0))
     active = np.ones(N, dtype=bool)
     x, xh = X.copy(), XH.copy()
-    zoh = discretisation == "zoh"
-
-    def rk4(S, W):
-        """n_sub RK4 steps of S' = A S + f(S) + W on an (n, M) batch, W held."""
-        for _ in range(n_sub):
-            k1 = A @ S + f(S) + W
-            k2 = A @ (S2 := S + (0.5 * dt) * k1) + f(S2) + W
-            k3 = A @ (S3 := S + (0.5 * dt) * k2) + f(S3) + W
-            k4 = A @ (S4 := S + dt * k3) + f(S4) + W
-            S = S + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        return S
-
     t0 = time.perf_counter()
     nfev = 0
     with np.errstate(over="ignore", invalid="ignore"):
@@ -366,8 +360,7 @@ def simulate_digital_batch(
             if k in rec_pos:
                 xs[:, :, rec_pos[k]] = x
                 xhs[:, :, rec_pos[k]] = xh
-            norms = np.sqrt(np.sum(x * x, axis=0) + np.sum(xh * xh, axis=0))
-            active &= norms <= limit
+            active &= _norms(x, xh) <= limit
             if k == n_steps or not active.any():
                 if k < n_steps:  # everything diverged: fill the remaining records with the frozen state
                     for kk in rec_idx:
@@ -375,25 +368,68 @@ def simulate_digital_batch(
                             xs[:, :, rec_pos[kk]] = x
                             xhs[:, :, rec_pos[kk]] = xh
                 break
-            a = active if not active.all() else slice(None)
-            xa, xha = x[:, a], xh[:, a]
-            M = xa.shape[1]
-            Bu = B @ (F @ xha)
-            inj = K @ (C @ (xa - xha))
-            if zoh:  # plant and observer model together, layout (n, 2M) = [x | x_hat]
-                S = rk4(np.concatenate([xa, xha], axis=1), np.concatenate([Bu, Bu + inj], axis=1))
-                x[:, a], xh[:, a] = S[:, :M], S[:, M:]
-                nfev += 4 * n_sub
-            else:
-                xh_next = xha + h * (A @ xha + Bu + np.asarray(f(xha), dtype=float) + inj)
-                x[:, a] = rk4(xa, Bu)
-                xh[:, a] = xh_next
-                nfev += 4 * n_sub + 1
+            nfev += loop.advance(x, xh, active if not active.all() else slice(None))
     wall = time.perf_counter() - t0
     t = np.array([kk * h for kk in rec_idx])
-    final = np.sqrt(np.sum(x * x, axis=0) + np.sum(xh * xh, axis=0))
-    diverged = ~active | ~(final <= limit)
+    diverged = ~active | ~(_norms(x, xh) <= limit)
     return BatchTrajectory(t, xs, xhs, diverged, "ok", "", wall, nfev, u=np.einsum("mi,ijk->mjk", F, xhs))
+
+
+def _periods(A: np.ndarray, T: float, h, discretisation: str, dt_max) -> tuple[int, int]:
+    """The periods covering the horizon and the RK4 sub-steps per period, or ValueError naming the bad argument."""
+    if not (isinstance(h, (int, float, np.floating)) and math.isfinite(h) and h > 0):
+        raise ValueError(f"h: the sample period must be finite and > 0, got {h!r}")
+    if discretisation not in DISCRETISATIONS:
+        raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
+    dtm = _dt_max(A) if dt_max is None else float(dt_max)
+    if not (math.isfinite(dtm) and dtm > 0):
+        raise ValueError(f"dt_max: must be finite and > 0, got {dt_max!r}")
+    return max(1, math.ceil(T / h - 1e-9)), max(1, math.ceil(h / dtm - 1e-9))
+
+
+def _record_indices(n_steps: int, max_records: int) -> list[int]:
+    """The sample indices recorded: evenly strided, at most about ``max_records``, the last one always."""
+    stride = max(1, math.ceil((n_steps + 1) / max(int(max_records), 2)))
+    rec_idx = list(range(0, n_steps + 1, stride))
+    if rec_idx[-1] != n_steps:
+        rec_idx.append(n_steps)
+    return rec_idx
+
+
+class _DigitalLoop:
+    """One period of the sampled-data loop for a batch: plant (and, for ``"zoh"``, the observer's model)
+    by RK4 sub-steps, the observer by its discretisation (module docstring)."""
+
+    def __init__(self, plant, K: np.ndarray, F: np.ndarray, h: float, n_sub: int, *, zoh: bool):
+        self.A, self.B, self.C, self.f = plant.A, plant.B, plant.C, plant.f
+        self.K, self.F, self.h, self.n_sub, self.zoh = K, F, h, n_sub, zoh
+        self.dt = h / n_sub
+
+    def rk4(self, S: np.ndarray, W: np.ndarray) -> np.ndarray:
+        """n_sub RK4 steps of S' = A S + f(S) + W on an (n, M) batch, W held."""
+        A, f, dt = self.A, self.f, self.dt
+        for _ in range(self.n_sub):
+            k1 = A @ S + f(S) + W
+            k2 = A @ (S2 := S + (0.5 * dt) * k1) + f(S2) + W
+            k3 = A @ (S3 := S + (0.5 * dt) * k2) + f(S3) + W
+            k4 = A @ (S4 := S + dt * k3) + f(S4) + W
+            S = S + (dt / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        return S
+
+    def advance(self, x: np.ndarray, xh: np.ndarray, a) -> int:
+        """Advance the members ``a`` of ``x`` and ``x_hat`` by one period, in place; the right-hand sides spent."""
+        xa, xha = x[:, a], xh[:, a]
+        M = xa.shape[1]
+        Bu = self.B @ (self.F @ xha)
+        inj = self.K @ (self.C @ (xa - xha))
+        if self.zoh:  # plant and observer model together, layout (n, 2M) = [x | x_hat]
+            S = self.rk4(np.concatenate([xa, xha], axis=1), np.concatenate([Bu, Bu + inj], axis=1))
+            x[:, a], xh[:, a] = S[:, :M], S[:, M:]
+            return 4 * self.n_sub
+        xh_next = xha + self.h * (self.A @ xha + Bu + np.asarray(self.f(xha), dtype=float) + inj)
+        x[:, a] = self.rk4(xa, Bu)
+        xh[:, a] = xh_next
+        return 4 * self.n_sub + 1
 
 
 def digital_matrix(A: np.ndarray, B: np.ndarray, C: np.ndarray, K: np.ndarray, F: np.ndarray, h: float,
