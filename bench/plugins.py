@@ -33,6 +33,7 @@ class PluginError(ValueError):
 
 
 def _module_name(path: Path) -> str:
+    """A fresh private module name for the file (``oslbench_plugin_<stem>[_k]``)."""
     stem = re.sub(r"\W", "_", path.stem) or "plugin"
     base = f"oslbench_plugin_{stem}"
     name, k = base, 1
@@ -83,90 +84,97 @@ def load_plugin(path) -> list[str]:
         raise PluginError(f"plugin {shown}: no such file")
     if not p.is_file():
         raise PluginError(f"plugin {shown}: not a file")
-    p = p.resolve()
     # built-in plants and designs first, so that a clash is reported against them
-    plants_before, designs_before = set(PLANTS.ids()), set(DESIGNS.ids())
-
-    def new_ids() -> tuple[list[str], list[str]]:
-        return ([i for i in PLANTS.ids() if i not in plants_before],
-                [i for i in DESIGNS.ids() if i not in designs_before])
-
-    def undo(name: str | None) -> None:
-        np_, nd = new_ids()
-        for i in np_:
-            PLANTS.unregister(i)
-        for i in nd:
-            DESIGNS.unregister(i)
-        if name is not None:
-            sys.modules.pop(name, None)
-
-    name = _module_name(p)
-    try:
-        spec = importlib.util.spec_from_file_location(name, p)
-        if spec is None or spec.loader is None:
-            raise PluginError(f"plugin {shown}: cannot be imported as a Python module (is it a .py file?)")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        # the plugin may import helper modules that sit next to it
-        sys.path.insert(0, str(p.parent))
-        try:
-            spec.loader.exec_module(module)
-        finally:
-            try:
-                sys.path.remove(str(p.parent))
-            except ValueError:
-                pass
-    except PluginError:
-        undo(name)
-        raise
-    except SyntaxError as exc:
-        undo(name)
-        raise PluginError(f"plugin {shown}: syntax error{_where(exc, p)}: {exc.msg}") from None
-    except Exception as exc:  # ImportError, RegistryError (duplicate id), anything the file raises
-        undo(name)
-        raise PluginError(
-            f"plugin {shown}: failed to import{_where(exc, p)}: {type(exc).__name__}: {exc}"
-        ) from None
-    except SystemExit as exc:  # a plugin calling sys.exit() must not end the run silently
-        undo(name)
-        raise PluginError(f"plugin {shown}: called sys.exit({exc.code!r}) while being imported") from None
-
-    plants, designs = new_ids()
+    loading = _Loading(shown, p.resolve())
+    loading.import_module()
+    plants, designs = loading.new_ids()
     if not plants and not designs:
-        sys.modules.pop(name, None)
+        sys.modules.pop(loading.name, None)
         raise PluginError(
             f"plugin {shown}: registers no plant or design (decorate a keyword-only factory with "
             "@register_plant(\"my_plant\") from bench.registry)"
         )
-    from plants import Plant
-
     for pid in plants:
-        try:
-            plant = PLANTS.create(pid)
-        except Exception as exc:
-            undo(name)
-            raise PluginError(
-                f"plugin {shown}: plant {pid!r} cannot be built with its defaults{_where(exc, p)}: "
-                f"{type(exc).__name__}: {exc}"
-            ) from None
-        if not isinstance(plant, Plant):
-            undo(name)
-            raise PluginError(f"plugin {shown}: the factory of plant {pid!r} returned a "
-                              f"{type(plant).__name__}, not a plants.Plant")
-        if plant.id != pid:
-            undo(name)
-            raise PluginError(f"plugin {shown}: plant registered as {pid!r} has id {plant.id!r}; "
-                              "use the same id in @register_plant and Plant(id=...)")
+        loading.check_plant(pid)
     for did in designs:
-        try:
-            DESIGNS.create(did)
-        except Exception as exc:
-            undo(name)
-            raise PluginError(
-                f"plugin {shown}: design {did!r} cannot be built with its defaults{_where(exc, p)}: "
-                f"{type(exc).__name__}: {exc}"
-            ) from None
+        loading.build("design", DESIGNS, did)
     return plants + designs
+
+
+class _Loading:
+    """One plugin file being loaded: its module name, the registries' ids before it, and the undo of a
+    failure (every id it registered removed again, its module forgotten)."""
+
+    def __init__(self, shown: str, path: Path):
+        self.shown, self.path = shown, path
+        self.plants_before, self.designs_before = set(PLANTS.ids()), set(DESIGNS.ids())
+        self.name = _module_name(path)
+
+    def new_ids(self) -> tuple[list[str], list[str]]:
+        """The plant and design ids registered since the loading began."""
+        return ([i for i in PLANTS.ids() if i not in self.plants_before],
+                [i for i in DESIGNS.ids() if i not in self.designs_before])
+
+    def undo(self) -> None:
+        """Unregister what the file registered and forget its module."""
+        plants, designs = self.new_ids()
+        for i in plants:
+            PLANTS.unregister(i)
+        for i in designs:
+            DESIGNS.unregister(i)
+        sys.modules.pop(self.name, None)
+
+    def fail(self, message: str) -> PluginError:
+        """Undo, and the error to raise: ``plugin <path>: <message>``."""
+        self.undo()
+        return PluginError(f"plugin {self.shown}: {message}")
+
+    def import_module(self) -> None:
+        """Execute the file as a module (helper modules beside it importable); any failure is undone."""
+        shown, p, name = self.shown, self.path, self.name
+        try:
+            spec = importlib.util.spec_from_file_location(name, p)
+            if spec is None or spec.loader is None:
+                raise PluginError(f"plugin {shown}: cannot be imported as a Python module (is it a .py file?)")
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            # the plugin may import helper modules that sit next to it
+            sys.path.insert(0, str(p.parent))
+            try:
+                spec.loader.exec_module(module)
+            finally:
+                try:
+                    sys.path.remove(str(p.parent))
+                except ValueError:
+                    pass
+        except PluginError:
+            self.undo()
+            raise
+        except SyntaxError as exc:
+            raise self.fail(f"syntax error{_where(exc, p)}: {exc.msg}") from None
+        except Exception as exc:  # ImportError, RegistryError (duplicate id), anything the file raises
+            raise self.fail(f"failed to import{_where(exc, p)}: {type(exc).__name__}: {exc}") from None
+        except SystemExit as exc:  # a plugin calling sys.exit() must not end the run silently
+            raise self.fail(f"called sys.exit({exc.code!r}) while being imported") from None
+
+    def build(self, kind: str, registry, rid: str):
+        """``registry.create(rid)`` with the factory's defaults; a failure is undone and named."""
+        try:
+            return registry.create(rid)
+        except Exception as exc:
+            raise self.fail(f"{kind} {rid!r} cannot be built with its defaults{_where(exc, self.path)}: "
+                            f"{type(exc).__name__}: {exc}") from None
+
+    def check_plant(self, pid: str) -> None:
+        """The plant builds with its defaults, is a :class:`plants.Plant` and has the id it was registered under."""
+        from plants import Plant
+
+        plant = self.build("plant", PLANTS, pid)
+        if not isinstance(plant, Plant):
+            raise self.fail(f"the factory of plant {pid!r} returned a {type(plant).__name__}, not a plants.Plant")
+        if plant.id != pid:
+            raise self.fail(f"plant registered as {pid!r} has id {plant.id!r}; "
+                            "use the same id in @register_plant and Plant(id=...)")
 
 
 def load_plugins(paths) -> list[str]:

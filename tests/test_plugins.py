@@ -9,19 +9,9 @@ import pytest
 from bench.cli import main
 from bench.plugins import PluginError, load_plugin
 from bench.registry import DESIGNS, PLANTS
+from tests._plugin_helpers import clean_registries  # noqa: F401 - autouse: registries restored after each test
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(autouse=True)
-def clean_registries():
-    """Remove whatever a test's plugins registered."""
-    plants, designs = set(PLANTS.ids()), set(DESIGNS.ids())
-    yield
-    for i in set(PLANTS.ids()) - plants:
-        PLANTS.unregister(i)
-    for i in set(DESIGNS.ids()) - designs:
-        DESIGNS.unregister(i)
 
 
 def readme_example() -> str:

@@ -18,7 +18,6 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 import bench.cache as cache_mod
 import bench.metrics
@@ -27,20 +26,10 @@ from bench.cli import main
 from bench.harness import RunOptions, run
 from bench.registry import DESIGNS, PLANTS
 from plants import Constants, Plant
+from tests._plugin_helpers import clean_registries  # noqa: F401 - autouse: registries restored after each test
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = RunOptions(n_samples=500)
-
-
-@pytest.fixture(autouse=True)
-def clean_registries():
-    """Remove whatever a test's plugins registered."""
-    plants, designs = set(PLANTS.ids()), set(DESIGNS.ids())
-    yield
-    for i in set(PLANTS.ids()) - plants:
-        PLANTS.unregister(i)
-    for i in set(DESIGNS.ids()) - designs:
-        DESIGNS.unregister(i)
 
 
 def _cache_counts(out: Path) -> tuple[int, int]:

@@ -21,16 +21,7 @@ import bench.harness
 from bench.cli import main
 from bench.registry import DESIGNS, PLANTS, RegistryError, check_id
 from plants import Constants, Plant, PlantError
-
-
-@pytest.fixture(autouse=True)
-def clean_registries():
-    plants, designs = set(PLANTS.ids()), set(DESIGNS.ids())
-    yield
-    for i in set(PLANTS.ids()) - plants:
-        PLANTS.unregister(i)
-    for i in set(DESIGNS.ids()) - designs:
-        DESIGNS.unregister(i)
+from tests._plugin_helpers import clean_registries  # noqa: F401 - autouse: registries restored after each test
 
 
 @pytest.fixture
