@@ -79,6 +79,7 @@ def escape_tex(text) -> str:
 
 
 def _is_missing(value) -> bool:
+    """None, NaN, ``pd.NA`` or ``pd.NaT``."""
     if value is None:
         return True
     try:
@@ -122,6 +123,7 @@ def format_cell(value) -> str:
 
 
 def _tabular(spec: str, header: list[str], rows: list[list[str]]) -> str:
+    """A booktabs ``tabular``; a row None is an ``\\addlinespace``."""
     lines = [rf"\begin{{tabular}}{{{spec}}}", r"\toprule", " & ".join(header) + r" \\", r"\midrule"]
     lines += [r"\addlinespace" if row is None else " & ".join(row) + r" \\" for row in rows]
     lines += [r"\bottomrule", r"\end{tabular}"]
@@ -129,6 +131,7 @@ def _tabular(spec: str, header: list[str], rows: list[list[str]]) -> str:
 
 
 def _table(tabular: str, caption: str, label: str | None, *, wide: bool) -> str:
+    """A ``table`` float around a tabular: scaled to the text width when wide, else ``\\small``."""
     if wide:
         body = "\\resizebox{\\textwidth}{!}{%\n" + tabular + "%\n}"
     else:
@@ -214,47 +217,13 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     ...                    "design_s": [0.236]})
     >>> print(minimal_document(tables_tex(df)))  # doctest: +SKIP
     """
-    import pandas as pd
-
-    if not isinstance(frame, pd.DataFrame):
-        raise TypeError(f"frame: expected a pandas DataFrame, got {type(frame).__name__}")
-    missing = [c for c in ("plant", "design") if c not in frame.columns]
-    if missing:
-        raise ValueError(f"frame: missing column(s) {missing}; need one row per (plant, design) pair, "
-                         f"got columns {list(frame.columns)}")
-    dup = frame.duplicated(["plant", "design"])
-    if dup.any():
-        first = frame.loc[dup, ["plant", "design"]].iloc[0].tolist()
-        raise ValueError(f"frame: more than one row for the pair (plant, design) = {tuple(first)}; "
-                         "tables_tex needs one row per pair")
-    if isinstance(max_rows, bool) or not isinstance(max_rows, numbers.Integral) or max_rows < 1:
-        raise ValueError(f"max_rows: expected an integer >= 1, got {max_rows!r}")
+    _check_frame(frame, max_rows)
     if frame.empty:
         return "% tables_tex: the results frame has no rows\n"
     frame = frame.reset_index(drop=True)
     parts = []
-
     if "status" in frame.columns:
-        plants = list(pd.unique(frame["plant"]))
-        designs = list(pd.unique(frame["design"]))
-        cells = {(r["plant"], r["design"]): r["status"] for r in frame.to_dict("records")}
-        used = set()
-
-        def short(status) -> str:
-            if _is_missing(status):
-                return ""
-            text = STATUS_SHORT.get(str(status), str(status))
-            used.add(str(status))
-            return escape_tex(text)
-
-        rows = [[format_cell(p)] + [short(cells[(p, d)]) if (p, d) in cells else "" for d in designs]
-                for p in plants]
-        legend = ", ".join(f"{escape_tex(STATUS_SHORT[s])} = {escape_tex(s)}"
-                           for s in STATUS_SHORT if s in used and STATUS_SHORT[s] != s)
-        caption = caption_prefix + "Feasibility of each design on each plant" + (f" ({legend})." if legend else ".")
-        tab = _tabular("l" + "c" * len(designs), ["plant"] + [format_cell(d) for d in designs], rows)
-        parts.append(_table(tab, caption, f"{label_prefix}feasibility", wide=len(designs) > 5))
-
+        parts.append(_feasibility_table(frame, caption_prefix, f"{label_prefix}feasibility"))
     decay = _DECAY_COLUMNS
     if not any(c in frame.columns for c, _ in _DECAY_COLUMNS[:3]):
         decay = (("decay_rate", "decay rate"),) + _DECAY_COLUMNS[3:]
@@ -272,6 +241,50 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
         if table:
             parts.append(table)
     return "\n\n".join(parts) + "\n"
+
+
+def _check_frame(frame, max_rows) -> None:
+    """TypeError or ValueError unless ``frame`` is a DataFrame with one row per (plant, design) and
+    ``max_rows`` an integer >= 1 (the messages of :func:`tables_tex`)."""
+    import pandas as pd
+
+    if not isinstance(frame, pd.DataFrame):
+        raise TypeError(f"frame: expected a pandas DataFrame, got {type(frame).__name__}")
+    missing = [c for c in ("plant", "design") if c not in frame.columns]
+    if missing:
+        raise ValueError(f"frame: missing column(s) {missing}; need one row per (plant, design) pair, "
+                         f"got columns {list(frame.columns)}")
+    dup = frame.duplicated(["plant", "design"])
+    if dup.any():
+        first = frame.loc[dup, ["plant", "design"]].iloc[0].tolist()
+        raise ValueError(f"frame: more than one row for the pair (plant, design) = {tuple(first)}; "
+                         "tables_tex needs one row per pair")
+    if isinstance(max_rows, bool) or not isinstance(max_rows, numbers.Integral) or max_rows < 1:
+        raise ValueError(f"max_rows: expected an integer >= 1, got {max_rows!r}")
+
+
+def _short_status(status) -> str:
+    """A feasibility cell: the short form of ``status`` (:data:`STATUS_SHORT`), escaped; blank when missing."""
+    if _is_missing(status):
+        return ""
+    return escape_tex(STATUS_SHORT.get(str(status), str(status)))
+
+
+def _feasibility_table(frame, caption_prefix: str, label: str) -> str:
+    """The plant x design matrix of ``status``, with a legend of the short cells it uses."""
+    import pandas as pd
+
+    plants = list(pd.unique(frame["plant"]))
+    designs = list(pd.unique(frame["design"]))
+    cells = {(r["plant"], r["design"]): r["status"] for r in frame.to_dict("records")}
+    shown = [[cells[(p, d)] if (p, d) in cells else None for d in designs] for p in plants]  # None: not run
+    rows = [[format_cell(p)] + [_short_status(status) for status in row] for p, row in zip(plants, shown)]
+    used = {str(status) for row in shown for status in row if not _is_missing(status)}
+    legend = ", ".join(f"{escape_tex(STATUS_SHORT[s])} = {escape_tex(s)}"
+                       for s in STATUS_SHORT if s in used and STATUS_SHORT[s] != s)
+    caption = caption_prefix + "Feasibility of each design on each plant" + (f" ({legend})." if legend else ".")
+    tab = _tabular("l" + "c" * len(designs), ["plant"] + [format_cell(d) for d in designs], rows)
+    return _table(tab, caption, label, wide=len(designs) > 5)
 
 
 def minimal_document(body: str, *, landscape: bool = False) -> str:
