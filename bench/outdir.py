@@ -406,26 +406,10 @@ def publish(out_dir, stage_dir, files: Iterable[str], *, owned: Callable[[str], 
     serialised; everything else holds.
     """
     out, stage = Path(out_dir), Path(stage_dir)
-    files = [_relpath(f) for f in files]
-    if len(set(files)) != len(files):
-        raise ValueError(f"publish: a file is listed twice in {files}")
-    for rel in files:
-        if not (stage / rel).is_file():
-            raise ValueError(f"publish: {rel!r} was not rendered into {stage}")
-    new = set(files)
+    files = _staged_files(stage, files)
     with locked(out, timeout):
         recover(out)
-        stale: list[str] = []
-        if owned is not None:
-            scan = {str(PurePosixPath(f).parent) for f in files} | {str(PurePosixPath(d)) for d in dirs} | {"."}
-            for d in sorted(scan):
-                folder = out if d == "." else out / d
-                if not folder.is_dir():
-                    continue
-                for p in sorted(folder.iterdir()):
-                    rel = p.name if d == "." else f"{d}/{p.name}"
-                    if not p.name.startswith(".") and rel not in new and p.is_file() and owned(rel):
-                        stale.append(rel)
+        stale = _stale_owned(out, files, dirs, owned) if owned is not None else []
         backup = Path(tempfile.mkdtemp(prefix=_tmp_prefix("backup"), dir=out))
         entries = ([{"path": rel, "old": True, "new": False} for rel in stale]
                    + [{"path": rel, "old": os.path.lexists(out / rel), "new": True} for rel in files])
@@ -436,26 +420,60 @@ def publish(out_dir, stage_dir, files: Iterable[str], *, owned: Callable[[str], 
         except BaseException:
             shutil.rmtree(backup, ignore_errors=True)
             raise
-        try:
-            for e in entries:
-                rel = e["path"]
-                if e["old"]:
-                    _keep_old(out / rel, backup / rel, move=not e["new"])
-                if e["new"]:
-                    (out / rel).parent.mkdir(parents=True, exist_ok=True)
-                    os.replace(stage / rel, out / rel)
-            (out / JOURNAL_NAME).unlink()  # the commit
-        except BaseException as exc:
-            problems = _rollback(out, doc)
-            if problems:
-                raise OutDirError(
-                    f"{out}: writing failed ({type(exc).__name__}: {exc}) and the previous files could not "
-                    f"all be restored ({'; '.join(problems[:3])}); they are in {backup.name}, and the next "
-                    "run restores them first") from exc
-            try:
-                (out / JOURNAL_NAME).unlink()
-            except OSError:
-                pass
-            raise
+        _swap(out, stage, doc, backup)
         shutil.rmtree(backup, ignore_errors=True)
     return [out / rel for rel in files]
+
+
+def _staged_files(stage: Path, files: Iterable[str]) -> list[str]:
+    """``files`` as checked relative paths, each listed once and rendered into ``stage`` (else ValueError)."""
+    files = [_relpath(f) for f in files]
+    if len(set(files)) != len(files):
+        raise ValueError(f"publish: a file is listed twice in {files}")
+    for rel in files:
+        if not (stage / rel).is_file():
+            raise ValueError(f"publish: {rel!r} was not rendered into {stage}")
+    return files
+
+
+def _stale_owned(out: Path, files: list[str], dirs: Iterable[str], owned: Callable[[str], bool]) -> list[str]:
+    """The owned files of ``out`` that are not among ``files``: in the top level and the folders of ``files``
+    and ``dirs``, names starting with "." never."""
+    new = set(files)
+    stale: list[str] = []
+    scan = {str(PurePosixPath(f).parent) for f in files} | {str(PurePosixPath(d)) for d in dirs} | {"."}
+    for d in sorted(scan):
+        folder = out if d == "." else out / d
+        if not folder.is_dir():
+            continue
+        for p in sorted(folder.iterdir()):
+            rel = p.name if d == "." else f"{d}/{p.name}"
+            if not p.name.startswith(".") and rel not in new and p.is_file() and owned(rel):
+                stale.append(rel)
+    return stale
+
+
+def _swap(out: Path, stage: Path, doc: dict, backup: Path) -> None:
+    """Move the journal's entries (previous versions into ``backup``, new files in from ``stage``) and
+    commit by deleting the journal; on any error roll back and re-raise."""
+    try:
+        for e in doc["entries"]:
+            rel = e["path"]
+            if e["old"]:
+                _keep_old(out / rel, backup / rel, move=not e["new"])
+            if e["new"]:
+                (out / rel).parent.mkdir(parents=True, exist_ok=True)
+                os.replace(stage / rel, out / rel)
+        (out / JOURNAL_NAME).unlink()  # the commit
+    except BaseException as exc:
+        problems = _rollback(out, doc)
+        if problems:
+            raise OutDirError(
+                f"{out}: writing failed ({type(exc).__name__}: {exc}) and the previous files could not "
+                f"all be restored ({'; '.join(problems[:3])}); they are in {backup.name}, and the next "
+                "run restores them first") from exc
+        try:
+            (out / JOURNAL_NAME).unlink()
+        except OSError:
+            pass
+        raise
