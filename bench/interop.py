@@ -24,6 +24,7 @@ __all__ = ["closed_loop_nlsys", "controller_ss", "observer_nlsys", "plant_nlsys"
 
 
 def _names(prefix: str, count: int) -> list[str]:
+    """Signal names ``prefix[0] .. prefix[count-1]``."""
     return [f"{prefix}[{i}]" for i in range(count)]
 
 
@@ -34,6 +35,7 @@ def _sysname(plant: Plant, suffix: str) -> str:
 
 
 def _check_plant(plant) -> Plant:
+    """``plant``, or TypeError unless it is a :class:`plants.Plant`."""
     if not isinstance(plant, Plant):
         raise TypeError(f"plant: expected a plants.Plant, got {type(plant).__name__}")
     return plant
@@ -107,51 +109,43 @@ def controller_ss(plant: Plant, K, F):
                       states=_names("xhat", plant.n), name=_sysname(plant, "controller"))
 
 
-def _plant_system(plant: Plant, *, state_outputs: bool, name: str):
+def _affine_system(M: np.ndarray, G: np.ndarray, H: np.ndarray, f, *, signals: tuple[str, str, str],
+                   state_outputs: bool, name: str):
+    """``s' = M s + G w + f(s)`` with output ``H s`` (followed by ``s`` itself when ``state_outputs``) as a
+    ``control.NonlinearIOSystem``; ``signals`` names the input, output and state signals (prefixes)."""
     import control
 
-    A, B, C, f = plant.A, plant.B, plant.C, plant.f
-    n, m, p = plant.n, plant.m, plant.p
+    k = G.shape[1]
+    inp, out, st = signals
 
-    def update(t, x, u, params):
-        x = np.asarray(x, dtype=float)
-        return A @ x + B @ np.asarray(u, dtype=float).reshape(m) + np.asarray(f(x), dtype=float)
+    def update(t, s, w, params):
+        s = np.asarray(s, dtype=float)
+        return M @ s + G @ np.asarray(w, dtype=float).reshape(k) + np.asarray(f(s), dtype=float)
 
     if state_outputs:
-        def output(t, x, u, params):
-            x = np.asarray(x, dtype=float)
-            return np.concatenate([C @ x, x])
-        outputs = _names("y", p) + _names("x", n)
+        def output(t, s, w, params):
+            s = np.asarray(s, dtype=float)
+            return np.concatenate([H @ s, s])
+        outputs = _names(out, H.shape[0]) + _names(st, M.shape[0])
     else:
-        def output(t, x, u, params):
-            return C @ np.asarray(x, dtype=float)
-        outputs = _names("y", p)
-    return control.nlsys(update, output, inputs=_names("u", m), outputs=outputs,
-                         states=_names("x", n), name=name)
+        def output(t, s, w, params):
+            return H @ np.asarray(s, dtype=float)
+        outputs = _names(out, H.shape[0])
+    return control.nlsys(update, output, inputs=_names(inp, k), outputs=outputs, states=_names(st, M.shape[0]),
+                         name=name)
+
+
+def _plant_system(plant: Plant, *, state_outputs: bool, name: str):
+    """The plant (1): input u, output y (and x), state x."""
+    return _affine_system(plant.A, plant.B, plant.C, plant.f, signals=("u", "y", "x"), state_outputs=state_outputs,
+                          name=name)
 
 
 def _observer_system(plant: Plant, K: np.ndarray, F: np.ndarray, *, state_outputs: bool, name: str):
-    import control
-
-    A, B, C, f = plant.A, plant.B, plant.C, plant.f
-    n, m, p = plant.n, plant.m, plant.p
-    M = A + B @ F - K @ C  # linear part of x_hat' with u = F x_hat substituted
-
-    def update(t, xh, y, params):
-        xh = np.asarray(xh, dtype=float)
-        return M @ xh + K @ np.asarray(y, dtype=float).reshape(p) + np.asarray(f(xh), dtype=float)
-
-    if state_outputs:
-        def output(t, xh, y, params):
-            xh = np.asarray(xh, dtype=float)
-            return np.concatenate([F @ xh, xh])
-        outputs = _names("u", m) + _names("xhat", n)
-    else:
-        def output(t, xh, y, params):
-            return F @ np.asarray(xh, dtype=float)
-        outputs = _names("u", m)
-    return control.nlsys(update, output, inputs=_names("y", p), outputs=outputs,
-                         states=_names("xhat", n), name=name)
+    """The observer-based controller (6) with ``u = F x_hat`` substituted: input y, output u (and x_hat),
+    state x_hat."""
+    M = plant.A + plant.B @ F - K @ plant.C  # linear part of x_hat' with u = F x_hat substituted
+    return _affine_system(M, K, F, plant.f, signals=("y", "u", "xhat"), state_outputs=state_outputs, name=name)
 
 
 def plant_nlsys(plant: Plant):
