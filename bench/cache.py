@@ -608,34 +608,36 @@ class Cache:
             self.errors.append(f"cache: {what}: {type(exc).__name__}: {exc}")
             return default
 
-    def store_pair(self, key: str | None, outcome) -> bool:
-        """Store a finished pair; False when it is not cacheable (error, timeout, no key) or not written."""
+    def _stored(self, what: str, store: Callable[[str, Any], bool], key: str | None, value) -> bool:
+        """``store(key, value)`` guarded; False without a key."""
         if not key:
             return False
-        return self._guard("cannot store a pair", lambda: self._store_pair(key, outcome), False)
+        return self._guard(f"cannot store {what}", lambda: store(key, value), False)
+
+    def _loaded(self, what: str, load: Callable[[str], Any], key: str | None):
+        """``load(key)`` guarded; None without a key."""
+        return self._guard(f"cannot read {what}", lambda: load(key), None) if key else None
+
+    def store_pair(self, key: str | None, outcome) -> bool:
+        """Store a finished pair; False when it is not cacheable (error, timeout, no key) or not written."""
+        return self._stored("a pair", self._store_pair, key, outcome)
 
     def load_pair(self, key: str | None):
         """The cached :class:`bench.harness.PairOutcome` (without its plant), or None; counts hits/misses."""
-        out = self._guard("cannot read a pair", lambda: self._load_pair(key), None) if key else None
-        if out is None:
-            self.misses += 1
-        else:
-            self.hits += 1
+        out = self._loaded("a pair", self._load_pair, key)
+        self.hits += int(out is not None)
+        self.misses += int(out is None)
         return out
 
     def store_constants(self, key: str | None, report) -> bool:
         """Store a plant's :class:`bench.constants.ConstantsReport`; False when not written (or no key)."""
-        if not key:
-            return False
-        return self._guard("cannot store constants", lambda: self._store_constants(key, report), False)
+        return self._stored("constants", self._store_constants, key, report)
 
     def load_constants(self, key: str | None):
         """The cached :class:`bench.constants.ConstantsReport`, or None; counts constants hits/misses."""
-        rep = self._guard("cannot read constants", lambda: self._load_constants(key), None) if key else None
-        if rep is None:
-            self.constants_misses += 1
-        else:
-            self.constants_hits += 1
+        rep = self._loaded("constants", self._load_constants, key)
+        self.constants_hits += int(rep is not None)
+        self.constants_misses += int(rep is None)
         return rep
 
     def _store_pair(self, key: str, outcome) -> bool:
