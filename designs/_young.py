@@ -113,6 +113,11 @@ class YoungDesign(Design):
                                 phi_name=self.phi_name, extra_params=lambda vals: self.separated_params(vals, constants),
                                 decide=decide)
 
+    def joint_program(self, plant: Plant, constants: Constants) -> lmi.Program:
+        """The joint program for ``plant`` with ``constants`` (compiled once per shape), the Young weight
+        (``phi``, ``iphi`` = 1/phi) left to the caller: ``prog.solve(phi=phi, iphi=1 / phi)``."""
+        return self.form(plant, constants).joint_program(plant, cap=self.cap, phi_name=self.phi_name)
+
     def _search_phi(self, obj: Callable[[float], float], *, n_grid: int | None = None,
                     n_refine: int | None = None) -> tuple[float, float, str]:
         """Search (or fix) the Young weight with the objective ``obj(phi) -> margin``.
