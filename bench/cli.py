@@ -124,21 +124,44 @@ def _cmd_list() -> int:
     return 0
 
 
-def _cmd_run(args, argv: list[str]) -> int:
-    """``python -m bench run``: :func:`bench.api.run`, then :meth:`bench.api.Results.write`."""
-    try:
-        plant_ids = PLANTS.select(args.plant)
-        design_ids = DESIGNS.select(args.design)
-    except UnknownIdError as exc:
-        print(f"python -m bench run: error: {exc}", file=sys.stderr)
-        return 2
+def check_selection(prog: str, plant_globs, design_globs, out, *, all_by_default: bool = True):
+    """What ``run`` and ``study`` check before any computing: the ids the globs select, and ``out`` usable.
+
+    Parameters
+    ----------
+    prog : str
+        The command, at the start of the error line (``python -m bench run``).
+    plant_globs, design_globs : list of str or None
+        ``--plant`` and ``--design``.
+    out : str
+        ``--out`` (created if missing).
+    all_by_default : bool
+        Without globs: every registered id (True), or None for the caller's own default.
+
+    Returns
+    -------
+    (list of str or None, list of str or None) or None
+        The plant and design ids; None after printing the one-line error (exit code 2): an
+        unknown id (with "did you mean") or an unusable output folder.
+    """
     from bench.outdir import OutDirError, check_out_dir
 
-    try:  # before any computing: an unusable --out is found now, not after the run
-        check_out_dir(args.out)
-    except OutDirError as exc:
-        print(f"python -m bench run: error: {exc}", file=sys.stderr)
+    try:
+        plant_ids = PLANTS.select(plant_globs) if plant_globs or all_by_default else None
+        design_ids = DESIGNS.select(design_globs) if design_globs or all_by_default else None
+        check_out_dir(out)  # an unusable --out is found now, not after the run
+    except (UnknownIdError, OutDirError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return None
+    return plant_ids, design_ids
+
+
+def _cmd_run(args, argv: list[str]) -> int:
+    """``python -m bench run``: :func:`bench.api.run`, then :meth:`bench.api.Results.write`."""
+    selected = check_selection("python -m bench run", args.plant, args.design, args.out)
+    if selected is None:
         return 2
+    plant_ids, design_ids = selected
     from bench.api import run
     from bench.cache import default_cache_dir
     from bench.executors import ExecutorError

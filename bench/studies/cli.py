@@ -24,14 +24,21 @@ OPTIONS = {
 }
 
 
+def _finite_float(text: str, expected: str, finite: str) -> float:
+    """``float(text)``, or ArgumentTypeError ``"<expected>, got ..."`` (not a number) or ``"<finite>, got ..."``."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{expected}, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{finite}, got {text!r}")
+    return v
+
+
 def _float(*, lo: float | None = None, strict: bool = True):
+    """An argparse type: a finite number, above ``lo`` when given (``> lo`` if strict, else ``>=``)."""
     def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not math.isfinite(v):
-            raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+        v = _finite_float(text, "expected a number", "must be finite")
         if lo is not None and (v < lo or (strict and v == lo)):
             raise argparse.ArgumentTypeError(f"must be {'>' if strict else '>='} {lo:g}, got {text!r}")
         return v
@@ -40,6 +47,7 @@ def _float(*, lo: float | None = None, strict: bool = True):
 
 
 def _int(lo: int):
+    """An argparse type: an integer ``>= lo``."""
     def parse(text: str) -> int:
         try:
             v = int(text)
@@ -53,18 +61,14 @@ def _int(lo: int):
 
 
 def _float_list(*, positive: bool, allow_empty: bool):
+    """An argparse type: comma-separated finite numbers (each > 0 if ``positive``; none if ``allow_empty``)."""
     def parse(text: str) -> list[float]:
         parts = [p.strip() for p in text.split(",") if p.strip()]
         if not parts and not allow_empty:
             raise argparse.ArgumentTypeError("expected a comma-separated list of numbers, got nothing")
         out = []
         for p in parts:
-            try:
-                v = float(p)
-            except ValueError:
-                raise argparse.ArgumentTypeError(f"expected numbers like 1e-3,1e-2, got {p!r}") from None
-            if not math.isfinite(v):
-                raise argparse.ArgumentTypeError(f"each value must be finite, got {p!r}")
+            v = _finite_float(p, "expected numbers like 1e-3,1e-2", "each value must be finite")
             if positive and v <= 0:
                 raise argparse.ArgumentTypeError(f"each value must be > 0, got {p!r}")
             out.append(v)
@@ -130,29 +134,21 @@ def add_study_parser(sub) -> None:
 
 
 def _explicit(patterns: list[str] | None) -> list[str]:
+    """The patterns that name one id (no glob characters)."""
     return [p for p in (patterns or []) if not any(ch in p for ch in "*?[]")]
 
 
 def run_study(args, argv: list[str]) -> int:
     """Run the study named by ``args.study``; returns the exit code."""
+    from bench.cli import check_selection
     from bench.executors import default_jobs
-    from bench.registry import DESIGNS, PLANTS, UnknownIdError
     from bench.studies._common import StudyError
 
     prog = f"python -m bench study {args.study}"
-    try:
-        plant_ids = PLANTS.select(args.plant) if args.plant else None
-        design_ids = DESIGNS.select(args.design) if args.design else None
-    except UnknownIdError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
+    selected = check_selection(prog, args.plant, args.design, args.out, all_by_default=False)
+    if selected is None:
         return 2
-    from bench.outdir import OutDirError, check_out_dir
-
-    try:  # before any computing: an unusable --out is found now, not after the study
-        check_out_dir(args.out)
-    except OutDirError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
+    plant_ids, design_ids = selected
     jobs = args.jobs or default_jobs()
     command = "python -m bench " + shlex.join(argv)
     bar = None
