@@ -41,8 +41,10 @@ def _check_plant(plant) -> Plant:
     return plant
 
 
-def _check_gains(plant: Plant, K, F) -> tuple[np.ndarray, np.ndarray]:
-    """K (n x p) and F (m x n) as float arrays, or ValueError naming the bad one and the expected shape."""
+def _check_gains(plant, K, F) -> tuple[Plant, np.ndarray, np.ndarray]:
+    """The plant (TypeError unless a Plant), K (n x p) and F (m x n) as read-only float arrays (ValueError
+    naming the bad one and the expected shape)."""
+    plant = _check_plant(plant)
     n, m, p = plant.n, plant.m, plant.p
     out = []
     for name, value, shape, what in (("K", K, (n, p), "n x p"), ("F", F, (m, n), "m x n")):
@@ -58,7 +60,7 @@ def _check_gains(plant: Plant, K, F) -> tuple[np.ndarray, np.ndarray]:
             raise ValueError(f"{name}: entries must be finite, got {arr.tolist()}")
         arr.setflags(write=False)
         out.append(arr)
-    return out[0], out[1]
+    return plant, out[0], out[1]
 
 
 def controller_ss(plant: Plant, K, F):
@@ -101,8 +103,7 @@ def controller_ss(plant: Plant, K, F):
     """
     import control
 
-    plant = _check_plant(plant)
-    K, F = _check_gains(plant, K, F)
+    plant, K, F = _check_gains(plant, K, F)
     A, B, C = plant.A, plant.B, plant.C
     return control.ss(A + B @ F - K @ C, K, F, np.zeros((plant.m, plant.p)),
                       inputs=_names("y", plant.p), outputs=_names("u", plant.m),
@@ -207,8 +208,7 @@ def observer_nlsys(plant: Plant, K, F):
     --------
     controller_ss : its linear part (without ``f(x_hat)``).
     """
-    plant = _check_plant(plant)
-    K, F = _check_gains(plant, K, F)
+    plant, K, F = _check_gains(plant, K, F)
     return _observer_system(plant, K, F, state_outputs=False, name=_sysname(plant, "observer"))
 
 
@@ -258,8 +258,7 @@ def closed_loop_nlsys(plant: Plant, K, F):
     """
     import control
 
-    plant = _check_plant(plant)
-    K, F = _check_gains(plant, K, F)
+    plant, K, F = _check_gains(plant, K, F)
     n, m, p = plant.n, plant.m, plant.p
     pname, oname = _sysname(plant, "plant"), _sysname(plant, "observer")
     psys = _plant_system(plant, state_outputs=True, name=pname)

@@ -25,13 +25,17 @@ __all__ = [
     "bisect_largest",
     "check_box",
     "check_count",
+    "check_horizon",
     "check_levels",
     "check_range",
+    "check_rtol",
     "default_box",
     "evaluate",
     "fmt",
+    "map_tasks",
     "md_table",
     "random_ics",
+    "skipped_lines",
     "study_constants",
     "study_header",
     "write_study",
@@ -139,6 +143,32 @@ def check_range(name: str, value: Any, *, positive: bool = True) -> tuple[float,
     return lo, hi
 
 
+def check_rtol(rtol: Any) -> float:
+    """A bisection's relative tolerance: a number in (0, 1).
+
+    Raises
+    ------
+    StudyError
+        Naming ``rtol``.
+    """
+    if not (isinstance(rtol, (int, float)) and math.isfinite(rtol) and 0 < rtol < 1):
+        raise StudyError("rtol", f"must be a number in (0, 1), got {rtol!r}")
+    return rtol
+
+
+def check_horizon(t_final: Any) -> float | None:
+    """A horizon: None (each plant's) or a finite number > 0.
+
+    Raises
+    ------
+    StudyError
+        Naming ``t_final``.
+    """
+    if t_final is not None and not (math.isfinite(t_final) and t_final > 0):
+        raise StudyError("t_final", f"must be finite and > 0, got {t_final!r}")
+    return t_final
+
+
 # -- bisection --------------------------------------------------------------------------------
 def bisect_largest(
     check: Callable[[float], dict],
@@ -183,52 +213,65 @@ def bisect_largest(
         raise StudyError("rtol", f"must be finite and > 0, got {rtol!r}")
     if not (math.isfinite(default) and default > 0):
         raise StudyError("default", f"must be finite and > 0, got {default!r}")
-    evals: list[dict] = []
+    ok = _Probe(check)
+    if bounds is not None:
+        lo, hi, kind = _bracket_within(ok, *bounds)
+    elif ok(default):
+        lo, hi, kind = _bracket_up(ok, default, max_doublings)
+    else:
+        lo, hi, kind = _bracket_down(ok, default, max_doublings)
+    if kind == "bracketed":
+        while hi / lo - 1 > rtol:
+            mid = math.sqrt(lo * hi)
+            if ok(mid):
+                lo = mid
+            else:
+                hi = mid
+    return {"lo": lo, "hi": hi, "kind": kind, "evals": ok.evals}
 
-    def ok(v: float) -> bool:
-        r = check(v)
-        evals.append(r)
+
+class _Probe:
+    """``check`` with every record kept in ``evals``; a call returns whether the value passed."""
+
+    def __init__(self, check: Callable[[float], dict]):
+        self.check = check
+        self.evals: list[dict] = []
+
+    def __call__(self, value: float) -> bool:
+        r = self.check(value)
+        self.evals.append(r)
         return bool(r["ok"])
 
-    lo = hi = math.nan
-    if bounds is not None:
-        a, b = bounds
-        if not ok(a):
-            return {"lo": math.nan, "hi": a, "kind": "below_range", "evals": evals}
-        if ok(b):
-            return {"lo": b, "hi": math.nan, "kind": "above_range", "evals": evals}
-        lo, hi = a, b
-    elif ok(default):
-        lo = default
-        for _ in range(max_doublings):
-            if ok(lo * 2):
-                lo *= 2
-            else:
-                hi = lo * 2
-                break
-        else:
-            return {"lo": lo, "hi": math.nan, "kind": "above_range", "evals": evals}
-    else:
-        hi = default
-        for _ in range(max_doublings):
-            v = hi / 2
-            if ok(v):
-                lo = v
-                break
-            if evals[-1]["status"] == "invalid":  # below the knob's valid range: hi stays the last valid value
-                break
-            hi = v
-        else:
-            return {"lo": math.nan, "hi": hi, "kind": "below_range", "evals": evals}
-        if math.isnan(lo):
-            return {"lo": math.nan, "hi": hi, "kind": "below_range", "evals": evals}
-    while hi / lo - 1 > rtol:
-        mid = math.sqrt(lo * hi)
-        if ok(mid):
-            lo = mid
-        else:
-            hi = mid
-    return {"lo": lo, "hi": hi, "kind": "bracketed", "evals": evals}
+
+def _bracket_within(ok: _Probe, a: float, b: float) -> tuple[float, float, str]:
+    """``(lo, hi, kind)`` from given bounds: ``a`` must pass and ``b`` fail to bracket."""
+    if not ok(a):
+        return math.nan, a, "below_range"
+    if ok(b):
+        return b, math.nan, "above_range"
+    return a, b, "bracketed"
+
+
+def _bracket_up(ok: _Probe, lo: float, max_doublings: int) -> tuple[float, float, str]:
+    """``(lo, hi, kind)`` by doubling from a passing ``lo`` until a value fails."""
+    for _ in range(max_doublings):
+        if not ok(lo * 2):
+            return lo, lo * 2, "bracketed"
+        lo *= 2
+    return lo, math.nan, "above_range"
+
+
+def _bracket_down(ok: _Probe, hi: float, max_doublings: int) -> tuple[float, float, str]:
+    """``(lo, hi, kind)`` by halving from a failing ``hi`` until a value passes (or is invalid: below the
+    knob's valid range, ``hi`` stays the last valid value)."""
+    for _ in range(max_doublings):
+        v = hi / 2
+        if ok(v):
+            return v, hi, "bracketed"
+        if ok.evals[-1]["status"] == "invalid":
+            break
+        hi = v
+    return math.nan, hi, "below_range"
 
 
 # -- plants, gains, initial conditions --------------------------------------------------------
@@ -301,6 +344,39 @@ def evaluate(plant, design_id: str, options=None, *, overrides: dict | None = No
                          prior=prior, scenario=scenario)
 
 
+def map_tasks(ex, fn: Callable, tasks: list[tuple[Any, tuple]], progress: Callable[[int, int, str], None] | None = None,
+              describe: Callable[[Any, Any], str] | None = None) -> dict:
+    """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks`` on the executor ``ex``.
+
+    Parameters
+    ----------
+    ex : concurrent.futures.Executor
+        From :func:`bench.executors.executor`.
+    fn : callable
+        A task (a module-level function of picklable arguments).
+    tasks : list of (key, tuple)
+    progress : callable, optional
+        ``progress(done, total, describe(key, result))`` as each task finishes.
+    describe : callable, optional
+        The progress label of a finished task (needed with ``progress``).
+
+    Returns
+    -------
+    dict
+        ``key -> result``, in the order the tasks finished.
+    """
+    from concurrent.futures import as_completed
+
+    futs = {ex.submit(fn, *args): key for key, args in tasks}
+    out = {}
+    for i, fut in enumerate(as_completed(futs), 1):
+        key = futs[fut]
+        out[key] = fut.result()
+        if progress:
+            progress(i, len(futs), describe(key, out[key]))
+    return out
+
+
 # -- rendering ---------------------------------------------------------------------------------
 def md_table(rows: list[dict], columns: list[str], headers: list[str] | None = None) -> str:
     """A markdown table of ``rows`` (dicts) restricted to ``columns``."""
@@ -309,6 +385,15 @@ def md_table(rows: list[dict], columns: list[str], headers: list[str] | None = N
     for r in rows:
         out.append("| " + " | ".join(fmt(r.get(c)) for c in columns) + " |")
     return "\n".join(out)
+
+
+def skipped_lines(rows: list[dict], *, heading: str = "Not simulated:", width: int = 250) -> list[str]:
+    """Markdown lines listing the pairs that were not simulated, with their status and reason (cut at
+    ``width`` characters), under ``heading``; none without rows."""
+    if not rows:
+        return []
+    return [heading, "", *(f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r.get('reason', ''))[:width]}"
+                           for r in rows), ""]
 
 
 def study_header(title: str, command: str, settings: dict, wall_s: float) -> str:

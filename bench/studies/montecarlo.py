@@ -22,8 +22,8 @@ from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, check_box, check_count, default_box, fmt, md_table, pyplot,
-                                   random_ics, study_header, write_study)
+from bench.studies._common import (check_box, check_count, check_horizon, default_box, fmt, map_tasks, md_table,
+                                   pyplot, random_ics, skipped_lines, study_header, write_study)
 
 __all__ = ["MonteCarloResult", "run_montecarlo", "write_montecarlo"]
 
@@ -137,27 +137,20 @@ def run_montecarlo(
     StudyError
         ``n < 1``, a box that is not finite and > 0, a horizon that is not finite and > 0.
     """
-    from concurrent.futures import as_completed
-
     from bench.executors import executor
     from bench.registry import DESIGNS, PLANTS
 
     t_start = time.perf_counter()
     n = check_count("n", n, 1)
     box = check_box("box", box)
-    if t_final is not None and not (math.isfinite(t_final) and t_final > 0):
-        raise StudyError("t_final", f"must be finite and > 0, got {t_final!r}")
+    check_horizon(t_final)
     plant_ids = list(plant_ids) if plant_ids else PLANTS.ids()
     design_ids = list(design_ids) if design_ids else DESIGNS.ids()
-    out = {}
+    tasks = [((pid, did), (pid, did, n, box, seed, t_final, method, rtol, atol))
+             for pid in plant_ids for did in design_ids]
     with executor(jobs) as ex:
-        futs = {ex.submit(_mc_task, pid, did, n, box, seed, t_final, method, rtol, atol): (pid, did)
-                for pid in plant_ids for did in design_ids}
-        for i, fut in enumerate(as_completed(futs), 1):
-            out[futs[fut]] = fut.result()
-            if progress:
-                r = out[futs[fut]]["row"]
-                progress(i, len(futs), f"{r['plant']} x {r['design']}: {fmt(r.get('frac_converged', math.nan))}")
+        out = map_tasks(ex, _mc_task, tasks, progress, lambda key, r: f"{r['row']['plant']} x {r['row']['design']}: "
+                                                                    f"{fmt(r['row'].get('frac_converged', math.nan))}")
     rows = [out[(p, d)]["row"] for p in plant_ids for d in design_ids]
     settling = {(p, d): out[(p, d)]["settling"] for p in plant_ids for d in design_ids}
     settings = {"N": n, "box": box if box is not None else "plant's initial-condition scale", "seed": seed,
@@ -229,11 +222,7 @@ def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
         lines += ["**Certified with global constants but not all converging** (a horizon too short for the slowest "
                   "initial conditions, or a numerical issue): " + ", ".join(f"{r['plant']} x {r['design']}"
                                                                              for r in warn), ""]
-    if skipped:
-        lines += ["Not simulated:", ""]
-        lines += [f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r.get('reason', ''))[:250]}"
-                  for r in skipped]
-        lines.append("")
+    lines += skipped_lines(skipped, width=250)
     lines += ["## Figures", ""]
     lines += [f"![{pid}](figures/study_montecarlo_{pid}.png)" for pid in plants
               if any(r["plant"] == pid for r in sim)]

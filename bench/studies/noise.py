@@ -25,8 +25,8 @@ from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, check_levels, fmt, md_table, pyplot,
-                                   study_header, write_study)
+from bench.studies._common import (StudyError, check_horizon, check_levels, fmt, map_tasks, md_table, pyplot,
+                                   skipped_lines, study_header, write_study)
 
 __all__ = ["DEFAULT_LEVELS", "DEFAULT_PLANTS", "MATCHED_EKF", "NoiseResult", "run_noise", "write_noise"]
 
@@ -130,8 +130,6 @@ def run_noise(
     StudyError
         A noise level that is negative, zero or not finite; a bad ``noise_dt`` or horizon.
     """
-    from concurrent.futures import as_completed
-
     from bench.executors import executor
     from bench.registry import DESIGNS
 
@@ -139,20 +137,15 @@ def run_noise(
     levels = check_levels("levels", levels)
     if not (isinstance(noise_dt, (int, float)) and math.isfinite(noise_dt) and noise_dt > 0):
         raise StudyError("noise_dt", f"must be finite and > 0, got {noise_dt!r}")
-    if t_final is not None and not (math.isfinite(t_final) and t_final > 0):
-        raise StudyError("t_final", f"must be finite and > 0, got {t_final!r}")
+    check_horizon(t_final)
     plant_ids = list(plant_ids) if plant_ids else list(DEFAULT_PLANTS)
     design_ids = list(design_ids) if design_ids else DESIGNS.ids()
     skipped, jobs_list = _priors(plant_ids, design_ids, levels, matched_ekf, t_final)
-    rows = {}
+    tasks = [((prior.record["plant"], label, s), (prior, label, s, seed, noise_dt, t_final))
+             for prior, label, s in jobs_list]
     with executor(jobs) as ex:
-        futs = {ex.submit(_noise_task, prior, label, s, seed, noise_dt, t_final): (prior.record["plant"], label, s)
-                for prior, label, s in jobs_list}
-        for i, fut in enumerate(as_completed(futs), 1):
-            rows[futs[fut]] = fut.result()
-            if progress:
-                r = rows[futs[fut]]
-                progress(i, len(futs), f"{r['plant']} x {r['design']} sigma {r['noise']:g}: rms_e {fmt(r['rms_e'])}")
+        rows = map_tasks(ex, _noise_task, tasks, progress, lambda key, r: f"{r['plant']} x {r['design']} sigma "
+                                                                        f"{r['noise']:g}: rms_e {fmt(r['rms_e'])}")
     ordered = [rows[(prior.record["plant"], label, s)] for prior, label, s in jobs_list]
     settings = {"levels": ", ".join(f"{v:.3g}" for v in levels), "seed": seed, "noise_dt": noise_dt,
                 "matched EKF": matched_ekf, "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
@@ -249,10 +242,6 @@ def write_noise(result: NoiseResult, out_dir: str, command: str):
         if nc:
             lines += ["Not settled (2 % settling of `||x||` or `||e||` not reached within the horizon): "
                       + ", ".join(f"{r['design']} at sigma {r['noise']:.3g}" for r in nc) + ".", ""]
-    if result.skipped:
-        lines += ["## Not simulated", ""]
-        lines += [f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r['reason'])[:250]}"
-                  for r in result.skipped]
-        lines.append("")
+    lines += skipped_lines(result.skipped, heading="## Not simulated", width=250)
     figs = {f"study_noise_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid]) for pid in plants}
     return write_study(out_dir, "noise", "\n".join(lines), {"study_noise": pd.DataFrame(rows)}, figs)

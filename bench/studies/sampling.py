@@ -34,8 +34,9 @@ from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, bisect_largest, check_box, check_count, check_range, default_box,
-                                   fmt, md_table, pyplot, random_ics, study_header, write_study)
+from bench.studies._common import (StudyError, bisect_largest, check_box, check_count, check_horizon, check_range,
+                                   check_rtol, default_box, fmt, map_tasks, md_table, pyplot, random_ics,
+                                   skipped_lines, study_header, write_study)
 
 __all__ = ["DEFAULT_PLANTS", "SamplingResult", "linear_h_bound", "run_sampling", "write_sampling"]
 
@@ -237,63 +238,67 @@ def run_sampling(
     StudyError
         Bad box, count, bounds, discretisation, or a required design without fixed gains.
     """
-    from concurrent.futures import as_completed
-
     from bench.executors import executor
     from bench.registry import DESIGNS
-    from bench.batch import DISCRETISATIONS
 
     t_start = time.perf_counter()
-    n_ics = check_count("n_ics", n_ics, 1)
-    box = check_box("box", box)
-    h_range = check_range("h_range", h_range)
-    if discretisation not in DISCRETISATIONS:
-        raise StudyError("discretisation", f"must be one of {DISCRETISATIONS}, got {discretisation!r}")
-    if not (isinstance(rtol, (int, float)) and math.isfinite(rtol) and 0 < rtol < 1):
-        raise StudyError("rtol", f"must be a number in (0, 1), got {rtol!r}")
-    if t_final is not None and not (math.isfinite(t_final) and t_final > 0):
-        raise StudyError("t_final", f"must be finite and > 0, got {t_final!r}")
+    n_ics, box, h_range = _check_args(n_ics, box, h_range, discretisation, rtol, t_final)
     plant_ids = list(plant_ids) if plant_ids else list(DEFAULT_PLANTS)
     design_ids = list(design_ids) if design_ids else DESIGNS.ids()
-    rows: dict[tuple[str, str], dict] = {}
-    evals: list[dict] = []
+    pairs = [(pid, did) for pid in plant_ids for did in design_ids]
     with executor(jobs) as ex:
-        dfuts = {ex.submit(_design_task, pid, did, t_final): (pid, did) for pid in plant_ids for did in design_ids}
-        designed = {}
-        for fut in as_completed(dfuts):
-            designed[dfuts[fut]] = fut.result()
-        for (pid, did), d in designed.items():
-            res = d.result
-            if res is not None and res.has_controller and not res.has_gains and did in required:
-                raise StudyError("design", f"{did!r} has no fixed gains (K, F) on {pid!r} (its estimator is "
-                                           f"{type(res.estimator).__name__}): a sampling study needs fixed gains")
-        sfuts = {}
-        for pid in plant_ids:
-            for did in design_ids:
-                d = designed[(pid, did)]
-                res, rec = d.result, d.record
-                if res is None or not res.has_controller:
-                    rows[(pid, did)] = {"plant": pid, "design": did, "status": rec["status"], "reason": rec["reason"]}
-                elif not res.has_gains:
-                    rows[(pid, did)] = {"plant": pid, "design": did, "status": "no fixed gains",
-                                        "reason": f"estimator {type(res.estimator).__name__}: not a fixed gain K"}
-                else:
-                    sfuts[ex.submit(_sampling_task, d, n_ics, box, seed, discretisation, h_range, rtol,
-                                    t_final)] = (pid, did)
-        for i, fut in enumerate(as_completed(sfuts), 1):
-            key = sfuts[fut]
-            r = fut.result()
-            rows[key] = r["row"]
-            evals.extend(r["evals"])
-            if progress:
-                progress(i, len(sfuts), f"{key[0]} x {key[1]}: h_max {fmt(r['row']['h_max'])}")
-    ordered = [rows[(p, d)] for p in plant_ids for d in design_ids]
+        designed = map_tasks(ex, _design_task, [((pid, did), (pid, did, t_final)) for pid, did in pairs])
+        _check_required(designed, required)
+        rows = {key: row for key in pairs if (row := _unsimulated_row(*key, designed[key])) is not None}
+        tasks = [(key, (designed[key], n_ics, box, seed, discretisation, h_range, rtol, t_final))
+                 for key in pairs if key not in rows]
+        done = map_tasks(ex, _sampling_task, tasks, progress,
+                         lambda key, r: f"{key[0]} x {key[1]}: h_max {fmt(r['row']['h_max'])}")
+    evals: list[dict] = []
+    for key, r in done.items():
+        rows[key] = r["row"]
+        evals.extend(r["evals"])
+    ordered = [rows[key] for key in pairs]
     evals.sort(key=lambda e: (plant_ids.index(e["plant"]), design_ids.index(e["design"]), e["h"]))
     settings = {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
                 "seed": seed, "discretisation": discretisation,
                 "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
                 "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
     return SamplingResult(ordered, evals, settings, time.perf_counter() - t_start)
+
+
+def _check_args(n_ics, box, h_range, discretisation, rtol, t_final) -> tuple[int, float | None, tuple | None]:
+    """The checked ``n_ics``, ``box`` and ``h_range``; StudyError naming a bad argument."""
+    from bench.batch import DISCRETISATIONS
+
+    n_ics = check_count("n_ics", n_ics, 1)
+    box = check_box("box", box)
+    h_range = check_range("h_range", h_range)
+    if discretisation not in DISCRETISATIONS:
+        raise StudyError("discretisation", f"must be one of {DISCRETISATIONS}, got {discretisation!r}")
+    check_rtol(rtol)
+    check_horizon(t_final)
+    return n_ics, box, h_range
+
+
+def _check_required(designed: dict, required) -> None:
+    """StudyError when a design the caller named has a controller without fixed gains on some plant."""
+    for (pid, did), d in designed.items():
+        res = d.result
+        if res is not None and res.has_controller and not res.has_gains and did in required:
+            raise StudyError("design", f"{did!r} has no fixed gains (K, F) on {pid!r} (its estimator is "
+                                       f"{type(res.estimator).__name__}): a sampling study needs fixed gains")
+
+
+def _unsimulated_row(pid: str, did: str, designed) -> dict | None:
+    """The row of a pair that cannot be simulated (no controller, or no fixed gains); None when it can."""
+    res, rec = designed.result, designed.record
+    if res is None or not res.has_controller:
+        return {"plant": pid, "design": did, "status": rec["status"], "reason": rec["reason"]}
+    if not res.has_gains:
+        return {"plant": pid, "design": did, "status": "no fixed gains",
+                "reason": f"estimator {type(res.estimator).__name__}: not a fixed gain K"}
+    return None
 
 
 def _h_interval(r: dict) -> str:
@@ -376,11 +381,7 @@ def write_sampling(result: SamplingResult, out_dir: str, command: str):
         lines += ["The continuous loop itself does not converge within the horizon (same criterion) from the plant's "
                   "initial conditions, so no h can pass: " + ", ".join(f"{r['plant']} x {r['design']}" for r in slow)
                   + ".", ""]
-    if skipped:
-        lines += ["Not simulated:", ""]
-        lines += [f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r.get('reason', ''))[:300]}"
-                  for r in skipped]
-        lines.append("")
+    lines += skipped_lines(skipped, width=300)
     lines += ["## Settling time vs h", ""]
     lines += [f"![{pid}](figures/study_sampling_{pid}.png)" for pid in plants]
     lines.append("")
