@@ -122,10 +122,12 @@ def default_cache_dir(out_dir: str | os.PathLike) -> Path:
 
 
 def _is_project(name: str) -> bool:
+    """Whether a module belongs to the project (its packages or a plugin)."""
     return name.split(".")[0] in _PROJECT or name.startswith("oslbench_plugin_")
 
 
 def _sha(data: bytes) -> str:
+    """SHA-256 hex digest."""
     return hashlib.sha256(data).hexdigest()
 
 
@@ -171,6 +173,7 @@ def _is_installed_file(path: str) -> bool:
 
 
 def _module_file(name: str) -> str | None:
+    """The file of an imported module, or None."""
     mod = sys.modules.get(name)
     path = getattr(mod, "__file__", None) if mod is not None else None
     return path if isinstance(path, str) else None
@@ -297,6 +300,7 @@ def _plain(v: Any) -> Any:
 
 
 def _atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
+    """Write a file whole or not at all: ``write(fh)`` into a temporary file, then rename."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=path.suffix, dir=path.parent)
     try:
@@ -348,6 +352,7 @@ class Cache:
         return _module_file(name) or self._paths.get(name)
 
     def _source_hash(self, name: str) -> str:
+        """The hash of a module's source (memoised)."""
         if name not in self._sources:
             path = self._path(name)
             if path is None:
@@ -423,6 +428,7 @@ class Cache:
 
     @staticmethod
     def _is_module(name: str) -> bool:
+        """Whether ``name`` can be imported."""
         try:
             return importlib.util.find_spec(name) is not None
         except (ImportError, ValueError):
@@ -465,6 +471,7 @@ class Cache:
         return out
 
     def _fixed_parts(self) -> dict[str, Any]:
+        """The parts of every key that do not depend on the pair (format, versions, code; memoised)."""
         if self._fixed is None:
             from bench.report import package_versions
 
@@ -544,6 +551,7 @@ class Cache:
 
     @staticmethod
     def _options(options) -> dict[str, Any]:
+        """The run options that change a pair's result, canonical (not the wall-clock limits)."""
         sim = {f.name: _canon(getattr(options.sim, f.name), set()) for f in dataclasses.fields(options.sim)
                if f.name != "max_wall_s"}
         return {"seed": options.seed, "n_samples": options.n_samples, "use_claimed": options.use_claimed,
@@ -551,9 +559,11 @@ class Cache:
                 "noise_dt": _canon(options.noise_dt, set()), "sim": sim}
 
     def _key(self, doc: dict) -> str:
+        """The key of a document: SHA-256 of its canonical JSON."""
         return _sha(json.dumps(doc, sort_keys=True).encode())
 
     def _safe_key(self, what: str, build: Callable[[], dict]) -> str | None:
+        """The key of ``build()``, or None with the problem noted."""
         try:
             return self._key(build())
         except Exception as exc:  # noqa: BLE001 - a cache problem never fails a run: no key, a miss
@@ -586,6 +596,7 @@ class Cache:
 
     # -- storage ------------------------------------------------------------------------------
     def _write(self, path: Path, write: Callable[[IO[bytes]], None]) -> bool:
+        """Write an entry atomically; False (noted) when the cache cannot be written."""
         if not self._writable:
             return False
         try:
@@ -641,6 +652,7 @@ class Cache:
         return rep
 
     def _store_pair(self, key: str, outcome) -> bool:
+        """Store a pair's record, result, certificate and trajectory as one .npz (no pickling)."""
         rec = outcome.record
         if rec.get("status") in _TRANSIENT:
             return False
@@ -685,6 +697,7 @@ class Cache:
         return ok
 
     def _load_pair(self, key: str):
+        """The pair stored under ``key``, or None (an unreadable entry is noted and ignored)."""
         path = self.root / "pairs" / f"{key}.npz"
         out = None
         if path.is_file():
@@ -696,6 +709,7 @@ class Cache:
 
     @staticmethod
     def _read_pair(path: Path):
+        """Rebuild a :class:`bench.harness.PairOutcome` from an .npz entry."""
         from bench.certify import Certificate, LevelResult
         from bench.harness import COLUMNS, PairOutcome
         from bench.simulate import Trajectory
@@ -732,6 +746,7 @@ class Cache:
         return PairOutcome(rec, result=result, trajectory=traj, certificate=cert)
 
     def _store_constants(self, key: str, report) -> bool:
+        """Store a constants report as JSON."""
         try:
             text = json.dumps({"format": CACHE_FORMAT, **report.to_dict()}).encode()
         except (TypeError, ValueError):
@@ -739,6 +754,7 @@ class Cache:
         return self._write(self.root / "constants" / f"{key}.json", lambda fh: fh.write(text))
 
     def _load_constants(self, key: str):
+        """The constants report stored under ``key``, or None."""
         from bench.constants import ConstantsReport
 
         path = self.root / "constants" / f"{key}.json"

@@ -27,6 +27,7 @@ __all__ = ["main"]
 
 
 class _Parser(argparse.ArgumentParser):
+    """An argparse parser whose errors exit 2 with the usage and one line."""
     def error(self, message: str):  # exit 2 with a one-line message, argparse-style
         self.print_usage(sys.stderr)
         self.exit(2, f"{self.prog}: error: {message}\n")
@@ -65,6 +66,7 @@ def _scheduler_address(text: str) -> str:
 
 
 def _build_parser() -> argparse.ArgumentParser:
+    """The parser of ``python -m bench`` and its subcommands."""
     p = _Parser(prog="python -m bench", description="oslbench: observer-based control of OSL/Lipschitz systems")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
     r = sub.add_parser("run", help="run (plant, design) pairs and write the report")
@@ -115,6 +117,7 @@ def _build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_list() -> int:
+    """``python -m bench list``: plants and designs with their summaries."""
     print("plants:")
     for pid in PLANTS.ids():
         print(f"  {pid:<24} {PLANTS[pid].summary}")
@@ -265,6 +268,7 @@ def _sizes(text: str, option: str, *, allow_empty: bool) -> list[int]:
 
 
 def _cmd_perf(args) -> int:
+    """``python -m bench perf``: :func:`bench.perf.perf_main` with the checked sizes."""
     try:
         sizes = _sizes(args.sizes, "--sizes", allow_empty=False)
         route_sizes = _sizes(args.route_sizes, "--route-sizes", allow_empty=True)
@@ -311,6 +315,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str]) -> int:
+    """Parse, load the plugins, dispatch to the subcommand; the exit code."""
     parser = _build_parser()
     try:
         args = parser.parse_args(argv)

@@ -133,6 +133,7 @@ def check_out_dir(path, *, option: str = "--out") -> Path:
 
 
 def _why(exc: BaseException) -> str:
+    """The reason an OS error gives (its strerror), else its message or type."""
     return getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
 
 
@@ -152,6 +153,7 @@ def _owner(name: str) -> tuple[int, str] | None:
 
 
 def _alive(pid: int) -> bool:
+    """Whether a process with this id runs on this host."""
     if pid <= 0:
         return False
     try:
@@ -174,6 +176,7 @@ def _stale(path: Path) -> bool:
 
 
 def _remove(path: Path) -> None:
+    """Remove a file or a folder tree, ignoring errors."""
     try:
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path, ignore_errors=True)
@@ -255,6 +258,7 @@ def locked(out_dir, timeout: float = LOCK_TIMEOUT) -> Iterator[None]:
 
 # -- the journal ----------------------------------------------------------------------------------
 def _write_journal(out: Path, doc: dict) -> None:
+    """Write the journal of a swap atomically (a temporary file, fsync, rename)."""
     fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix("journal"), dir=out)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
@@ -338,6 +342,7 @@ def recover(out_dir) -> bool:
 
 # -- publishing -----------------------------------------------------------------------------------
 def _relpath(rel: str) -> str:
+    """``rel`` if it is a plain relative POSIX path (no absolute path, no ".."), else ValueError."""
     p = PurePosixPath(rel)
     if not rel or p.is_absolute() or ".." in p.parts or str(p) != rel or rel == ".":
         raise ValueError(f"not a plain relative path: {rel!r}")

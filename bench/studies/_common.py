@@ -61,6 +61,7 @@ class StudyError(ValueError):
 
 # -- argument checks ---------------------------------------------------------------------------
 def _finite(name: str, value: Any) -> float:
+    """``float(value)``, or StudyError naming ``name`` unless it is a finite real number."""
     try:
         v = float(value)
     except (TypeError, ValueError):

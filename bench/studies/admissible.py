@@ -71,6 +71,7 @@ EXTRA_VARIANTS = (("moving_object_v1", "thm1", {"eps2_range": (1e-6, 1e2)}),)
 
 
 def _label(overrides: dict) -> str:
+    """The variant label of a design's overrides."""
     if not overrides:
         return "default (cap = 1e3)"
     return ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in overrides.items())
@@ -147,6 +148,7 @@ def knob_of(plant_id: str) -> str | None:
 
 
 def _knob_default(plant_id: str, knob: str) -> float:
+    """The knob's default value in the plant's factory."""
     from bench.registry import PLANTS
 
     return float(PLANTS.create(plant_id).params[knob])
@@ -299,15 +301,19 @@ def run_admissible(
     tasks = _tasks(plant_ids, design_ids, caps)
     with executor(jobs) as ex:
         results = map_tasks(ex, _pair_task, [((pid, did, _label(ov)), (pid, k, did, ov, bounds, rtol))
-                                             for pid, k, did, ov in tasks],
-                            progress, lambda key, r: f"{key[0]} x {key[1]} ({key[2]}): [{fmt(r['row']['admissible_lo'])}, "
-                                                     f"{fmt(r['row']['failing_hi'])})")
+                                             for pid, k, did, ov in tasks], progress, _progress_label)
     rows, variant_rows, evals = _gather(tasks, results)
     settings = {"rtol": rtol, "bounds": bounds or "automatic (doubling/halving from the plant's default)",
                 "cap": 1e3, "other caps": tuple(caps),
                 "certificate": "the pipeline's ladder at lam = 0 (strongest level first), trusted constants",
                 "jobs": jobs}
     return AdmissibleResult(rows, variant_rows, evals, settings, time.perf_counter() - t_start)
+
+
+def _progress_label(key: tuple[str, str, str], result: dict) -> str:
+    """``plant x design (variant): [lo, hi)`` of a finished bisection."""
+    row = result["row"]
+    return f"{key[0]} x {key[1]} ({key[2]}): [{fmt(row['admissible_lo'])}, {fmt(row['failing_hi'])})"
 
 
 def _tasks(plant_ids: list[str], design_ids: list[str], caps) -> list[tuple[str, str, str, dict]]:
@@ -343,6 +349,7 @@ def _gather(tasks: list, results: dict) -> tuple[list[dict], list[dict], list[di
 
 
 def _interval(r: dict) -> str:
+    """The admissible value of a row in words, with its first failure."""
     lo, hi, kind = r["admissible_lo"], r["failing_hi"], r["kind"]
     if kind == "below_range":
         return f"< {fmt(hi, '.4g')} (fails at every value tried)"
@@ -352,6 +359,7 @@ def _interval(r: dict) -> str:
 
 
 def _draw_plant(pid: str, rows: list[dict], evals: list[dict]):
+    """The figure of one plant: every evaluation per design on the knob's log axis."""
     def draw(path):
         plt = pyplot()
         designs = [r["design"] for r in rows]

@@ -160,6 +160,7 @@ def run_montecarlo(
 
 
 def _draw(pid: str, rows: list[dict], settling: dict):
+    """The figure of one plant: fraction converging and settling times per design."""
     def draw(path):
         plt = pyplot()
         sim = [r for r in rows if "frac_converged" in r]

@@ -153,6 +153,7 @@ def run_noise(
 
 
 def _draw(pid: str, rows: list[dict]):
+    """The figure of one plant: RMS error and final ||x|| vs the noise level per design."""
     def draw(path):
         plt = pyplot()
         fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.3), constrained_layout=True)

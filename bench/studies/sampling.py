@@ -44,6 +44,7 @@ DEFAULT_PLANTS = ("flexible_link", "random_lipschitz_v1", "moving_object_v1")
 
 
 def _jacobian0(plant) -> np.ndarray:
+    """df/dx at the origin (analytic when the plant has it, else central differences)."""
     from bench.estimators import numeric_jacobian
 
     z = np.zeros(plant.n)
@@ -130,6 +131,7 @@ def _design_task(plant_id: str, design_id: str, t_final: float | None):
 
 def _sampling_task(prior, n_ics: int, box: float | None, seed: int, disc: str, h_range, rtol: float,
                    t_final: float | None) -> dict:
+    """Worker: one (plant, design with fixed gains): h_lin, the bisection of h_max, settling vs h."""
     from bench.registry import PLANTS
 
     t0 = time.perf_counter()
@@ -302,6 +304,7 @@ def _unsimulated_row(pid: str, did: str, designed) -> dict | None:
 
 
 def _h_interval(r: dict) -> str:
+    """The largest converging h as a cell (``< h`` or ``>= h`` when not bracketed)."""
     kind = r.get("kind")
     if kind == "below_range":
         return f"< {fmt(r['h_fail'], '.3g')}"
@@ -313,6 +316,7 @@ def _h_interval(r: dict) -> str:
 
 
 def _draw(pid: str, rows: list[dict], evals: list[dict]):
+    """The figure of one plant: settling time vs h per design."""
     def draw(path):
         plt = pyplot()
         fig, ax = plt.subplots(figsize=(7.5, 4.2), constrained_layout=True)
