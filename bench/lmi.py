@@ -287,7 +287,7 @@ class Program:
         """The cvxpy problem to hand to ``solver``: one per solver, sharing variables and parameters.
 
         cvxpy keeps one compiled form per problem and drops it when the solver changes, so a
-        side solved by SCS and re-solved by Clarabel (:func:`designs._separated.solve_side`)
+        side solved by SCS and re-solved by Clarabel (:func:`solve_side`)
         would otherwise recompile at every switch.
         """
         import cvxpy as cp

@@ -92,7 +92,7 @@ def _sweep_overhead(n: int = 8, count: int = 40) -> dict:
     clear_program_cache()
     plant = PLANTS.create("random_lipschitz_v1", n=n, m=max(1, n // 4), p=max(1, n // 4), c=0.1, seed=0)
     design = DESIGNS.create("thm1")
-    prog = design._program_convex(plant, plant.bounds)
+    prog = design.joint_program(plant, plant.bounds)
     for phi in np.logspace(-3, 0, count):
         prog.solve(phi=phi, iphi=1 / phi)
     return {"n": n, "solves": count, "compile_s": prog.compile_s, "solve_s": prog.solve_s,

@@ -112,10 +112,6 @@ class Thm1(YoungDesign):
                          blocks=young_layout(n, eside, (lambda d: d["kappa"] * d["ibeff"]) if schur else None),
                          e_scalars=("eps3", "eps4"), constants=constants)
 
-    def _program_convex(self, plant: Plant, c: Constants) -> lmi.Program:
-        """:meth:`joint_program` under its former name (``bench.perf`` times it by this name)."""
-        return self.joint_program(plant, c)
-
     def joint_params(self, phi: float, vals: dict, c: Constants) -> dict:
         kappa = scalar(vals, "kappa")
         return {
