@@ -33,6 +33,36 @@ def _check_solver(solver: str) -> None:
     check_choice("solver", solver, ("auto", "CLARABEL", "SCS"))
 
 
+def _solve_observer(part: "Part", key: tuple, build, settable: dict, *, what: str, n: int,
+                    searched: str) -> tuple[lmi.Program, dict, str]:
+    """Solve an observer LMI under ``P << cap I``; a marginal verdict is decided again scale-free.
+
+    The LMI is homogeneous in its variables, so under ``t I << P << cap I`` an infeasible one has
+    best margin 0 (every variable shrinking with ``t``): "marginal" cannot tell it from a boundary
+    case. The scale-free solve adds ``I << P``, which loses only points with ``cond(P) > cap``;
+    there an infeasible LMI has a clearly negative margin and is labelled infeasible (the gains,
+    when there are any, always come from the first solve). ``build(scale_free)`` builds the program.
+    """
+    prog = lmi.cached_program((*key, "capped"), lambda: build(False))
+    prog.set(**settable)
+    log = lmi.solve_side(prog, part.solver, n)
+    concl = lmi.conclude(prog, what=what, normalisation=f"P << {part.cap:g} I, t <= 1", searched=searched)
+    if concl["status"] != "marginal":
+        return prog, concl, log
+    sf = lmi.cached_program((*key, "scale-free"), lambda: build(True))
+    sf.set(**settable)
+    sf.solve(solver="CLARABEL" if part.solver == "auto" else part.solver,
+             solver_opts=lmi.SCS_OPTS if part.solver == "SCS" else None)
+    norm = f"I << P << {part.cap:g} I"
+    dec = lmi.conclude(sf, what=what, normalisation=norm, searched=f"{searched} (scale-free)")
+    if dec["status"] == "infeasible":
+        concl = {**concl, "status": "infeasible", "reason": (
+            f"{dec['reason']}; the LMI is homogeneous in its variables, so this loses only points with "
+            f"cond(P) > {part.cap:g} (under P << {part.cap:g} I alone the best margin shrinks to 0 with the "
+            f"variables: max eig {concl['margin']:.3g})")}
+    return prog, concl, log
+
+
 def _part_from(prog: lmi.Program, concl: dict, K, params: dict, log: str = "") -> DesignResult:
     return DesignResult(status=concl["status"], reason=concl["reason"], route="sdp",
                         K=K if concl["status"] == "feasible" else None,
@@ -75,18 +105,17 @@ class RajamaniLMI(Part):
             S = A.T @ P + P @ A - C.T @ W.T - W @ C + d["eps"] * d["a2"] * I + 2 * lam * P
             return [[S, P], [P, -d["eps"] * I]]
 
-        def build():
+        def build(scale_free: bool):
             v = {"P": cp.Variable((n, n), symmetric=True), "W": cp.Variable((n, p)), "eps": cp.Variable(),
                  "t": cp.Variable()}
             prm = {**mats.parameters(), **lmi.scalar_parameters("a2")}
-            return lmi.margin_program(blocks, v, prm, ("P",), lambda d: [d["eps"] >= 0], cap=self.cap)
+            return lmi.margin_program(blocks, v, prm, ("P",),
+                                      lambda d: [d["eps"] >= 0] + ([d["P"] >> I] if scale_free else []), cap=self.cap)
 
         mats = lmi.matrices(A=plant.A, C=plant.C)
-        prog = lmi.cached_program(("rajamani", n, p, lam, float(self.cap), mats.key), build)
-        prog.set(**mats.settable(), a2=a2)
-        log = lmi.solve_side(prog, self.solver, n)
-        concl = lmi.conclude(prog, what="Rajamani LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
-                              searched=f"with decay {lam:g}")
+        prog, concl, log = _solve_observer(self, ("rajamani", n, p, lam, float(self.cap), mats.key), build,
+                                           {**mats.settable(), "a2": a2}, what="Rajamani LMI observer", n=n,
+                                           searched=f"with decay {lam:g}")
         vals = prog.values()
         K = np.linalg.solve(vals["P"], vals["W"]) if concl["status"] == "feasible" else None
         eps = vals["eps"]
@@ -136,20 +165,20 @@ class ZhangOSL(Part):
             X = P + ((d["gamma"] * d["eps2"] - d["eps1"]) / 2) * I
             return [[S, X], [X.T, -d["eps2"] * I]]
 
-        def build():
+        def build(scale_free: bool):
             v = {"P": cp.Variable((n, n), symmetric=True), "sigma": cp.Variable(), "eps1": cp.Variable(),
                  "eps2": cp.Variable(), "t": cp.Variable()}
             # C'C is one parameter: sigma * (C' C) with C a parameter would not be DPP
             prm = {**mats.parameters(), **lmi.scalar_parameters("rho", "beta", "gamma")}
-            return lmi.margin_program(blocks, v, prm, ("P",),
-                                       lambda d: [d["sigma"] >= 0, d["eps1"] >= 0, d["eps2"] >= 0], cap=self.cap)
+            return lmi.margin_program(
+                blocks, v, prm, ("P",),
+                lambda d: [d["sigma"] >= 0, d["eps1"] >= 0, d["eps2"] >= 0] + ([d["P"] >> I] if scale_free else []),
+                cap=self.cap)
 
         mats = lmi.matrices(A=plant.A, CtC=C.T @ C)
-        prog = lmi.cached_program(("zhang_osl", n, lam, float(self.cap), mats.key), build)
-        prog.set(**mats.settable(), rho=rho, beta=beta, gamma=gamma)
-        log = lmi.solve_side(prog, self.solver, n)
-        concl = lmi.conclude(prog, what="Zhang OSL LMI observer", normalisation=f"P << {self.cap:g} I, t <= 1",
-                              searched=f"with decay {lam:g}")
+        prog, concl, log = _solve_observer(self, ("zhang_osl", n, lam, float(self.cap), mats.key), build,
+                                           {**mats.settable(), "rho": rho, "beta": beta, "gamma": gamma},
+                                           what="Zhang OSL LMI observer", n=n, searched=f"with decay {lam:g}")
         vals = prog.values()
         K = None
         if concl["status"] == "feasible":

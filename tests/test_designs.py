@@ -96,3 +96,19 @@ def test_paper_gains_only_for_flexible_link(flex, flex_constants):
     # MATH.md's printed gains (37)-(38)
     np.testing.assert_array_equal(r.F, [[-11.7561, -1.8562, 6.4643, -14.2175]])
     np.testing.assert_array_equal(r.K[0], [1.2907, -24.3525])
+
+
+@pytest.mark.parametrize("alpha, expected", [(0.5, "feasible"), (2.0, "infeasible")])
+def test_lipschitz_observer_lmi_decided_by_its_closed_form(alpha, expected):
+    # x' = -x + f(x), nothing measured (C = 0): A - KC = -1 whatever K, and the Rajamani LMI
+    # [-2P + eps alpha^2, P; P, -eps] < 0 holds for some P, eps > 0 iff min_eps (eps alpha^2 + P^2/eps) = 2 alpha P
+    # < 2P, i.e. iff alpha < 1. Infeasible (alpha = 2) is a proof, not 'marginal'.
+    from designs.lmi_observers import RajamaniLMI
+    from plants import Constants, Plant
+
+    plant = Plant(id="scalar", A=[[-1.0]], B=[[1.0]], C=[[0.0]], f=lambda x: alpha * np.sin(x),
+                  x0=[1.0], x_hat0=[0.0], bounds=Constants(alpha=alpha))
+    res = RajamaniLMI().compute(plant, Constants(alpha=alpha))
+    assert res.status == expected, res.reason
+    if expected == "infeasible":
+        assert "I << P" in res.reason and res.K is None
