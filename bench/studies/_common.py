@@ -389,8 +389,22 @@ def md_table(rows: list[dict], columns: list[str], headers: list[str] | None = N
 
 
 def skipped_lines(rows: list[dict], *, heading: str = "Not simulated:", width: int = 250) -> list[str]:
-    """Markdown lines listing the pairs that were not simulated, with their status and reason (cut at
-    ``width`` characters), under ``heading``; none without rows."""
+    """Markdown lines listing the pairs that were not simulated, with their status and reason.
+
+    Parameters
+    ----------
+    rows : list of dict
+        With ``plant``, ``design``, ``status`` and (optionally) ``reason``.
+    heading : str
+        The line above the list.
+    width : int
+        Reasons are cut at this many characters.
+
+    Returns
+    -------
+    list of str
+        The heading, a blank line, one bullet per row and a blank line; empty without rows.
+    """
     if not rows:
         return []
     return [heading, "", *(f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r.get('reason', ''))[:width]}"
