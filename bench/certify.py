@@ -204,7 +204,7 @@ def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge) -> lmi.Program:
     Gw = ch.G if ch is not None else np.eye(spec.n)
     Hc = ch.H if ch is not None else None
     blocks = partial(_blocks, spec, Gw, Hc)
-    key = ("certify", spec, mats.key, _digest(Gw), _digest(Hc))
+    key = ("certify", spec, mats.key, lmi.digest(Gw), lmi.digest(Hc))
     return lmi.cached_program(key, lambda: _build(spec, mats, blocks))
 
 
@@ -286,12 +286,6 @@ def _blocks(spec: _Spec, Gw: np.ndarray, Hc: np.ndarray | None, d: dict) -> list
         [(xwx + cross["x"]).T, ewx.T, ww["x"], Zw],
         [xwe.T, (ewe + cross["e"]).T, Zw, ww["e"]],
     ]
-
-
-def _digest(M) -> str:
-    import hashlib
-
-    return "" if M is None else hashlib.sha1(np.ascontiguousarray(M, dtype=float).tobytes()).hexdigest()
 
 
 def _diag(v):

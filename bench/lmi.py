@@ -42,6 +42,7 @@ __all__ = [
     "is_positive_definite",
     "clear_program_cache",
     "conclude",
+    "digest",
     "log_search",
     "margin_program",
     "matrices",
@@ -424,6 +425,16 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
 DENSE_FRACTION = 0.75
 
 
+def digest(M: np.ndarray | None) -> str:
+    """A digest of a matrix's shape and values (for the key of a program that bakes it in; "" for None)."""
+    import hashlib
+
+    if M is None:
+        return ""
+    A = np.ascontiguousarray(M, dtype=float)
+    return hashlib.sha1(repr(A.shape).encode() + A.tobytes()).hexdigest()
+
+
 @dataclass(frozen=True)
 class Matrices:
     """How a design's matrices enter a cached program: dense ones as Parameters, sparse ones baked.
@@ -438,14 +449,12 @@ class Matrices:
 
     @property
     def key(self) -> tuple:
-        import hashlib
-
         out = []
         for k, M in self.values.items():
             if k in self.dense:
                 out.append((k, "parameter", M.shape))
             else:
-                out.append((k, "constant", M.shape, hashlib.sha1(np.ascontiguousarray(M).tobytes()).hexdigest()))
+                out.append((k, "constant", M.shape, digest(M)))
         return tuple(out)
 
     def parameters(self) -> dict:

@@ -169,7 +169,8 @@ class Structured(Design):
     def _programs(self, plant: Plant) -> tuple[lmi.Program, lmi.Program]:
         d = _loop(plant)
         n, m, p, q = plant.n, plant.m, plant.p, plant.channels.q
-        key = ("structured", n, m, p, q, lmi.matrices(**d).key)
+        # the side programs bake the loop data in (A0, G, H, Dr): the key must hold their values
+        key = ("structured", n, m, p, q, tuple((k, lmi.digest(v)) for k, v in d.items()))
         return (lmi.cached_program((*key, "x"), lambda: _side_program("x", d, n, m, q)),
                 lmi.cached_program((*key, "e"), lambda: _side_program("e", d, n, p, q)))
 
@@ -230,7 +231,6 @@ class Structured(Design):
             return DesignResult(status="infeasible", reason=(
                 "structured design: a side is not strictly feasible at decay 0 (Q, R >= I normalisation)"), **base)
         return _conclude(plant, best, tries, self, base)
-
 
     def _design_riccati(self, plant: Plant) -> DesignResult:
         """The Riccati route at the fixed decay target ``decay`` (default 0)."""

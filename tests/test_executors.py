@@ -193,32 +193,3 @@ def test_a_worker_that_dies_becomes_error_rows_and_the_run_completes():
     df = res.frame().set_index("design")
     assert df.loc["_die_test", "status"] == "error" and "worker" in df.loc["_die_test", "reason"]
     assert len(df) == 2  # every pair has a row
-
-
-class _Stream:
-    def __init__(self, tty):
-        self.tty, self.text = tty, ""
-
-    def isatty(self):
-        return self.tty
-
-    def write(self, s):
-        self.text += s
-
-    def flush(self):
-        pass
-
-
-def test_progress_bar_quiet_off_a_terminal_and_drawn_on_one():
-    from bench.harness import ProgressBar
-
-    off = ProgressBar(_Stream(False), min_seconds=0)
-    off(1, 2, "a")
-    off(2, 2, "b")
-    off.close()
-    assert off.stream.text == ""
-    on = ProgressBar(_Stream(True), min_seconds=0)
-    on(1, 2, "flexible_link x thm1")
-    on(2, 2, "done")
-    on.close()
-    assert "1/2" in on.stream.text and "2/2" in on.stream.text and on.stream.text.endswith("\n")

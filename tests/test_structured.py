@@ -77,3 +77,25 @@ def test_scaled_theorem1_is_feasible_and_its_gains_work_on_the_original_plant(pi
     r = _row(pid, "thm1_scaled")
     assert r["status"] == "feasible" and r["certified"] and r["converged"]
     assert r["stabilizing"]
+
+
+@pytest.mark.parametrize("did", ["structured", "thm1", "cor1", "thm1_sep", "lqr+zhang_osl"])
+def test_a_sweep_over_the_scale_of_f_designs_what_a_cold_process_designs(did):
+    """A program compiled for one value of the knob must not serve another (the structured design's
+    side programs bake the loop data in, so their cache key must hold its values): designing at
+    c = 0.34 after c = 0.333 gives the gains of a cold design at c = 0.34."""
+    from bench import lmi
+
+    def design(c):
+        p = PLANTS.create("flexible_link", c=c)
+        return DESIGNS.create(did).design(p, compute_constants(p, seed=0, n_samples=2000).valid)
+
+    lmi.clear_program_cache()
+    cold = design(0.34)
+    lmi.clear_program_cache()
+    design(0.333)
+    warm = design(0.34)
+    assert cold.status == warm.status
+    if cold.F is not None:
+        np.testing.assert_allclose(warm.F, cold.F, rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(warm.K, cold.K, rtol=1e-6, atol=1e-9)

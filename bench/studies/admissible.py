@@ -57,8 +57,8 @@ KNOBS = {
 }
 
 #: LMI and Riccati designs (the study's default selection).
-DEFAULT_DESIGNS = ("thm1", "thm1_sep", "thm1_printed", "cor1", "cor1_sep", "cor1_printed", "lqr+rajamani",
-                   "lqr+zhang_osl", "lqr+rh_riccati")
+DEFAULT_DESIGNS = ("thm1", "thm1_sep", "thm1_printed", "cor1", "cor1_sep", "cor1_printed", "structured",
+                   "thm1_scaled", "cor1_scaled", "lqr+rajamani", "lqr+zhang_osl", "lqr+rh_riccati")
 
 #: Designs re-run with other normalisation caps (they have a ``cap`` hyperparameter).
 CAP_DESIGNS = ("thm1", "cor1")

@@ -153,9 +153,9 @@ def run_study(args, argv: list[str]) -> int:
     command = "python -m bench " + shlex.join(argv)
     bar = None
     if not args.quiet:
-        from bench.harness import ProgressBar
+        from bench.progress import Progress
 
-        bar = ProgressBar()
+        bar = Progress(desc=f"study {args.study}", delay=1.0)
     t0 = time.perf_counter()
     try:
         if args.study == "admissible":
