@@ -1,7 +1,7 @@
 import numpy as np
 
 from bench.registry import register_plant
-from plants import Constants, Plant
+from plants import Channels, Constants, Plant
 
 
 @register_plant("my_plant")
@@ -13,5 +13,7 @@ def my_plant(*, c: float = 0.5) -> Plant:
         f=lambda x: np.stack([0.0 * x[0], -c * np.sin(x[0])]),  # x: (2,) or (2, N)
         x0=[1.0, 0.0], x_hat0=[0.0, 0.0],
         bounds=Constants(alpha=c, rho=c / 2, beta=c**2, gamma=0.0),  # valid: Lipschitz, OSL, QIB
+        # f = G phi(H x): one channel, phi(z) = -c sin(z) with slopes in [-c, c]
+        channels=Channels(G=[[0.0], [1.0]], H=[[1.0, 0.0]], phi=lambda z: -c * np.sin(z), lo=-c, hi=c),
         source="my notes", params={"c": c},
     )
