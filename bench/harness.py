@@ -243,6 +243,12 @@ class _Run:
         """Finish a constants task (tag: a plant id) or a pair task (tag: (plant, design))."""
         return self.finish_pair(fut, tag) if isinstance(tag, tuple) else self.finish_constants(fut, tag)
 
+    def constants_in_order(self) -> tuple[dict, dict]:
+        """The constants and the constants errors in the order of the plants asked for (they finish
+        in any order; the report and run.json must not depend on it)."""
+        return ({pid: self.constants[pid] for pid in self.plant_ids if pid in self.constants},
+                {pid: self.errors[pid] for pid in self.plant_ids if pid in self.errors})
+
     def outcomes(self) -> list[PairOutcome]:
         out = []
         for pid in self.plant_ids:
@@ -301,7 +307,7 @@ def run(
         except KeyboardInterrupt:
             _stop_workers(ex)
             raise
-    return RunResult(state.outcomes(), state.constants, state.errors, options, time.perf_counter() - t_start,
+    return RunResult(state.outcomes(), *state.constants_in_order(), options, time.perf_counter() - t_start,
                      cache_hits=cache.hits if cache is not None else 0,
                      cache_misses=cache.misses if cache is not None else 0,
                      cache_dir=None if cache is None else str(cache.root))

@@ -351,6 +351,43 @@ def _figure(path: Path, thm_rows: list[dict], routes: list[dict]) -> None:
     plt.close(fig)
 
 
+def _agreement(routes: list[dict]) -> str:
+    """Where both routes ran: do their verdicts agree (the Riccati route is only sufficient)?"""
+    by = {(r["route"], r["n"]): r for r in routes if "certified" in r}
+    lines = []
+    for n in sorted({r["n"] for r in routes}):
+        s, r = by.get(("sdp", n)), by.get(("riccati", n))
+        if s is None or r is None:
+            continue
+        if bool(s["certified"]) == bool(r["certified"]):
+            verdict = "agree: both certified" if s["certified"] else "agree: neither certified"
+        elif s["certified"]:
+            verdict = f"differ: the SDP route certifies, the Riccati route does not ({r['status']}: sufficient only)"
+        else:
+            verdict = f"differ: the Riccati route certifies, the SDP route does not ({s['status']})"
+        lines.append(f"- n = {n}: {verdict}; decay rates {_fmt(s.get('decay_rate'))} (SDP) and "
+                     f"{_fmt(r.get('decay_rate'))} (Riccati).")
+    return "\n".join(lines) if lines else "No size where both routes ran."
+
+
+def _targets(routes: list[dict], sims: list[dict], runs: list[dict]) -> str:
+    """The scale and speed targets of the issues beside what this run measured."""
+    def wall(route, n):
+        r = next((r for r in routes if r["route"] == route and r["n"] == n), None)
+        return r["wall_s"] if r is not None else float("nan")
+
+    traj = next((r["wall_s"] for r in sims if r.get("n") == 1000), float("nan"))
+    run2 = next((r["median_s"] for r in runs if r["jobs"] == 2), float("nan"))
+    rows = [("structured, Riccati route, n = 256, design + certificate", "<= 10 s", wall("riccati", 256)),
+            ("structured, Riccati route, n = 1024, design + certificate", "<= 180 s", wall("riccati", 1024)),
+            ("growth exponent of the Riccati route (n >= 64)", "<= 3.2", _exponent(routes, "riccati", "route", 64)),
+            ("one closed-loop trajectory, n = 1000, default horizon", "<= 10 s", traj),
+            ("default run, cold, --jobs 2 (median)", "<= 20 s", run2)]
+    out = ["| target | wanted | measured |", "|---|---|---|"]
+    out += [f"| {what} | {want} | {_fmt(got)} |" for what, want, got in rows]
+    return "\n".join(out)
+
+
 def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs) -> str:
     cert = [r for r in routes if r["route"] == "riccati" and "certified" in r]
     frac = sum(r["certified"] for r in cert) / len(cert) if cert else float("nan")
@@ -360,6 +397,10 @@ def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs) -> str:
         "",
         f"Machine: {os.cpu_count()} cores. Produced by `python -m bench perf`; every number is a measurement of "
         "this run (forked processes for the design timings, so peak memory is the measurement's own).",
+        "",
+        "## Targets",
+        "",
+        _targets(routes, sims, runs),
         "",
         "## Structured design: Riccati route vs SDP route (chain family, n = 2N)",
         "",
@@ -371,6 +412,10 @@ def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs) -> str:
         "",
         f"Growth exponent (log time vs log n, n >= 64): Riccati route {_exponent(routes, 'riccati', 'route', 64):.2f}; "
         f"SDP route {_exponent(routes, 'sdp', 'route', 16):.2f}. Certified Riccati rows: {100 * frac:.0f} %.",
+        "",
+        "Where both routes ran (the Riccati route is sufficient, not necessary):",
+        "",
+        _agreement(routes),
         "",
         "![time vs n](figures/perf_scaling.png)",
         "",

@@ -193,3 +193,10 @@ def test_a_worker_that_dies_becomes_error_rows_and_the_run_completes():
     df = res.frame().set_index("design")
     assert df.loc["_die_test", "status"] == "error" and "worker" in df.loc["_die_test", "reason"]
     assert len(df) == 2  # every pair has a row
+
+
+def test_constants_are_reported_in_the_order_asked_whatever_finishes_first():
+    # flexible_link's constants take longer than pendulum_v1's (more refinement): with two workers the
+    # pendulum's finish first, and the report (findings, run.json) must not depend on that
+    res = run(["flexible_link", "pendulum_v1"], ["paper_gains"], OPTS, jobs=2)
+    assert list(res.constants) == ["flexible_link", "pendulum_v1"]
