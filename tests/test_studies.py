@@ -341,3 +341,30 @@ def test_study_files_are_written_whole_or_not_at_all(tmp_path):
     assert (tmp_path / "STUDY_x.md").read_text() == before
     assert pd.read_csv(tmp_path / "study_x.csv").a.tolist() == [1]
     assert not list(tmp_path.glob(".tmp-*"))
+
+
+def test_bisection_of_an_inapplicable_design_stops_at_once():
+    from bench.studies._common import bisect_largest
+
+    calls = []
+
+    def check(v):
+        calls.append(v)
+        return {"value": v, "ok": False, "status": "inapplicable", "reason": "no channels"}
+
+    out = bisect_largest(check, 10.0)
+    assert out["kind"] == "inapplicable" and calls == [10.0] and len(out["evals"]) == 1
+
+
+def test_bisection_checks_each_value_once():
+    from bench.studies._common import bisect_largest
+
+    calls = []
+
+    def check(v):
+        calls.append(v)
+        return {"value": v, "ok": v <= 3.0, "status": "feasible" if v <= 3.0 else "infeasible", "reason": ""}
+
+    out = bisect_largest(check, 1.0, rtol=0.01)
+    assert out["lo"] <= 3.0 < out["hi"] and out["hi"] / out["lo"] - 1 <= 0.01
+    assert len(calls) == len(set(calls))

@@ -201,8 +201,9 @@ def bisect_largest(
     -------
     dict
         ``lo`` (largest passing value, NaN if none), ``hi`` (smallest failing value, NaN if
-        none), ``kind`` (``"bracketed"``, ``"below_range"`` or ``"above_range"``) and
-        ``evals`` (every evaluation, in order).
+        none), ``kind`` (``"bracketed"``, ``"below_range"``, ``"above_range"``, or
+        ``"inapplicable"`` when the first evaluation's status says so) and ``evals`` (every
+        evaluation, in order).
 
     Raises
     ------
@@ -215,6 +216,9 @@ def bisect_largest(
     if not (math.isfinite(default) and default > 0):
         raise StudyError("default", f"must be finite and > 0, got {default!r}")
     ok = _Probe(check)
+    first = default if bounds is None else bounds[0]
+    if not ok(first) and ok.evals[0].get("status") == "inapplicable":  # no value of the knob changes that
+        return {"lo": math.nan, "hi": math.nan, "kind": "inapplicable", "evals": ok.evals}
     if bounds is not None:
         lo, hi, kind = _bracket_within(ok, *bounds)
     elif ok(default):
@@ -232,15 +236,19 @@ def bisect_largest(
 
 
 class _Probe:
-    """``check`` with every record kept in ``evals``; a call returns whether the value passed."""
+    """``check`` with every record kept in ``evals`` (a value is checked once); a call returns whether
+    the value passed."""
 
     def __init__(self, check: Callable[[float], dict]):
         self.check = check
         self.evals: list[dict] = []
+        self._seen: dict[float, dict] = {}
 
     def __call__(self, value: float) -> bool:
-        r = self.check(value)
-        self.evals.append(r)
+        r = self._seen.get(value)
+        if r is None:
+            r = self._seen[value] = self.check(value)
+            self.evals.append(r)
         return bool(r["ok"])
 
 

@@ -212,7 +212,7 @@ def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds
            "kind": out["kind"], "n_evals": len(ev), "compile_s": sum(e["compile_s"] for e in ev),
            "solve_s": sum(e["solve_s"] for e in ev), "n_solves": sum(e["n_solves"] for e in ev),
            "cert_s": sum(e["cert_s"] for e in ev), "wall_s": time.perf_counter() - t0}
-    fail = [e for e in ev if not e["ok"] and e["value"] == out["hi"]]
+    fail = [e for e in ev if not e["ok"] and (e["value"] == out["hi"] or out["kind"] == "inapplicable")]
     if fail:
         f = fail[-1]
         row["fails_by"] = ("not certified" if f["status"] in GAIN_STATUSES else f["status"])
@@ -351,6 +351,8 @@ def _gather(tasks: list, results: dict) -> tuple[list[dict], list[dict], list[di
 def _interval(r: dict) -> str:
     """The admissible value of a row in words, with its first failure."""
     lo, hi, kind = r["admissible_lo"], r["failing_hi"], r["kind"]
+    if kind == "inapplicable":
+        return "n/a (inapplicable)"
     if kind == "below_range":
         return f"< {fmt(hi, '.4g')} (fails at every value tried)"
     if kind == "above_range":
@@ -412,7 +414,8 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
         "",
         _matrix(rows, plants),
         "",
-        "`< v`: fails already at v (the smallest value tried); `>= v`: passes at every value tried.",
+        "`< v`: fails already at v (the smallest value tried); `>= v`: passes at every value tried; `n/a`: the "
+        "design does not apply to the plant (reason in the details).",
         "",
         "## Details",
         "",
@@ -510,6 +513,8 @@ def _matrix(rows: list[dict], plants: list[str]) -> str:
             r = sub.get(d)
             if r is None:
                 cells.append("")
+            elif r["kind"] == "inapplicable":
+                cells.append("n/a")
             elif r["kind"] == "below_range":
                 cells.append(f"< {fmt(r['failing_hi'], '.3g')}")
             elif r["kind"] == "above_range":
