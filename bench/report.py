@@ -44,8 +44,8 @@ def git_revision() -> dict[str, object]:
     """``{"commit": sha or None, "dirty": bool or None}`` of the checkout holding this package.
 
     None when the package is not in a git checkout (an installed wheel) or git is missing;
-    ``dirty`` is True when tracked files differ from the commit (then the commit alone does not
-    reproduce the run). Read-only: ``git rev-parse`` and ``git status`` without optional locks.
+    ``dirty`` is True when tracked files outside ``reports/`` differ from the commit (then the commit
+    alone does not reproduce the run). Read-only: ``git rev-parse`` and ``git status`` without optional locks.
     """
     import subprocess
 
@@ -63,7 +63,8 @@ def git_revision() -> dict[str, object]:
     top = git("rev-parse", "--show-toplevel")
     if top is None or Path(top).resolve() != root:
         return {"commit": None, "dirty": None}
-    status = git("status", "--porcelain", "--untracked-files=no")
+    # the committed reports/ are outputs, not code: regenerating them does not make a checkout dirty
+    status = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)reports")
     return {"commit": git("rev-parse", "HEAD"), "dirty": None if status is None else bool(status)}
 
 
