@@ -278,14 +278,15 @@ def _summary(found: dict) -> str:
         lines.append(f"- Claimed constant violated on {v['plant']}: {v['text']}.")
     for v in found["disproved"]:
         lines.append(f"- Declared bound disproved on {v['plant']} (not used by certificates): {v['text']}.")
-    seen = set()
+    by_design: dict[str, list[dict]] = {}
     for r in found["printed_infeasible"]:
-        key = (r["design"], r["reason"])
-        if key in seen:
-            continue
-        seen.add(key)
-        plants = [x["plant"] for x in found["printed_infeasible"] if (x["design"], x["reason"]) == key]
-        lines.append(f"- {r['design']} (as printed) is infeasible on {', '.join(plants)}: {_fmt(r['reason'])[:300]}")
+        by_design.setdefault(r["design"], []).append(r)
+    for did, rows in by_design.items():
+        plants = ", ".join(x["plant"] for x in rows)
+        alike = len({x["reason"] for x in rows}) == 1
+        why = (f": {_fmt(rows[0]['reason'])[:300]}" if alike else
+               f"; on {rows[0]['plant']}: {_fmt(rows[0]['reason'])[:240]} (each plant's reason: \"Reasons, per plant\" below)")
+        lines.append(f"- {did} (as printed) is infeasible on {plants}{why}")
     for r in found["inconsistent"]:
         lines.append(f"- **Inconsistent verdicts** on {r['plant']} x {r['design']}: {_fmt(r['reason'])}")
     return "\n".join(lines)
