@@ -65,7 +65,7 @@ VERIFY_TOL = 1e-7
 
 def sym(M):
     """Symmetric part of a cvxpy expression or array (so ``<<`` sees a symmetric matrix)."""
-    return (M + M.T) / 2
+    return 0.5 * (M + M.T)  # a product, not a division: cvxpy 1.9.3's COO backend fails on "/ 2" of parameter-affine terms (n = 32)
 
 
 def max_eig(M: np.ndarray) -> float:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bench.certify import LEVELS, Certificate, adopt, certify, linearised_rate
+from bench.certify import LEVELS, Certificate, LevelResult, adopt, certify, linearised_rate
 from bench.constants import ConstantsReport, resolve_constants
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
 from bench.metrics import trajectory_metrics
@@ -46,8 +46,9 @@ COLUMNS = [
 ]
 
 #: What the ``certificate`` option computes: every level with its rate, or only whether some
-#: level certifies at rate 0 (the strongest first; for bisections over a parameter), or nothing.
-CERTIFICATE_MODES = ("ladder", "verdict", "none")
+#: level certifies at rate 0 (the strongest first; for bisections over a parameter), or only the
+#: design's own verified certificate (no SDP: for large n), or nothing.
+CERTIFICATE_MODES = ("ladder", "verdict", "own", "none")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -77,7 +78,7 @@ class RunOptions:
         Sample period of the noise for fixed-gain observers.
     timeout : float, optional
         Wall-clock limit in seconds of each pair; a pair over it becomes a ``timeout`` row.
-    certificate : {"ladder", "verdict", "none"}
+    certificate : {"ladder", "verdict", "own", "none"}
         See :data:`CERTIFICATE_MODES`.
     simulate : bool
         Simulate the closed loop (False: design and certificate only).
@@ -259,6 +260,9 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     t0 = time.perf_counter()
     if options.certificate == "ladder":
         cert = certify(plant, res.K, res.F, know)
+    elif options.certificate == "own":  # no SDP: only the design's own verified certificate, if any
+        cert = Certificate({lv: LevelResult(lv, "inapplicable", reason="the ladder was not run (certificate='own')")
+                            for lv in LEVELS})
     else:  # strongest level first, at rate 0, until one certifies
         cert = Certificate({})
         for lv in reversed(LEVELS):
