@@ -15,12 +15,42 @@ Signal names: plant inputs ``u[i]``, outputs ``y[i]``, states ``x[i]``; controll
 from __future__ import annotations
 
 import re
+import textwrap
 
 import numpy as np
 
 from plants import Plant
 
 __all__ = ["closed_loop_nlsys", "controller_ss", "observer_nlsys", "plant_nlsys"]
+
+_RAISES_PLANT = """\
+Raises
+------
+TypeError
+    If ``plant`` is not a Plant."""
+
+#: numpydoc text that several docstrings below share, written once: a line ``%(name)s`` of a
+#: docstring decorated with :func:`_doc` is replaced by the entry, indented like that line.
+_DOC_ENTRIES = {
+    "gains": """\
+K : array_like, shape (n, p)
+    Observer gain.
+F : array_like, shape (m, n)
+    State feedback, ``u = F x_hat``.""",
+    # what a bad plant (:func:`_check_plant`), or a bad plant, K or F (:func:`_check_gains`) raises
+    "raises_plant": _RAISES_PLANT,
+    "raises_gains": _RAISES_PLANT + """
+ValueError
+    If K or F has the wrong shape or non-finite entries (the message names which).""",
+}
+
+
+def _doc(func):
+    """Fill the shared entries of :data:`_DOC_ENTRIES` into ``func.__doc__`` (left alone under ``-OO``)."""
+    if func.__doc__:
+        func.__doc__ = re.sub(r"^( *)%\((\w+)\)s$", lambda m: textwrap.indent(_DOC_ENTRIES[m[2]], m[1]),
+                              func.__doc__, flags=re.MULTILINE)
+    return func
 
 
 def _names(prefix: str, count: int) -> list[str]:
@@ -63,6 +93,7 @@ def _check_gains(plant, K, F) -> tuple[Plant, np.ndarray, np.ndarray]:
     return plant, out[0], out[1]
 
 
+@_doc
 def controller_ss(plant: Plant, K, F):
     """The linear part of the observer-based controller (6), from y to u, as a ``control.StateSpace``.
 
@@ -76,22 +107,14 @@ def controller_ss(plant: Plant, K, F):
     ----------
     plant : Plant
         Supplies A (n x n), B (n x m), C (p x n).
-    K : array_like, shape (n, p)
-        Observer gain.
-    F : array_like, shape (m, n)
-        State feedback, ``u = F x_hat``.
+    %(gains)s
 
     Returns
     -------
     control.StateSpace
         Inputs ``y[0..p-1]``, outputs ``u[0..m-1]``, states ``xhat[0..n-1]``.
 
-    Raises
-    ------
-    TypeError
-        If ``plant`` is not a Plant.
-    ValueError
-        If K or F has the wrong shape or non-finite entries (the message names which).
+    %(raises_gains)s
 
     Examples
     --------
@@ -149,6 +172,7 @@ def _observer_system(plant: Plant, K: np.ndarray, F: np.ndarray, *, state_output
     return _affine_system(M, K, F, plant.f, signals=("y", "u", "xhat"), state_outputs=state_outputs, name=name)
 
 
+@_doc
 def plant_nlsys(plant: Plant):
     """The plant (1) ``x' = A x + B u + f(x)``, ``y = C x`` as a ``control.NonlinearIOSystem``.
 
@@ -162,10 +186,7 @@ def plant_nlsys(plant: Plant):
         Continuous time; inputs ``u[0..m-1]``, outputs ``y[0..p-1]``, states ``x[0..n-1]``;
         named after ``plant.id``.
 
-    Raises
-    ------
-    TypeError
-        If ``plant`` is not a Plant.
+    %(raises_plant)s
 
     Examples
     --------
@@ -178,6 +199,7 @@ def plant_nlsys(plant: Plant):
     return _plant_system(plant, state_outputs=False, name=_sysname(plant, ""))
 
 
+@_doc
 def observer_nlsys(plant: Plant, K, F):
     """The nonlinear observer-based controller (6), from y to u, as a ``control.NonlinearIOSystem``.
 
@@ -187,22 +209,14 @@ def observer_nlsys(plant: Plant, K, F):
     ----------
     plant : Plant
         Supplies A, B, C and f.
-    K : array_like, shape (n, p)
-        Observer gain.
-    F : array_like, shape (m, n)
-        State feedback.
+    %(gains)s
 
     Returns
     -------
     control.NonlinearIOSystem
         Inputs ``y[0..p-1]``, outputs ``u[0..m-1]``, states ``xhat[0..n-1]``.
 
-    Raises
-    ------
-    TypeError
-        If ``plant`` is not a Plant.
-    ValueError
-        If K or F has the wrong shape or non-finite entries (the message names which).
+    %(raises_gains)s
 
     See Also
     --------
@@ -212,6 +226,7 @@ def observer_nlsys(plant: Plant, K, F):
     return _observer_system(plant, K, F, state_outputs=False, name=_sysname(plant, "observer"))
 
 
+@_doc
 def closed_loop_nlsys(plant: Plant, K, F):
     """Plant (1) in feedback with the observer-based controller (6), as a ``control.NonlinearIOSystem``.
 
@@ -225,10 +240,7 @@ def closed_loop_nlsys(plant: Plant, K, F):
     Parameters
     ----------
     plant : Plant
-    K : array_like, shape (n, p)
-        Observer gain.
-    F : array_like, shape (m, n)
-        State feedback, ``u = F x_hat``.
+    %(gains)s
 
     Returns
     -------
@@ -237,12 +249,7 @@ def closed_loop_nlsys(plant: Plant, K, F):
         ``initial_state=np.concatenate([x0, x_hat0])``); 2n + m outputs in the order
         ``(x[0..n-1], xhat[0..n-1], u[0..m-1])``.
 
-    Raises
-    ------
-    TypeError
-        If ``plant`` is not a Plant.
-    ValueError
-        If K or F has the wrong shape or non-finite entries (the message names which).
+    %(raises_gains)s
 
     Examples
     --------
