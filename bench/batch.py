@@ -29,8 +29,9 @@ period; ``dt_max`` defaults to ``min(5e-3, 0.1 / rho(A))`` (rho the spectral rad
 keeps ``|lambda| dt <= 0.1`` where RK4's local error is ~1e-7 relative per step. The tests
 compare it with ``solve_ivp`` over each period.
 
-:func:`simulate_loop` is the reference the batch is compared with: ``solve_ivp`` once per
-initial condition, with the same method, tolerances and output grid.
+``benchmarks/montecarlo_speed.py`` times a batch against the loop it replaces (one
+:func:`bench.simulate.simulate` per initial condition, with the same method, tolerances and
+output grid).
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.metrics import batch_metrics as _batch_metrics
-from bench.simulate import SimOptions, check_gains, choose_method, simulate
+from bench.simulate import check_gains, choose_method
 
 __all__ = [
     "BatchTrajectory",
@@ -50,7 +51,6 @@ __all__ = [
     "digital_matrix",
     "simulate_batch",
     "simulate_digital_batch",
-    "simulate_loop",
 ]
 
 
@@ -246,42 +246,6 @@ class _BatchRHS:
                 dY[:, :N][:, frozen] = 0.0
                 dY[:, N:][:, frozen] = 0.0
         return dY.ravel()
-
-
-def simulate_loop(
-    plant,
-    K: np.ndarray,
-    F: np.ndarray,
-    x0: np.ndarray,
-    x_hat0: np.ndarray,
-    *,
-    t_final: float | None = None,
-    method: str = "DOP853",
-    rtol: float = 1e-6,
-    atol: float = 1e-9,
-    n_points: int = 401,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Reference: one ``solve_ivp`` per initial condition (same settings as :func:`simulate_batch`).
-
-    Returns
-    -------
-    t : ndarray (T,)
-    x, x_hat : ndarray (n, N, T)
-    wall_s : float
-    """
-    K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
-    n, N = X.shape
-    opts = SimOptions(method=method, rtol=rtol, atol=atol, n_points=int(n_points))
-    xs = np.full((n, N, int(n_points)), np.nan)
-    xhs = np.full((n, N, int(n_points)), np.nan)
-    t_eval = np.linspace(0.0, T, int(n_points))
-    t0 = time.perf_counter()
-    for j in range(N):
-        tr = simulate(plant, K, F, t_final=T, x0=X[:, j], x_hat0=XH[:, j], options=opts)
-        k = tr.t.size
-        xs[:, j, :k] = tr.x
-        xhs[:, j, :k] = tr.x_hat
-    return t_eval, xs, xhs, time.perf_counter() - t0
 
 
 def batch_metrics(traj: BatchTrajectory, *, noisy: bool = False) -> dict[str, np.ndarray]:

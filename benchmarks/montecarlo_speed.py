@@ -6,7 +6,7 @@ from the study's seeded box, 20 s). For each design it prints the batch time (be
 warm-up; ``bench.batch.simulate_batch``, ``--method`` (default DOP853, the study's
 non-stiff choice), rtol 1e-6, atol 1e-9, 401 output points),
 the time of looping ``solve_ivp`` over the same initial conditions with the same settings
-(``simulate_loop``; ``--loop-n`` loops over the first N only and extrapolates, labelled so), the
+(:func:`simulate_loop`; ``--loop-n`` loops over the first N only and extrapolates, labelled so), the
 speed-up, and the largest difference between the two (relative to the largest state), plus whether
 they agree on which initial conditions converge. Targets (issue 5): batch <= 1 s, speed-up >= 40x.
 """
@@ -25,7 +25,27 @@ import numpy as np  # noqa: E402
 
 from bench.registry import DESIGNS, PLANTS  # noqa: E402
 from bench.studies._common import default_box, random_ics  # noqa: E402
-from bench.batch import BatchTrajectory, batch_metrics, simulate_batch, simulate_loop  # noqa: E402
+from bench.batch import BatchTrajectory, batch_metrics, simulate_batch  # noqa: E402
+from bench.simulate import SimOptions, simulate  # noqa: E402
+
+#: The settings of the batch and of the loop (simulate_batch's defaults).
+RTOL, ATOL, N_POINTS = 1e-6, 1e-9, 401
+
+
+def simulate_loop(plant, K, F, X: np.ndarray, XH: np.ndarray, t_final: float, options: SimOptions):
+    """The loop a batch replaces: one :func:`bench.simulate.simulate` (one ``solve_ivp``) per column of
+    ``X``, ``XH`` (n, N). Returns ``t``, ``x`` and ``x_hat`` (n, N, T) padded with NaN after a failed
+    member's last point, and the seconds spent."""
+    n, N = X.shape
+    xs = np.full((n, N, options.n_points), np.nan)
+    xhs = np.full_like(xs, np.nan)
+    t0 = time.perf_counter()
+    for j in range(N):
+        tr = simulate(plant, K, F, t_final=t_final, x0=X[:, j], x_hat0=XH[:, j], options=options)
+        k = tr.t.size
+        xs[:, j, :k] = tr.x
+        xhs[:, j, :k] = tr.x_hat
+    return np.linspace(0.0, t_final, options.n_points), xs, xhs, time.perf_counter() - t0
 
 
 def main() -> None:
@@ -40,8 +60,10 @@ def main() -> None:
     a = p.parse_args()
     plant = PLANTS.create(a.plant)
     X, XH = random_ics(plant, a.n, default_box(plant), a.seed)
+    settings = dict(method=a.method, rtol=RTOL, atol=ATOL, n_points=N_POINTS)
     print(f"{a.plant}: {a.n} initial conditions in [-{default_box(plant):g}, {default_box(plant):g}]^{plant.n} "
-          f"(seed {a.seed}), {a.t_final:g} s, {a.method} rtol 1e-6 atol 1e-9, 401 output points; {os.cpu_count()} cores")
+          f"(seed {a.seed}), {a.t_final:g} s, {a.method} rtol {RTOL:g} atol {ATOL:g}, {N_POINTS} output points; "
+          f"{os.cpu_count()} cores")
     print(f"{'design':<14} {'batch s':>8} {'nfev':>6} {'loop s':>8} {'speed-up':>9} {'max rel diff':>12} "
           f"{'same verdicts':>13} {'converged':>9}")
     for did in a.design or ["lqr+lqe", "thm1", "paper_gains"]:
@@ -49,14 +71,14 @@ def main() -> None:
         if r.K is None or r.F is None:
             print(f"{did:<14} no fixed gains ({r.status}: {r.reason[:60]})")
             continue
-        simulate_batch(plant, r.K, r.F, X[:, :10], XH[:, :10], t_final=a.t_final, method=a.method)  # warm-up
+        simulate_batch(plant, r.K, r.F, X[:, :10], XH[:, :10], t_final=a.t_final, **settings)  # warm-up
         best = None
         for _ in range(3):
-            tr = simulate_batch(plant, r.K, r.F, X, XH, t_final=a.t_final, method=a.method)
+            tr = simulate_batch(plant, r.K, r.F, X, XH, t_final=a.t_final, **settings)
             if best is None or tr.wall_s < best.wall_s:
                 best = tr
         m = a.n if a.loop_n is None else min(a.loop_n, a.n)
-        t, xs, xhs, loop_s = simulate_loop(plant, r.K, r.F, X[:, :m], XH[:, :m], t_final=a.t_final, method=a.method)
+        t, xs, xhs, loop_s = simulate_loop(plant, r.K, r.F, X[:, :m], XH[:, :m], a.t_final, SimOptions(**settings))
         loop_full = loop_s * a.n / m
         diff = float(np.nanmax(np.abs(best.x[:, :m] - xs)) / np.nanmax(np.abs(xs)))
         ref = BatchTrajectory(t, xs, xhs, np.zeros(m, dtype=bool), "ok", "", loop_s, 0)
