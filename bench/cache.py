@@ -103,6 +103,10 @@ _PROJECT = ("bench", "designs", "plants")
 #: Statuses that are never stored.
 _TRANSIENT = ("error", "timeout")
 
+#: The entries' files below the cache folder (``.format(key)``).
+_PAIR_ENTRY = "pairs/{}.npz"
+_CONSTANTS_ENTRY = "constants/{}.json"
+
 #: Rendering and command-line modules: they do not change a pair's result, so editing them
 #: does not invalidate the cache (their imports are not followed either).
 _NOT_RESULTS = frozenset({"bench.report", "bench.cli", "bench.perf", "bench.__main__"})
@@ -479,20 +483,25 @@ class Cache:
                            "code": self._code({"bench.harness", "bench.estimators", "bench.cache"})}
         return self._fixed
 
-    def plant_fingerprint(self, plant, plant_id: str) -> dict[str, Any]:
-        """The content of a plant (data, constants, a probe of f and of its Jacobian, and the source of its modules)."""
-        from bench.registry import PLANTS
-
+    def _fingerprint(self, registry, kind: str, obj, obj_id: str, **extra) -> dict[str, Any]:
+        """``{"id": obj_id, kind: obj canonical, **extra, "code": ...}``: the code is the source of the modules
+        ``obj`` refers to and of the module that registered ``obj_id`` in ``registry`` (if any)."""
         modules: set[str] = set()
-        # every field (arrays by exact bytes, callables by name and module, constants and channels
-        # recursively), so a field added to Plant later is covered too
-        data = {"id": plant_id, "plant": _canon(plant, modules), "probe": self._probe(plant)}
+        data = {"id": obj_id, kind: _canon(obj, modules), **extra}
         try:
-            modules.add(PLANTS[plant_id].module)
+            modules.add(registry[obj_id].module)
         except KeyError:
             pass
         data["code"] = self._code(modules)
         return data
+
+    def plant_fingerprint(self, plant, plant_id: str) -> dict[str, Any]:
+        """The content of a plant (data, constants, a probe of f and of its Jacobian, and the source of its modules)."""
+        from bench.registry import PLANTS
+
+        # every field (arrays by exact bytes, callables by name and module, constants and channels
+        # recursively), so a field added to Plant later is covered too
+        return self._fingerprint(PLANTS, "plant", plant, plant_id, probe=self._probe(plant))
 
     @staticmethod
     def _probe_points(plant) -> np.ndarray:
@@ -540,14 +549,7 @@ class Cache:
         """The content of a design (hyperparameters, recursively, and the source of its modules)."""
         from bench.registry import DESIGNS
 
-        modules: set[str] = set()
-        data = {"id": design_id, "design": _canon(design, modules)}
-        try:
-            modules.add(DESIGNS[design_id].module)
-        except KeyError:
-            pass
-        data["code"] = self._code(modules)
-        return data
+        return self._fingerprint(DESIGNS, "design", design, design_id)
 
     @staticmethod
     def _options(options) -> dict[str, Any]:
@@ -625,9 +627,21 @@ class Cache:
             return False
         return self._guard(f"cannot store {what}", lambda: store(key, value), False)
 
-    def _loaded(self, what: str, load: Callable[[str], Any], key: str | None):
-        """``load(key)`` guarded; None without a key."""
-        return self._guard(f"cannot read {what}", lambda: load(key), None) if key else None
+    def _loaded(self, entry: str, read: Callable[[Path], Any], key: str | None, tally: str):
+        """``read(path)`` of the entry ``entry.format(key)``, or None: no key, no entry, or an entry that cannot
+        be read (noted: a damaged entry is a miss). Counted in the attribute ``tally + "hits"`` or
+        ``tally + "misses"``."""
+        value = None
+        if key:
+            path = self.root / entry.format(key)
+            try:
+                if path.is_file():
+                    value = read(path)
+            except Exception as exc:  # noqa: BLE001 - a cache problem never fails a run
+                self.errors.append(f"unreadable cache entry {path.name}: {type(exc).__name__}: {exc}")
+        counter = tally + ("misses" if value is None else "hits")
+        setattr(self, counter, getattr(self, counter) + 1)
+        return value
 
     def store_pair(self, key: str | None, outcome) -> bool:
         """Store a finished pair; False when it is not cacheable (error, timeout, no key) or not written."""
@@ -635,10 +649,7 @@ class Cache:
 
     def load_pair(self, key: str | None):
         """The cached :class:`bench.harness.PairOutcome` (without its plant), or None; counts hits/misses."""
-        out = self._loaded("a pair", self._load_pair, key)
-        self.hits += int(out is not None)
-        self.misses += int(out is None)
-        return out
+        return self._loaded(_PAIR_ENTRY, self._read_pair, key, tally="")
 
     def store_constants(self, key: str | None, report) -> bool:
         """Store a plant's :class:`bench.constants.ConstantsReport`; False when not written (or no key)."""
@@ -646,10 +657,7 @@ class Cache:
 
     def load_constants(self, key: str | None):
         """The cached :class:`bench.constants.ConstantsReport`, or None; counts constants hits/misses."""
-        rep = self._loaded("constants", self._load_constants, key)
-        self.constants_hits += int(rep is not None)
-        self.constants_misses += int(rep is None)
-        return rep
+        return self._loaded(_CONSTANTS_ENTRY, self._read_constants, key, tally="constants_")
 
     def _store_pair(self, key: str, outcome) -> bool:
         """Store a pair's record, result, certificate and trajectory as one .npz (no pickling)."""
@@ -692,24 +700,13 @@ class Cache:
         except (TypeError, ValueError):
             return False
         arrays["meta"] = np.array(text)
-        ok = self._write(self.root / "pairs" / f"{key}.npz", lambda fh: np.savez_compressed(fh, **arrays))
+        ok = self._write(self.root / _PAIR_ENTRY.format(key), lambda fh: np.savez_compressed(fh, **arrays))
         self.stored_pairs += int(ok)
         return ok
 
-    def _load_pair(self, key: str):
-        """The pair stored under ``key``, or None (an unreadable entry is noted and ignored)."""
-        path = self.root / "pairs" / f"{key}.npz"
-        out = None
-        if path.is_file():
-            try:
-                out = self._read_pair(path)
-            except Exception as exc:  # noqa: BLE001 - a damaged entry is a miss
-                self.errors.append(f"unreadable cache entry {path.name}: {type(exc).__name__}: {exc}")
-        return out
-
     @staticmethod
     def _read_pair(path: Path):
-        """Rebuild a :class:`bench.harness.PairOutcome` from an .npz entry."""
+        """Rebuild a :class:`bench.harness.PairOutcome` from an .npz entry (None when of another format)."""
         from bench.certify import Certificate, LevelResult
         from bench.harness import COLUMNS, PairOutcome
         from bench.simulate import Trajectory
@@ -751,19 +748,12 @@ class Cache:
             text = json.dumps({"format": CACHE_FORMAT, **report.to_dict()}).encode()
         except (TypeError, ValueError):
             return False
-        return self._write(self.root / "constants" / f"{key}.json", lambda fh: fh.write(text))
+        return self._write(self.root / _CONSTANTS_ENTRY.format(key), lambda fh: fh.write(text))
 
-    def _load_constants(self, key: str):
-        """The constants report stored under ``key``, or None."""
+    @staticmethod
+    def _read_constants(path: Path):
+        """A :class:`bench.constants.ConstantsReport` from a .json entry (None when of another format)."""
         from bench.constants import ConstantsReport
 
-        path = self.root / "constants" / f"{key}.json"
-        rep = None
-        if path.is_file():
-            try:
-                doc = json.loads(path.read_text(encoding="utf-8"))
-                if doc.get("format") == CACHE_FORMAT:
-                    rep = ConstantsReport.from_dict(doc)
-            except Exception as exc:  # noqa: BLE001 - a damaged entry is a miss
-                self.errors.append(f"unreadable cache entry {path.name}: {type(exc).__name__}: {exc}")
-        return rep
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        return ConstantsReport.from_dict(doc) if doc.get("format") == CACHE_FORMAT else None
