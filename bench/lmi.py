@@ -34,6 +34,7 @@ __all__ = [
     "SCS_OPTS",
     "VERIFY_TOL",
     "Matrices",
+    "Pattern",
     "Program",
     "SolveOutcome",
     "assemble",
@@ -271,18 +272,26 @@ class Program:
     constants: dict = field(default_factory=dict)
     cache_key: tuple | None = None
     problems: dict = field(default_factory=dict, repr=False)
+    patterns: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         # an array among the parameters is a constant of the problem (a baked sparse matrix):
         # keep it for the numeric rebuild, out of the settable parameters
         arrays = {k: v for k, v in self.parameters.items() if isinstance(v, np.ndarray)}
         self.constants = {**self.constants, **arrays}
-        self.parameters = {k: v for k, v in self.parameters.items() if k not in arrays}
+        # a Pattern (a sparse matrix) is set and read as a whole matrix; its Parameter of
+        # nonzeros is an ordinary parameter (cleared, snapshot and restored with the others)
+        self.patterns = {k: v for k, v in self.parameters.items() if isinstance(v, Pattern)}
+        self.parameters = {k: v for k, v in self.parameters.items() if k not in arrays and k not in self.patterns}
+        self.parameters.update({pat.param.name(): pat.param for pat in self.patterns.values()})
 
     def set(self, **params) -> None:
         """Set parameter values (scalars or arrays of the parameter's shape)."""
         for k, v in params.items():
-            self.parameters[k].value = v
+            if k in self.patterns:
+                self.patterns[k].set(v)
+            else:
+                self.parameters[k].value = v
 
     def _problem_for(self, solver: str):
         """The cvxpy problem to hand to ``solver``: one per solver, sharing variables and parameters.
@@ -359,6 +368,7 @@ class Program:
         for k, p in self.parameters.items():
             vals[k] = None if p.value is None else (float(p.value) if p.size == 1 and not p.shape
                                                      else np.array(p.value, dtype=float))
+        vals.update({k: pat.value() for k, pat in self.patterns.items()})
         return vals
 
     def verified(self) -> bool:
@@ -401,7 +411,7 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
     import cvxpy as cp
 
     t_build = time.perf_counter()
-    allv = {**variables, **parameters}
+    allv = {**variables, **{k: (v.expr if isinstance(v, Pattern) else v) for k, v in parameters.items()}}
     M = sym(assemble(blocks_fn, allv, numeric=False))
     N = M.shape[0]
     t = variables["t"]
@@ -417,11 +427,13 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
 
 
 #: A matrix with at least this fraction of nonzero entries enters a cached program as a cvxpy
-#: Parameter; a sparser one is baked in as a constant (and keys the program by its value).
-#: Measured on the flexible link (A, B, C mostly zero): with A, B, C as Parameters cvxpy hands
-#: Clarabel explicit zeros in the pattern of a dense A, and Theorem 1's solves took 1.29 s
-#: instead of 0.79 s over 96 solves; the compile it saved was 0.11 s. Dense matrices (random
-#: families, discretised models) lose nothing by being Parameters.
+#: Parameter; a sparser one enters as a :class:`Pattern` (a Parameter holding only its nonzeros,
+#: placed in a fixed sparsity pattern). Measured on the flexible link (A, B, C mostly zero): with
+#: A, B, C as dense Parameters cvxpy hands Clarabel explicit zeros in the pattern of a dense A, and
+#: Theorem 1's solves took 1.29 s instead of 0.79 s over 96 solves. A pattern hands the solver the
+#: same nonzeros as a baked-in constant, and keys the program by the pattern, not the values: a
+#: rescaled plant (the scaled designs' coordinate search) or another plant of the same structure
+#: reuses the compiled program (one default run: 330 compiles -> see reports/PERF.md).
 DENSE_FRACTION = 0.75
 
 
@@ -435,12 +447,61 @@ def digest(M: np.ndarray | None) -> str:
     return hashlib.sha1(repr(A.shape).encode() + A.tobytes()).hexdigest()
 
 
+class Pattern:
+    """A matrix of fixed sparsity pattern in a cvxpy program: a Parameter of its nonzeros, placed.
+
+    ``expr`` (the matrix as a cvxpy expression, parameter-affine so the program stays DPP) goes
+    into the LMI blocks; :meth:`set` takes a whole matrix of the same pattern; :meth:`value` gives
+    it back. The solver sees exactly the pattern's entries, as with a baked-in constant.
+
+    Parameters
+    ----------
+    name : str
+        The matrix's name (the Parameter is ``name + ".nz"``).
+    mask : ndarray of bool, shape (r, c)
+        The pattern (at least one True).
+    """
+
+    def __init__(self, name: str, mask: np.ndarray) -> None:
+        import cvxpy as cp
+        import scipy.sparse as sp
+
+        mask = np.asarray(mask, dtype=bool)
+        self.name, self.shape = name, mask.shape
+        self.rows, self.cols = np.nonzero(mask)
+        nnz = self.rows.size
+        r = mask.shape[0]
+        place = sp.csc_matrix((np.ones(nnz), (self.cols * r + self.rows, np.arange(nnz))), shape=(mask.size, nnz))
+        self.param = cp.Parameter(nnz, name=name + ".nz")
+        self.expr = cp.reshape(place @ self.param, mask.shape, order="F")
+
+    def set(self, M: np.ndarray) -> None:
+        """Set the nonzeros from a whole matrix (its entries outside the pattern must be zero)."""
+        M = np.asarray(M, dtype=float)
+        if M.shape != self.shape:
+            raise ValueError(f"{self.name}: expected shape {self.shape}, got {M.shape}")
+        outside = M.copy()
+        outside[self.rows, self.cols] = 0.0
+        if np.any(outside != 0.0):
+            raise ValueError(f"{self.name}: nonzero entries outside the sparsity pattern the program was built for")
+        self.param.value = M[self.rows, self.cols]
+
+    def value(self) -> np.ndarray | None:
+        """The whole matrix (None when unset)."""
+        if self.param.value is None:
+            return None
+        M = np.zeros(self.shape)
+        M[self.rows, self.cols] = self.param.value
+        return M
+
+
 @dataclass(frozen=True)
 class Matrices:
-    """How a design's matrices enter a cached program: dense ones as Parameters, sparse ones baked.
+    """How a design's matrices enter a cached program: dense ones as Parameters, sparse ones as a
+    :class:`Pattern` (all-zero ones baked in).
 
     Build with :func:`matrices`. ``key`` goes into the :func:`cached_program` key (shapes for
-    the Parameters, a digest of the value for the baked ones), :meth:`parameters` into the
+    the Parameters, a digest of the sparsity pattern for the others), :meth:`parameters` into the
     program's build, :meth:`settable` into :meth:`Program.set` on every call.
     """
 
@@ -454,18 +515,25 @@ class Matrices:
             if k in self.dense:
                 out.append((k, "parameter", M.shape))
             else:
-                out.append((k, "constant", M.shape, digest(M)))
+                out.append((k, "pattern", M.shape, digest(M != 0)))
         return tuple(out)
 
     def parameters(self) -> dict:
-        """cvxpy Parameters for the dense matrices, the arrays themselves for the others."""
+        """cvxpy Parameters for the dense matrices, :class:`Pattern` for the sparse ones (the
+        array itself for an all-zero one)."""
         import cvxpy as cp
 
-        return {k: (cp.Parameter(M.shape, name=k) if k in self.dense else M) for k, M in self.values.items()}
+        out = {}
+        for k, M in self.values.items():
+            if k in self.dense:
+                out[k] = cp.Parameter(M.shape, name=k)
+            else:
+                out[k] = Pattern(k, M != 0) if np.any(M != 0) else M
+        return out
 
     def settable(self) -> dict:
-        """Values of the Parameters (the dense matrices)."""
-        return {k: M for k, M in self.values.items() if k in self.dense}
+        """Values for :meth:`Program.set` (every matrix that is not all zero)."""
+        return {k: M for k, M in self.values.items() if k in self.dense or np.any(M != 0)}
 
 
 def matrices(*, all_parameters: bool = False, **mats: np.ndarray) -> Matrices:
@@ -474,9 +542,8 @@ def matrices(*, all_parameters: bool = False, **mats: np.ndarray) -> Matrices:
     Parameters
     ----------
     all_parameters : bool
-        Make every matrix a Parameter whatever its sparsity (for programs solved once per new
-        matrix, such as certificates of many gain pairs: one compile per shape beats a faster
-        solve of a program compiled for one matrix).
+        Make every matrix a dense Parameter whatever its sparsity (for programs solved once per
+        new matrix of any pattern, such as certificates of many gain pairs).
     **mats : ndarray
         Matrices by the names the block functions read (``A=plant.A``, ...).
 

@@ -107,17 +107,61 @@ def test_random_family_members_of_one_shape_share_one_program():
     assert max(np.linalg.eigvals(b.A - rb.K @ b.C).real) < 0
 
 
-def test_sparse_matrices_are_baked_in_and_key_the_program():
-    """A mostly-zero A is a constant of the problem (no explicit zeros handed to the solver), so
-    a different sparse A must get its own program."""
+def test_sparse_matrices_enter_by_pattern_and_key_the_program_by_it():
+    """A mostly-zero A enters by its sparsity pattern: another A of the same pattern (a rescaled
+    plant) shares the program, another pattern gets its own, and a dense A is a Parameter."""
     A1 = np.diag([-1.0, -2.0, -3.0])
     A2 = np.diag([-1.0, -2.0, -4.0])
+    A3 = A1 + np.diag([1.0, 0.0], 1)
     dense = np.arange(1.0, 10.0).reshape(3, 3)
-    m1, m2, md = _lmi.matrices(A=A1), _lmi.matrices(A=A2), _lmi.matrices(A=dense)
+    m1, m2, m3, md = (_lmi.matrices(A=M) for M in (A1, A2, A3, dense))
     assert m1.dense == frozenset() and md.dense == frozenset({"A"})
-    assert m1.key != m2.key
+    assert m1.key == m2.key and m1.key != m3.key
     assert md.key == _lmi.matrices(A=dense + 1.0).key  # same shape, parameter: same program
-    assert md.settable().keys() == {"A"} and m1.settable() == {}
+    assert md.settable().keys() == {"A"} and m1.settable().keys() == {"A"}
+    assert _lmi.matrices(A=np.zeros((3, 3))).settable() == {}  # all zero: baked in
+
+
+def _lyapunov_program(mats):
+    import cvxpy as cp
+
+    def build():
+        v = {"P": cp.Variable((3, 3), symmetric=True), "t": cp.Variable()}
+
+        def blocks(d):
+            return [[d["A"].T @ d["P"] + d["P"] @ d["A"]]]
+
+        return _lmi.margin_program(blocks, v, mats.parameters(), ("P",))
+
+    return build
+
+
+def test_a_pattern_program_reused_for_another_matrix_matches_a_baked_constant():
+    """The program built for A1 and re-set to A2 (same pattern) solves the Lyapunov LMI of A2 as a
+    program with A2 baked in as a constant does (the same margin), and hands the solver no more
+    nonzeros than the constant (no explicit zeros)."""
+    import cvxpy as cp
+
+    A1 = np.array([[-1.0, 2.0, 0.0], [0.0, -2.0, 0.0], [0.0, 0.0, -3.0]])
+    A2 = np.array([[-1.0, 5.0, 0.0], [0.0, -0.5, 0.0], [0.0, 0.0, -3.0]])
+    _lmi.clear_program_cache()
+    m1, m2 = _lmi.matrices(A=A1), _lmi.matrices(A=A2)
+    prog = _lmi.cached_program(("test.pattern", m1.key), _lyapunov_program(m1))
+    prog.solve(**m1.settable())
+    again = _lmi.cached_program(("test.pattern", m2.key), _lyapunov_program(m2))
+    assert again is prog and again.reused
+    t_reused = again.solve(**m2.settable())
+    assert again.verified() and np.allclose(again.values()["A"], A2)
+
+    P, t = cp.Variable((3, 3), symmetric=True), cp.Variable()
+    baked = cp.Problem(cp.Maximize(t), [_lmi.sym(A2.T @ P + P @ A2) << -t * np.eye(3), P >> t * np.eye(3),
+                                        P << 1e3 * np.eye(3), t <= 1])
+    baked.solve(solver="CLARABEL")
+    assert t_reused == pytest.approx(baked.value, rel=1e-5)
+    nnz = lambda prob: prob.get_problem_data(cp.CLARABEL)[0]["A"].nnz  # noqa: E731
+    assert nnz(again.problem) == nnz(baked)
+    with pytest.raises(ValueError, match="outside the sparsity pattern"):
+        again.set(A=np.ones((3, 3)))
 
 
 def test_a_parameter_left_unset_fails_loudly_instead_of_reusing_a_stale_value():
