@@ -413,9 +413,8 @@ class _SampledLoop:
     """
 
     def __init__(self, plant: Plant, F, K, estimator, dt: float, options: SimOptions):
-        from scipy.integrate import solve_ivp
+        import scipy.integrate
 
-        self._solve_ivp = solve_ivp
         self.A, self.B, self.C, self.f, self.n = plant.A, plant.B, plant.C, plant.f, plant.n
         self.F = np.asarray(F, dtype=float)
         self.K = None if K is None else np.asarray(K, dtype=float)
@@ -423,7 +422,12 @@ class _SampledLoop:
         self.x0 = np.asarray(plant.x0, dtype=float).copy()
         self.xh0 = np.asarray(plant.x_hat0, dtype=float).copy()
         self.estimator, self.dt, self.options = estimator, dt, options
-        self.method = "DOP853" if options.method == "auto" else options.method
+        # scipy's explicit RK45 by default: one step of an interval is 6 right-hand sides against
+        # DOP853's 12 (a sample interval is short; the error control holds rtol/atol either way).
+        # Measured on the EKF pairs (pendulum, flexible link, Chua; 2000 intervals): 1.15 -> 0.85 s,
+        # states within 1e-8 of DOP853's
+        method = "RK45" if options.method == "auto" else options.method
+        self.method = getattr(scipy.integrate, method) if isinstance(method, str) else method
         self.held = None  # B u_k ((n, 1) beside the model, (n,) alone), or (0, K v_k) for the observer
         self.first = None  # the first step of the next interval (see _step)
         self.nfev = 0
@@ -443,44 +447,56 @@ class _SampledLoop:
         return _finite(self.L @ s + self.held + np.asarray(self.f(s.reshape(2, self.n).T), dtype=float).T.ravel(), t)
 
     # -- one interval ----------------------------------------------------------------------------
-    def _solve(self, fun, y0):
-        """``solve_ivp`` over one sample interval from ``y0``."""
+    def _solve(self, fun, y0) -> tuple[np.ndarray, int]:
+        """Integrate over one sample interval from ``y0`` with scipy's solver class stepped directly
+        (what ``solve_ivp`` does, without its per-call wrapping: the loop calls this every sample).
+
+        Returns the state at the interval's end and the right-hand sides used; sets the next
+        interval's first step to twice this one's largest (at most the interval): a step cut short
+        by the interval's end is taken whole next time (carrying the largest step alone kept the
+        integrator at two steps per sample for good), and one too long is shrunk by the error control.
+        """
         o = self.options
-        return self._solve_ivp(fun, (0.0, self.dt), y0, method=self.method, rtol=o.rtol, atol=o.atol,
-                               first_step=self.first)
+        solver = self.method(fun, 0.0, y0, self.dt, rtol=o.rtol, atol=o.atol, first_step=self.first)
+        largest = 0.0
+        while solver.status == "running":
+            t_prev = solver.t
+            message = solver.step()
+            if solver.status == "failed":
+                raise FloatingPointError(f"the integrator failed within a sample interval ({message})")
+            largest = max(largest, solver.t - t_prev)
+        self.first = min(self.dt, 2.0 * largest) if largest > 0 else None
+        return solver.y, solver.nfev
 
     def _estimator_step(self, x, xh, u):
-        """The plant with ``u`` held and the estimator's prediction over one interval; the next plant state."""
+        """The plant with ``u`` held and the estimator's prediction over one interval; the next plant state
+        and the right-hand sides used."""
         est = self.estimator
-        # a NaN derivative at the start of an interval makes solve_ivp's first step NaN and
+        # a NaN derivative at the start of an interval makes the integrator's first step NaN and
         # its step-size loop endless: check f where the filter's prediction starts
         xe = np.asarray(xh, dtype=float)
         _finite(np.asarray(self.f(xe), dtype=float), 0.0, "f at the estimate")
         bu = self.B @ u
         if getattr(est, "predicts_with_model", False):  # plant and prediction: one ODE
             self.held = bu[:, None]
-            sol = self._solve(self._model_rhs, np.stack([x, xe], axis=1).ravel())
-            S = sol.y[:, -1].reshape(self.n, 2)
+            y, nfev = self._solve(self._model_rhs, np.stack([x, xe], axis=1).ravel())
+            S = y.reshape(self.n, 2)
             est.predict(u, x_next=S[:, 1])  # the filter keeps a copy
-            return S[:, 0].copy(), sol
+            return S[:, 0].copy(), nfev
         self.held = bu
-        sol = self._solve(self._plant_rhs, x)
+        y, nfev = self._solve(self._plant_rhs, x)
         est.predict(u)
-        return sol.y[:, -1], sol
+        return y, nfev
 
     def _step(self, x, xh, u, z, v):
         """Advance over one interval (measurement noise ``v``); count its right-hand sides."""
         if self.estimator is not None:
-            x, sol = self._estimator_step(x, xh, u)
+            x, nfev = self._estimator_step(x, xh, u)
         else:
             self.held = np.concatenate([np.zeros(self.n), self.K @ v])
-            sol = self._solve(self._observer_rhs, z)
-            x, xh = sol.y[:self.n, -1], sol.y[self.n:, -1]
-        self.nfev += sol.nfev
-        # the next interval tries twice this one's largest step (at most the interval): a step cut short by
-        # the interval's end is taken whole next time (carrying the largest step alone kept the integrator
-        # at two steps per sample for good), and one too long is shrunk by the integrator's error control
-        self.first = min(self.dt, 2.0 * float(np.max(np.diff(sol.t)))) if sol.t.size > 1 else None
+            y, nfev = self._solve(self._observer_rhs, z)
+            x, xh = y[:self.n], y[self.n:]
+        self.nfev += nfev
         return x, xh
 
     def run(self, N: int, V: np.ndarray) -> Trajectory:
