@@ -216,7 +216,7 @@ def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
         axes[1].set(title=f"{job.title}: ||e(t)|| = ||x - x_hat||", xlabel="t [s]")
         for ax in axes:
             ax.grid(True, which="both", alpha=0.3)
-        axes[0].legend(fontsize=8)
+        axes[0].legend(fontsize=8, loc="upper right")  # "best" searches every point: ~30 % of a figure
         dpi = 110
     else:
         t, x, x_hat, t_show = job.data
@@ -228,7 +228,7 @@ def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
             ax.plot(t, x[i], label=f"x{i + 1}")
             ax.plot(t, x_hat[i], "--", label=f"x_hat{i + 1}")
             ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", xlim=(0, t_show))
-            ax.legend(fontsize=8)
+            ax.legend(fontsize=8, loc="upper right")
             ax.grid(True, alpha=0.3)
             ax = axes[1, i]
             ax.plot(t, x[i] - x_hat[i], color="C3")
