@@ -2,7 +2,7 @@
 
 This is the simulator's side of :mod:`designs.ekf`: the design fixes the specification
 (:class:`designs.ekf.EKFSpec`), :func:`runtime_estimator` builds the filter, and
-:func:`bench.simulate.simulate_sampled` runs it in sampled time.
+:func:`bench.simulate.simulate_controller` runs it in sampled time.
 """
 
 from __future__ import annotations

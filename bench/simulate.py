@@ -21,8 +21,7 @@ import numpy as np
 
 from plants import Plant
 
-__all__ = ["STIFF", "SimOptions", "Trajectory", "check_gains", "choose_method", "simulate", "simulate_controller",
-           "simulate_sampled"]
+__all__ = ["STIFF", "SimOptions", "Trajectory", "check_gains", "choose_method", "simulate", "simulate_controller"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -309,92 +308,61 @@ def simulate_controller(
     """Simulate an observer-based controller, whatever its estimator: the one entry point for a pair.
 
     - a fixed gain ``K`` without noise: the continuous loop (:func:`simulate`);
-    - a fixed gain ``K`` with measurement noise: the noise held over ``noise_dt``
-      (:func:`simulate_sampled`);
-    - a run-time ``estimator`` specification (e.g. :class:`designs.ekf.EKFSpec`): the estimator
-      is built (:func:`bench.estimators.runtime_estimator`) and run in sampled time at its own
-      sample period (:func:`simulate_sampled`).
+    - a fixed gain ``K`` with measurement noise: the observer (6) and ``u = F x_hat`` stay
+      continuous, the Gaussian noise ``v_k`` is held over each ``noise_dt``:
+      ``y(t) = C x(t) + v_k``;
+    - a run-time ``estimator`` (a specification such as :class:`designs.ekf.EKFSpec`, built by
+      :func:`bench.estimators.runtime_estimator`, or an estimator already built, with ``dt``,
+      ``x``, ``update(y)``, ``predict(u)``): a discrete filter at its own sample period, with
+      ``u_k = F x_hat_k`` held by a zero-order hold and the plant continuous.
+
+    Sampled paths return the trajectory at the samples (``x_hat`` is the estimate used at ``t_k``).
 
     Parameters
     ----------
     plant : Plant
     F : ndarray (m, n)
         The feedback, ``u = F x_hat``.
-    K, estimator : ndarray (n, p) or specification, optional
-        Exactly one: the observer gain, or the specification of a run-time estimator.
+    K, estimator : ndarray (n, p), or specification or estimator, optional
+        Exactly one: the observer gain, or the run-time estimator.
     t_final : float
+        The horizon; a sample period must divide it.
     noise, noise_dt, seed
-        Measurement noise (standard deviation 0: none), its hold period for a fixed gain, seed.
+        Measurement noise (standard deviation, >= 0; 0: none), its hold period for a fixed gain,
+        and the seed of the noise.
     options : SimOptions
 
     Returns
     -------
     Trajectory
+
+    Raises
+    ------
+    ValueError
+        Both or neither of K and estimator, a negative or non-finite noise, or a sample period
+        that does not divide the horizon.
     """
     if (K is None) == (estimator is None):
         raise ValueError("simulate_controller: give exactly one of K and estimator")
+    if not (np.isfinite(noise) and noise >= 0):
+        raise ValueError(f"noise: must be finite and >= 0, got {noise!r}")
     if estimator is not None:
-        from bench.estimators import runtime_estimator
+        if not hasattr(estimator, "update"):  # a specification: build the filter
+            from bench.estimators import runtime_estimator
 
-        est = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final, options=options)
-        return simulate_sampled(plant, F, estimator=est, dt=est.dt, t_final=t_final, noise=noise, seed=seed,
-                                options=options)
+            estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final, options=options)
+        return _sampled(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options)
     if noise > 0:
-        return simulate_sampled(plant, F, K=K, dt=noise_dt, t_final=t_final, noise=noise, seed=seed, options=options)
+        return _sampled(plant, F, K, None, noise_dt, t_final, noise, seed, options)
     return simulate(plant, K, F, t_final=t_final, options=options)
 
 
-def simulate_sampled(
-    plant: Plant,
-    F: np.ndarray,
-    *,
-    K: np.ndarray | None = None,
-    estimator=None,
-    dt: float,
-    t_final: float | None = None,
-    noise: float = 0.0,
-    seed: int = 0,
-    options: SimOptions = SimOptions(),
-) -> Trajectory:
-    """Simulate with measurements sampled every ``dt`` (and optional measurement noise).
-
-    Two kinds of estimator are supported:
-
-    - ``estimator`` (a run-time estimator such as :class:`bench.estimators.ContinuousDiscreteEKF`:
-      ``x``, ``update(y)``, ``predict(u)``): discrete filter at the samples, ``u_k = F x_hat_k``
-      held by a zero-order hold, plant continuous;
-    - ``K`` (a continuous Luenberger observer (6)): the observer and ``u = F x_hat`` stay
-      continuous, the measurement noise ``v_k`` is held constant over each sample interval,
-      ``y(t) = C x(t) + v_k``.
-
-    Parameters
-    ----------
-    plant : Plant
-    F : ndarray (m, n)
-    K : ndarray (n, p), optional
-    estimator : object, optional
-        Exactly one of ``K`` and ``estimator``.
-    dt : float
-        Sample time; must divide the horizon.
-    t_final : float, optional
-        Horizon (default ``plant.t_final``).
-    noise : float
-        Standard deviation of the Gaussian measurement noise (0: none), seeded by ``seed``.
-    seed : int
-    options : SimOptions
-
-    Returns
-    -------
-    Trajectory
-        Sampled at ``t_k`` (``x_hat`` is the estimate used at ``t_k``).
-    """
-    if (K is None) == (estimator is None):
-        raise ValueError("simulate_sampled: give exactly one of K and estimator")
+def _sampled(plant: Plant, F, K, estimator, dt: float, t_final: float, noise: float, seed: int,
+             options: SimOptions) -> Trajectory:
+    """The sampled paths of :func:`simulate_controller`: ``N = t_final / dt`` intervals, noise drawn once."""
     if not (np.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: must be finite and > 0, got {dt!r}")
-    if not (np.isfinite(noise) and noise >= 0):
-        raise ValueError(f"noise: must be finite and >= 0, got {noise!r}")
-    T = float(plant.t_final if t_final is None else t_final)
+    T = float(t_final)
     steps = T / dt
     if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:
         raise ValueError(f"dt: the sample time {dt:g} must divide the horizon {T:g}")
@@ -404,7 +372,7 @@ def simulate_sampled(
 
 
 class _SampledLoop:
-    """One run of :func:`simulate_sampled`: the plant continuous, the estimator (or the continuous
+    """One run of the sampled paths of :func:`simulate_controller`: the plant continuous, the estimator (or the continuous
     observer with the measurement noise held) advanced one sample interval at a time.
 
     The right-hand sides are methods reading what is held over the interval from ``held``, so

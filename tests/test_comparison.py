@@ -11,7 +11,7 @@ from scipy.linalg import solve_continuous_are
 from bench.estimators import ContinuousDiscreteEKF
 from bench.harness import RunOptions, run
 from bench.registry import DESIGNS
-from bench.simulate import simulate_sampled
+from bench.simulate import simulate_controller
 from designs import DesignError
 from designs._parts import ESTIMATORS, FEEDBACKS
 from designs.ekf import EKFSpec
@@ -111,7 +111,7 @@ def test_lmi_observer_decay_is_honoured(flex, flex_constants):
 
 def _ekf_run(flex, noise):
     ekf = ContinuousDiscreteEKF(flex, EKFSpec(dt=0.01), flex.x_hat0)
-    return simulate_sampled(flex, PAPER_F, estimator=ekf, dt=0.01, noise=noise, seed=1)
+    return simulate_controller(flex, PAPER_F, estimator=ekf, t_final=flex.t_final, noise=noise, seed=1)
 
 
 def test_ekf_converges_without_noise(flex):
@@ -131,7 +131,7 @@ def test_ekf_bounded_with_noise(flex):
 
 def test_ekf_with_destabilizing_feedback_is_diverged(flex):
     ekf = ContinuousDiscreteEKF(flex, EKFSpec(dt=0.01), flex.x_hat0)
-    tr = simulate_sampled(flex, -3 * PAPER_F, estimator=ekf, dt=0.01)
+    tr = simulate_controller(flex, -3 * PAPER_F, estimator=ekf, t_final=flex.t_final)
     assert tr.status == "diverged"
 
 

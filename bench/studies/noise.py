@@ -1,7 +1,7 @@
 """Measurement noise: RMS estimation error and final state norm vs noise level, Luenberger vs EKF.
 
 For each plant and noise level sigma (a log grid), every design with a controller is simulated
-by the harness's own noisy path (:func:`bench.simulate.simulate_sampled`, seeded Gaussian
+by the harness's own noisy path (:func:`bench.simulate.simulate_controller`, seeded Gaussian
 noise ``v_k ~ N(0, sigma^2 I)`` on ``y = C x + v``):
 
 - fixed-gain (Luenberger-type) observers: continuous observer and ``u = F x_hat``, the noise held
@@ -188,7 +188,7 @@ def write_noise(result: NoiseResult, out_dir: str, command: str):
         study_header("Study: measurement noise (Luenberger-type observers vs EKF)", command, result.settings,
                      result.wall_s),
         "Seeded Gaussian measurement noise of standard deviation sigma on `y = C x + v`, simulated by the harness's "
-        "noisy path (`bench.simulate.simulate_sampled`): fixed-gain observers continuous with the noise held over "
+        "noisy path (`bench.simulate.simulate_controller`): fixed-gain observers continuous with the noise held over "
         f"{result.settings['noise_dt']} s, the EKF at its own sample time with `u_k` held. `rms_e`: RMS of "
         "`||x - x_hat||` over the second half of the horizon; `final_x`: final `||x||`. Same numbers as "
         "`python -m bench run --noise SIGMA --seed SEED`. "
