@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import os
 import platform
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -22,6 +23,7 @@ from bench.report import format_cell as fmt  # one cell formatter for every repo
 
 __all__ = [
     "StudyError",
+    "StudyResult",
     "bisect_largest",
     "check_box",
     "check_count",
@@ -57,6 +59,25 @@ class StudyError(ValueError):
         self.param = param
         self.message = message
         super().__init__(f"{param}: {message}")
+
+
+@dataclass
+class StudyResult:
+    """What a study produced; each study's result adds its own fields (with defaults).
+
+    Attributes
+    ----------
+    rows : list of dict
+        One row per plant x design (the study's CSV).
+    settings : dict
+        The settings it ran with (the report's header).
+    wall_s : float
+        Wall-clock seconds.
+    """
+
+    rows: list[dict]
+    settings: dict
+    wall_s: float
 
 
 # -- argument checks ---------------------------------------------------------------------------

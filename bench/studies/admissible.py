@@ -38,8 +38,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, bisect_largest, check_range, check_rtol, fmt, map_tasks, md_table,
-                                   pyplot, study_header, write_study)
+from bench.studies._common import (StudyError, StudyResult, bisect_largest, check_range, check_rtol, fmt, map_tasks,
+                                   md_table, pyplot, study_header, write_study)
 from designs import GAIN_STATUSES
 
 __all__ = ["DEFAULT_DESIGNS", "KNOBS", "AdmissibleResult", "evaluate_at", "knob_of",
@@ -238,15 +238,11 @@ def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds
 
 
 @dataclass
-class AdmissibleResult:
-    """What :func:`run_admissible` produced."""
+class AdmissibleResult(StudyResult):
+    """What :func:`run_admissible` produced: the rows, the cap variants' rows and every evaluation."""
 
-    rows: list[dict]
-    variant_rows: list[dict]
-    evals: list[dict]
-    settings: dict
-    wall_s: float
-    notes: list[str] = field(default_factory=list)
+    variant_rows: list[dict] = field(default_factory=list)
+    evals: list[dict] = field(default_factory=list)
 
 
 def run_admissible(
@@ -307,7 +303,7 @@ def run_admissible(
                 "cap": 1e3, "other caps": tuple(caps),
                 "certificate": "the pipeline's ladder at lam = 0 (strongest level first), trusted constants",
                 "jobs": jobs}
-    return AdmissibleResult(rows, variant_rows, evals, settings, time.perf_counter() - t_start)
+    return AdmissibleResult(rows, settings, time.perf_counter() - t_start, variant_rows=variant_rows, evals=evals)
 
 
 def _progress_label(key: tuple[str, str, str], result: dict) -> str:

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (check_box, check_count, check_horizon, default_box, fmt, map_tasks, md_table,
-                                   pyplot, random_ics, skipped_lines, study_header, write_study)
+from bench.studies._common import (StudyResult, check_box, check_count, check_horizon, default_box, fmt, map_tasks,
+                                   md_table, pyplot, random_ics, skipped_lines, study_header, write_study)
 
 __all__ = ["MonteCarloResult", "run_montecarlo", "write_montecarlo"]
 
@@ -84,13 +84,10 @@ def _inside_level_set(first, X: np.ndarray, XH: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class MonteCarloResult:
-    """What :func:`run_montecarlo` produced."""
+class MonteCarloResult(StudyResult):
+    """What :func:`run_montecarlo` produced: the rows and the settling times per plant x design."""
 
-    rows: list[dict]
-    settling: dict
-    settings: dict
-    wall_s: float
+    settling: dict = field(default_factory=dict)
 
 
 def run_montecarlo(
@@ -156,7 +153,7 @@ def run_montecarlo(
     settings = {"N": n, "box": box if box is not None else "plant's initial-condition scale", "seed": seed,
                 "t_final": t_final if t_final is not None else "plant's", "method": method, "rtol": rtol,
                 "atol": atol, "jobs": jobs}
-    return MonteCarloResult(rows, settling, settings, time.perf_counter() - t_start)
+    return MonteCarloResult(rows, settings, time.perf_counter() - t_start, settling=settling)
 
 
 def _draw(pid: str, rows: list[dict], settling: dict):

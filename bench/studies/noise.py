@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, check_horizon, check_levels, fmt, map_tasks, md_table, pyplot,
-                                   skipped_lines, study_header, write_study)
+from bench.studies._common import (StudyError, StudyResult, check_horizon, check_levels, fmt, map_tasks, md_table,
+                                   pyplot, skipped_lines, study_header, write_study)
 
 __all__ = ["DEFAULT_LEVELS", "DEFAULT_PLANTS", "MATCHED_EKF", "NoiseResult", "run_noise", "write_noise"]
 
@@ -80,13 +80,10 @@ def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[
 
 
 @dataclass
-class NoiseResult:
-    """What :func:`run_noise` produced."""
+class NoiseResult(StudyResult):
+    """What :func:`run_noise` produced: the rows and the pairs not simulated (with why)."""
 
-    rows: list[dict]
-    skipped: list[dict]
-    settings: dict
-    wall_s: float
+    skipped: list[dict] = field(default_factory=list)
 
 
 def run_noise(
@@ -149,7 +146,7 @@ def run_noise(
     ordered = [rows[(prior.record["plant"], label, s)] for prior, label, s in jobs_list]
     settings = {"levels": ", ".join(f"{v:.3g}" for v in levels), "seed": seed, "noise_dt": noise_dt,
                 "matched EKF": matched_ekf, "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
-    return NoiseResult(ordered, skipped, settings, time.perf_counter() - t_start)
+    return NoiseResult(ordered, settings, time.perf_counter() - t_start, skipped=skipped)
 
 
 def _draw(pid: str, rows: list[dict]):

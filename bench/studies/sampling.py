@@ -34,8 +34,8 @@ from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, bisect_largest, check_box, check_count, check_horizon, check_range,
-                                   check_rtol, default_box, fmt, map_tasks, md_table, pyplot, random_ics,
+from bench.studies._common import (StudyError, StudyResult, bisect_largest, check_box, check_count, check_horizon,
+                                   check_range, check_rtol, default_box, fmt, map_tasks, md_table, pyplot, random_ics,
                                    skipped_lines, study_header, write_study)
 
 __all__ = ["DEFAULT_PLANTS", "SamplingResult", "linear_h_bound", "run_sampling", "write_sampling"]
@@ -178,14 +178,10 @@ def _sampling_task(prior, n_ics: int, box: float | None, seed: int, disc: str, h
 
 
 @dataclass
-class SamplingResult:
-    """What :func:`run_sampling` produced."""
+class SamplingResult(StudyResult):
+    """What :func:`run_sampling` produced: the rows and every evaluation of the bisections."""
 
-    rows: list[dict]
-    evals: list[dict]
-    settings: dict
-    wall_s: float
-    notes: list[str] = field(default_factory=list)
+    evals: list[dict] = field(default_factory=list)
 
 
 def run_sampling(
@@ -266,7 +262,7 @@ def run_sampling(
                 "seed": seed, "discretisation": discretisation,
                 "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
                 "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
-    return SamplingResult(ordered, evals, settings, time.perf_counter() - t_start)
+    return SamplingResult(ordered, settings, time.perf_counter() - t_start, evals=evals)
 
 
 def _check_args(n_ics, box, h_range, discretisation, rtol, t_final) -> tuple[int, float | None, tuple | None]:
