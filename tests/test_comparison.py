@@ -129,6 +129,23 @@ def test_ekf_bounded_with_noise(flex):
     assert ne[len(ne) // 2:].max() < 0.2 and np.linalg.norm(tr.x[:, -1]) < 0.2
 
 
+def test_noisy_high_gain_observer_stays_within_a_budget_an_explicit_rk45_would_exceed():
+    """The noisy fixed-gain path integrates the observer with its gain K C: on random_osl_v1 the
+    corrected Theorem 1 observer is fast, and the sample-interval integrator must be one that
+    copes (the noise study once ran this pair past its budget with RK45; over 10 s DOP853 needs
+    1.5e5 right-hand sides, RK45 2.4e5)."""
+    from bench.constants import compute_constants
+    from bench.registry import PLANTS
+    from bench.simulate import SimOptions
+
+    plant = PLANTS.create("random_osl_v1")
+    res = DESIGNS.create("thm1").design(plant, compute_constants(plant, n_samples=2000).valid)
+    assert res.status == "feasible"
+    tr = simulate_controller(plant, res.F, K=res.K, t_final=10.0, noise=0.01, seed=0,
+                             options=SimOptions(max_nfev=200_000))
+    assert tr.status == "ok", tr.message
+
+
 def test_ekf_with_destabilizing_feedback_is_diverged(flex):
     ekf = ContinuousDiscreteEKF(flex, EKFSpec(dt=0.01), flex.x_hat0)
     tr = simulate_controller(flex, -3 * PAPER_F, estimator=ekf, t_final=flex.t_final)
