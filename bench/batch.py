@@ -43,9 +43,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.metrics import batch_metrics as _batch_metrics
-from bench.simulate import check_gains, choose_method
+from bench.simulate import SimOptions, check_gains, choose_method
 
 __all__ = [
+    "BATCH_OPTIONS",
     "BatchTrajectory",
     "batch_metrics",
     "digital_matrix",
@@ -146,6 +147,12 @@ def _batch_sparsity(n: int, N: int):
     return sp.csc_matrix((np.ones(rows.size), (rows, cols)), shape=(2 * n * N, 2 * n * N))
 
 
+#: The batch's default integration settings: a batch of hundreds of members at the single
+#: trajectory's tolerances (:class:`bench.simulate.SimOptions`' defaults, rtol 1e-8) costs several
+#: times more for differences far below what a Monte Carlo verdict reads.
+BATCH_OPTIONS = SimOptions(rtol=1e-6, atol=1e-9, n_points=401)
+
+
 def simulate_batch(
     plant,
     K: np.ndarray,
@@ -154,11 +161,7 @@ def simulate_batch(
     x_hat0: np.ndarray,
     *,
     t_final: float | None = None,
-    method: str = "auto",
-    rtol: float = 1e-6,
-    atol: float = 1e-9,
-    n_points: int = 401,
-    blowup: float = 1e6,
+    options: SimOptions = BATCH_OPTIONS,
 ) -> BatchTrajectory:
     """Simulate the continuous closed loop (6) from N initial conditions with one ODE solve.
 
@@ -172,18 +175,15 @@ def simulate_batch(
         Initial states and estimates (a single ``(n,)`` vector is a batch of one).
     t_final : float, optional
         Horizon (default ``plant.t_final``).
-    method : str
-        ``solve_ivp`` method, or ``"auto"`` (default): ``"DOP853"``, unless the linear closed loop
-        is stiff (largest ``-Re lambda`` times the horizon above :data:`STIFF`), then ``"BDF"``.
-        Implicit methods get the block-diagonal ``jac_sparsity`` of the batch (each member's
-        2n states couple only among themselves), so a finite-difference Jacobian costs 2n
-        right-hand sides, not 2nN.
-    rtol, atol : float
-        ``solve_ivp`` tolerances (the same for the whole batch).
-    n_points : int
-        Output grid size (uniform on [0, t_final]).
-    blowup : float
-        A member is frozen and reported diverged above ``blowup * max(1, ||z_j(0)||)``.
+    options : SimOptions
+        The settings of :func:`bench.simulate.simulate`, for the whole batch (default
+        :data:`BATCH_OPTIONS`). ``method="auto"``: DOP853, unless the linear closed loop is stiff
+        (largest ``-Re lambda`` times the horizon above :data:`bench.simulate.STIFF`), then BDF;
+        implicit methods get the block-diagonal ``jac_sparsity`` of the batch (each member's 2n
+        states couple only among themselves), so a finite-difference Jacobian costs 2n
+        right-hand sides, not 2nN. A member above ``blowup * max(1, ||z_j(0)||)`` is frozen and
+        reported diverged; past ``max_nfev`` right-hand sides or ``max_wall_s`` the run stops
+        with status ``"budget"`` or ``"timeout"``.
 
     Returns
     -------
@@ -193,45 +193,63 @@ def simulate_batch(
     from scipy.integrate import solve_ivp
 
     K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
-    if int(n_points) < 2:
-        raise ValueError(f"n_points: must be >= 2, got {n_points!r}")
     n, N = X.shape
-    limit = blowup * np.maximum(1.0, _norms(X, XH))
-    rhs = _BatchRHS(plant, K, F, N, limit)
-    if method == "auto":
-        method = choose_method(plant, K, F, T)
+    limit = options.blowup * np.maximum(1.0, _norms(X, XH))
+    rhs = _BatchRHS(plant, K, F, N, limit, options)
+    method = choose_method(plant, K, F, T) if options.method == "auto" else options.method
     extra = {}
     if method in ("BDF", "Radau"):
         extra["jac_sparsity"] = _batch_sparsity(n, N)
     # state layout: y.reshape(n, 2N) = [x_1 .. x_N, x_hat_1 .. x_hat_N], so f takes it as it is
     Y0 = np.concatenate([X, XH], axis=1)
-    t_eval = np.linspace(0.0, T, int(n_points))
+    t_eval = np.linspace(0.0, T, int(options.n_points))
     t0 = time.perf_counter()
-    sol = solve_ivp(rhs, (0.0, T), Y0.ravel(), method=method, t_eval=t_eval, rtol=rtol, atol=atol, **extra)
+    try:
+        sol = solve_ivp(rhs, (0.0, T), Y0.ravel(), method=method, t_eval=t_eval, rtol=options.rtol,
+                        atol=options.atol, **extra)
+        t_out, y, status, nfev = sol.t, sol.y, "ok" if sol.status == 0 else "failed", int(sol.nfev)
+        message = "" if status == "ok" else sol.message
+    except _BatchStop as stop:
+        t_out, y, status, message, nfev = np.array([0.0]), Y0.ravel()[:, None], stop.status, str(stop), rhs.count
     wall = time.perf_counter() - t0
-    status = "ok" if sol.status == 0 else "failed"
-    Yt = sol.y.reshape(n, 2 * N, -1)
+    Yt = y.reshape(n, 2 * N, -1)
     xs, xhs = Yt[:, :N], Yt[:, N:]
     diverged = ~np.all(_norms(xs, xhs) <= limit[:, None], axis=1)
-    return BatchTrajectory(sol.t, xs, xhs, diverged, status, "" if status == "ok" else sol.message,
-                           wall, int(sol.nfev), method, u=np.einsum("mi,ijk->mjk", F, xhs))
+    return BatchTrajectory(t_out, xs, xhs, diverged, status, message, wall, nfev, method,
+                           u=np.einsum("mi,ijk->mjk", F, xhs))
+
+
+class _BatchStop(Exception):
+    """A batch stopped by its right-hand side (budget of calls or wall time): ``status`` is the run's."""
+
+    def __init__(self, status: str, message: str):
+        super().__init__(message)
+        self.status = status
 
 
 class _BatchRHS:
     """Right-hand side of the batch closed loop (6) on the (n, 2N) layout ``[x_1 .. x_N, x_hat_1 .. x_hat_N]``.
 
-    A member above its limit (or non-finite) is frozen: its derivative is zero.
+    A member above its limit (or non-finite) is frozen: its derivative is zero. It counts its
+    calls and stops the run past the options' budget of calls or wall time.
     """
 
-    def __init__(self, plant, K: np.ndarray, F: np.ndarray, N: int, limit: np.ndarray):
+    def __init__(self, plant, K: np.ndarray, F: np.ndarray, N: int, limit: np.ndarray, options: SimOptions):
         A, B, C = plant.A, plant.B, plant.C
         BF, KC = B @ F, K @ C
         self.Px = np.vstack([A, KC])  # linear part: [x'; x_hat'] = Px x + Ph x_hat
         self.Ph = np.vstack([BF, A + BF - KC])
         self.f, self.n, self.N, self.limit = plant.f, plant.n, N, limit
         self.fast2 = float(limit.min()) ** 2  # while ||y||^2 <= fast2, no member can exceed its limit
+        self.count, self.max_nfev = 0, options.max_nfev
+        self.wall_end = None if options.max_wall_s is None else time.perf_counter() + options.max_wall_s
 
     def __call__(self, t, y):
+        self.count += 1
+        if self.count > self.max_nfev:
+            raise _BatchStop("budget", f"more than {self.max_nfev} right-hand-side evaluations by t = {t:.4g}")
+        if self.wall_end is not None and time.perf_counter() > self.wall_end:
+            raise _BatchStop("timeout", f"past the wall-time budget at t = {t:.4g}")
         n, N = self.n, self.N
         Y = y.reshape(n, 2 * N)
         x, xh = Y[:, :N], Y[:, N:]

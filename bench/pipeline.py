@@ -129,17 +129,16 @@ class Scenario:
         :func:`bench.batch.simulate_digital_batch`); None: continuous.
     discretisation : {"zoh", "euler"}
         Observer discretisation of the digital loop.
-    method, rtol, atol
-        ``solve_ivp`` settings of a continuous batch (:func:`bench.batch.simulate_batch`).
+    options : SimOptions, optional
+        Integration settings of a continuous batch (:func:`bench.batch.simulate_batch`; None:
+        :data:`bench.batch.BATCH_OPTIONS`); the pair's time limit still applies.
     """
 
     x0: np.ndarray | None = None
     x_hat0: np.ndarray | None = None
     sample_period: float | None = None
     discretisation: str = "zoh"
-    method: str = "auto"
-    rtol: float = 1e-6
-    atol: float = 1e-9
+    options: SimOptions | None = None
 
     @property
     def batch(self) -> bool:
@@ -323,7 +322,7 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
     sim = _sim_options(options, T, plant.t_final)
     rec["noise"] = options.noise
     if scenario is not None and scenario.batch:
-        m = _simulate_batch(out, plant, res, T, scenario)
+        m = _simulate_batch(out, plant, res, T, scenario, sim.max_wall_s)
     else:
         traj = simulate_controller(plant, res.F, K=res.K, estimator=res.estimator, t_final=T, noise=options.noise,
                                    noise_dt=options.noise_dt, seed=options.seed, options=sim)
@@ -341,10 +340,11 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
     rec["in_region"] = None if not math.isfinite(radius) else bool(rec["max_norm"] <= radius)
 
 
-def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float, scenario: Scenario) -> dict:
+def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float, scenario: Scenario,
+                    max_wall_s: float | None) -> dict:
     """A batch scenario: per-member metrics in ``out.metrics``; the record holds the worst member."""
+    from bench.batch import BATCH_OPTIONS, simulate_batch, simulate_digital_batch
     from bench.batch import batch_metrics as traj_metrics
-    from bench.batch import simulate_batch, simulate_digital_batch
 
     if res.K is None:
         raise ValueError("a batch scenario needs fixed gains K, F (the estimator is not a fixed gain)")
@@ -354,8 +354,8 @@ def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float,
         tr = simulate_digital_batch(plant, res.K, res.F, X, XH, h=scenario.sample_period, t_final=T,
                                     discretisation=scenario.discretisation)
     else:
-        tr = simulate_batch(plant, res.K, res.F, X, XH, t_final=T, method=scenario.method, rtol=scenario.rtol,
-                            atol=scenario.atol)
+        opts = replace(scenario.options or BATCH_OPTIONS, max_wall_s=max_wall_s)
+        tr = simulate_batch(plant, res.K, res.F, X, XH, t_final=T, options=opts)
     out.trajectory = tr
     m = traj_metrics(tr)
     out.metrics = m

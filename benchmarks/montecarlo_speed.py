@@ -17,6 +17,7 @@ import argparse
 import os
 import sys
 import time
+from dataclasses import replace
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # run from a checkout
 
@@ -25,11 +26,8 @@ import numpy as np  # noqa: E402
 
 from bench.registry import DESIGNS, PLANTS  # noqa: E402
 from bench.studies._common import default_box, random_ics  # noqa: E402
-from bench.batch import BatchTrajectory, batch_metrics, simulate_batch  # noqa: E402
+from bench.batch import BATCH_OPTIONS, BatchTrajectory, batch_metrics, simulate_batch  # noqa: E402
 from bench.simulate import SimOptions, simulate  # noqa: E402
-
-#: The settings of the batch and of the loop (simulate_batch's defaults).
-RTOL, ATOL, N_POINTS = 1e-6, 1e-9, 401
 
 
 def simulate_loop(plant, K, F, X: np.ndarray, XH: np.ndarray, t_final: float, options: SimOptions):
@@ -60,9 +58,10 @@ def main() -> None:
     a = p.parse_args()
     plant = PLANTS.create(a.plant)
     X, XH = random_ics(plant, a.n, default_box(plant), a.seed)
-    settings = dict(method=a.method, rtol=RTOL, atol=ATOL, n_points=N_POINTS)
+    opts = replace(BATCH_OPTIONS, method=a.method)  # the batch's settings, and the loop's
     print(f"{a.plant}: {a.n} initial conditions in [-{default_box(plant):g}, {default_box(plant):g}]^{plant.n} "
-          f"(seed {a.seed}), {a.t_final:g} s, {a.method} rtol {RTOL:g} atol {ATOL:g}, {N_POINTS} output points; "
+          f"(seed {a.seed}), {a.t_final:g} s, {a.method} rtol {opts.rtol:g} atol {opts.atol:g}, "
+          f"{opts.n_points} output points; "
           f"{os.cpu_count()} cores")
     print(f"{'design':<14} {'batch s':>8} {'nfev':>6} {'loop s':>8} {'speed-up':>9} {'max rel diff':>12} "
           f"{'same verdicts':>13} {'converged':>9}")
@@ -71,14 +70,14 @@ def main() -> None:
         if r.K is None or r.F is None:
             print(f"{did:<14} no fixed gains ({r.status}: {r.reason[:60]})")
             continue
-        simulate_batch(plant, r.K, r.F, X[:, :10], XH[:, :10], t_final=a.t_final, **settings)  # warm-up
+        simulate_batch(plant, r.K, r.F, X[:, :10], XH[:, :10], t_final=a.t_final, options=opts)  # warm-up
         best = None
         for _ in range(3):
-            tr = simulate_batch(plant, r.K, r.F, X, XH, t_final=a.t_final, **settings)
+            tr = simulate_batch(plant, r.K, r.F, X, XH, t_final=a.t_final, options=opts)
             if best is None or tr.wall_s < best.wall_s:
                 best = tr
         m = a.n if a.loop_n is None else min(a.loop_n, a.n)
-        t, xs, xhs, loop_s = simulate_loop(plant, r.K, r.F, X[:, :m], XH[:, :m], a.t_final, SimOptions(**settings))
+        t, xs, xhs, loop_s = simulate_loop(plant, r.K, r.F, X[:, :m], XH[:, :m], a.t_final, opts)
         loop_full = loop_s * a.n / m
         diff = float(np.nanmax(np.abs(best.x[:, :m] - xs)) / np.nanmax(np.abs(xs)))
         ref = BatchTrajectory(t, xs, xhs, np.zeros(m, dtype=bool), "ok", "", loop_s, 0)

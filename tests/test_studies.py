@@ -8,6 +8,7 @@ Lipschitz small-gain bound from a frequency sweep, the harness's own noisy run.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from bench.metrics import batch_settling_time, settling_time, trajectory_metrics
 from bench.registry import DESIGNS, PLANTS
 from bench.simulate import SimOptions, simulate
 from bench.studies._common import StudyError, bisect_largest, check_box, check_levels, check_range, write_study
-from bench.batch import batch_metrics, digital_matrix, simulate_batch, simulate_digital_batch
+from bench.batch import BATCH_OPTIONS, batch_metrics, digital_matrix, simulate_batch, simulate_digital_batch
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +49,8 @@ def test_batch_matches_solve_ivp_per_initial_condition(pid, paper_gains):
     X = np.column_stack([plant.x0, rng.uniform(-1, 1, (plant.n, 4))])
     XH = np.column_stack([plant.x_hat0, rng.uniform(-1, 1, (plant.n, 4))])
     T = 8.0
-    tr = simulate_batch(plant, K, F, X, XH, t_final=T, method="RK45", rtol=1e-9, atol=1e-12, n_points=801)
+    tr = simulate_batch(plant, K, F, X, XH, t_final=T,
+                        options=SimOptions(method="RK45", rtol=1e-9, atol=1e-12, n_points=801))
     assert tr.status == "ok" and not tr.diverged.any()
     bm = batch_metrics(tr)
     opts = SimOptions(n_points=801)  # DOP853, rtol 1e-8, atol 1e-12: a different method and layout
@@ -85,11 +87,22 @@ def test_a_diverging_member_is_frozen_and_does_not_stop_the_others():
     F = np.array([[5.0, 0.0, 0.0, 0.0]])  # A + BF unstable
     assert np.linalg.eigvals(plant.A + plant.B @ F).real.max() > 0
     X = np.column_stack([np.zeros(4), [0.1, 0, 0, 0]])
-    tr = simulate_batch(plant, K, F, X, X.copy(), t_final=20.0, blowup=1e3)
+    tr = simulate_batch(plant, K, F, X, X.copy(), t_final=20.0, options=replace(BATCH_OPTIONS, blowup=1e3))
     assert tr.status == "ok"
     assert tr.diverged.tolist() == [False, True]
     m = batch_metrics(tr)
     assert m["converged"].tolist() == [True, False]  # the zero state stays at the equilibrium
+
+
+def test_a_batch_past_its_budget_stops_with_that_status():
+    """The options' budget of right-hand sides applies to a batch as to one trajectory (a
+    DOP853 step is 12 right-hand sides: 20 cannot reach 20 s)."""
+    plant = PLANTS.create("flexible_link")
+    r = DESIGNS.create("lqr+lqe").design(plant, plant.bounds)
+    X = np.column_stack([plant.x0, plant.x0 / 2])
+    tr = simulate_batch(plant, r.K, r.F, X, X.copy(), options=replace(BATCH_OPTIONS, method="DOP853", max_nfev=20))
+    assert tr.status == "budget" and "20 right-hand-side" in tr.message
+    assert tr.t.size == 1 and np.array_equal(tr.x[:, :, 0], X)
 
 
 # -- digital implementation ---------------------------------------------------------------------

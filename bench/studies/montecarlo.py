@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -31,6 +31,7 @@ __all__ = ["MonteCarloResult", "run_montecarlo", "write_montecarlo"]
 def _mc_task(plant_id: str, design_id: str, n: int, box: float | None, seed: int, t_final: float | None,
              method: str, rtol: float, atol: float) -> dict:
     """One (plant, design): the pipeline with a batch of ``n`` initial conditions."""
+    from bench.batch import BATCH_OPTIONS
     from bench.pipeline import RunOptions, Scenario
     from bench.registry import PLANTS
     from bench.studies._common import evaluate
@@ -49,7 +50,7 @@ def _mc_task(plant_id: str, design_id: str, n: int, box: float | None, seed: int
         row.update(status="no fixed gains", reason=f"estimator {type(res.estimator).__name__}: not a fixed gain K, "
                                                    "so it cannot be simulated as one ODE batch")
         return {"row": row, "settling": np.array([])}
-    scenario = Scenario(x0=X, x_hat0=XH, method=method, rtol=rtol, atol=atol)
+    scenario = Scenario(x0=X, x_hat0=XH, options=replace(BATCH_OPTIONS, method=method, rtol=rtol, atol=atol))
     out = evaluate(plant, design_id, RunOptions(t_final=t_final), prior=first, scenario=scenario)
     rec, m, tr = out.record, out.metrics, out.trajectory
     if m is None:
