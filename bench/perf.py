@@ -101,7 +101,7 @@ def _sweep_overhead(n: int = 8, count: int = 40) -> dict:
 
 #: Sweeps of whole design calls: (label, design, plant id, [factory keywords per call]).
 DESIGN_SWEEPS = (
-    ("bisection over c, flexible link (sparse A, B, C baked in)", "thm1", "flexible_link",
+    ("bisection over c, flexible link (sparse A, B, C by sparsity pattern)", "thm1", "flexible_link",
      [{"c": float(c)} for c in np.geomspace(0.05, 0.5, 10)]),
     ("bisection over c, random_lipschitz_v1 n = 8", "thm1", "random_lipschitz_v1",
      [{"n": 8, "m": 2, "p": 2, "seed": 0, "c": float(c)} for c in np.geomspace(0.01, 0.3, 10)]),
