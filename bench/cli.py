@@ -21,7 +21,8 @@ import time
 from contextlib import contextmanager
 from typing import Iterator
 
-from bench.registry import DESIGNS, PLANTS, UnknownIdError
+from bench.registry import DESIGNS, PLANTS
+from bench.selection import check_selection
 
 __all__ = ["main"]
 
@@ -125,38 +126,6 @@ def _cmd_list() -> int:
     for did in DESIGNS.ids():
         print(f"  {did:<24} {DESIGNS[did].summary}")
     return 0
-
-
-def check_selection(prog: str, plant_globs, design_globs, out, *, all_by_default: bool = True):
-    """What ``run`` and ``study`` check before any computing: the ids the globs select, and ``out`` usable.
-
-    Parameters
-    ----------
-    prog : str
-        The command, at the start of the error line (``python -m bench run``).
-    plant_globs, design_globs : list of str or None
-        ``--plant`` and ``--design``.
-    out : str
-        ``--out`` (created if missing).
-    all_by_default : bool
-        Without globs: every registered id (True), or None for the caller's own default.
-
-    Returns
-    -------
-    (list of str or None, list of str or None) or None
-        The plant and design ids; None after printing the one-line error (exit code 2): an
-        unknown id (with "did you mean") or an unusable output folder.
-    """
-    from bench.outdir import OutDirError, check_out_dir
-
-    try:
-        plant_ids = PLANTS.select(plant_globs) if plant_globs or all_by_default else None
-        design_ids = DESIGNS.select(design_globs) if design_globs or all_by_default else None
-        check_out_dir(out)  # an unusable --out is found now, not after the run
-    except (UnknownIdError, OutDirError) as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return None
-    return plant_ids, design_ids
 
 
 def _cmd_run(args, argv: list[str]) -> int:

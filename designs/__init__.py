@@ -1,6 +1,6 @@
 """Designs of oslbench: one module per design, each registering itself."""
 
-import bench  # noqa: F401  (its __init__ sets the BLAS and Rayon threads, before numpy)
+import bench._env  # noqa: F401  (the BLAS and Rayon threads, set before numpy)
 
 from designs._core import GAIN_STATUSES, STATUSES, Design, DesignError, DesignResult
 

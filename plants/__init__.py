@@ -1,6 +1,6 @@
 """Plants of oslbench: one module per plant, each registering its factories."""
 
-import bench  # noqa: F401  (its __init__ sets the BLAS and Rayon threads, before numpy)
+import bench._env  # noqa: F401  (the BLAS and Rayon threads, set before numpy)
 
 from plants._core import Channels, Constants, Plant, PlantError
 

@@ -140,7 +140,7 @@ def _explicit(patterns: list[str] | None) -> list[str]:
 
 def run_study(args, argv: list[str]) -> int:
     """Run the study named by ``args.study``; returns the exit code."""
-    from bench.cli import check_selection
+    from bench.selection import check_selection
     from bench.executors import default_jobs
     from bench.studies._common import StudyError
 
