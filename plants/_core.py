@@ -485,6 +485,9 @@ class Plant:
         batch = _real_array(self.f(arg))
         if not np.array_equal(arg, X):
             raise PlantError("f: writes into its batch argument; f must not modify its input")
+        if batch.shape != X.shape:
+            raise PlantError(f"f: a batch of shape {X.shape} gave shape {batch.shape}; a batch (n, N) must "
+                             "give (n, N), one column per state")
         for j in range(X.shape[1]):
             single = _real_array(self.f(X[:, j].copy()))
             if not np.allclose(batch[:, j], single, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(single).max()))):

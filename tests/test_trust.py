@@ -123,10 +123,11 @@ def _complex_far(x):
 @pytest.mark.parametrize("f, pattern", [
     (_writes, r"^f: writes into its (batch )?argument"),
     (lambda x: -np.linalg.norm(x) ** 2 * np.asarray(x), r"^f: the batch form mixes columns: column \d"),
+    (lambda x: -np.asarray(x, dtype=float).T, r"^f: f\(batch\) must have shape \(2, 3\), got \(3, 2\)"),
     (_nan_far, r"^f: not finite at"),
     (lambda x: np.asarray(x, dtype=float) * (1 + 0j), r"(?i)^f: .*complex"),
     (_complex_far, r"(?i)^f: .*complex"),
-], ids=["writes_argument", "mixes_columns", "nan_far_away", "complex", "complex_far_away"])
+], ids=["writes_argument", "mixes_columns", "transposes_a_batch", "nan_far_away", "complex", "complex_far_away"])
 def test_f_breaking_the_contract_is_a_plant_error(f, pattern):
     with pytest.raises(PlantError, match=pattern) as info:
         plant = double_integrator(f, id="broken")
@@ -135,6 +136,16 @@ def test_f_breaking_the_contract_is_a_plant_error(f, pattern):
     if "not finite at" in msg:  # the message names a state, and f is indeed not finite there
         x = np.array([float(v) for v in re.search(r"x = \[([^\]]+)\]", msg).group(1).split(",")])
         assert np.abs(x).max() > 20 and not np.all(np.isfinite(_nan_far(x)))
+
+
+def test_f_transposing_a_square_batch_is_a_plant_error():
+    """With n = 3 the first (3, 3) batch keeps its shape when transposed; the contract's batch of
+    probe points must catch it (hypothesis found this one: a ValueError from numpy escaped)."""
+    from plants import Plant
+
+    with pytest.raises(PlantError, match=r"^f: a batch of shape \(3, \d+\) gave shape \(\d+, 3\)"):
+        Plant(id="transposes", A=np.zeros((3, 3)), B=np.zeros((3, 1)), C=np.zeros((1, 3)), x0=np.zeros(3),
+              x_hat0=np.zeros(3), t_final=20.0, f=lambda x: np.asarray(x).T)
 
 
 def test_complex_value_error_names_the_state():
