@@ -51,7 +51,9 @@ __all__ = [
     "min_eig",
     "plant_matrices",
     "scalar_parameters",
+    "reset_solve_tally",
     "solve_side",
+    "solve_tally",
     "solve_timed",
     "sym",
     "verify_tol",
@@ -130,6 +132,7 @@ class SolveOutcome:
     solve_s: float
     error: str = ""
     value: float = float("nan")
+    solver_s: float = 0.0  #: the solver's own time (its report), part of ``solve_s``; the rest is cvxpy's
 
     @property
     def solved(self) -> bool:
@@ -180,7 +183,37 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     comp = float(getattr(problem, "compilation_time", None) or 0.0)
     comp = min(comp, wall)
     val = problem.value if status in ("optimal", "optimal_inaccurate") else float("nan")
-    return SolveOutcome(status, comp, wall - comp, err, float(val) if val is not None else float("nan"))
+    stats = getattr(problem, "solver_stats", None) if status != "solver_error" else None
+    own = min(float(getattr(stats, "solve_time", None) or 0.0), wall - comp)
+    out = SolveOutcome(status, comp, wall - comp, err, float(val) if val is not None else float("nan"), own)
+    _TALLY["n"] += 1
+    _TALLY["compile_s"] += out.compile_s
+    _TALLY["solve_s"] += out.solve_s
+    _TALLY["solver_s"] += out.solver_s
+    return out
+
+
+#: This process's solves since :func:`reset_solve_tally` (see :func:`solve_tally`).
+_TALLY = {"n": 0, "compile_s": 0.0, "solve_s": 0.0, "solver_s": 0.0}
+
+
+def solve_tally() -> dict:
+    """This process's SDP solves so far (since :func:`reset_solve_tally`), for measuring where time goes.
+
+    Returns
+    -------
+    dict
+        ``n`` solves; ``compile_s`` (cvxpy's compile, first solve of a program), ``solve_s`` (the
+        rest of each solve's wall time) and ``solver_s`` (the solver's own time as it reports
+        it, part of ``solve_s``; ``solve_s - solver_s`` is cvxpy setting parameters in and taking
+        the solution out).
+    """
+    return dict(_TALLY)
+
+
+def reset_solve_tally() -> None:
+    """Zero :func:`solve_tally`."""
+    _TALLY.update(n=0, compile_s=0.0, solve_s=0.0, solver_s=0.0)
 
 
 def log_search(

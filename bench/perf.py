@@ -17,7 +17,8 @@ printed as it is taken:
   design calls in a sweep (a bisection over the scale of f, a random family over seeds) with
   the program cache and with every call rebuilding its problem;
 - the default run's wall time (a fresh ``python -m bench run --no-cache`` process) with
-  ``--jobs 1`` and ``--jobs 2``, median, min and max over several runs.
+  ``--jobs 1`` and ``--jobs 2``, median, min and max over several runs, and where its CPU time
+  goes (its work serially in one process, each part timed), with the floor that gives on 2 cores.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["default_run_times", "measure_design", "perf_main", "route_rows", "sim_rows", "theorem1_rows"]
+__all__ = ["default_run_breakdown", "default_run_times", "measure_design", "perf_main", "route_rows", "sim_rows", "theorem1_rows"]
 
 
 def _measure_child(design_id: str, n: int, kw: dict, queue) -> None:
@@ -281,6 +282,116 @@ def default_run_times(jobs_list=(1, 2), repeats: int = 3) -> list[dict]:
     return rows
 
 
+def _import_seconds() -> float:
+    """Seconds a fresh process spends importing what ``bench run`` imports before its workers fork."""
+    import subprocess
+    import sys
+
+    code = ("import time; t0 = time.perf_counter(); import bench.api, bench.report; "
+            "from bench.executors import warm_imports; warm_imports(); print(time.perf_counter() - t0)")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    return float(out.stdout.strip().splitlines()[-1])
+
+
+def _breakdown_child(plant_ids, design_ids, queue) -> None:
+    """The default run's work, serially in one process, each part timed (see :func:`default_run_breakdown`)."""
+    from bench.constants import compute_constants
+    from bench.harness import RunResult
+    from bench.lmi import clear_program_cache, reset_solve_tally, solve_tally
+    from bench.pipeline import RunOptions, evaluate_pair
+    from bench.registry import DESIGNS, PLANTS
+    from bench.report import _figures
+
+    clear_program_cache()  # cold, like a fresh run: every program compiled here
+    reset_solve_tally()
+    plant_ids = PLANTS.ids() if plant_ids is None else plant_ids
+    design_ids = DESIGNS.ids() if design_ids is None else design_ids
+    options = RunOptions()
+    t0 = time.perf_counter()
+    plants = {pid: PLANTS.create(pid) for pid in plant_ids}
+    reports = {pid: compute_constants(plants[pid], seed=options.seed, n_samples=options.n_samples)
+               for pid in plant_ids}
+    t1 = time.perf_counter()
+    outcomes, parts = [], {"design_s": 0.0, "cert_s": 0.0, "sim_s": 0.0}
+    for pid in plant_ids:
+        for did in design_ids:
+            o = evaluate_pair(plants[pid], did, reports[pid], options)
+            o.plant = plants[pid]
+            outcomes.append(o)
+            for k in parts:
+                v = o.record.get(k)
+                parts[k] += float(v) if isinstance(v, (int, float)) and math.isfinite(v) else 0.0
+    t2 = time.perf_counter()
+    tally = solve_tally()
+    with tempfile.TemporaryDirectory(prefix="oslbench-perf-") as tmp:
+        figs = _figures(RunResult(outcomes, reports, {}, options, t2 - t0), Path(tmp), ("png",), jobs=1)
+    t3 = time.perf_counter()
+    queue.put({"pairs": len(outcomes), "figures": len(figs), "constants_s": t1 - t0, "pairs_s": t2 - t1,
+               "figures_s": t3 - t2, **parts, "n_solves": tally["n"], "compile_s": tally["compile_s"],
+               "solver_s": tally["solver_s"], "cvxpy_solve_s": tally["solve_s"] - tally["solver_s"],
+               "status": "ok", "wall_s": t3 - t0})
+
+
+def default_run_breakdown(plant_ids=None, design_ids=None, *, cores: int = 2, timeout: float = 900.0) -> dict:
+    """Where the default run's CPU time goes: its work done serially in one forked process, each part timed.
+
+    The parts: the imports before the workers fork (a fresh process), every plant's constants,
+    every pair (design, certificate ladder, simulation; the SDP solves split into the solver's
+    own time, cvxpy's compile and cvxpy's per-solve work), and the figures.
+
+    Parameters
+    ----------
+    plant_ids, design_ids : list of str, optional
+        The selection (default: every registered id, as ``python -m bench run``).
+    cores : int
+        For the floor: the run's parallel work spread perfectly over this many cores.
+    timeout : float
+        Seconds before the measurement is abandoned (a ``timeout`` status).
+
+    Returns
+    -------
+    dict
+        The parts in CPU seconds, and ``floor_s``: the imports plus the constants, the solver's
+        own time, the simulations and the figures divided by ``cores``. It is a lower bound on
+        the run's wall time on ``cores`` cores with the work as it is computed today (those
+        parts at today's cost, and cvxpy and everything else free).
+    """
+    out = _forked(_breakdown_child, (plant_ids, design_ids), timeout, {})
+    if out.get("status") != "ok":
+        return out
+    out["imports_s"] = _import_seconds()
+    out["cores"] = cores
+    out["other_s"] = out["design_s"] + out["cert_s"] - out["compile_s"] - out["solver_s"] - out["cvxpy_solve_s"]
+    out["floor_s"] = out["imports_s"] + (out["constants_s"] + out["solver_s"] + out["sim_s"] + out["figures_s"]) / cores
+    return out
+
+
+def _breakdown_md(b: dict | None) -> str:
+    """Markdown for :func:`default_run_breakdown`."""
+    if not b:
+        return "Not measured (--no-run)."
+    if b.get("status") != "ok":
+        return f"Not measured: {b.get('status')}."
+    rows = [("imports before the workers fork (a fresh process)", b["imports_s"]),
+            ("constants of every plant", b["constants_s"]),
+            (f"SDP solver's own time ({b['n_solves']} solves, as the solver reports it)", b["solver_s"]),
+            ("cvxpy's compile (first solve of each program)", b["compile_s"]),
+            ("the rest of each solve (cvxpy: parameters in, solution out; the solver's setup)", b["cvxpy_solve_s"]),
+            ("the rest of designs and certificates (Riccati, python-control, eigenvalue checks)", b["other_s"]),
+            ("simulations (scipy integrators, the EKF's filterpy steps)", b["sim_s"]),
+            (f"figures ({b['figures']}, matplotlib)", b["figures_s"])]
+    total = sum(v for _, v in rows)
+    out = [f"The default run's work ({b['pairs']} pairs) done serially in one process, each part timed "
+           "(`bench.perf.default_run_breakdown`), CPU seconds:", "", "| part | s |", "|---|---|"]
+    out += [f"| {what} | {v:.1f} |" for what, v in rows]
+    out += [f"| total | {total:.1f} |", "",
+            f"Floor on {b['cores']} cores: the imports plus (constants + solver + simulations + figures) / "
+            f"{b['cores']} = **{b['floor_s']:.1f} s**. With cvxpy's compile and per-solve work and the rest of the "
+            "designs and certificates free, and the other parts at today's cost spread perfectly over the cores, "
+            "the run could not be faster than this on this machine."]
+    return "\n".join(out)
+
+
 def _sweep_table(rows: list[dict]) -> str:
     """Markdown for :func:`design_sweeps` (rebuilt vs cached per sweep)."""
     if not rows:
@@ -388,7 +499,7 @@ def _targets(routes: list[dict], sims: list[dict], runs: list[dict]) -> str:
     return "\n".join(out)
 
 
-def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs) -> str:
+def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs, breakdown=None) -> str:
     cert = [r for r in routes if r["route"] == "riccati" and "certified" in r]
     frac = sum(r["certified"] for r in cert) / len(cert) if cert else float("nan")
     run_md = _md_table(runs, ["jobs", "runs", "median_s", "min_s", "max_s"]) if runs else "Not measured (--no-run)."
@@ -445,6 +556,10 @@ def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs) -> str:
         "",
         run_md,
         "",
+        "### Where the time goes",
+        "",
+        _breakdown_md(breakdown),
+        "",
     ])
 
 
@@ -468,14 +583,20 @@ def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, 
     runs = default_run_times(repeats=repeats) if with_run else []
     for r in runs:
         echo(f"default run, --jobs {r['jobs']}: median {r['median_s']:.1f} s (min {r['min_s']:.1f}, max {r['max_s']:.1f})")
+    breakdown = default_run_breakdown() if with_run else None
+    if breakdown:
+        echo(f"default run's work, serially: {_fmt(breakdown.get('wall_s'))} s; floor on 2 cores "
+             f"{_fmt(breakdown.get('floor_s', float('nan')))} s ({breakdown.get('status')})")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with staged(out, "perf") as tmp:
         (tmp / "figures").mkdir()
         _figure(tmp / "figures" / "perf_scaling.png", thm_rows, routes)
-        (tmp / "PERF.md").write_text(_markdown(thm_rows, routes, sweep, dsweeps, sims, runs), encoding="utf-8")
+        (tmp / "PERF.md").write_text(_markdown(thm_rows, routes, sweep, dsweeps, sims, runs, breakdown),
+                                     encoding="utf-8")
         pd.DataFrame([*({"section": "structured", **r} for r in routes), *({"section": "theorem1", **r} for r in thm_rows),
-                      *({"section": "simulation", **r} for r in sims), *({"section": "default run", **r} for r in runs)]
+                      *({"section": "simulation", **r} for r in sims), *({"section": "default run", **r} for r in runs),
+                      *([{"section": "default run breakdown", **breakdown}] if breakdown else [])]
                      ).to_csv(tmp / "perf.csv", index=False)
         publish(out, tmp, ["figures/perf_scaling.png", "perf.csv", "PERF.md"])
     return out / "PERF.md"

@@ -18,3 +18,18 @@ def test_perf_small_writes_report(tmp_path):
 def test_perf_bad_sizes_exit_2(tmp_path, capsys):
     assert main(["perf", "--sizes", "4,x", "--out", str(tmp_path)]) == 2
     assert "--sizes" in capsys.readouterr().err
+
+
+def test_breakdown_parts_account_for_the_work_and_the_floor_is_a_lower_bound():
+    # one plant, two designs: the parts are timed, not asserted; what must hold whatever the machine:
+    # the SDP parts come from a real tally (thm1 solves, LQR + LQE solves none in its design), the
+    # solver's own time is part of the solves, and the floor is at most the serial total's share
+    from bench.perf import default_run_breakdown
+
+    b = default_run_breakdown(["flexible_link"], ["thm1", "lqr+lqe"], cores=2, timeout=300)
+    assert b["status"] == "ok" and b["pairs"] == 2 and b["n_solves"] > 0
+    assert 0 < b["solver_s"] and b["cvxpy_solve_s"] >= 0 and b["compile_s"] > 0
+    sdp = b["solver_s"] + b["cvxpy_solve_s"] + b["compile_s"]
+    assert sdp <= b["design_s"] + b["cert_s"] + 1e-6  # every solve happens inside a design or a certificate
+    serial = b["imports_s"] + b["constants_s"] + b["design_s"] + b["cert_s"] + b["sim_s"] + b["figures_s"]
+    assert b["imports_s"] < b["floor_s"] <= serial
