@@ -186,15 +186,16 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     stats = getattr(problem, "solver_stats", None) if status != "solver_error" else None
     own = min(float(getattr(stats, "solve_time", None) or 0.0), wall - comp)
     out = SolveOutcome(status, comp, wall - comp, err, float(val) if val is not None else float("nan"), own)
-    _TALLY["n"] += 1
-    _TALLY["compile_s"] += out.compile_s
-    _TALLY["solve_s"] += out.solve_s
-    _TALLY["solver_s"] += out.solver_s
+    _tally["n"] += 1
+    _tally["compile_s"] += out.compile_s
+    _tally["solve_s"] += out.solve_s
+    _tally["solver_s"] += out.solver_s
     return out
 
 
-#: This process's solves since :func:`reset_solve_tally` (see :func:`solve_tally`).
-_TALLY = {"n": 0, "compile_s": 0.0, "solve_s": 0.0, "solver_s": 0.0}
+#: This process's solves since :func:`reset_solve_tally` (see :func:`solve_tally`). Lower case: an
+#: upper-case module name is a setting that enters the cache's keys (bench.cache), and this one changes.
+_tally = {"n": 0, "compile_s": 0.0, "solve_s": 0.0, "solver_s": 0.0}
 
 
 def solve_tally() -> dict:
@@ -208,12 +209,12 @@ def solve_tally() -> dict:
         it, part of ``solve_s``; ``solve_s - solver_s`` is cvxpy setting parameters in and taking
         the solution out).
     """
-    return dict(_TALLY)
+    return dict(_tally)
 
 
 def reset_solve_tally() -> None:
     """Zero :func:`solve_tally`."""
-    _TALLY.update(n=0, compile_s=0.0, solve_s=0.0, solver_s=0.0)
+    _tally.update(n=0, compile_s=0.0, solve_s=0.0, solver_s=0.0)
 
 
 def log_search(
