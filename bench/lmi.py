@@ -132,7 +132,7 @@ class SolveOutcome:
     solve_s: float
     error: str = ""
     value: float = float("nan")
-    solver_s: float = 0.0  #: the solver's own time (its report), part of ``solve_s``; the rest is cvxpy's
+    solver_s: float = 0.0  #: the solver's own time (its report), part of ``solve_s``
 
     @property
     def solved(self) -> bool:
@@ -207,7 +207,7 @@ def solve_tally() -> dict:
         ``n`` solves; ``compile_s`` (cvxpy's compile, first solve of a program), ``solve_s`` (the
         rest of each solve's wall time) and ``solver_s`` (the solver's own time as it reports
         it, part of ``solve_s``; ``solve_s - solver_s`` is cvxpy setting parameters in and taking
-        the solution out).
+        the solution out, and the solver's setup before its own clock starts).
     """
     return dict(_tally)
 

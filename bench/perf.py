@@ -34,7 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["default_run_breakdown", "default_run_times", "measure_design", "perf_main", "route_rows", "sim_rows", "theorem1_rows"]
+__all__ = ["default_run_breakdown", "default_run_times", "measure_design", "perf_main", "route_rows", "sim_rows",
+           "theorem1_rows"]
 
 
 def _measure_child(design_id: str, n: int, kw: dict, queue) -> None:
@@ -585,7 +586,7 @@ def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, 
         echo(f"default run, --jobs {r['jobs']}: median {r['median_s']:.1f} s (min {r['min_s']:.1f}, max {r['max_s']:.1f})")
     breakdown = default_run_breakdown() if with_run else None
     if breakdown:
-        echo(f"default run's work, serially: {_fmt(breakdown.get('wall_s'))} s; floor on 2 cores "
+        echo(f"default run's work, serially: {_fmt(breakdown.get('wall_s'))} s; floor on {breakdown.get('cores', 2)} cores "
              f"{_fmt(breakdown.get('floor_s', float('nan')))} s ({breakdown.get('status')})")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
