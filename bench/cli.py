@@ -15,6 +15,7 @@ is atomic, and a Ctrl-C while it moves the files in is deferred until it is done
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 import time
@@ -278,6 +279,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader left (`python -m bench list | head`): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except Exception as exc:  # noqa: BLE001 - the CLI prints one line, never a bare traceback
         print(f"{prog}: error: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
