@@ -54,7 +54,7 @@ from bench import lmi
 from bench.constants import Knowledge
 from plants import Plant
 
-__all__ = ["LADDER_MAX_N", "LEVELS", "LEVEL_TITLES", "Certificate", "Knowledge", "LevelResult", "adopt", "certify",
+__all__ = ["LADDER_MAX_N", "LEVELS", "LEVEL_TITLES", "LEVEL_USES", "Certificate", "Knowledge", "LevelResult", "adopt", "certify",
            "level_set", "linearised_rate"]
 
 #: The ladder, weakest first.
@@ -195,6 +195,8 @@ def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
             return None, f"no trusted scalar constant (alpha, rho, beta/gamma){notes}"
         return _Spec(level, n, n, True, scalars, False), ""
     if know.channels is None:
+        if "channels" in know.untrusted:
+            return None, f"not used: {know.untrusted['channels']}"
         return None, f"the plant declares no channel structure f = G phi(Hx){notes}"
     return _Spec(level, n, know.channels.q, True, scalars, True), ""
 
@@ -588,20 +590,31 @@ def level_set(P: np.ndarray, radius: float) -> float:
     return radius**2 / worst
 
 
-def adopt(cert: Certificate, candidate: dict | None) -> Certificate:
+#: The declarations a design's own certificate at each level rests on (unless it names its own in
+#: ``uses``): :func:`adopt` refuses a certificate that uses one a sample disproved.
+LEVEL_USES = {"paper": ("rho", "beta", "gamma"), "full": ("alpha", "rho", "beta", "gamma"),
+              "structured": ("channels",)}
+
+
+def adopt(cert: Certificate, candidate: dict | None, knowledge: Knowledge | None = None) -> Certificate:
     """Keep a design's own verified certificate where the ladder's LMI certifies less.
 
     A design may verify a joint certificate of its own (``DesignResult.certificate``: its level,
     P, decay rate, margin, radius); it uses that level's knowledge, so it is a certificate at that
     level (and, by inclusion, at every level above). Where the ladder's own LMI certified clearly
     less (below :data:`ADOPT_RATIO` of its rate: numerical trouble, or ``n`` beyond
-    :data:`LADDER_MAX_N`), the level takes it, and the levels above inherit it.
+    :data:`LADDER_MAX_N`), the level takes it, and the levels above inherit it. A certificate that
+    rests on a declaration the ``knowledge`` does not trust (``candidate["uses"]``, default
+    :data:`LEVEL_USES` of its level; e.g. channels whose slopes a sample disproved) is refused: the
+    level is "not certified" and its reason names the declaration.
 
     Parameters
     ----------
     cert : Certificate
     candidate : dict or None
-        ``level``, ``P``, ``decay_rate``, ``margin``, ``radius``, ``how``.
+        ``level``, ``P``, ``decay_rate``, ``margin``, ``radius``, ``how``, optionally ``uses``.
+    knowledge : Knowledge, optional
+        What is trusted (None: the candidate is taken as verified on trusted declarations).
 
     Returns
     -------
@@ -612,6 +625,14 @@ def adopt(cert: Certificate, candidate: dict | None) -> Certificate:
         return cert
     lv = candidate["level"]
     cur = cert.levels[lv]
+    bad = [knowledge.untrusted[k] for k in candidate.get("uses", LEVEL_USES[lv])
+           if knowledge is not None and k in knowledge.untrusted]
+    if bad:
+        if not cur.certified:
+            cert.levels[lv] = replace(cur, status="not certified", reason=(
+                f"{candidate['how']} is refused: it rests on {'; '.join(bad)}"
+                + (f" (the ladder's own LMI: {cur.status}: {cur.reason})" if cur.reason else "")))
+        return cert
     if cur.certified and cur.decay_rate >= ADOPT_RATIO * candidate["decay_rate"]:
         return cert  # the ladder's own P (normalised, usually better conditioned) is kept
     own = f"the ladder's own LMI: {cur.status}" + (f", rate {cur.decay_rate:.3g}" if cur.certified else "")

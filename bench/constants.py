@@ -8,10 +8,12 @@ For difference pairs ``dx = x1 - x2``, ``df = f(x1) - f(x2)`` the sampled quanti
 
 Each supremum is estimated from seeded random pairs (points at several scales, differences
 from 1e-4 to 10 times the point scale; inside the ball ``||x|| <= radius`` when the constants
-are local) followed by a local optimisation (L-BFGS-B) from the best pairs. A sampled value is
+are local, else out to :func:`sampled_range`: 31.6, or 10 times the initial state) followed by a local optimisation (L-BFGS-B) from the best pairs. A sampled value is
 a *lower bound* on the true constant: it can prove a claimed constant wrong, never right.
 Claimed constants are checked on the region they are claimed for (``claimed.radius``; None =
-everywhere), with pairs of their own when that region differs from the analytic one.
+everywhere), with pairs of their own when that region differs from the analytic one. After a
+simulation, :func:`check_trajectory` checks the trusted declarations along it (and samples a
+global one out to 10 times the largest state it reached).
 """
 
 from __future__ import annotations
@@ -22,9 +24,10 @@ from typing import Callable
 import numpy as np
 
 from plants import Channels, Constants, Plant, PlantError
+from plants._core import jacobian_mismatch
 
-__all__ = ["ConstantsReport", "Knowledge", "Violation", "compute_constants", "linear_prechecks",
-           "resolve_constants"]
+__all__ = ["GLOBAL_RANGE", "REACH_FACTOR", "ConstantsReport", "Knowledge", "Violation", "check_trajectory",
+           "compute_constants", "linear_prechecks", "resolve_constants", "sampled_range"]
 
 _REL_TOL = 1e-7  # a constant is flagged when a sample exceeds it by more than this (relative)
 
@@ -32,6 +35,18 @@ _REL_TOL = 1e-7  # a constant is flagged when a sample exceeds it by more than t
 #: many times the estimate at ``||x|| <= 1`` is taken as growing without bound (f is not globally
 #: Lipschitz / OSL / QIB with any constant): the constant is not provided.
 GROWTH_FACTOR = 4.0
+
+#: A global declaration (constants, channel slopes) is sampled out to ``||x|| <= GLOBAL_RANGE``, and at
+#: least ``REACH_FACTOR`` times the largest initial state; after a simulation, out to at least
+#: ``REACH_FACTOR`` times the largest state it reached (:func:`check_trajectory`).
+GLOBAL_RANGE = 10.0 ** 1.5
+REACH_FACTOR = 10.0
+
+
+def sampled_range(plant: Plant) -> float:
+    """How far (``||x||``) the samplers check a global declaration before any simulation:
+    :data:`GLOBAL_RANGE`, or :data:`REACH_FACTOR` times the larger of ``||x0||``, ``||x_hat0||``."""
+    return max(GLOBAL_RANGE, REACH_FACTOR * float(max(np.linalg.norm(plant.x0), np.linalg.norm(plant.x_hat0))))
 
 
 @dataclass(frozen=True)
@@ -65,11 +80,27 @@ class Knowledge:
         Trusted channel structure, or None.
     notes : tuple of str
         Why something known was not trusted (for the certificate levels' reasons).
+    untrusted : dict
+        Declaration (``"alpha"``, ``"rho"``, ``"beta"``, ``"gamma"``, ``"channels"``) -> why a
+        certificate must not use it (a sample disproved it, or it was only sampled).
     """
 
     constants: Constants = field(default_factory=Constants)
     channels: Channels | None = None
     notes: tuple[str, ...] = ()
+    untrusted: dict[str, str] = field(default_factory=dict)
+
+    def without(self, untrusted: dict[str, str]) -> "Knowledge":
+        """This knowledge with the declarations named in ``untrusted`` (name -> why) removed."""
+        if not untrusted:
+            return self
+        c = self.constants
+        qib = not ({"beta", "gamma"} & set(untrusted))
+        consts = Constants(alpha=None if "alpha" in untrusted else c.alpha, rho=None if "rho" in untrusted else c.rho,
+                           beta=c.beta if qib else None, gamma=c.gamma if qib else None, radius=c.radius)
+        ch = None if "channels" in untrusted else self.channels
+        notes = self.notes + tuple(f"{why}: not used by certificates" for why in untrusted.values())
+        return Knowledge(consts, ch, notes, {**self.untrusted, **untrusted})
 
     @staticmethod
     def trusting(plant: Plant) -> "Knowledge":
@@ -109,6 +140,9 @@ class ConstantsReport:
         Problems of the linear part that no design can overcome (e.g. not stabilizable).
     seed, n_samples : int
         Sampler settings, for reproducibility.
+    checked_on : float, optional
+        The ``||x||`` out to which global declarations were sampled (None: everything holds on
+        a region, ``valid.radius``, which was sampled whole).
     """
 
     claimed: Constants
@@ -123,6 +157,15 @@ class ConstantsReport:
     prechecks: list[str] = field(default_factory=list)
     seed: int = 0
     n_samples: int = 0
+    checked_on: float | None = None
+
+    @property
+    def region(self) -> str:
+        """Where the declarations hold and how far they were checked, in words."""
+        if self.valid.radius is not None:
+            return f"||x|| <= {self.valid.radius:g} (sampled whole)"
+        far = f" (sampled on ||x|| <= {self.checked_on:.3g})" if self.checked_on is not None else ""
+        return "everywhere" + far
 
     def violated(self, name: str) -> Violation | None:
         """The violation of claimed constant ``name``, if any."""
@@ -139,7 +182,7 @@ class ConstantsReport:
                 "source": dict(self.source), "violations": viol(self.violations), "disproved": viol(self.disproved),
                 "channel_violations": viol(self.channel_violations), "unbounded": dict(self.unbounded),
                 "prechecks": list(self.prechecks), "seed": self.seed, "n_samples": self.n_samples,
-                "trust": self.trust}
+                "checked_on": self.checked_on, "trust": self.trust}
 
     @classmethod
     def from_dict(cls, doc: dict) -> "ConstantsReport":
@@ -150,7 +193,8 @@ class ConstantsReport:
         cs = {k: None if doc[k] is None else Constants(**doc[k]) for k in ("claimed", "analytic", "sampled", "valid")}
         return cls(**cs, source=doc["source"], violations=viol(doc["violations"]), disproved=viol(doc["disproved"]),
                    channel_violations=viol(doc["channel_violations"]), unbounded=doc["unbounded"],
-                   prechecks=doc["prechecks"], seed=doc["seed"], n_samples=doc["n_samples"])
+                   prechecks=doc["prechecks"], seed=doc["seed"], n_samples=doc["n_samples"],
+                   checked_on=doc.get("checked_on"))
 
     def knowledge(self, plant: Plant) -> Knowledge:
         """The trusted part for ``plant``: analytic constants no sample disproved, and the plant's
@@ -158,6 +202,7 @@ class ConstantsReport:
         an = self.analytic or Constants()
         bad = {v.name for v in self.disproved}
         notes = [v.describe("analytic") + ": not used by certificates" for v in self.disproved]
+        untrusted = {v.name: "analytic " + v.describe("analytic") for v in self.disproved}
         kept = {k: getattr(an, k) for k in ("alpha", "rho") if k not in bad}
         qib_ok = "beta" not in bad and an.beta is not None
         sampled_only = [k for k in ("alpha", "rho", "beta") if self.source.get(k, "").startswith("sampled")]
@@ -167,7 +212,10 @@ class ConstantsReport:
                            radius=an.radius)
         ch = plant.channels if not self.channel_violations else None
         notes += [v.describe("declared") + ": channels not used by certificates" for v in self.channel_violations]
-        return Knowledge(consts, ch, tuple(notes))
+        if self.channel_violations:
+            untrusted["channels"] = "the declared channels: " + "; ".join(v.describe("declared")
+                                                                         for v in self.channel_violations)
+        return Knowledge(consts, ch, tuple(notes), untrusted)
 
     @property
     def trust(self) -> str:
@@ -236,9 +284,9 @@ def _project(x: np.ndarray, radius: float | None) -> np.ndarray:
     return x * scale
 
 
-def _random_pairs(rng: np.random.Generator, n: int, N: int, radius: float | None):
+def _random_pairs(rng: np.random.Generator, n: int, N: int, radius: float | None, far: float = GLOBAL_RANGE):
     if radius is None:
-        scale = 10.0 ** rng.uniform(-2, 1.5, size=N)  # point scales 0.01 .. 30
+        scale = 10.0 ** rng.uniform(-2, np.log10(far), size=N)  # point scales 0.01 .. far
     else:
         scale = radius * rng.uniform(0, 1, size=N) ** (1.0 / n)
     dirs = rng.standard_normal((n, N))
@@ -319,15 +367,17 @@ def _unbounded(f, x1, x2, gamma, sampled: dict) -> dict[str, str]:
     return out
 
 
-def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000) -> list[Violation]:
-    """Sampled slopes of each declared channel against its bounds (inside the channels' region)."""
+def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000,
+                   far: float = GLOBAL_RANGE) -> list[Violation]:
+    """Sampled slopes of each declared channel against its bounds: inside the channels' region, or
+    (global) for ``|z_i| <= ||H_i|| far``."""
     ch = plant.channels
     if ch is None:
         return []
     out = []
     for i in range(ch.q):
         h = float(np.linalg.norm(ch.H[i]))
-        zmax = (ch.radius * h) if ch.radius is not None else 30.0
+        zmax = ch.radius * h if ch.radius is not None else max(far * h, far)
         a = rng.uniform(-zmax, zmax, n_pairs)
         b = a + rng.normal(0, 1, n_pairs) * np.maximum(0.05 * zmax, 1e-3) * 10.0 ** rng.uniform(-4, 0, n_pairs)
         b = np.clip(b, -zmax, zmax)
@@ -335,18 +385,152 @@ def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000) 
         Z[i, :n_pairs], Z[i, n_pairs:] = a, b
         with np.errstate(invalid="ignore", divide="ignore"):
             phi = np.asarray(ch.phi(Z), dtype=float)[i]
-            slope = (phi[:n_pairs] - phi[n_pairs:]) / (a - b)
-        ok = np.isfinite(slope)
-        tol = _REL_TOL * max(1.0, abs(ch.lo[i]), abs(ch.hi[i])) + 1e-9
-        for bound, worst, name in ((ch.hi[i], np.max(np.where(ok, slope, -np.inf)), "max"),
-                                   (ch.lo[i], np.min(np.where(ok, slope, np.inf)), "min")):
-            if (name == "max" and worst > bound + tol) or (name == "min" and worst < bound - tol):
-                k = int(np.nanargmax(np.where(ok, slope if name == "max" else -slope, -np.inf)))
-                x1 = tuple(float(v) for v in np.linalg.pinv(ch.H) @ Z[:, k])
-                x2 = tuple(float(v) for v in np.linalg.pinv(ch.H) @ Z[:, n_pairs + k])
-                label = f"channel {i} {'upper' if name == 'max' else 'lower'} slope bound"
-                out.append(Violation(label, float(bound), float(worst), x1, x2))
+        out += _slope_violations(ch, i, phi[:n_pairs], phi[n_pairs:], Z[:, :n_pairs], Z[:, n_pairs:])
     return out
+
+
+def _slope_violations(ch: Channels, i: int, p1: np.ndarray, p2: np.ndarray, Z1: np.ndarray,
+                      Z2: np.ndarray) -> list[Violation]:
+    """Channel ``i``'s slopes ``(p1 - p2) / (z1_i - z2_i)`` over pairs of channel inputs ``Z1``, ``Z2``
+    (q, N) against its bounds: one :class:`Violation` per bound, with the worst pair."""
+    a, b = Z1[i], Z2[i]
+    dz = a - b
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = np.where(np.abs(dz) > 1e-12 * (1 + np.abs(a) + np.abs(b)), (p1 - p2) / dz, np.nan)
+    ok = np.isfinite(slope)
+    if not ok.any():
+        return []
+    tol = _REL_TOL * max(1.0, abs(ch.lo[i]), abs(ch.hi[i])) + 1e-9
+    out = []
+    for bound, name in ((ch.hi[i], "max"), (ch.lo[i], "min")):
+        k = int(np.argmax(np.where(ok, slope if name == "max" else -slope, -np.inf)))
+        worst = float(slope[k])
+        if (name == "max" and worst > bound + tol) or (name == "min" and worst < bound - tol):
+            Hp = np.linalg.pinv(ch.H)
+            label = f"channel {i} {'upper' if name == 'max' else 'lower'} slope bound"
+            out.append(Violation(label, float(bound), worst, tuple(float(v) for v in Hp @ Z1[:, k]),
+                                 tuple(float(v) for v in Hp @ Z2[:, k])))
+    return out
+
+
+def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarray, *,
+                     checked_on: float | None = None, seed: int = 0, max_points: int = 2000) -> tuple[dict, str]:
+    """Check the declarations a certificate uses where a simulation went.
+
+    Along the trajectory (states ``X``, estimates ``XH``, each (n, T); at most ``max_points``
+    instants): the declared Jacobian against finite differences of f (8 states); the channel identity ``f(x) = G phi(H x)`` at ``x`` and ``x_hat``; each channel's
+    slope bounds between ``H x`` and ``H x_hat`` and between ``H x`` and 0; the trusted scalar
+    constants (Lipschitz, OSL, QIB at the trusted gamma) over the pairs ``(x, x_hat)`` and ``(x, 0)``:
+    the very pairs the certificate's inequalities use (inside the declaration's region). A global
+    declaration sampled only out to ``checked_on`` is sampled again out to :data:`REACH_FACTOR`
+    times the largest state reached, when that is farther.
+
+    Parameters
+    ----------
+    plant : Plant
+    know : Knowledge
+        The trusted declarations (only these are checked).
+    X, XH : ndarray (n, T)
+    checked_on : float, optional
+        How far the constants' samplers went (:attr:`ConstantsReport.checked_on`).
+    seed : int
+
+    Returns
+    -------
+    disproved : dict
+        Declaration (``"channels"``, ``"alpha"``, ``"rho"``, ``"beta"``) -> why, with the state.
+    checked : str
+        The range checked, in words.
+
+    Raises
+    ------
+    PlantError
+        A declared Jacobian that is not the derivative of f at a simulated state (the entry named).
+    """
+    X = np.asarray(X, dtype=float).reshape(plant.n, -1)
+    XH = np.asarray(XH, dtype=float).reshape(plant.n, -1)
+    keep = np.all(np.isfinite(X), axis=0) & np.all(np.isfinite(XH), axis=0)
+    X, XH = X[:, keep], XH[:, keep]
+    if X.shape[1] > max_points:
+        idx = np.unique(np.linspace(0, X.shape[1] - 1, max_points).astype(int))
+        X, XH = X[:, idx], XH[:, idx]
+    reach = float(max(np.linalg.norm(X, axis=0).max(initial=0.0), np.linalg.norm(XH, axis=0).max(initial=0.0)))
+    if plant.jacobian is not None and X.shape[1]:
+        pts = np.concatenate([X, XH], axis=1)[:, np.linspace(0, 2 * X.shape[1] - 1, 8).astype(int)]
+        why = jacobian_mismatch(plant.f, plant.jacobian, pts)
+        if why:
+            raise PlantError(f"{why} (a state along the simulation)")
+    bad: dict[str, str] = {}
+    fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
+    ch, c = know.channels, know.constants
+    if ch is not None and X.shape[1]:
+        P = np.concatenate([X, XH], axis=1)
+        P = P[:, _inside(P, ch.radius)]
+        if P.shape[1]:
+            with np.errstate(all="ignore"):
+                err = np.abs(ch.apply(P) - _values(plant.f, P))
+            scale = np.maximum(1.0, np.abs(_values(plant.f, P)))
+            worst = np.max(err / scale, axis=0)
+            if worst.max() > 1e-9:
+                j = int(np.argmax(worst))
+                bad["channels"] = (f"the declared channels: G phi(H x) differs from f by {err[:, j].max():.3g} at the "
+                                   f"simulated state x = {fmt(P[:, j])}")
+        if "channels" not in bad:
+            for X2 in (XH, np.zeros_like(X)):
+                inside = _inside(X, ch.radius) & _inside(X2, ch.radius)
+                Z1, Z2 = ch.H @ X[:, inside], ch.H @ X2[:, inside]
+                with np.errstate(all="ignore"):
+                    p1, p2 = np.asarray(ch.phi(Z1), dtype=float), np.asarray(ch.phi(Z2), dtype=float)
+                vs = [v for i in range(ch.q) for v in _slope_violations(ch, i, p1[i], p2[i], Z1, Z2)]
+                if vs:
+                    bad["channels"] = "the declared channels: " + vs[0].describe("declared") + " (along the simulation)"
+                    break
+    scalars = {k: getattr(c, k) for k in ("alpha", "rho", "beta") if getattr(c, k) is not None}
+    if scalars and X.shape[1]:
+        for X2 in (XH, np.zeros_like(X)):
+            inside = _inside(X, c.radius) & _inside(X2, c.radius)
+            a, b = X[:, inside], X2[:, inside]
+            if not a.shape[1]:
+                continue
+            with np.errstate(all="ignore"):
+                ratios = dict(zip(("alpha", "rho", "beta"), _ratios(plant.f, a, b, c.gamma or 0.0)))
+            for k, stated in scalars.items():
+                r = np.where(np.isfinite(ratios[k]), ratios[k], -np.inf)
+                j = int(np.argmax(r))
+                if k not in bad and r[j] > stated + _REL_TOL * max(1.0, abs(stated)):
+                    v = Violation(k, stated, float(r[j]), tuple(a[:, j]), tuple(b[:, j]))
+                    bad[k] = "analytic " + v.describe("analytic") + " (along the simulation)"
+    far = REACH_FACTOR * reach
+    glob = [k for k in ("channels", *scalars) if k not in bad and
+            (ch.radius if k == "channels" and ch is not None else c.radius) is None
+            and (k != "channels" or ch is not None)]
+    checked = f"along the simulation (||x||, ||x_hat|| <= {reach:.3g})"
+    if glob and (checked_on is None or far > checked_on):
+        rng = np.random.default_rng([seed, 3])
+        if "channels" in glob:
+            vs = _channel_check(plant, rng, far=far)
+            if vs:
+                bad["channels"] = "the declared channels: " + vs[0].describe("declared")
+        sc = [k for k in glob if k != "channels"]
+        if sc:
+            x1, x2 = _random_pairs(rng, plant.n, 4000, None, far=far)
+            with np.errstate(all="ignore"):
+                ratios = dict(zip(("alpha", "rho", "beta"), _ratios(plant.f, x1, x2, c.gamma or 0.0)))
+            for k in sc:
+                r = np.where(np.isfinite(ratios[k]), ratios[k], -np.inf)
+                j = int(np.argmax(r))
+                if r[j] > scalars[k] + _REL_TOL * max(1.0, abs(scalars[k])):
+                    bad[k] = "analytic " + Violation(k, scalars[k], float(r[j]), tuple(x1[:, j]),
+                                                     tuple(x2[:, j])).describe("analytic")
+        checked += f" and sampled on ||x|| <= {far:.3g}"
+    return bad, checked
+
+
+def _inside(X: np.ndarray, radius: float | None) -> np.ndarray:
+    """Columns of ``X`` with ``||x|| <= radius`` (all of them when ``radius`` is None)."""
+    if radius is None:
+        return np.ones(X.shape[1], dtype=bool)
+    return np.linalg.norm(X, axis=0) <= radius * (1 + 1e-12)
 
 
 def linear_prechecks(plant: Plant) -> list[str]:
@@ -427,7 +611,8 @@ def compute_constants(
     else:
         gamma = 0.0
 
-    x1, x2 = _random_pairs(rng, n, n_samples, radius)
+    far = sampled_range(plant)
+    x1, x2 = _random_pairs(rng, n, n_samples, radius, far)
     best = _best_pairs(plant.f, x1, x2, gamma, radius, n, n_refine)
     sampled = Constants(
         alpha=max(best["alpha"][0], 0.0), rho=best["rho"][0], beta=best["beta"][0], gamma=gamma, radius=radius
@@ -459,8 +644,8 @@ def compute_constants(
     return ConstantsReport(
         claimed=plant.claimed, analytic=analytic, sampled=sampled, valid=valid, source=source,
         violations=violations, disproved=disproved,
-        channel_violations=_channel_check(plant, np.random.default_rng([seed, 2])), unbounded=unbounded,
-        prechecks=linear_prechecks(plant), seed=seed, n_samples=n_samples,
+        channel_violations=_channel_check(plant, np.random.default_rng([seed, 2]), far=far), unbounded=unbounded,
+        prechecks=linear_prechecks(plant), seed=seed, n_samples=n_samples, checked_on=None if radius else far,
     )
 
 
@@ -472,7 +657,7 @@ def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_r
     c_radius = claimed.radius
     if c_radius != radius and any(getattr(claimed, k) is not None for k in ("alpha", "rho", "beta")):
         crng = np.random.default_rng([seed, 1])
-        x1, x2 = _random_pairs(crng, n, n_samples, c_radius)
+        x1, x2 = _random_pairs(crng, n, n_samples, c_radius, sampled_range(plant))
         best = _best_pairs(plant.f, x1, x2, gamma, c_radius, n, n_refine)
     for name in ("alpha", "rho"):
         cval = getattr(claimed, name)

@@ -36,8 +36,10 @@ def findings(frame, constants: dict) -> dict:
     -------
     dict
         ``plants`` (per plant: ``best`` certified design or None, ``uncertified_converging``,
-        ``certified_pairs``, ``pairs``), ``violated_claims``, ``disproved``, ``printed_infeasible``,
-        ``inconsistent`` (lists of dicts, JSON-ready).
+        ``certified_pairs``, ``pairs``), ``violated_claims``, ``disproved`` (by the samplers or
+        along a pair's simulation), ``printed_infeasible``, ``inconsistent`` (with the ``witness``
+        time and state) (lists of dicts, JSON-ready), and ``counts`` of the lists that must be
+        empty in a sound run.
     """
     plants = {}
     for pid in dict.fromkeys(frame["plant"]):
@@ -53,12 +55,22 @@ def findings(frame, constants: dict) -> dict:
                        "text": v.describe("analytic")} for v in rep.disproved]
         disproved += [{"plant": pid, "constant": v.name, "stated": v.claimed, "sampled": v.sampled,
                        "text": v.describe("declared")} for v in rep.channel_violations]
+    if "disproved" in frame:
+        import json
+
+        for r in frame[frame["disproved"].fillna("").astype(str) != ""].itertuples():
+            for name, text in json.loads(r.disproved).items():
+                disproved.append({"plant": r.plant, "constant": name, "stated": None, "sampled": None,
+                                  "text": f"{text} (simulation of {r.design})"})
     printed = frame[frame["design"].astype(str).str.endswith("_printed") & (frame["status"] == "infeasible")]
     printed_rows = [{"plant": r.plant, "design": r.design, "reason": r.reason} for r in printed.itertuples()]
     bad = frame[frame["reason"].astype(str).str.contains("INCONSISTENT")]
+    inconsistent = [{"plant": r.plant, "design": r.design, "reason": r.reason,
+                     "witness": getattr(r, "witness", "")} for r in bad.itertuples()]
     return {"plants": plants, "violated_claims": violated, "disproved": disproved,
-            "printed_infeasible": printed_rows,
-            "inconsistent": [{"plant": r.plant, "design": r.design, "reason": r.reason} for r in bad.itertuples()]}
+            "printed_infeasible": printed_rows, "inconsistent": inconsistent,
+            "counts": {"inconsistent": len(inconsistent), "disproved": len(disproved),
+                       "violated_claims": len(violated)}}
 
 
 def constants_rows(constants: dict, errors: dict) -> list[dict]:
@@ -94,12 +106,12 @@ def constants_rows(constants: dict, errors: dict) -> list[dict]:
                 "analytic": getattr(rep.analytic, name) if rep.analytic is not None else None,
                 "sampled": getattr(rep.sampled, name), "used": getattr(rep.valid, name),
                 "source": rep.source.get(name, "fixed" if name == "gamma" else ""),
-                "region": "everywhere" if rep.valid.radius is None else f"||x|| <= {rep.valid.radius:g}",
+                "region": rep.region,
                 "flag": "; ".join(flags),
             })
         for v in rep.channel_violations:
             rows.append({"plant": pid, "constant": v.name, "claimed": None, "analytic": v.claimed,
-                         "sampled": v.sampled, "used": None, "source": "declared channels", "region": "",
+                         "sampled": v.sampled, "used": None, "source": "declared channels", "region": rep.region,
                          "flag": f"CHANNEL SLOPE DISPROVED: {v.describe('declared')}"})
         for msg in rep.prechecks:
             rows.append({"plant": pid, "constant": "(A, B, C)", "claimed": None, "analytic": None, "sampled": None,

@@ -21,7 +21,7 @@ from typing import Callable
 
 from bench.constants import ConstantsReport, compute_constants
 from bench.limits import DeadlineExceeded, hard_stop, time_limit
-from bench.pipeline import COLUMNS, PairOutcome, RunOptions, blank_record, evaluate_pair
+from bench.pipeline import COLUMNS, PairOutcome, RunOptions, blank_record, evaluate_pair, rejudge
 from bench.registry import DESIGNS, PLANTS
 from plants import Plant
 
@@ -307,7 +307,9 @@ def run(
         except KeyboardInterrupt:
             _stop_workers(ex)
             raise
-    return RunResult(state.outcomes(), *state.constants_in_order(), options, time.perf_counter() - t_start,
+    constants = state.constants_in_order()
+    outcomes = rejudge(state.outcomes(), constants[0], options)
+    return RunResult(outcomes, *constants, options, time.perf_counter() - t_start,
                      cache_hits=cache.hits if cache is not None else 0,
                      cache_misses=cache.misses if cache is not None else 0,
                      cache_dir=None if cache is None else str(cache.root))

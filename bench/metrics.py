@@ -13,7 +13,10 @@ grid (arrays ``(n, N, T)``); :func:`trajectory_metrics` is the same for one traj
   means the run finished and both norms settled (finite 2 % settling times);
 - ``settling_x_s``, ``settling_e_s``: 2 % settling time of ``||x||`` and ``||e||``, the first
   time after which the norm stays at or below 2 % of its peak (NaN if it never does);
-- ``iae_e``: integral of ``||e||`` (trapezoid rule); ``rms_e``: RMS of ``||e||`` over the second
+- ``iae_e``: integral of ``||e||`` (trapezoid rule on the grid);
+- for one continuous trajectory with the integrator's dense output (:func:`dense_metrics`), the
+  settling times and the IAE come from the dense output (root finding and Gauss-Legendre
+  quadrature within each integrator step), so they do not depend on the output grid; ``rms_e``: RMS of ``||e||`` over the second
   half of the horizon (the steady state, where noise dominates); ``peak_u``: peak ``|u|``;
 - ``tail_rate``: the exponential decay rate of ``||z||`` fitted (least squares on ``log ||z||``)
   over the last quarter of the horizon (NaN once the norm is at round-off);
@@ -26,8 +29,8 @@ import math
 
 import numpy as np
 
-__all__ = ["CONVERGED_RATIO", "SETTLING_FRACTION", "batch_metrics", "batch_settling_time", "settling_time",
-           "trajectory_metrics"]
+__all__ = ["CONVERGED_RATIO", "SETTLING_FRACTION", "batch_metrics", "batch_settling_time", "dense_metrics",
+           "settling_time", "trajectory_metrics"]
 
 SETTLING_FRACTION = 0.02
 CONVERGED_RATIO = 1e-3
@@ -135,8 +138,12 @@ def batch_metrics(t, x, x_hat, u=None, *, finished=True, diverged=None, noisy: b
     }
 
 
-def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True, noisy: bool = False) -> dict[str, float | bool]:
+def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True, noisy: bool = False,
+                       dense=None) -> dict[str, float | bool]:
     """:func:`batch_metrics` of one trajectory (``x``, ``x_hat`` of shape (n, T), ``u`` (m, T)).
+
+    With the integrator's ``dense`` output (:attr:`bench.simulate.Trajectory.dense`), the settling
+    times and the IAE do not depend on the output grid (:func:`dense_metrics`).
 
     Returns
     -------
@@ -147,4 +154,72 @@ def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True, noisy: bool = F
     xh = np.asarray(x_hat, dtype=float)[:, None, :]
     uu = None if u is None or np.size(u) == 0 else np.asarray(u, dtype=float)[:, None, :]
     m = batch_metrics(t, x, xh, uu, finished=finished, noisy=noisy)
-    return {k: (bool(v[0]) if k == "converged" else float(v[0])) for k, v in m.items()}
+    out = {k: (bool(v[0]) if k == "converged" else float(v[0])) for k, v in m.items()}
+    if dense is not None and np.size(t) > 1:
+        fine = dense_metrics(dense, x.shape[0], float(t[0]), float(t[-1]))
+        for k in ("settling_x_s", "settling_e_s"):
+            if math.isfinite(out[k]):
+                out[k] = fine[k]
+        out["iae_e"] = fine["iae_e"]
+    return out
+
+
+#: Gauss-Legendre nodes and weights on [0, 1] (5 points: exact for polynomials of degree 9 on a step).
+_GL_NODES, _GL_WEIGHTS = (lambda p: ((p[0] + 1) / 2, p[1] / 2))(np.polynomial.legendre.leggauss(5))
+
+
+def dense_metrics(dense, n: int, t0: float, t1: float, fraction: float = SETTLING_FRACTION) -> dict[str, float]:
+    """Settling times and IAE from an integrator's dense output, independent of any output grid.
+
+    ``dense(t)`` gives ``(x, x_hat)`` (2n,) and ``dense.ts`` the integrator's steps. Within each
+    step the norms are evaluated at 5 Gauss-Legendre nodes: the IAE of ``||e||`` is their
+    quadrature (step by step), the peaks are the largest values at the steps and nodes, and a
+    settling time is the root, within the last interval where the norm exceeds ``fraction`` of its
+    peak, of ``||.|| - fraction * peak`` (Brent's method on the dense output).
+
+    Parameters
+    ----------
+    dense : scipy.integrate.OdeSolution
+    n : int
+    t0, t1 : float
+        The span to measure (within the solution's).
+    fraction : float
+
+    Returns
+    -------
+    dict
+        ``settling_x_s``, ``settling_e_s`` (NaN if never settled), ``iae_e``.
+    """
+    from scipy.optimize import brentq
+
+    ts = np.asarray(getattr(dense, "ts", [t0, t1]), dtype=float)
+    ts = np.unique(np.clip(ts, t0, t1))
+    h = np.diff(ts)
+    nodes = (ts[:-1, None] + h[:, None] * _GL_NODES[None, :]).ravel()
+    grid = np.sort(np.concatenate([ts, nodes]))
+    Z = np.asarray(dense(grid), dtype=float)
+
+    def norms(Z):
+        x, xh = Z[:n], Z[n:]
+        return np.linalg.norm(x, axis=0), np.linalg.norm(x - xh, axis=0)
+
+    nx, ne = norms(Z)
+    _, ne_nodes = norms(np.asarray(dense(nodes), dtype=float))
+    iae = float(np.sum(h * (ne_nodes.reshape(-1, _GL_NODES.size) @ _GL_WEIGHTS)))
+    out = {"iae_e": iae}
+    for key, s, which in (("settling_x_s", nx, 0), ("settling_e_s", ne, 1)):
+        peak = float(np.max(s)) if s.size else math.nan
+        level = fraction * peak
+        above = np.flatnonzero(s > level)
+        if not math.isfinite(peak) or peak == 0:
+            out[key] = 0.0 if peak == 0 else math.nan
+        elif above.size == 0:
+            out[key] = float(grid[0])
+        elif above[-1] == grid.size - 1:
+            out[key] = math.nan
+        else:
+            k = int(above[-1])
+            g = lambda tt: norms(np.asarray(dense(tt), dtype=float)[:, None])[which][0] - level  # noqa: E731
+            a, b = float(grid[k]), float(grid[k + 1])
+            out[key] = brentq(g, a, b, xtol=1e-12 * max(1.0, abs(b)), rtol=1e-12) if g(b) <= 0 < g(a) else b
+    return out

@@ -23,15 +23,15 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench.certify import LEVELS, Certificate, LevelResult, adopt, certify, linearised_rate
-from bench.constants import ConstantsReport, resolve_constants
+from bench.constants import ConstantsReport, Knowledge, check_trajectory, resolve_constants
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
 from bench.metrics import trajectory_metrics
 from bench.simulate import SimOptions, simulate_controller
-from bench.verdicts import certificate_scope, convergence_note, horizon
+from bench.verdicts import certificate_scope, certified_horizon, convergence_note, horizon
 from designs import GAIN_STATUSES, Design, DesignResult
 from plants import Plant
 
-__all__ = ["COLUMNS", "PairOutcome", "RunOptions", "Scenario", "blank_record", "evaluate_pair"]
+__all__ = ["COLUMNS", "PairOutcome", "RunOptions", "Scenario", "blank_record", "evaluate_pair", "rejudge"]
 
 #: Columns of every record, in order.
 COLUMNS = [
@@ -40,9 +40,10 @@ COLUMNS = [
     *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")],
     "cert_margin", "cert_radius", "level_set", "level_x0", "in_region", "max_norm",
     "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "compile_s", "solve_s", "design_s",
-    "cert_s", "sim_s", "max_re_eig_x", "max_re_eig_e", "horizon_s", "horizon_rule", "sim_status", "settling_x_s",
+    "cert_s", "sim_s", "max_re_eig_x", "max_re_eig_e", "horizon_s", "horizon_rule", "cert_horizon_s", "sim_status", "witness",
+    "settling_x_s",
     "settling_e_s", "final_x", "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "norm_K", "norm_F",
-    "constants", "params",
+    "constants", "checked_on", "disproved", "params",
 ]
 
 #: What the ``certificate`` option computes: every level with its rate, or only whether some
@@ -160,6 +161,8 @@ class PairOutcome:
     certificate : Certificate or None
     metrics : dict or None
         Per-member metric arrays (:func:`bench.metrics.batch_metrics`) of a batch scenario.
+    knowledge : Knowledge or None
+        What the certificate was allowed to use.
     """
 
     record: dict
@@ -168,13 +171,15 @@ class PairOutcome:
     plant: Plant | None = None
     certificate: Certificate | None = None
     metrics: dict | None = None
+    knowledge: Knowledge | None = None
 
 
 def blank_record(plant_id: str, design_id: str) -> dict:
     """A record with every column NaN (flags False, text empty)."""
     rec = {c: math.nan for c in COLUMNS}
     rec.update(plant=plant_id, design=design_id, status="", reason="", solver="", solver_status="", route="",
-               sim_status="", constants="", params="", cert_level="", cert_scope="", horizon_rule="",
+               sim_status="", constants="", params="", cert_level="", cert_scope="", horizon_rule="", witness="",
+               checked_on="", disproved="",
                feasible=False, stabilizing=None, certified=False, converged=False, in_region=None,
                **{f"cert_{lv}": "" for lv in LEVELS})
     return rec
@@ -245,8 +250,9 @@ def _verify(rec: dict, plant: Plant, res: DesignResult) -> None:
 
 
 def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport,
-             options: RunOptions) -> Certificate | None:
-    """The certificate ladder (or its verdict only), recorded level by level."""
+             options: RunOptions, know: Knowledge | None = None) -> Certificate | None:
+    """The certificate ladder (or its verdict only) on the trusted knowledge (default
+    ``report.knowledge(plant)``), recorded level by level."""
     if options.certificate == "none":
         return None
     if res.K is None:
@@ -255,7 +261,7 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
         _note(rec, "certificate: no fixed observer gain (the estimator is time-varying): no quadratic certificate "
                    "applies")
         return None
-    know = report.knowledge(plant)
+    know = know if know is not None else report.knowledge(plant)
     t0 = time.perf_counter()
     if options.certificate == "ladder":
         cert = certify(plant, res.K, res.F, know)
@@ -269,7 +275,7 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
             if cert.levels[lv].certified:
                 break
         cert.levels = {lv: cert.levels[lv] for lv in LEVELS if lv in cert.levels}
-    adopt(cert, res.certificate)
+    adopt(cert, res.certificate, know)
     rec["cert_s"] = time.perf_counter() - t0
     for lv, r in cert.levels.items():
         rec[f"cert_{lv}"], rec[f"decay_{lv}"] = r.status, r.decay_rate
@@ -315,13 +321,16 @@ def _sim_options(options: RunOptions, T: float, t_plant: float) -> SimOptions:
 
 
 def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
-              scenario: Scenario | None) -> None:
-    """Simulate (one trajectory, or the scenario's batch) and record the metrics."""
+              scenario: Scenario | None, report: ConstantsReport) -> None:
+    """Simulate (one trajectory, or the scenario's batch), record the metrics, check the declarations
+    the certificate used along the simulation (re-certifying without any it disproved), and record
+    what the certificate predicts for this simulation."""
     rec = out.record
     T = _horizon(rec, plant, res, cert, options)
     sim = _sim_options(options, T, plant.t_final)
     rec["noise"] = options.noise
-    if scenario is not None and scenario.batch:
+    batch = scenario is not None and scenario.batch
+    if batch:
         m = _simulate_batch(out, plant, res, T, scenario, sim.max_wall_s)
     else:
         traj = simulate_controller(plant, res.F, K=res.K, estimator=res.estimator, t_final=T, noise=options.noise,
@@ -331,13 +340,60 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
         if traj.status == "timeout" and options.timeout is not None:
             raise DeadlineExceeded(f"the simulation ({traj.message})")
         m = trajectory_metrics(traj.t, traj.x, traj.x_hat, traj.u, finished=traj.status == "ok",
-                               noisy=options.noise > 0)
+                               noisy=options.noise > 0, dense=traj.dense)
+        traj.dense = None  # measured: the rest of the run needs the grid only (and pickles it to the parent)
         if traj.status != "ok":
             _note(rec, f"simulation {traj.status}: {traj.message}")
     rec.update({k: m[k] for k in ("converged", "settling_x_s", "settling_e_s", "final_x", "final_e", "tail_rate",
                                   "iae_e", "rms_e", "peak_u", "max_norm")})
+    tr = out.trajectory
+    X, XH = np.asarray(tr.x, dtype=float), np.asarray(tr.x_hat, dtype=float)
+    if out.certificate is not None:
+        _check_declarations(out, plant, res, report, options, X, XH)
     radius = rec["cert_radius"]
     rec["in_region"] = None if not math.isfinite(radius) else bool(rec["max_norm"] <= radius)
+    rec["witness"] = _witness(np.asarray(tr.t, dtype=float), X, XH, radius)
+    best = out.certificate.best if out.certificate is not None else None
+    applies = best is not None and res.K is not None and res.estimator is None and options.noise == 0 and (
+        not batch or (scenario.sample_period is None and rec["cert_scope"] == "global"))
+    if applies:
+        cond = float(np.linalg.cond(best.P)) if best.P is not None else math.nan
+        rec["cert_horizon_s"] = certified_horizon(best.decay_rate, cond)
+
+
+def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, report: ConstantsReport,
+                        options: RunOptions, X: np.ndarray, XH: np.ndarray) -> None:
+    """The declarations the certificate used, checked along the simulation
+    (:func:`bench.constants.check_trajectory`); any it disproves is dropped and the pair re-certified."""
+    rec = out.record
+    know = out.knowledge if out.knowledge is not None else report.knowledge(plant)
+    bad, checked = check_trajectory(plant, know, X, XH, checked_on=report.checked_on, seed=options.seed)
+    rec["checked_on"] = checked
+    if not bad:
+        return
+    rec["disproved"] = json.dumps(bad, sort_keys=True)
+    _note(rec, "DECLARATION DISPROVED by the simulation: " + "; ".join(bad.values())
+          + ": the pair is re-certified without it")
+    out.knowledge = know.without(bad)
+    out.certificate = _certify(rec, plant, res, report, options, know=out.knowledge)
+
+
+def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float) -> str:
+    """Time and state that show a run's outcome: the first state outside ``||x||, ||x_hat|| <= radius``
+    (NaN: none), else the last finite state (a batch: of the member farthest from the origin)."""
+    if X.ndim == 3:  # (n, N, T): the member with the largest last finite state
+        last = np.nan_to_num(np.linalg.norm(X[:, :, -1], axis=0), nan=np.inf)
+        j = int(np.argmax(last))
+        X, XH = X[:, j, :], XH[:, j, :]
+    if X.shape[1] == 0:
+        return ""
+    size = np.maximum(np.linalg.norm(X, axis=0), np.linalg.norm(XH, axis=0))
+    finite = np.isfinite(size)
+    k = int(np.flatnonzero(finite)[-1]) if finite.any() else X.shape[1] - 1
+    if math.isfinite(radius) and np.any(finite & (size > radius)):
+        k = int(np.argmax(finite & (size > radius)))
+    fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
+    return f"t = {t[min(k, t.size - 1)]:.4g} s, x = {fmt(X[:, k])}, x_hat = {fmt(XH[:, k])}"
 
 
 def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float, scenario: Scenario,
@@ -372,6 +428,58 @@ def _judge(rec: dict) -> None:
     """The verdicts that read the whole record."""
     if rec["sim_status"]:
         _note(rec, convergence_note(rec))
+
+
+def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> list[PairOutcome]:
+    """Drop, from every pair of a plant, the declarations another pair's simulation disproved.
+
+    A declaration is true or false for the plant, not for one pair: when the simulation of one pair
+    disproves it (``disproved``, :func:`bench.constants.check_trajectory`), every other certified
+    pair of that plant whose certificate may rest on it is re-certified without it, and its
+    convergence verdict is judged again.
+
+    Parameters
+    ----------
+    outcomes : list of PairOutcome
+        A run's outcomes (changed in place).
+    reports : dict
+        Plant id -> :class:`bench.constants.ConstantsReport`.
+    options : RunOptions
+
+    Returns
+    -------
+    list of PairOutcome
+    """
+    found: dict[str, dict[str, str]] = {}
+    for o in outcomes:
+        if o.record.get("disproved"):
+            for k, why in json.loads(o.record["disproved"]).items():
+                found.setdefault(o.record["plant"], {}).setdefault(k, f"{why} (simulation of {o.record['design']})")
+    for o in outcomes:
+        rec, pid = o.record, o.record["plant"]
+        plant, res = o.plant, o.result
+        if pid not in found or not rec["certified"] or plant is None or res is None or res.K is None \
+                or pid not in reports:
+            continue
+        know = o.knowledge if o.knowledge is not None else reports[pid].knowledge(plant)
+        extra = {k: v for k, v in found[pid].items() if k not in know.untrusted}
+        if not extra:
+            continue
+        old = convergence_note(rec) if rec["sim_status"] else ""
+        if old and rec["reason"].endswith(old):
+            rec["reason"] = rec["reason"][: -len(old)].rstrip("; ")
+        _note(rec, "DECLARATION DISPROVED by another pair's simulation: " + "; ".join(extra.values())
+              + ": the pair is re-certified without it")
+        o.knowledge = know.without(extra)
+        o.certificate = _certify(rec, plant, res, reports[pid], options, know=o.knowledge)
+        best = o.certificate.best if o.certificate is not None else None
+        if math.isfinite(rec["cert_horizon_s"]):
+            rec["cert_horizon_s"] = certified_horizon(best.decay_rate, float(np.linalg.cond(best.P))) \
+                if best is not None and best.P is not None else math.nan
+        if math.isfinite(rec["cert_radius"]):
+            rec["in_region"] = bool(rec["max_norm"] <= rec["cert_radius"])
+        _judge(rec)
+    return outcomes
 
 
 # -- the pair ----------------------------------------------------------------------------------
@@ -450,7 +558,7 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
     try:
         if prior is not None:
             rec.update({k: prior.record[k] for k in _PRIOR_COLUMNS})
-            out.result, out.certificate = prior.result, prior.certificate
+            out.result, out.certificate, out.knowledge = prior.result, prior.certificate, prior.knowledge
             if out.result is None or not out.result.has_controller:
                 return out
         else:
@@ -461,11 +569,12 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
             phase = "verification"
             _verify(rec, plant, out.result)
             phase = "certificate"
-            out.certificate = _certify(rec, plant, out.result, report, options)
+            out.knowledge = report.knowledge(plant)
+            out.certificate = _certify(rec, plant, out.result, report, options, know=out.knowledge)
         result = out.result
         if options.simulate:
             phase = "simulation"
-            _simulate(out, plant, result, out.certificate, options, scenario)
+            _simulate(out, plant, result, out.certificate, options, scenario, report)
         _judge(rec)
     except DeadlineExceeded as exc:  # --timeout: a row, never a claim
         if options.timeout is None:

@@ -263,7 +263,7 @@ def _save(fig, figdir: Path, stem: str, fmts: tuple[str, ...], *, dpi: int) -> s
 
 def _summary(found: dict) -> str:
     """The report's first screen: what the run found (from :func:`bench.findings.findings`)."""
-    lines = []
+    lines = [f"- **INCONSISTENT** on {r['plant']} x {r['design']}: {_fmt(r['reason'])}" for r in found["inconsistent"]]
     for pid, f in found["plants"].items():
         b = f["best"]
         if b is None:
@@ -287,8 +287,6 @@ def _summary(found: dict) -> str:
         why = (f": {_fmt(rows[0]['reason'])[:300]}" if alike else
                f"; on {rows[0]['plant']}: {_fmt(rows[0]['reason'])[:240]} (each plant's reason: \"Reasons, per plant\" below)")
         lines.append(f"- {did} (as printed) is infeasible on {plants}{why}")
-    for r in found["inconsistent"]:
-        lines.append(f"- **Inconsistent verdicts** on {r['plant']} x {r['design']}: {_fmt(r['reason'])}")
     return "\n".join(lines)
 
 

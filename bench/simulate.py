@@ -83,6 +83,9 @@ class Trajectory:
     message : str
     wall_s : float
     nfev : int
+    dense : scipy.integrate.OdeSolution, optional
+        The integrator's dense output ``z(t) = (x, x_hat)`` between its own steps (``dense.ts``),
+        for metrics that must not depend on the output grid (continuous loops only).
     """
 
     t: np.ndarray
@@ -93,6 +96,7 @@ class Trajectory:
     message: str
     wall_s: float
     nfev: int
+    dense: object = None
 
     @property
     def e(self) -> np.ndarray:
@@ -273,12 +277,12 @@ def simulate(
     rhs = _LoopRHS(_loop_operator(plant, K, F), plant.f, n, options)
     t_eval = np.linspace(0.0, T, int(options.n_points))
     t0 = time.perf_counter()
-    status, message = "ok", ""
+    status, message, dense = "ok", "", None
     try:
         method = choose_method(plant, K, F, T, stiff="Radau") if options.method == "auto" else options.method
         sol = solve_ivp(rhs, (0.0, T), z0, method=method, t_eval=t_eval, rtol=options.rtol,
-                        atol=options.atol, events=_blowup_event(limit))
-        t_out, z = sol.t, sol.y
+                        atol=options.atol, events=_blowup_event(limit), dense_output=True)
+        t_out, z, dense = sol.t, sol.y, sol.sol
         if sol.status == 1:
             status, message = "diverged", f"||z|| exceeded {limit:.3g} at t = {sol.t_events[0][0]:.4g}"
         elif sol.status != 0:
@@ -290,7 +294,7 @@ def simulate(
     if status == "ok" and not np.all(np.isfinite(z)):
         status, message = "diverged", "non-finite state"
     x, xh = z[:n], z[n:]
-    return Trajectory(t_out, x, xh, F @ xh, status, message, wall, rhs.count)
+    return Trajectory(t_out, x, xh, F @ xh, status, message, wall, rhs.count, dense)
 
 
 def simulate_controller(

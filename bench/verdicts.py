@@ -12,8 +12,9 @@ calls them and stores what they return in the record); the report only renders t
   local; it proves convergence *from the initial condition* only when the sublevel set of
   ``V`` through ``(x0, e0)`` keeps ``x`` and ``x_hat`` in the region;
 - :func:`convergence_note`: the reason a pair did not converge (diverged, left the region,
-  horizon cut, slow tail), and a flag when a certified pair fails to converge for none of them
-  (which would mean a bug: the suite's verdicts must agree).
+  horizon cut, slow tail); a certified pair that diverges, leaves its region or does not converge
+  within a horizon long enough for its certified rate is INCONSISTENT (a bug, or a declaration
+  the samplers missed: the suite's verdicts must agree), one whose horizon was too short says so.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import numpy as np
 
 from bench.metrics import CONVERGED_RATIO
 
-__all__ = ["LINEAR_FACTOR", "certificate_scope", "convergence_note", "horizon"]
+__all__ = ["LINEAR_FACTOR", "certificate_scope", "certified_horizon", "convergence_note", "horizon"]
 
 #: An uncertified pair is simulated ``LINEAR_FACTOR * ln(1 / CONVERGED_RATIO) / rate`` seconds
 #: (its linearisation's rate: no bound on the transient, so a margin of 2).
@@ -62,8 +63,7 @@ def horizon(t_plant: float, *, fixed: float | None, cap_factor: float, cert_rate
     decades = math.log(1.0 / CONVERGED_RATIO)
     need, rule = None, "plant"
     if math.isfinite(cert_rate) and cert_rate > 0:
-        kappa = cond_p if math.isfinite(cond_p) and cond_p >= 1 else 1.0
-        need, rule = (decades + 0.5 * math.log(kappa)) / cert_rate, "certified rate"
+        need, rule = certified_horizon(cert_rate, cond_p), "certified rate"
     elif math.isfinite(linear_rate) and linear_rate > 0:
         need, rule = LINEAR_FACTOR * decades / linear_rate, "linearised rate"
     if need is None or need <= t_plant:
@@ -108,28 +108,58 @@ def certificate_scope(P: np.ndarray | None, radius: float | None, x0: np.ndarray
     return out
 
 
+def certified_horizon(cert_rate: float, cond_p: float) -> float:
+    """The time by which a certified pair has decayed by :data:`bench.metrics.CONVERGED_RATIO`:
+    ``(ln(1 / CONVERGED_RATIO) + ln(cond P) / 2) / lam`` (NaN without a positive rate)."""
+    if not (math.isfinite(cert_rate) and cert_rate > 0):
+        return math.nan
+    kappa = cond_p if math.isfinite(cond_p) and cond_p >= 1 else 1.0
+    return (math.log(1.0 / CONVERGED_RATIO) + 0.5 * math.log(kappa)) / cert_rate
+
+
 def convergence_note(rec: dict) -> str:
     """Why the pair of record ``rec`` did not converge (empty when it converged).
 
-    Reads ``converged``, ``sim_status``, ``certified``, ``cert_scope``, ``in_region``,
-    ``horizon_rule``, ``horizon_s``, ``tail_rate`` and ``final_x``/``final_e`` of the record.
+    A certified pair whose certificate applies to the simulation (``cert_scope`` ``"global"`` or
+    ``"from x0"`` and a finite ``cert_horizon_s``: noise-free, continuous, from a covered initial
+    condition) and that diverged, left the certified region, or ended unconverged although its
+    horizon ``horizon_s`` was at least ``cert_horizon_s`` contradicts its certificate: the note says
+    INCONSISTENT and gives the ``witness`` (time, state). A horizon shorter than the certified rate
+    needs is "horizon too short", not a contradiction.
+
+    Reads ``converged``, ``sim_status``, ``certified``, ``cert_scope``, ``cert_horizon_s``,
+    ``in_region``, ``horizon_rule``, ``horizon_s``, ``tail_rate`` and ``witness`` of the record.
     """
     if rec.get("converged"):
         return ""
     status = rec.get("sim_status", "")
-    if status and status != "ok":
-        return f"not converged: the simulation {status}"
-    why = []
-    if rec.get("in_region") is False:
-        why.append("the trajectory left the region where the constants hold")
     rule = str(rec.get("horizon_rule", ""))
-    tail = rec.get("tail_rate", math.nan)
-    if rule.startswith("cut"):
-        why.append(f"the horizon was {rule} at {rec.get('horizon_s', math.nan):.3g} s")
-    if isinstance(tail, float) and math.isfinite(tail):
-        why.append(f"tail rate {tail:.3g} /s ({'decaying' if tail > 0 else 'not decaying'})")
-    note = "not converged within the horizon: " + "; ".join(why) if why else "not converged within the horizon"
-    if rec.get("certified") and rec.get("cert_scope") in ("global", "from x0") and not rule.startswith("cut") \
-            and rec.get("in_region") is not False:
-        note += " (INCONSISTENT with the certificate: please report this pair)"
-    return note
+    T = float(rec.get("horizon_s", math.nan))
+    need = float(rec.get("cert_horizon_s", math.nan))
+    covered = bool(rec.get("certified")) and rec.get("cert_scope") in ("global", "from x0") and math.isfinite(need)
+    left = rec.get("in_region") is False
+    why = []
+    if status and status != "ok":
+        why.append(f"the simulation {status}")
+    if left:
+        why.append("the trajectory left the region where the constants hold")
+    if status in ("", "ok"):
+        tail = rec.get("tail_rate", math.nan)
+        if rule.startswith("cut"):
+            why.append(f"the horizon was {rule} at {T:.3g} s")
+        if isinstance(tail, float) and math.isfinite(tail):
+            why.append(f"tail rate {tail:.3g} /s ({'decaying' if tail > 0 else 'not decaying'})")
+    note = "not converged" + (": " + "; ".join(why) if why else " within the horizon")
+    if not covered:
+        return note
+    witness = rec.get("witness") or "no state recorded"
+    if status == "diverged" or left:
+        what = "diverged" if status == "diverged" else "left the certified region"
+        return f"{note} (INCONSISTENT with the certificate: a certified pair {what}; witness {witness})"
+    if status not in ("", "ok"):  # the simulator stopped (budget, timeout, failure): nothing contradicted
+        return note
+    if T < need * (1 - 1e-9):
+        return (f"{note} (horizon too short: the certified rate {float(rec.get('decay_rate', math.nan)):.3g} /s "
+                f"needs {need:.3g} s to decay by {1 / CONVERGED_RATIO:g}, the horizon was {T:.3g} s ({rule}))")
+    return (f"{note} (INCONSISTENT with the certificate: not converged after {T:.3g} s although the certified "
+            f"rate needs {need:.3g} s; witness {witness})")

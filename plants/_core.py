@@ -14,7 +14,8 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-__all__ = ["Channels", "Constants", "Plant", "PlantError", "SineTerms", "check_int", "check_real", "sine_terms"]
+__all__ = ["Channels", "Constants", "Plant", "PlantError", "SineTerms", "check_int", "check_real", "jacobian_mismatch",
+           "sine_terms"]
 
 
 class PlantError(ValueError):
@@ -353,8 +354,9 @@ class Plant:
     ------
     PlantError
         On inconsistent shapes, non-finite entries, ``f(0) != 0``, an f returning a wrong
-        shape, an f that writes into its argument or whose batch form mixes columns, or
-        channels that do not reproduce f; the message names the field.
+        shape, an f that is not deterministic, writes into its argument or whose batch form mixes
+        columns, a Jacobian that is not the derivative of f (finite differences, the entry
+        named), or channels that do not reproduce f; the message names the field.
     """
 
     id: str
@@ -417,6 +419,7 @@ class Plant:
             _finite_scalar(f"params[{key!r}]", val, allow_none=False)
         self._check_f(n)
         self._check_contract(n)
+        self._check_jacobian(n)
         if self.channels is not None:
             self._check_channels(n)
 
@@ -461,6 +464,15 @@ class Plant:
             if not np.all(np.isfinite(J)):
                 raise PlantError(f"jacobian: not finite at x0: {J}")
 
+    def _check_jacobian(self, n: int) -> None:
+        """The declared Jacobian against central differences of f at the probe states, 0 and x0."""
+        if self.jacobian is None:
+            return
+        X = np.concatenate([np.zeros((n, 1)), np.asarray(self.x0, dtype=float)[:, None], self._probe_points(n)], axis=1)
+        why = jacobian_mismatch(self.f, self.jacobian, X)
+        if why:
+            raise PlantError(why)
+
     def _probe_points(self, n: int, count: int = 6) -> np.ndarray:
         """Seeded states (n, count) at several scales, inside ``radius`` when the constants are local."""
         rng = np.random.default_rng(12345)
@@ -481,6 +493,11 @@ class Plant:
                 raise PlantError("f: writes into its argument (f(x) changed x); f must not modify its input")
             if not np.all(np.isfinite(out)):
                 raise PlantError(f"f: not finite at x = {np.round(X[:, j], 4).tolist()}: {out}")
+            again = _real_array(self.f(X[:, j].copy()))
+            if not np.array_equal(out, again):
+                raise PlantError(f"f is not deterministic: at the state x = {np.round(X[:, j], 6).tolist()} it gave "
+                                 f"{np.round(out, 6).tolist()}, then {np.round(again, 6).tolist()}; f must be a "
+                                 "function of x alone (no random or hidden state)")
         arg = X.copy()
         batch = _real_array(self.f(arg))
         if not np.array_equal(arg, X):
@@ -600,6 +617,48 @@ class Plant:
     def summary(self) -> str:
         """One line: id, dimensions and source."""
         return f"{self.id}: n={self.n}, m={self.m}, p={self.p}; {self.source}"
+
+
+def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: float = 1e-4) -> str | None:
+    """Where a declared Jacobian disagrees with central differences of ``f`` (None: nowhere).
+
+    At each state ``x`` (a column of ``X``, (n, N)) the finite difference
+    ``(f(x + h e_j) - f(x - h e_j)) / 2h``, ``h = 1e-6 max(1, ||x||)`` (error ``O(h^2)`` for a smooth f
+    plus round-off ``O(eps ||f|| / h)``), is compared with ``jacobian(x)``; an entry off by more than
+    ``rtol (1 + max |J_fd|)`` is named with the state and both values.
+
+    Parameters
+    ----------
+    f, jacobian : callable
+    X : ndarray (n, N)
+    rtol : float
+
+    Returns
+    -------
+    str or None
+        The message (for a :class:`PlantError`).
+    """
+    X = np.asarray(X, dtype=float)
+    n = X.shape[0]
+    for j in range(X.shape[1]):
+        x = X[:, j]
+        h = 1e-6 * max(1.0, float(np.linalg.norm(x)))
+        E = np.eye(n) * h
+        try:
+            fd = (_real_array(f(x[:, None] + E)) - _real_array(f(x[:, None] - E))) / (2 * h)
+            J = _real_array(jacobian(x.copy()))
+        except Exception as exc:  # noqa: BLE001 - the user's code failed: say where
+            return f"jacobian: could not be checked at x = {np.round(x, 4).tolist()} ({type(exc).__name__}: {exc})"
+        if J.shape != (n, n) or fd.shape != (n, n):
+            return f"jacobian: must return shape ({n}, {n}), got {J.shape} at x = {np.round(x, 4).tolist()}"
+        err = np.abs(J - fd)
+        tol = rtol * (1.0 + float(np.abs(fd).max()))
+        if np.nanmax(err) > tol or not np.all(np.isfinite(J)):
+            r, c = (int(v) for v in np.unravel_index(int(np.nanargmax(np.where(np.isfinite(err), err, np.inf))),
+                                                      err.shape))
+            return (f"jacobian: entry [{r}, {c}] at x = {np.round(x, 4).tolist()} is {J[r, c]:.6g}, but finite "
+                    f"differences of f give {fd[r, c]:.6g}: the declared Jacobian is not the derivative of f")
+    return None
 
 
 def _zero_f(x: np.ndarray) -> np.ndarray:
