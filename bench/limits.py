@@ -3,9 +3,9 @@
 A limit is a scope (:func:`time_limit`) held in a context variable, so threads (Dask workers)
 each have their own. Code that spends time checks it: every SDP solve gets the remaining time
 as the solver's own limit (:func:`bench.lmi.solve_timed`), the simulators check a wall-clock
-budget, and :func:`hard_stop` raises from a ``SIGALRM`` for code that checks nothing (main
-thread only). A limit that runs out raises :class:`DeadlineExceeded`, a ``BaseException``, so
-that no ``except Exception`` in a design can turn a timeout into an "infeasible" row.
+budget, and :func:`hard_stop` raises for code that checks nothing (from a ``SIGALRM`` in the main
+thread, from a timer in any other). A limit that runs out raises :class:`DeadlineExceeded`, a
+``BaseException``, so that no ``except Exception`` in a design can turn a timeout into an "infeasible" row.
 """
 
 from __future__ import annotations
@@ -77,19 +77,34 @@ def check_deadline(where: str) -> None:
         raise DeadlineExceeded(where)
 
 
+class _HardStop(DeadlineExceeded):
+    """:class:`DeadlineExceeded` raised into a thread by :func:`hard_stop` (built without arguments)."""
+
+    def __init__(self, where: str = "code that checks no time limit (hard stop in a thread)"):
+        super().__init__(where)
+
+
 @contextmanager
 def hard_stop(seconds: float | None) -> Iterator[None]:
-    """Raise :class:`DeadlineExceeded` from a ``SIGALRM`` after ``seconds`` (main thread only).
+    """Raise :class:`DeadlineExceeded` in the calling thread after ``seconds``.
 
-    Does nothing for ``seconds=None``, off the main thread, without ``setitimer`` (Windows), or
-    when someone else already uses ``SIGALRM`` (e.g. pytest-timeout).
+    In the main thread by ``SIGALRM``; in any other thread (``bench.run`` called from a worker
+    thread) a timer raises it asynchronously in the calling thread
+    (``PyThreadState_SetAsyncExc``: delivered at the next Python bytecode, so a long call into C
+    ends first). Does nothing for ``seconds=None``, or in the main thread without ``setitimer``
+    (Windows) or when someone else already uses ``SIGALRM`` (e.g. pytest-timeout).
     """
     import signal
     import threading
 
-    usable = (seconds is not None and hasattr(signal, "setitimer")
-              and threading.current_thread() is threading.main_thread()
-              and signal.getsignal(signal.SIGALRM) in (signal.SIG_DFL, None)
+    if seconds is None:
+        yield
+        return
+    if threading.current_thread() is not threading.main_thread():
+        with _thread_stop(seconds):
+            yield
+        return
+    usable = (hasattr(signal, "setitimer") and signal.getsignal(signal.SIGALRM) in (signal.SIG_DFL, None)
               and signal.getitimer(signal.ITIMER_REAL)[0] == 0)
     if not usable:
         yield
@@ -105,3 +120,33 @@ def hard_stop(seconds: float | None) -> Iterator[None]:
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, signal.SIG_DFL)
+
+
+@contextmanager
+def _thread_stop(seconds: float) -> Iterator[None]:
+    """:func:`hard_stop` off the main thread: a timer raises :class:`_HardStop` into this thread."""
+    import ctypes
+    import threading
+
+    tid = threading.get_ident()
+    lock = threading.Lock()
+    state = {"inside": True, "fired": False}
+
+    def fire():
+        with lock:
+            if state["inside"]:
+                state["fired"] = True
+                ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(tid), ctypes.py_object(_HardStop))
+
+    timer = threading.Timer(seconds, fire)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        with lock:
+            state["inside"] = False
+            timer.cancel()
+            pending = state["fired"] and ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(tid), None)
+        if pending:  # fired but not yet delivered: deliver it here, inside the scope
+            raise _HardStop()
