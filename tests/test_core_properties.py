@@ -67,17 +67,23 @@ def test_stabilizing_needs_both_closed_loops_hurwitz(K, F, x_stable, e_stable):
 
 
 def test_a_batch_converges_only_when_every_member_does():
-    # x' = u + x^3 with x_hat0 = x0 (e = 0 for good) and u = -x_hat: x' = -x + x^3 converges from
-    # |x0| < 1 and blows up from |x0| > 1 (the equilibria are 0, +-1)
-    plant = Plant(id="cubic", **SCALAR, f=lambda x: np.asarray(x, dtype=float) ** 3, x0=[0.5], x_hat0=[0.5],
-                  t_final=20.0)
+    # x' = u + f(x), f(x) = 2 sign(x) max(|x| - 1, 0), with x_hat0 = x0 (e = 0 for good) and u = -x_hat:
+    # x' = -x for |x| <= 1 and x' = x - 2 sign(x) beyond, so x = +-2 are unstable equilibria: from
+    # |x0| < 2 the state converges, from |x0| > 2 it grows like e^t
+    def f(x):
+        x = np.asarray(x, dtype=float)
+        return 2.0 * np.sign(x) * np.maximum(np.abs(x) - 1.0, 0.0)
+
+    plant = Plant(id="dead_zone", **SCALAR, f=f, x0=[0.5], x_hat0=[0.5], t_final=30.0)
     rep = compute_constants(plant, n_samples=100)
     opts = RunOptions(n_samples=100, certificate="none")
     design = _Fixed([[2.0]], [[-1.0]])
-    both = Scenario(x0=np.array([[0.5, 1.5]]), x_hat0=np.array([[0.5, 1.5]]))
-    good = Scenario(x0=np.array([[0.5, -0.5]]), x_hat0=np.array([[0.5, -0.5]]))
+    good = Scenario(x0=np.array([[0.5, -1.5]]), x_hat0=np.array([[0.5, -1.5]]))
+    both = Scenario(x0=np.array([[0.5, 3.0]]), x_hat0=np.array([[0.5, 3.0]]))
     assert evaluate_pair(plant, design, rep, opts, scenario=good).record["converged"] is True
-    assert evaluate_pair(plant, design, rep, opts, scenario=both).record["converged"] is False
+    out = evaluate_pair(plant, design, rep, opts, scenario=both)
+    assert out.metrics["converged"].tolist() == [True, False]
+    assert out.record["converged"] is False
 
 
 def test_a_failing_joint_certificate_leaves_the_structured_design_undecided(monkeypatch):
