@@ -395,8 +395,8 @@ def _slope_violations(ch: Channels, i: int, p1: np.ndarray, p2: np.ndarray, Z1: 
     (q, N) against its bounds: one :class:`Violation` per bound, with the worst pair."""
     a, b = Z1[i], Z2[i]
     dz = a - b
-    with np.errstate(invalid="ignore", divide="ignore"):
-        slope = np.where(np.abs(dz) > 1e-12 * (1 + np.abs(a) + np.abs(b)), (p1 - p2) / dz, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):  # pairs closer than round-off can resolve say nothing
+        slope = np.where(np.abs(dz) > _MIN_STEP * (1 + np.abs(a) + np.abs(b)), (p1 - p2) / dz, np.nan)
     ok = np.isfinite(slope)
     if not ok.any():
         return []
@@ -488,7 +488,9 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
     scalars = {k: getattr(c, k) for k in ("alpha", "rho", "beta") if getattr(c, k) is not None}
     if scalars and X.shape[1]:
         for X2 in (XH, np.zeros_like(X)):
-            inside = _inside(X, c.radius) & _inside(X2, c.radius)
+            apart = np.linalg.norm(X - X2, axis=0) > _MIN_STEP * (1 + np.linalg.norm(X, axis=0)
+                                                                  + np.linalg.norm(X2, axis=0))
+            inside = _inside(X, c.radius) & _inside(X2, c.radius) & apart
             a, b = X[:, inside], X2[:, inside]
             if not a.shape[1]:
                 continue
@@ -524,6 +526,11 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
                                                      tuple(x2[:, j])).describe("analytic")
         checked += f" and sampled on ||x|| <= {far:.3g}"
     return bad, checked
+
+
+#: Pairs of states (or channel inputs) closer than this, relative to their size, are not used along a
+#: simulation: round-off in ``f(x1) - f(x2)`` (about 1e-16 ||f||) would swamp the difference quotient.
+_MIN_STEP = 1e-6
 
 
 def _inside(X: np.ndarray, radius: float | None) -> np.ndarray:

@@ -161,8 +161,9 @@ class PairOutcome:
     certificate : Certificate or None
     metrics : dict or None
         Per-member metric arrays (:func:`bench.metrics.batch_metrics`) of a batch scenario.
-    knowledge : Knowledge or None
-        What the certificate was allowed to use.
+    disproved : dict
+        Declarations the pair's own or another pair's simulation disproved (name -> why): the
+        certificate uses ``report.knowledge(plant).without(disproved)``.
     """
 
     record: dict
@@ -171,7 +172,7 @@ class PairOutcome:
     plant: Plant | None = None
     certificate: Certificate | None = None
     metrics: dict | None = None
-    knowledge: Knowledge | None = None
+    disproved: dict = field(default_factory=dict)
 
 
 def blank_record(plant_id: str, design_id: str) -> dict:
@@ -348,8 +349,7 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
                                   "iae_e", "rms_e", "peak_u", "max_norm")})
     tr = out.trajectory
     X, XH = np.asarray(tr.x, dtype=float), np.asarray(tr.x_hat, dtype=float)
-    if out.certificate is not None:
-        _check_declarations(out, plant, res, report, options, X, XH)
+    _check_declarations(out, plant, res, report, options, X, XH)
     radius = rec["cert_radius"]
     rec["in_region"] = None if not math.isfinite(radius) else bool(rec["max_norm"] <= radius)
     rec["witness"] = _witness(np.asarray(tr.t, dtype=float), X, XH, radius)
@@ -366,7 +366,10 @@ def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, repor
     """The declarations the certificate used, checked along the simulation
     (:func:`bench.constants.check_trajectory`); any it disproves is dropped and the pair re-certified."""
     rec = out.record
-    know = out.knowledge if out.knowledge is not None else report.knowledge(plant)
+    if out.certificate is None:  # nothing certified uses a declaration: the Jacobian alone (the EKF uses it)
+        know = Knowledge()
+    else:
+        know = report.knowledge(plant).without(out.disproved)
     bad, checked = check_trajectory(plant, know, X, XH, checked_on=report.checked_on, seed=options.seed)
     rec["checked_on"] = checked
     if not bad:
@@ -374,8 +377,8 @@ def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, repor
     rec["disproved"] = json.dumps(bad, sort_keys=True)
     _note(rec, "DECLARATION DISPROVED by the simulation: " + "; ".join(bad.values())
           + ": the pair is re-certified without it")
-    out.knowledge = know.without(bad)
-    out.certificate = _certify(rec, plant, res, report, options, know=out.knowledge)
+    out.disproved = {**out.disproved, **bad}
+    out.certificate = _certify(rec, plant, res, report, options, know=know.without(bad))
 
 
 def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float) -> str:
@@ -461,7 +464,9 @@ def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> 
         if pid not in found or not rec["certified"] or plant is None or res is None or res.K is None \
                 or pid not in reports:
             continue
-        know = o.knowledge if o.knowledge is not None else reports[pid].knowledge(plant)
+        if rec["disproved"]:  # an outcome from the cache carries its own disproofs in the record only
+            o.disproved = {**json.loads(rec["disproved"]), **o.disproved}
+        know = reports[pid].knowledge(plant).without(o.disproved)
         extra = {k: v for k, v in found[pid].items() if k not in know.untrusted}
         if not extra:
             continue
@@ -470,8 +475,8 @@ def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> 
             rec["reason"] = rec["reason"][: -len(old)].rstrip("; ")
         _note(rec, "DECLARATION DISPROVED by another pair's simulation: " + "; ".join(extra.values())
               + ": the pair is re-certified without it")
-        o.knowledge = know.without(extra)
-        o.certificate = _certify(rec, plant, res, reports[pid], options, know=o.knowledge)
+        o.disproved = {**o.disproved, **extra}
+        o.certificate = _certify(rec, plant, res, reports[pid], options, know=know.without(extra))
         best = o.certificate.best if o.certificate is not None else None
         if math.isfinite(rec["cert_horizon_s"]):
             rec["cert_horizon_s"] = certified_horizon(best.decay_rate, float(np.linalg.cond(best.P))) \
@@ -558,7 +563,7 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
     try:
         if prior is not None:
             rec.update({k: prior.record[k] for k in _PRIOR_COLUMNS})
-            out.result, out.certificate, out.knowledge = prior.result, prior.certificate, prior.knowledge
+            out.result, out.certificate, out.disproved = prior.result, prior.certificate, dict(prior.disproved)
             if out.result is None or not out.result.has_controller:
                 return out
         else:
@@ -569,8 +574,7 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
             phase = "verification"
             _verify(rec, plant, out.result)
             phase = "certificate"
-            out.knowledge = report.knowledge(plant)
-            out.certificate = _certify(rec, plant, out.result, report, options, know=out.knowledge)
+            out.certificate = _certify(rec, plant, out.result, report, options)
         result = out.result
         if options.simulate:
             phase = "simulation"
