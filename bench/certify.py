@@ -54,8 +54,8 @@ from bench import lmi
 from bench.constants import Knowledge
 from plants import Plant
 
-__all__ = ["LADDER_MAX_N", "LEVELS", "LEVEL_TITLES", "LEVEL_USES", "Certificate", "Knowledge", "LevelResult", "adopt", "certify",
-           "level_set", "linearised_rate"]
+__all__ = ["LADDER_MAX_N", "LEVELS", "LEVEL_TITLES", "LEVEL_USES", "Certificate", "Knowledge", "LevelResult", "adopt",
+           "certify", "level_set", "linearised_rate"]
 
 #: The ladder, weakest first.
 LEVELS = ("paper", "full", "structured")

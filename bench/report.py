@@ -263,7 +263,8 @@ def _save(fig, figdir: Path, stem: str, fmts: tuple[str, ...], *, dpi: int) -> s
 
 def _summary(found: dict) -> str:
     """The report's first screen: what the run found (from :func:`bench.findings.findings`)."""
-    lines = [f"- **INCONSISTENT** on {r['plant']} x {r['design']}: {_fmt(r['reason'])}" for r in found["inconsistent"]]
+    lines = [f"- **INCONSISTENT** on {r['plant']} x {r['design']}: {_fmt(r['reason'])}"
+             for r in found["inconsistent"]]
     for pid, f in found["plants"].items():
         b = f["best"]
         if b is None:

@@ -96,7 +96,8 @@ def test_destabilizing_gain_is_provably_not_certified(flex, flex_knowledge):
 
 
 def test_linear_simulation_matches_matrix_exponential(flex):
-    lin = replace(flex, id="linear", f=lambda x: np.zeros_like(np.asarray(x, dtype=float)), channels=None)
+    lin = replace(flex, id="linear", f=lambda x: np.zeros_like(np.asarray(x, dtype=float)), channels=None,
+                  jacobian=None)
     tr = simulate(lin, PAPER_K, PAPER_F, t_final=2.0)
     BF = lin.B @ PAPER_F
     L = np.block([[lin.A, BF], [PAPER_K @ lin.C, lin.A + BF - PAPER_K @ lin.C]])

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pandas as pd
 
-_spec = importlib.util.spec_from_file_location("compare_results", Path(__file__).parent.parent / ".ci" / "compare_results.py")
+_spec = importlib.util.spec_from_file_location("compare_results",
+                                               Path(__file__).parent.parent / ".ci" / "compare_results.py")
 compare_results = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(compare_results)
 

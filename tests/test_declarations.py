@@ -210,3 +210,21 @@ def test_the_constants_limit_holds_when_run_is_called_from_a_thread():
     assert box["wall"] < 8.0, box["wall"]
     assert "timeout" in str(box["res"].run_result.constants_errors.get("slow_f", "")) or \
         box["res"].table.iloc[0]["status"] == "timeout"
+
+
+def test_a_declaration_disproved_by_one_pair_is_dropped_for_every_pair_of_the_plant():
+    from bench.pipeline import rejudge
+
+    ch = Channels(G=G2, H=H2, phi=lambda z: -0.1 * np.sin(z), lo=-0.1, hi=0.1)
+    plant = Plant(id="shared", A=[[0.0, 1.0], [-1.0, -1.0]], B=[[0.0], [1.0]], C=[[1.0, 0.0]], f=_sine_f(0.1),
+                  x0=[1.0, 0.0], x_hat0=[0.0, 0.0], channels=ch)
+    rep = compute_constants(plant, n_samples=500)
+    opts = RunOptions(n_samples=500)
+    outs = [evaluate_pair(plant, d, rep, opts, design_id=d) for d in ("lqr+lqe", "structured")]
+    assert all(o.record["cert_level"] == "structured" for o in outs)
+    # as if the structured pair's simulation had disproved the channels
+    outs[1].record["disproved"] = '{"channels": "the declared channels: (a test witness)"}'
+    rejudge(outs, {"shared": rep}, opts)
+    rec = outs[0].record
+    assert rec["cert_structured"] != "certified" or "inherits" in rec["reason"]
+    assert rec["cert_level"] != "structured" and "another pair's simulation" in rec["reason"]

@@ -185,7 +185,8 @@ def _armed_plant():
                     return 50.0 * x + f0(x)
         return f0(x)
 
-    return dataclasses.replace(base, id="_fault_sim", f=f, channels=None)
+    # no declared Jacobian: the injected f would contradict it along the simulation (a PlantError)
+    return dataclasses.replace(base, id="_fault_sim", f=f, channels=None, jacobian=None)
 
 
 @pytest.fixture

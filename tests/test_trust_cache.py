@@ -86,8 +86,9 @@ def test_editing_a_helper_module_of_a_plugin_is_a_miss(tmp_path, monkeypatch):
     try:
         assert fresh_run() == (0, 1)
         assert fresh_run() == (1, 0)  # unchanged: served from the cache
-        # only the Jacobian in mylib.py changes (the EKF uses it; f is the same everywhere)
-        (tmp_path / "mylib.py").write_text(MYLIB.replace("-c * np.cos(x[0])", "-c * np.cos(x[0]) * 10.0"))
+        # only the Jacobian's code in mylib.py changes, to the same values up to round-off (the EKF uses
+        # it; f is the same everywhere; a Jacobian that is not f's derivative is refused)
+        (tmp_path / "mylib.py").write_text(MYLIB.replace("-c * np.cos(x[0])", "-c * np.sin(x[0] + np.pi / 2)"))
         assert fresh_run() == (0, 1)
         # an edit of mylib.py that changes no value (the source is part of the key)
         (tmp_path / "mylib.py").write_text(MYLIB + "\n# edited\n")
@@ -120,7 +121,8 @@ def _jac(gain: float, raise_far: bool = False):
         x = np.asarray(x, dtype=float)
         if raise_far and abs(x[0]) > 4.0:
             raise ValueError("outside the model")
-        return np.array([[0.0, 0.0], [-0.5 * gain * np.cos(x[0]), 0.0]])
+        # the gain acts where f's scale does, far out (a declared Jacobian must be f's derivative near 0)
+        return np.array([[0.0, 0.0], [-0.5 * (gain if abs(x[0]) > 4.0 else 1.0) * np.cos(x[0]), 0.0]])
 
     return jac
 
