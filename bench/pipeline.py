@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bench.certify import LEVELS, Certificate, LevelResult, adopt, certify, linearised_rate
+from bench.certify import LEVELS, Certificate, LevelResult, adopt, ceiling, certify, explain, linearised_rate
 from bench.constants import ConstantsReport, resolve_constants
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
 from bench.metrics import trajectory_metrics
@@ -36,7 +36,7 @@ __all__ = ["COLUMNS", "PairOutcome", "RunOptions", "Scenario", "blank_record", "
 #: Columns of every record, in order.
 COLUMNS = [
     "plant", "design", "status", "reason", "feasible", "stabilizing", "certified", "cert_level", "decay_rate",
-    "cert_scope", "converged",
+    "cert_scope", "converged", "witness", "rate_ceiling", "rate_ratio", "ceiling_how",
     *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")],
     "cert_margin", "cert_radius", "level_set", "level_x0", "in_region", "max_norm",
     "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "compile_s", "solve_s", "design_s",
@@ -174,7 +174,7 @@ def blank_record(plant_id: str, design_id: str) -> dict:
     """A record with every column NaN (flags False, text empty)."""
     rec = {c: math.nan for c in COLUMNS}
     rec.update(plant=plant_id, design=design_id, status="", reason="", solver="", solver_status="", route="",
-               sim_status="", constants="", params="", cert_level="", cert_scope="", horizon_rule="",
+               sim_status="", constants="", params="", cert_level="", cert_scope="", horizon_rule="", witness="", ceiling_how="",
                feasible=False, stabilizing=None, certified=False, converged=False, in_region=None,
                **{f"cert_{lv}": "" for lv in LEVELS})
     return rec
@@ -270,6 +270,9 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
                 break
         cert.levels = {lv: cert.levels[lv] for lv in LEVELS if lv in cert.levels}
     adopt(cert, res.certificate)
+    if options.certificate == "ladder":
+        explain(cert, plant, res.K, res.F, know)
+        rec["rate_ceiling"], rec["ceiling_how"] = ceiling(cert, plant, res.K, res.F, know)
     rec["cert_s"] = time.perf_counter() - t0
     for lv, r in cert.levels.items():
         rec[f"cert_{lv}"], rec[f"decay_{lv}"] = r.status, r.decay_rate
@@ -279,9 +282,18 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     rec.update(certified=best is not None, cert_level=best.level if best else "",
                decay_rate=best.decay_rate if best else math.nan,
                cert_margin=shown.margin if shown is not None else math.nan)
-    rec.update(certificate_scope(best.P if best else None, best.radius if best else None, plant.x0, plant.x_hat0))
+    rec.update(certificate_scope(best.P if best else None, best.radius if best else None, plant.x0, plant.x_hat0,
+                                 H=best.region_H if best else None))
+    rec["witness"] = "; ".join(w.kind for w in cert.witnesses)
+    if best is not None and math.isfinite(rec["rate_ceiling"]):
+        rec["rate_ratio"] = best.decay_rate / rec["rate_ceiling"] if rec["rate_ceiling"] > 0 else math.nan
+    if cert.witnesses:
+        _note(rec, "no global certificate exists: " + "; and ".join(w.text for w in cert.witnesses))
     if best is None:
-        _note(rec, f"certificate: {cert.reason()}")
+        _note(rec, f"certificate: {cert.reason(witnessed=bool(cert.witnesses))}")
+        _note(rec, cert.local_note)
+    elif best is cert.local:
+        _note(rec, f"{best.reason}, rate {best.decay_rate:.3g}")
     elif rec["cert_scope"] == "local":
         _note(rec, f"certified locally: the level set V <= {rec['level_set']:.3g} stays in ||x||, ||x_hat|| <= "
                    f"{rec['cert_radius']:g}, but V(x0, e0) = {rec['level_x0']:.3g} lies outside it")
@@ -338,6 +350,11 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
                                   "iae_e", "rms_e", "peak_u", "max_norm")})
     radius = rec["cert_radius"]
     rec["in_region"] = None if not math.isfinite(radius) else bool(rec["max_norm"] <= radius)
+    best = cert.best if cert is not None else None
+    if best is not None and best.region_H is not None and out.trajectory is not None:  # |Hx|, |Hx_hat| <= r
+        tr = out.trajectory
+        rec["in_region"] = bool(max(np.abs(np.tensordot(best.region_H, v, axes=(1, 0))).max() for v in (tr.x, tr.x_hat))
+                                <= radius * (1 + 1e-9))
 
 
 def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float, scenario: Scenario,
@@ -437,7 +454,8 @@ def _timed_out(rec: dict, exc: DeadlineExceeded, options: RunOptions, phase: str
 _PRIOR_COLUMNS = ("status", "reason", "feasible", "route", "lmi_margin", "lmi_size", "solver", "solver_status",
                   "n_solves", "compile_s", "solve_s", "design_s", "params", "constants", "stabilizing", "max_re_eig_x",
                   "max_re_eig_e", "norm_K", "norm_F", "certified", "cert_level", "decay_rate", "cert_margin",
-                  "cert_scope", "cert_radius", "level_set", "level_x0", "cert_s",
+                  "cert_scope", "cert_radius", "level_set", "level_x0", "cert_s", "witness", "rate_ceiling", "rate_ratio",
+                  "ceiling_how",
                   *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")])
 
 
