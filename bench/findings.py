@@ -19,7 +19,8 @@ def _best(sub) -> dict | None:
         return None
     r = cert.loc[cert["decay_rate"].astype(float).idxmax()]
     return {"design": r["design"], "level": r["cert_level"], "decay_rate": float(r["decay_rate"]),
-            "scope": r["cert_scope"], "peak_u": float(r["peak_u"]), "converged": bool(r["converged"])}
+            "scope": r["cert_scope"], "peak_u": float(r["peak_u"]), "converged": bool(r["converged"]),
+            "rate_ratio": float(r.get("rate_ratio", float("nan")))}
 
 
 def findings(frame, constants: dict) -> dict:
@@ -35,15 +36,20 @@ def findings(frame, constants: dict) -> dict:
     Returns
     -------
     dict
-        ``plants`` (per plant: ``best`` certified design or None, ``uncertified_converging``,
-        ``certified_pairs``, ``pairs``), ``violated_claims``, ``disproved``, ``printed_infeasible``,
+        ``plants`` (per plant: ``best`` certified design or None, ``uncertified_converging`` split
+        into ``no_certificate_can_exist`` (a witness rules a global certificate out) and
+        ``no_certificate_found``, ``certified_pairs``, ``pairs``), ``violated_claims``, ``disproved``, ``printed_infeasible``,
         ``inconsistent`` (lists of dicts, JSON-ready).
     """
     plants = {}
     for pid in dict.fromkeys(frame["plant"]):
         sub = frame[frame["plant"] == pid]
         conv_uncert = sub[sub["converged"].astype(bool) & ~sub["certified"].astype(bool)]
+        witnessed = conv_uncert["witness"].fillna("").astype(str).ne("") if "witness" in sub else None
         plants[pid] = {"best": _best(sub), "uncertified_converging": list(conv_uncert["design"]),
+                       "no_certificate_can_exist": list(conv_uncert["design"][witnessed]) if witnessed is not None else [],
+                       "no_certificate_found": list(conv_uncert["design"][~witnessed]) if witnessed is not None
+                       else list(conv_uncert["design"]),
                        "certified_pairs": int(sub["certified"].astype(bool).sum()), "pairs": int(len(sub))}
     violated, disproved = [], []
     for pid, rep in constants.items():
