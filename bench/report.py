@@ -276,8 +276,9 @@ def _summary(found: dict) -> str:
                     + f", peak |u| {_fmt(b['peak_u'])}")
         can_not = f.get("no_certificate_can_exist", [])
         not_found = f.get("no_certificate_found", f["uncertified_converging"])
-        tail = "".join(f"; converge without a certificate, {what}: {', '.join(ds)}" for what, ds in (
-            ("no certificate can exist (witness)", can_not), ("no certificate found", not_found)) if ds)
+        split = [f"{what}: {', '.join(ds)}" for what, ds in (("no certificate can exist (witness)", can_not),
+                                                              ("no certificate found", not_found)) if ds]
+        tail = f"; converge without a certificate ({'; '.join(split)})" if split else ""
         lines.append(f"- **{pid}**: {best}; {f['certified_pairs']} of {f['pairs']} pairs certified{tail}.")
     for v in found["violated_claims"]:
         lines.append(f"- Claimed constant violated on {v['plant']}: {v['text']}.")
