@@ -45,17 +45,17 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
 
-from bench import lmi
+from bench import lmi, witness
 from bench.constants import Knowledge
 from plants import Plant
 
 __all__ = ["LADDER_MAX_N", "LEVELS", "LEVEL_TITLES", "LEVEL_USES", "Certificate", "Knowledge", "LevelResult", "adopt",
-           "certify", "level_set", "linearised_rate"]
+           "ceiling", "certify", "certify_from_x0", "explain", "level_set", "linearised_rate"]
 
 #: The ladder, weakest first.
 LEVELS = ("paper", "full", "structured")
@@ -77,11 +77,8 @@ LADDER_MAX_N = 16
 #: design's own (the two are the same certificate up to the bisection's tolerance otherwise).
 ADOPT_RATIO = 0.9
 
-#: A level is decided "not certified" without a solve when a linear f = L x that meets every
-#: constraint of the level (L = 0, or the channels' midpoint slopes) leaves the closed loop with an
-#: eigenvalue whose real part is above this (relative to the size of A, BF and KC): a certificate
-#: would make that linear loop exponentially stable.
-UNSTABLE_TOL = 1e-9
+#: How the reason of a level ruled out by a linear member of its class begins.
+RULED_OUT = "no certificate over this level's class exists"
 
 #: Statuses of one level.
 LEVEL_STATUSES = ("certified", "not certified", "marginal", "inapplicable", "undecided")
@@ -107,6 +104,9 @@ class LevelResult:
         ``2n x 2n`` Lyapunov matrix at the reported rate (``V = z' P z``, ``z = (x, e)``).
     radius : float or None
         The constraints hold on ``||x|| <= radius`` (None: globally): the certificate is local.
+    region_H : ndarray or None
+        When set, the region is ``|(H x)_i|, |(H x_hat)_i| <= radius`` for these rows H instead (a
+        certificate from x0 on narrowed channel slopes, :func:`certify_from_x0`).
     solve_s : float
         Compile and solve seconds of this level.
     n_solves : int
@@ -121,6 +121,7 @@ class LevelResult:
     radius: float | None = None
     solve_s: float = 0.0
     n_solves: int = 0
+    region_H: np.ndarray | None = None
 
     @property
     def certified(self) -> bool:
@@ -136,15 +137,25 @@ class Certificate:
     ----------
     levels : dict
         :class:`LevelResult` by level name, weakest first (only the levels asked for).
+    local : LevelResult or None
+        A certificate from x0 on a region where the channel slopes narrow
+        (:func:`certify_from_x0`), searched when no level certified.
+    local_note : str
+        Why no certificate from x0 was found (when it was searched).
+    witnesses : list of bench.witness.Witness
+        Members of the class that rule out a global certificate (:mod:`bench.witness`).
     """
 
     levels: dict[str, LevelResult]
+    local: LevelResult | None = None
+    local_note: str = ""
+    witnesses: list = field(default_factory=list)
 
     @property
     def best(self) -> LevelResult | None:
-        """The strongest level that certified, or None."""
+        """The strongest level that certified, else the certificate from x0, or None."""
         cert = [r for r in self.levels.values() if r.certified]
-        return cert[-1] if cert else None
+        return cert[-1] if cert else self.local
 
     @property
     def certified(self) -> bool:
@@ -162,9 +173,20 @@ class Certificate:
         """Seconds in all levels."""
         return sum(r.solve_s for r in self.levels.values())
 
-    def reason(self) -> str:
-        """One line on the levels that did not certify."""
-        return "; ".join(f"{r.level}: {r.reason}" for r in self.levels.values() if not r.certified and r.reason)
+    def reason(self, witnessed: bool = False) -> str:
+        """One line on the levels that did not certify (``witnessed``: the levels a linear member rules
+        out are only named, the witness being stated elsewhere)."""
+        out, ruled = [], []
+        for r in self.levels.values():
+            if r.certified or not r.reason:
+                continue
+            if witnessed and r.reason.startswith(RULED_OUT):
+                ruled.append(r.level)
+            else:
+                out.append(f"{r.level}: {r.reason}")
+        if ruled:
+            out.insert(0, f"{', '.join(ruled)}: ruled out without a solve by the linear member")
+        return "; ".join(out)
 
 
 # -- the constraints of a level ---------------------------------------------------------------
@@ -211,9 +233,14 @@ def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge) -> lmi.Program:
     return lmi.cached_program(key, lambda: _build(spec, mats, blocks))
 
 
-def _build(spec: _Spec, mats: lmi.Matrices, blocks) -> lmi.Program:
+def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = None) -> lmi.Program:
     """Variables, parameters and constraints of a level: maximise ``t`` with ``M << -t I``,
-    ``P >> t I``, ``trace(P) = 1`` and nonnegative multipliers."""
+    ``P >> t I``, ``trace(P) = 1`` and nonnegative multipliers.
+
+    With ``rows`` (vectors ``a_k`` on ``z``), the normalisation is instead the containment of a
+    certificate from x0: ``z0' P z0 <= 1`` (parameter ``Z0 = z0 z0'``) and
+    ``[[P, a_k], [a_k', r2]] >= 0`` for each row, so that ``{V <= V(z0)}`` lies in
+    ``|a_k' z| <= sqrt(r2)`` (Schur complement of ``a_k' P^-1 a_k <= r2``), and ``t <= 1``."""
     import cvxpy as cp
 
     n, nw = spec.n, spec.nw
@@ -239,7 +266,14 @@ def _build(spec: _Spec, mats: lmi.Matrices, blocks) -> lmi.Program:
     pos = ("P",) if spec.full_p else ("P1", "P2")
     cons = [M << -t * np.eye(M.shape[0])]
     cons += [v[k] >> t * np.eye(v[k].shape[0]) for k in pos]
-    cons.append(sum(cp.trace(v[k]) for k in pos) == 1)
+    if rows is None:
+        cons.append(sum(cp.trace(v[k]) for k in pos) == 1)
+    else:
+        prm["Z0"] = cp.Parameter((2 * n, 2 * n), PSD=True, name="Z0")
+        prm["r2"] = cp.Parameter(nonneg=True, name="r2")
+        P, r2 = v["P"], cp.reshape(prm["r2"], (1, 1), order="F")
+        cons += [cp.trace(prm["Z0"] @ P) <= 1, t <= 1]
+        cons += [lmi.sym(cp.bmat([[P, a[:, None]], [a[None, :], r2]])) >> 0 for a in rows]
     cons += [v[k] >= 0 for k in v if k not in pos and k != "t"]
     prob = cp.Problem(cp.Maximize(t), cons)
     return lmi.Program(prob, v, prm, blocks, pos, build_s=time.perf_counter() - t_build)
@@ -383,42 +417,16 @@ def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
     return float(-eig.real.max())
 
 
-def _admits(L: np.ndarray, spec: _Spec, know: Knowledge) -> bool:
-    """True when ``f(x) = L x`` meets every constraint of the level (the scalar constants it uses and,
-    with channels, ``L = G diag(c) H`` with each slope ``c_i`` in ``[lo_i, hi_i]``: checked by the caller)."""
-    c, S = know.constants, (L + L.T) / 2
-    tol = 1e-12 * max(1.0, float(np.abs(L).max(initial=0.0)))
-    ok = {"osl": lambda: lmi.max_eig(S - (c.rho or 0.0) * np.eye(len(L))) <= tol,
-          "qib": lambda: lmi.max_eig(L.T @ L - (c.beta or 0.0) * np.eye(len(L)) - (c.gamma or 0.0) * S) <= tol,
-          "lip": lambda: float(np.linalg.norm(L, 2)) <= (c.alpha or 0.0) + tol}
-    return all(ok[k]() for k in spec.scalars)
+def _unstable_admissible(spec: _Spec, know: Knowledge, plant: Plant, K: np.ndarray,
+                         F: np.ndarray) -> witness.Witness | None:
+    """Why no certificate of this level can exist (None if the linear members decide nothing).
 
-
-def _unstable_admissible(spec: _Spec, know: Knowledge, plant: Plant, K: np.ndarray, F: np.ndarray) -> str:
-    """Why no certificate of this level can exist (empty if this quick test decides nothing).
-
-    Every constraint of a level holds for some linear ``f = L x`` (here ``L = 0`` and, with channels,
-    ``L = G diag((lo + hi) / 2) H``, when they meet all of the level's constraints); a certificate
-    would make the loop with that ``f`` exponentially stable, so an eigenvalue with ``Re >= 0``
-    there settles the level as not certified without a solve.
+    A certificate of the level holds for every f meeting its constraints, in particular for the
+    linear members ``f = L x`` that meet them (:func:`bench.witness.linear_witness`: the channels'
+    slope box, or the scalar constants); a member whose loop has an eigenvalue with ``Re > 0``
+    settles the level as not certified without a solve.
     """
-    n = plant.n
-    cands = []
-    ch = know.channels if spec.channels else None
-    if ch is None or np.all((ch.lo <= 0) & (ch.hi >= 0)):
-        cands.append(("f = 0", np.zeros((n, n))))
-    if ch is not None:
-        cands.append(("f = G diag(mid-slopes) H x", ch.G @ np.diag((ch.lo + ch.hi) / 2) @ ch.H))
-    scale = max(1.0, *(float(np.abs(M).max(initial=0.0)) for M in (plant.A, plant.B @ F, K @ plant.C)))
-    for name, L in cands:
-        if not _admits(L, spec, know):
-            continue
-        AL = plant.A + L
-        eig = np.concatenate([np.linalg.eigvals(AL + plant.B @ F), np.linalg.eigvals(AL - K @ plant.C)])
-        worst = float(eig.real.max())
-        if worst > UNSTABLE_TOL * scale:
-            return f"with {name} the closed loop has an eigenvalue with Re = {worst:+.3g}"
-    return ""
+    return witness.linear_witness(plant, K, F, know, channels=spec.channels, scalars=spec.scalars)
 
 
 def _fd_jacobian(f, n: int, h: float = 1e-6) -> np.ndarray:
@@ -546,6 +554,7 @@ def certify(
     hi = linearised_rate(plant, K, F)
     out: dict[str, LevelResult] = {}
     prev: LevelResult | None = None
+    found: list = []
     for lv in (lv for lv in LEVELS if lv in levels):
         spec, why = _spec(lv, plant.n, knowledge)
         if spec is not None and plant.n > LADDER_MAX_N:
@@ -554,40 +563,237 @@ def certify(
             out[lv] = LevelResult(lv, "inapplicable", reason=why)
             continue
         unstable = _unstable_admissible(spec, knowledge, plant, K, F)
-        if unstable:
+        if unstable is not None:
+            found[:] = [unstable]  # the strongest level's witness (its class is the smallest)
             out[lv] = prev = LevelResult(lv, "not certified", reason=(
-                f"provably: {unstable}, and that linear f meets every constraint of this level, so no quadratic "
-                f"certificate exists"))
+                f"{RULED_OUT}: {unstable.text}, and that linear f meets every constraint of the level"))
             continue
         start = prev.decay_rate if prev is not None and prev.certified else 0.0
         res = _level(spec, plant, K, F, knowledge, start=start, hi=hi, rates=rates, rtol=rate_rtol)
         out[lv] = _inherit(res, prev) if inherit else res
         prev = out[lv]
-    return Certificate(out)
+    return Certificate(out, witnesses=found)
 
 
-def level_set(P: np.ndarray, radius: float) -> float:
-    """The largest ``v`` with ``{z' P z <= v}`` inside ``||x|| <= radius`` and ``||x_hat|| <= radius``.
+def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *,
+            rate_rtol: float = 0.03, local: bool = True) -> Certificate:
+    """Complete a ladder's outcome with why it is what it is: witnesses, and a certificate from x0.
+
+    Where no level certified globally and a linear member already rules the ladder out, or no level
+    certified at all, the true closed loop is searched for an equilibrium besides the origin
+    (:func:`bench.witness.equilibrium_witness`; it rules out every global certificate). Where no
+    level certified, a certificate from x0 is searched on regions where the channel slopes narrow
+    (:func:`certify_from_x0`), on regions smaller than the equilibrium found.
+
+    Parameters
+    ----------
+    cert : Certificate
+        From :func:`certify` (updated in place: ``witnesses``, ``local``, ``local_note``).
+    plant, K, F, knowledge
+    rate_rtol : float
+    local : bool
+        Also search a certificate from x0.
+
+    Returns
+    -------
+    Certificate
+    """
+    K, F = np.asarray(K, dtype=float), np.asarray(F, dtype=float)
+    ladder = [r for r in cert.levels.values() if r.certified]
+    if any(r.radius is None and r.region_H is None for r in ladder):
+        return cert
+    if cert.witnesses or not ladder:
+        eq = witness.equilibrium_witness(plant, K, F, knowledge)
+        if eq is not None:
+            cert.witnesses = [eq, *[w for w in cert.witnesses if w.kind != eq.kind]]
+    if not ladder and local:
+        eq = next((w for w in cert.witnesses if w.kind == "equilibrium"), None)
+        r_eq = None
+        if eq is not None and knowledge.channels is not None:
+            r_eq = float(np.abs(_region_rows(knowledge.channels.H) @ eq.z).max())
+        cert.local, cert.local_note = certify_from_x0(plant, K, F, knowledge, rate_rtol=rate_rtol, r_max=r_eq)
+        if r_eq is not None and cert.local is None:
+            cert.local_note += f" (regions stop below r = {r_eq:.4g}, where the loop has an equilibrium)"
+    return cert
+
+
+def ceiling(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge) -> tuple[float, str]:
+    """The rate ceiling of the certified class of ``cert`` (:func:`bench.witness.rate_ceiling`):
+    the best level's class, or the narrowed slope box of a certificate from x0.
+
+    Returns
+    -------
+    float, str
+        NaN and "" when nothing is certified.
+    """
+    best = cert.best
+    if best is None:
+        return float("nan"), ""
+    K, F = np.asarray(K, dtype=float), np.asarray(F, dtype=float)
+    if best.region_H is not None:
+        box = knowledge.channels.slopes_on(best.radius)
+        return witness.rate_ceiling(plant, K, F, knowledge, channels=True, scalars=(), box=box)
+    spec, _ = _spec(best.level, plant.n, knowledge)
+    if spec is None:
+        return float("nan"), ""
+    return witness.rate_ceiling(plant, K, F, knowledge, channels=spec.channels, scalars=spec.scalars)
+
+
+def level_set(P: np.ndarray, radius: float, H: np.ndarray | None = None) -> float:
+    """The largest ``v`` with ``{z' P z <= v}`` inside ``||x|| <= radius`` and ``||x_hat|| <= radius``
+    (with ``H``: inside ``|(H x)_i| <= radius`` and ``|(H x_hat)_i| <= radius``).
 
     With ``z = (x, e)``, ``x = [I 0] z`` and ``x_hat = [I -I] z``; the largest ``||T z||`` on the
-    ellipsoid ``z' P z <= v`` is ``sqrt(v lmax(T P^-1 T'))``.
+    ellipsoid ``z' P z <= v`` is ``sqrt(v lmax(T P^-1 T'))``, and the largest ``|a' z|`` is
+    ``sqrt(v a' P^-1 a)``.
 
     Parameters
     ----------
     P : ndarray (2n, 2n)
         Positive definite.
     radius : float
+    H : ndarray (q, n), optional
 
     Returns
     -------
     float
     """
-    n = P.shape[0] // 2
     Pinv = np.linalg.inv((P + P.T) / 2)
+    if H is not None:
+        rows = _region_rows(H)
+        return radius**2 / float(np.max(np.einsum("ij,jk,ik->i", rows, Pinv, rows)))
+    n = P.shape[0] // 2
     Tx = np.hstack([np.eye(n), np.zeros((n, n))])
     Th = np.hstack([np.eye(n), -np.eye(n)])
     worst = max(float(np.linalg.eigvalsh(T @ Pinv @ T.T)[-1]) for T in (Tx, Th))
     return radius**2 / worst
+
+
+def _region_rows(H: np.ndarray) -> np.ndarray:
+    """The rows ``a`` on ``z = (x, e)`` with ``a' z = (H x)_i`` and ``(H x_hat)_i`` (``x_hat = x - e``)."""
+    H = np.asarray(H, dtype=float)
+    return np.vstack([np.hstack([H, np.zeros_like(H)]), np.hstack([H, -H])])
+
+
+#: The search for a certificate from x0 tries regions ``|H x|, |H x_hat| <= r`` with r growing by
+#: this factor from just above the initial condition's own ``max |H x0|, |H x_hat0|``, for at most
+#: :data:`FROM_X0_STEPS` values, and stops where the slopes no longer narrow; the containment is
+#: imposed with r shrunk by :data:`FROM_X0_SHRINK` (relative) so that a solver's rounding never
+#: lets the verified level set leave the region.
+FROM_X0_GROWTH = 1.25
+FROM_X0_STEPS = 12
+FROM_X0_SHRINK = 1e-4
+
+#: After the first region with a certificate, this many larger ones are tried for a better rate.
+FROM_X0_MORE = 2
+
+
+def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *, rate_rtol: float = 0.03,
+                    r_max: float | None = None) -> tuple[LevelResult | None, str]:
+    """A certificate from the initial condition where the channel slopes narrow on a region.
+
+    On ``|(H x)_i|, |(H x_hat)_i| <= r`` the channels' slopes lie in the declared narrowing
+    ``[lo(r), hi(r)]`` (:meth:`plants.Channels.slopes_on`; analytic, never sampled). The
+    structured level's LMI with those slopes, plus the containment of the level set through
+    ``z0 = (x0, x0 - x_hat0)`` in the region (Schur complements, :func:`_build`), proves
+    ``V' <= -2 lam V`` on ``{V <= V(z0)}``, which the trajectory from z0 never leaves: the loop
+    converges from x0 at rate lam. r grows geometrically (:data:`FROM_X0_GROWTH`) from the
+    smallest region holding z0; the best rate among the first regions that certify is kept.
+
+    Parameters
+    ----------
+    plant : Plant
+    K, F : ndarray
+    knowledge : Knowledge
+        Its channels must declare a narrowing (``Channels.narrow``).
+    rate_rtol : float
+        Relative tolerance of the rate search.
+    r_max : float, optional
+        Regions are kept below this r (e.g. the size of an equilibrium of the loop, which no
+        region with a certificate can hold).
+
+    Returns
+    -------
+    LevelResult or None, str
+        The certificate (level ``"structured"``, ``radius = r``, ``region_H = H``) or None, and
+        a sentence on the search (why none was found, up to which r).
+    """
+    ch = knowledge.channels
+    if ch is None or ch.narrow is None:
+        return None, "no certificate from x0 searched: the channels declare no narrowing of their slopes on a region"
+    n, q = plant.n, ch.q
+    if n > LADDER_MAX_N:
+        return None, f"no certificate from x0 searched: n = {n} is beyond LADDER_MAX_N = {LADDER_MAX_N}"
+    K, F = np.asarray(K, dtype=float), np.asarray(F, dtype=float)
+    z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0])
+    rows = _region_rows(ch.H)
+    r0 = max(float(np.abs(rows @ z0).max()), 1e-3)
+    spec = _Spec("structured", n, q, True, (), True)
+    mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
+    key = ("certify-from-x0", spec, mats.key, lmi.digest(ch.G), lmi.digest(ch.H))
+    prog = lmi.cached_program(key, lambda: _build(spec, mats, partial(_blocks, spec, ch.G, ch.H), rows=rows))
+    prog.set(**mats.settable(), Z0=np.outer(z0, z0), rho=0.0, beta=0.0, gamma=0.0, a2=0.0)  # no scalar constants
+    lin = linearised_rate(plant, K, F)
+    best: LevelResult | None = None
+    tried, r, more = [], r0, FROM_X0_MORE
+    for _ in range(FROM_X0_STEPS):
+        r *= FROM_X0_GROWTH
+        lo, hi = ch.slopes_on(r)
+        wide = bool(np.all(lo <= ch.lo) and np.all(hi >= ch.hi))
+        if wide:  # no narrowing left: the largest region worth trying is where it ends
+            r = max(r / FROM_X0_GROWTH, r0)
+        if r_max is not None and r >= r_max:
+            if tried or math.sqrt(r / FROM_X0_GROWTH * r_max) >= r_max:
+                break
+            r = math.sqrt(r / FROM_X0_GROWTH * r_max)  # one region between z0 and the equilibrium
+        if tried and r <= tried[-1]:
+            break
+        tried.append(r)
+        prog.set(lohi=lo * hi, losum=lo + hi, r2=(r * (1 - FROM_X0_SHRINK)) ** 2)
+        verdict, margin = _check(prog, 0.0)
+        if verdict == "verified" and _contains(_full_p(prog, spec), z0, rows, r):
+            ceiling, _ = witness.rate_ceiling(plant, K, F, knowledge, channels=True, scalars=(), box=(lo, hi))
+            top = min(lin, ceiling)
+            P0, lam, P = _full_p(prog, spec), 0.0, None
+            if top > 0:
+                lam, P = _rate(prog, spec, 0.0, top, rate_rtol)
+            if P is None or not _contains(P, z0, rows, r):
+                lam, P = 0.0, P0
+            if best is None or lam > best.decay_rate:
+                best = LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
+                                   region_H=ch.H, reason=(
+                                       f"certified from x0 on |Hx|, |Hx_hat| <= {r:.4g}, where the slopes narrow to "
+                                       f"[{_vec(lo)}, {_vec(hi)}]: the level set through z0 stays in that region"))
+            more -= 1
+            if more < 0 or (best is not None and lam < best.decay_rate):
+                break
+        elif best is not None:
+            break
+        if wide:
+            break
+    best_solves = (prog.compile_s + prog.solve_s, prog.n_solves)
+    if best is not None:
+        best.solve_s, best.n_solves = best_solves
+        return best, ""
+    if not tried:
+        return None, "no local quadratic certificate from x0 searched: no region holds z0 short of the equilibrium"
+    span = f"r = {tried[0]:.4g}" if len(tried) == 1 else f"r from {tried[0]:.4g} up to r = {tried[-1]:.4g}"
+    return None, f"no local quadratic certificate containing z0 was found on |Hx|, |Hx_hat| <= r for {span}"
+
+
+def _contains(P: np.ndarray, z0: np.ndarray, rows: np.ndarray, r: float) -> bool:
+    """True when P is positive definite and ``{V <= V(z0)}`` lies in ``|a' z| <= r`` for every row a
+    (``V(z0) a' P^-1 a <= r^2``, recomputed with numpy)."""
+    if not lmi.is_positive_definite(P):
+        return False
+    Pinv = np.linalg.inv((P + P.T) / 2)
+    return float(z0 @ P @ z0) * float(np.max(np.einsum("ij,jk,ik->i", rows, Pinv, rows))) <= r * r
+
+
+def _vec(v) -> str:
+    return ", ".join(f"{x:.4g}" for x in np.atleast_1d(v))
+
+
 
 
 #: The declarations a design's own certificate at each level rests on (unless it names its own in

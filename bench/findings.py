@@ -19,7 +19,8 @@ def _best(sub) -> dict | None:
         return None
     r = cert.loc[cert["decay_rate"].astype(float).idxmax()]
     return {"design": r["design"], "level": r["cert_level"], "decay_rate": float(r["decay_rate"]),
-            "scope": r["cert_scope"], "peak_u": float(r["peak_u"]), "converged": bool(r["converged"])}
+            "scope": r["cert_scope"], "peak_u": float(r["peak_u"]), "converged": bool(r["converged"]),
+            "rate_ratio": float(r.get("rate_ratio", float("nan")))}
 
 
 def findings(frame, constants: dict) -> dict:
@@ -35,17 +36,22 @@ def findings(frame, constants: dict) -> dict:
     Returns
     -------
     dict
-        ``plants`` (per plant: ``best`` certified design or None, ``uncertified_converging``,
-        ``certified_pairs``, ``pairs``), ``violated_claims``, ``disproved`` (by the samplers or
-        along a pair's simulation), ``printed_infeasible``, ``inconsistent`` (with the ``witness``
-        time and state) (lists of dicts, JSON-ready), and ``counts`` of the lists that must be
-        empty in a sound run.
+        ``plants`` (per plant: ``best`` certified design or None, ``uncertified_converging`` split
+        into ``no_certificate_can_exist`` (a witness rules a global certificate out) and
+        ``no_certificate_found``, ``certified_pairs``, ``pairs``), ``violated_claims``, ``disproved``
+        (by the samplers or along a pair's simulation), ``printed_infeasible``, ``inconsistent``
+        (with the ``witness`` time and state) (lists of dicts, JSON-ready), and ``counts`` of the
+        lists that must be empty in a sound run.
     """
     plants = {}
     for pid in dict.fromkeys(frame["plant"]):
         sub = frame[frame["plant"] == pid]
         conv_uncert = sub[sub["converged"].astype(bool) & ~sub["certified"].astype(bool)]
+        witnessed = conv_uncert["witness"].fillna("").astype(str).ne("") if "witness" in sub else None
         plants[pid] = {"best": _best(sub), "uncertified_converging": list(conv_uncert["design"]),
+                       "no_certificate_can_exist": list(conv_uncert["design"][witnessed]) if witnessed is not None else [],
+                       "no_certificate_found": list(conv_uncert["design"][~witnessed]) if witnessed is not None
+                       else list(conv_uncert["design"]),
                        "certified_pairs": int(sub["certified"].astype(bool).sum()), "pairs": int(len(sub))}
     violated, disproved = [], []
     for pid, rep in constants.items():
@@ -66,7 +72,7 @@ def findings(frame, constants: dict) -> dict:
     printed_rows = [{"plant": r.plant, "design": r.design, "reason": r.reason} for r in printed.itertuples()]
     bad = frame[frame["reason"].astype(str).str.contains("INCONSISTENT")]
     inconsistent = [{"plant": r.plant, "design": r.design, "reason": r.reason,
-                     "witness": getattr(r, "witness", "")} for r in bad.itertuples()]
+                     "witness": getattr(r, "sim_witness", "")} for r in bad.itertuples()]
     return {"plants": plants, "violated_claims": violated, "disproved": disproved,
             "printed_infeasible": printed_rows, "inconsistent": inconsistent,
             "counts": {"inconsistent": len(inconsistent), "disproved": len(disproved),

@@ -48,7 +48,7 @@ _ESCAPE_RE = re.compile("|".join(re.escape(c) for c in _ESCAPES))
 
 # (column, header) of the three row tables, in display order
 _DECAY_COLUMNS = (("decay_paper", "paper"), ("decay_full", "full"), ("decay_structured", "structured"),
-                  ("cert_level", "level"))
+                  ("cert_level", "level"), ("rate_ceiling", "ceiling"), ("rate_ratio", "rate / ceiling"))
 _CONVERGENCE_COLUMNS = (("converged", "converged"), ("settling_x_s", "settling x [s]"),
                         ("settling_e_s", "settling e [s]"), ("peak_u", "peak u"),
                         ("horizon_s", "horizon [s]"))
@@ -175,7 +175,8 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
        a pair that was not run is blank);
     2. certified decay by certificate level: ``decay_paper``, ``decay_full``,
        ``decay_structured``, ``cert_level`` (or ``decay_rate`` when none of the first three is
-       in the frame);
+       in the frame), ``rate_ceiling`` (the slowest linear member of the certified class: no
+       certificate over it proves more) and ``rate_ratio`` (the certified rate over it);
     3. convergence: ``converged``, ``settling_x_s``, ``settling_e_s``, ``peak_u``, ``horizon_s``;
     4. timing: ``design_s``, ``cert_s``, ``sim_s``.
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bench.certify import LEVELS, Certificate, LevelResult, adopt, certify, linearised_rate
+from bench.certify import LEVELS, Certificate, LevelResult, adopt, ceiling, certify, explain, linearised_rate
 from bench.constants import ConstantsReport, Knowledge, check_trajectory, resolve_constants
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
 from bench.metrics import trajectory_metrics
@@ -36,11 +36,11 @@ __all__ = ["COLUMNS", "PairOutcome", "RunOptions", "Scenario", "blank_record", "
 #: Columns of every record, in order.
 COLUMNS = [
     "plant", "design", "status", "reason", "feasible", "stabilizing", "certified", "cert_level", "decay_rate",
-    "cert_scope", "converged",
+    "cert_scope", "converged", "witness", "rate_ceiling", "rate_ratio", "ceiling_how",
     *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")],
     "cert_margin", "cert_radius", "level_set", "level_x0", "in_region", "max_norm",
     "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "compile_s", "solve_s", "design_s",
-    "cert_s", "sim_s", "max_re_eig_x", "max_re_eig_e", "horizon_s", "horizon_rule", "cert_horizon_s", "sim_status", "witness",
+    "cert_s", "sim_s", "max_re_eig_x", "max_re_eig_e", "horizon_s", "horizon_rule", "cert_horizon_s", "sim_status", "sim_witness",
     "settling_x_s",
     "settling_e_s", "final_x", "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "norm_K", "norm_F",
     "constants", "checked_on", "disproved", "params",
@@ -180,7 +180,7 @@ def blank_record(plant_id: str, design_id: str) -> dict:
     rec = {c: math.nan for c in COLUMNS}
     rec.update(plant=plant_id, design=design_id, status="", reason="", solver="", solver_status="", route="",
                sim_status="", constants="", params="", cert_level="", cert_scope="", horizon_rule="", witness="",
-               checked_on="", disproved="",
+               sim_witness="", ceiling_how="", checked_on="", disproved="",
                feasible=False, stabilizing=None, certified=False, converged=False, in_region=None,
                **{f"cert_{lv}": "" for lv in LEVELS})
     return rec
@@ -277,6 +277,9 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
                 break
         cert.levels = {lv: cert.levels[lv] for lv in LEVELS if lv in cert.levels}
     adopt(cert, res.certificate, know)
+    if options.certificate == "ladder":
+        explain(cert, plant, res.K, res.F, know)
+        rec["rate_ceiling"], rec["ceiling_how"] = ceiling(cert, plant, res.K, res.F, know)
     rec["cert_s"] = time.perf_counter() - t0
     for lv, r in cert.levels.items():
         rec[f"cert_{lv}"], rec[f"decay_{lv}"] = r.status, r.decay_rate
@@ -286,9 +289,18 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     rec.update(certified=best is not None, cert_level=best.level if best else "",
                decay_rate=best.decay_rate if best else math.nan,
                cert_margin=shown.margin if shown is not None else math.nan)
-    rec.update(certificate_scope(best.P if best else None, best.radius if best else None, plant.x0, plant.x_hat0))
+    rec.update(certificate_scope(best.P if best else None, best.radius if best else None, plant.x0, plant.x_hat0,
+                                 H=best.region_H if best else None))
+    rec["witness"] = "; ".join(w.kind for w in cert.witnesses)
+    if best is not None and math.isfinite(rec["rate_ceiling"]):
+        rec["rate_ratio"] = best.decay_rate / rec["rate_ceiling"] if rec["rate_ceiling"] > 0 else math.nan
+    if cert.witnesses:
+        _note(rec, "no global certificate exists: " + "; and ".join(w.text for w in cert.witnesses))
     if best is None:
-        _note(rec, f"certificate: {cert.reason()}")
+        _note(rec, f"certificate: {cert.reason(witnessed=bool(cert.witnesses))}")
+        _note(rec, cert.local_note)
+    elif best is cert.local:
+        _note(rec, f"{best.reason}, rate {best.decay_rate:.3g}")
     elif rec["cert_scope"] == "local":
         _note(rec, f"certified locally: the level set V <= {rec['level_set']:.3g} stays in ||x||, ||x_hat|| <= "
                    f"{rec['cert_radius']:g}, but V(x0, e0) = {rec['level_x0']:.3g} lies outside it")
@@ -352,8 +364,12 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
     _check_declarations(out, plant, res, report, options, X, XH)
     radius = rec["cert_radius"]
     rec["in_region"] = None if not math.isfinite(radius) else bool(rec["max_norm"] <= radius)
-    rec["witness"] = _witness(np.asarray(tr.t, dtype=float), X, XH, radius)
     best = out.certificate.best if out.certificate is not None else None
+    H = best.region_H if best is not None else None
+    if H is not None and math.isfinite(radius):  # a certificate from x0 holds on |Hx|, |Hx_hat| <= r
+        rec["in_region"] = bool(max(np.abs(np.tensordot(H, v, axes=(1, 0))).max() for v in (X, XH))
+                                <= radius * (1 + 1e-9))
+    rec["sim_witness"] = _witness(np.asarray(tr.t, dtype=float), X, XH, radius, H)
     applies = best is not None and res.K is not None and res.estimator is None and options.noise == 0 and (
         not batch or (scenario.sample_period is None and rec["cert_scope"] == "global"))
     if applies:
@@ -381,16 +397,20 @@ def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, repor
     out.certificate = _certify(rec, plant, res, report, options, know=know.without(bad))
 
 
-def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float) -> str:
-    """Time and state that show a run's outcome: the first state outside ``||x||, ||x_hat|| <= radius``
-    (NaN: none), else the last finite state (a batch: of the member farthest from the origin)."""
+def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float, H: np.ndarray | None = None) -> str:
+    """Time and state that show a run's outcome: the first state outside the certified region
+    (``||x||, ||x_hat|| <= radius``, or ``|Hx|, |Hx_hat| <= radius`` when H is given; NaN: none),
+    else the last finite state (a batch: of the member farthest from the origin)."""
     if X.ndim == 3:  # (n, N, T): the member with the largest last finite state
         last = np.nan_to_num(np.linalg.norm(X[:, :, -1], axis=0), nan=np.inf)
         j = int(np.argmax(last))
         X, XH = X[:, j, :], XH[:, j, :]
     if X.shape[1] == 0:
         return ""
-    size = np.maximum(np.linalg.norm(X, axis=0), np.linalg.norm(XH, axis=0))
+    if H is None:
+        size = np.maximum(np.linalg.norm(X, axis=0), np.linalg.norm(XH, axis=0))
+    else:
+        size = np.maximum(np.abs(H @ X).max(axis=0), np.abs(H @ XH).max(axis=0))
     finite = np.isfinite(size)
     k = int(np.flatnonzero(finite)[-1]) if finite.any() else X.shape[1] - 1
     if math.isfinite(radius) and np.any(finite & (size > radius)):
@@ -550,7 +570,8 @@ def _timed_out(rec: dict, exc: DeadlineExceeded, options: RunOptions, phase: str
 _PRIOR_COLUMNS = ("status", "reason", "feasible", "route", "lmi_margin", "lmi_size", "solver", "solver_status",
                   "n_solves", "compile_s", "solve_s", "design_s", "params", "constants", "stabilizing", "max_re_eig_x",
                   "max_re_eig_e", "norm_K", "norm_F", "certified", "cert_level", "decay_rate", "cert_margin",
-                  "cert_scope", "cert_radius", "level_set", "level_x0", "cert_s",
+                  "cert_scope", "cert_radius", "level_set", "level_x0", "cert_s", "witness", "rate_ceiling", "rate_ratio",
+                  "ceiling_how",
                   *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")])
 
 

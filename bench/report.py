@@ -270,10 +270,16 @@ def _summary(found: dict) -> str:
         if b is None:
             best = "no design certified"
         else:
+            ratio = b.get("rate_ratio", math.nan)
             best = (f"best certified: **{b['design']}**, decay {_fmt(b['decay_rate'])} at the {b['level']} level"
-                    f"{' (local)' if b['scope'] == 'local' else ''}, peak |u| {_fmt(b['peak_u'])}")
-        unc = f["uncertified_converging"]
-        tail = f"; converge without a certificate: {', '.join(unc)}" if unc else ""
+                    f"{' (local)' if b['scope'] == 'local' else ' (from x0)' if b['scope'] == 'from x0' else ''}"
+                    + (f", {_fmt(ratio)} of the class's rate ceiling" if math.isfinite(ratio) else "")
+                    + f", peak |u| {_fmt(b['peak_u'])}")
+        can_not = f.get("no_certificate_can_exist", [])
+        not_found = f.get("no_certificate_found", f["uncertified_converging"])
+        split = [f"{what}: {', '.join(ds)}" for what, ds in (("no certificate can exist (witness)", can_not),
+                                                              ("no certificate found", not_found)) if ds]
+        tail = f"; converge without a certificate ({'; '.join(split)})" if split else ""
         lines.append(f"- **{pid}**: {best}; {f['certified_pairs']} of {f['pairs']} pairs certified{tail}.")
     for v in found["violated_claims"]:
         lines.append(f"- Claimed constant violated on {v['plant']}: {v['text']}.")
@@ -305,7 +311,13 @@ _LEGEND = (
     "*decay rate* its rate lam (V' <= -2 lam V). Only analytic constants and channels that no sample disproved "
     "are used; sampled constants are lower bounds and never certify. With constants that hold on ||x|| <= r the "
     "certificate is local: *scope* is `from x0` when the level set of V through the initial condition stays in "
-    "the region, else `local`. *Converged*: at the end of the horizon ||x|| and ||e|| are below 1e-3 of the peak "
+    "the region, else `local`. Where no global certificate is found, the suite looks for a *witness* that none "
+    "can exist (column `witness`): a straight line phi(s) = c s with slopes in the declared box whose linear loop "
+    "is unstable (no certificate over that class exists), or an equilibrium of the true loop besides the origin "
+    "(no certificate of any form proves global convergence); it then searches a certificate `from x0` on a "
+    "region |Hx|, |Hx_hat| <= r where the channels' slopes narrow. *rate_ceiling* is the slowest linear member "
+    "of the certified class (no certificate over that class can prove more), *rate_ratio* the certified rate "
+    "over it. *Converged*: at the end of the horizon ||x|| and ||e|| are below 1e-3 of the peak "
     "of ||z|| (with noise: both norms settled). The horizon follows the rates: long enough for the certified rate "
     "(or, uncertified, twice the linearisation's) to decay by 1e-3, at least the plant's own, at most 10 times it "
     "(*horizon_rule* says which); a certified pair that does not converge says why in its reason.")
@@ -319,7 +331,7 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
     o = result.options
     found = run_info.get("findings") or findings(df, result.constants)
     conv_cols = ["plant", "design", "stabilizing", "certified", "cert_level", "decay_rate", "cert_scope",
-                 "converged", "horizon_s", "horizon_rule", "sim_status", "settling_x_s", "settling_e_s", "final_x",
+                 "witness", "rate_ceiling", "rate_ratio", "converged", "horizon_s", "horizon_rule", "sim_status", "settling_x_s", "settling_e_s", "final_x",
                  "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "in_region"]
     time_cols = ["plant", "design", "route", "solver", "n_solves", "lmi_size", "lmi_margin", "compile_s", "solve_s",
                  "design_s", "cert_s", "sim_s"]

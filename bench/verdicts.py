@@ -74,7 +74,8 @@ def horizon(t_plant: float, *, fixed: float | None, cap_factor: float, cert_rate
     return float(math.ceil(need)), rule
 
 
-def certificate_scope(P: np.ndarray | None, radius: float | None, x0: np.ndarray, x_hat0: np.ndarray) -> dict:
+def certificate_scope(P: np.ndarray | None, radius: float | None, x0: np.ndarray, x_hat0: np.ndarray,
+                      H: np.ndarray | None = None) -> dict:
     """What a certificate with Lyapunov matrix ``P`` proves from ``(x0, x_hat0)``.
 
     Parameters
@@ -84,6 +85,8 @@ def certificate_scope(P: np.ndarray | None, radius: float | None, x0: np.ndarray
     radius : float or None
         The certificate's constraints hold on ``||x|| <= radius`` (None: globally).
     x0, x_hat0 : ndarray (n,)
+    H : ndarray (q, n), optional
+        The region is ``|(H x)_i|, |(H x_hat)_i| <= radius`` instead.
 
     Returns
     -------
@@ -102,7 +105,7 @@ def certificate_scope(P: np.ndarray | None, radius: float | None, x0: np.ndarray
     if radius is None:
         out["cert_scope"] = "global"
         return out
-    v = level_set(P, radius)
+    v = level_set(P, radius, H)
     out.update(cert_radius=float(radius), level_set=v,
                cert_scope="from x0" if out["level_x0"] <= v else "local")
     return out
@@ -152,7 +155,7 @@ def convergence_note(rec: dict) -> str:
     note = "not converged" + (": " + "; ".join(why) if why else " within the horizon")
     if not covered:
         return note
-    witness = rec.get("witness") or "no state recorded"
+    witness = rec.get("sim_witness") or "no state recorded"
     if status == "diverged" or left:
         what = "diverged" if status == "diverged" else "left the certified region"
         return f"{note} (INCONSISTENT with the certificate: a certified pair {what}; witness {witness})"

@@ -14,8 +14,8 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-__all__ = ["Channels", "Constants", "Plant", "PlantError", "SineTerms", "check_int", "check_real", "jacobian_mismatch",
-           "sine_terms"]
+__all__ = ["Channels", "Constants", "Plant", "PlantError", "SineTerms", "check_int", "check_real", "cubic_slopes",
+           "jacobian_mismatch", "saturation_slopes", "sine_slopes", "sine_terms"]
 
 
 class PlantError(ValueError):
@@ -138,6 +138,11 @@ class Channels:
         Slope bounds of each channel (a scalar applies to every channel); ``lo <= hi``.
     radius : float, optional
         The slopes hold on the ball ``||x|| <= radius``; None means globally.
+    narrow : callable, optional
+        ``narrow(r) -> (lo_r, hi_r)`` (scalars or shape (q,)): the slopes of each channel between
+        two points with ``|z_i| <= r`` (analytic, e.g. :func:`sine_slopes`), for certificates that hold
+        on the region ``|(H x)_i| <= r`` only. :meth:`slopes_on` intersects them with ``[lo, hi]``.
+        None: the slopes are not known to narrow.
 
     Examples
     --------
@@ -151,8 +156,11 @@ class Channels:
     lo: np.ndarray | float
     hi: np.ndarray | float
     radius: float | None = None
+    narrow: Callable[[float], tuple] | None = None
 
     def __post_init__(self) -> None:
+        if self.narrow is not None and not callable(self.narrow):
+            raise PlantError(f"channels.narrow: must be callable r -> (lo, hi) or None, got {type(self.narrow).__name__}")
         G = _matrix("channels.G", self.G)
         H = _matrix("channels.H", self.H)
         q = G.shape[1]
@@ -198,9 +206,60 @@ class Channels:
         """Half widths ``r = (hi - lo) / 2``: ``|psi_i(a) - psi_i(b)| <= r_i |a - b|``."""
         return (self.hi - self.lo) / 2
 
+    def slopes_on(self, r: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """Slope bounds of each channel on ``|z_i| <= r``: the declared narrowing intersected with
+        ``[lo, hi]`` (None when the channels declare no narrowing).
+
+        Raises
+        ------
+        PlantError
+            When ``narrow(r)`` is not a pair of real scalars or (q,) arrays with ``lo_r <= hi_r``.
+        """
+        if self.narrow is None:
+            return None
+        try:
+            lo_r, hi_r = (np.broadcast_to(_real_array(v), (self.q,)) for v in self.narrow(float(r)))
+        except Exception as exc:
+            raise PlantError(f"channels.narrow: narrow({r:g}) must return (lo, hi), scalars or shape ({self.q},): "
+                             f"{type(exc).__name__}: {exc}") from None
+        lo, hi = np.maximum(self.lo, lo_r), np.minimum(self.hi, hi_r)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
+            raise PlantError(f"channels.narrow: narrow({r:g}) gives slopes {lo_r.tolist()}, {hi_r.tolist()} that are "
+                             f"not finite or leave no slope inside [lo, hi]")
+        return lo, hi
+
     def apply(self, x: np.ndarray) -> np.ndarray:
         """``G phi(H x)`` for a state (n,) or a batch (n, N)."""
         return self.G @ np.asarray(self.phi(self.H @ np.asarray(x, dtype=float)), dtype=float)
+
+
+def sine_slopes(coef: float) -> Callable[[float], tuple[float, float]]:
+    """Slopes of ``phi(z) = coef sin(z)`` on ``|z| <= r``: ``coef`` times ``[cos(min(r, pi)), 1]``.
+
+    Between ``a, b`` in ``[-r, r]`` the secant of sin is ``cos(xi)`` for some ``xi`` in ``[-r, r]``,
+    and ``cos`` ranges over ``[cos r, 1]`` there for ``r <= pi`` (over ``[-1, 1]`` beyond).
+    """
+    def narrow(r: float) -> tuple[float, float]:
+        ends = (coef, coef * math.cos(min(r, math.pi)))
+        return min(ends), max(ends)
+    return narrow
+
+
+def saturation_slopes(k: float) -> Callable[[float], tuple[float, float]]:
+    """Slopes of ``phi(z) = k sat(z)`` (unit saturation) on ``|z| <= r``: exactly ``k`` for
+    ``r <= 1`` (the linear zone), between ``0`` and ``k`` beyond."""
+    def narrow(r: float) -> tuple[float, float]:
+        return (k, k) if r <= 1.0 else (min(k, 0.0), max(k, 0.0))
+    return narrow
+
+
+def cubic_slopes(c: float) -> Callable[[float], tuple[float, float]]:
+    """Slopes of ``phi(z) = -c z^3`` on ``|z| <= r``: the secant ``-c (a^2 + a b + b^2)`` lies in
+    ``[-3 c r^2, 0]`` for ``c >= 0`` (``a^2 + a b + b^2`` is in ``[0, 3 r^2]``)."""
+    def narrow(r: float) -> tuple[float, float]:
+        ends = (-3.0 * c * r * r, 0.0)
+        return min(ends), max(ends)
+    return narrow
 
 
 @dataclass(frozen=True)
@@ -281,7 +340,8 @@ def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> SineT
         G[acts, np.arange(q)] = 1.0 / scale
         H = np.zeros((q, n))
         H[np.arange(q), reads] = 1.0
-        channels = Channels(G=G, H=H, phi=lambda z: coef * np.sin(z), lo=-abs(coef), hi=abs(coef))
+        channels = Channels(G=G, H=H, phi=lambda z: coef * np.sin(z), lo=-abs(coef), hi=abs(coef),
+                            narrow=sine_slopes(coef))
     return SineTerms(f=f, jacobian=jacobian, channels=channels, bounds=Constants(alpha=a, rho=a / 2, beta=a**2,
                                                                                    gamma=0.0))
 

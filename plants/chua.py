@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Channels, Constants, Plant, check_real
+from plants._core import Channels, Constants, Plant, check_real, saturation_slopes
 
 __all__ = ["chua"]
 
@@ -87,7 +87,8 @@ def chua(
 
     A = np.array([[-a * (1.0 + m1), a, 0.0], [1.0, -1.0, 1.0], [0.0, -b, 0.0]])
     channels = Channels(G=np.array([[1.0], [0.0], [0.0]]), H=np.array([[1.0, 0.0, 0.0]]),
-                        phi=lambda z: k * 0.5 * (np.abs(z + 1.0) - np.abs(z - 1.0)), lo=min(k, 0.0), hi=max(k, 0.0))
+                        phi=lambda z: k * 0.5 * (np.abs(z + 1.0) - np.abs(z - 1.0)), lo=min(k, 0.0), hi=max(k, 0.0),
+                        narrow=saturation_slopes(k))
     return Plant(id="chua_v1", A=A, B=np.array([[1.0], [0.0], [0.0]]), C=np.array([[1.0, 0.0, 0.0]]), f=f,
                  jacobian=jacobian, x0=X0, x_hat0=X_HAT0, claimed=Constants(alpha=abs(a * (m0 - m1))),
                  bounds=Constants(alpha=abs(k), rho=max(k, 0.0), beta=k**2, gamma=0.0), channels=channels,

@@ -54,7 +54,7 @@ import math
 import numpy as np
 
 from bench.registry import register_plant
-from plants._core import Channels, Constants, Plant, PlantError, check_int, check_real
+from plants._core import Channels, Constants, Plant, PlantError, check_int, check_real, cubic_slopes, sine_slopes
 
 __all__ = [
     "is_detectable",
@@ -243,7 +243,8 @@ def random_lipschitz_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.5
 
     return _member("random_lipschitz", A, B, C, f=f, jacobian=jacobian,
                    consts=Constants(alpha=c, rho=c, beta=c**2, gamma=0.0),
-                   channels=Channels(G=c * G, H=H, phi=np.sin, lo=-1.0, hi=1.0), x0=_unit(rng, n), t_final=t_final,
+                   channels=Channels(G=c * G, H=H, phi=np.sin, lo=-1.0, hi=1.0, narrow=sine_slopes(1.0)),
+                   x0=_unit(rng, n), t_final=t_final,
                    id=id, params={"c": c, "seed": int(seed), "max_re": float(max_re)},
                    notes="f = c G sin(H x), G and H orthogonal: alpha = rho = c, (beta, gamma) = (c^2, 0), global")
 
@@ -291,7 +292,8 @@ def random_osl_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 1.0, r: f
     k = 3.0 * c * r**2
     return _member("random_osl", A, B, C, f=f, jacobian=jacobian,
                    consts=Constants(alpha=k, rho=0.0, beta=0.0, gamma=-k, radius=r),
-                   channels=Channels(G=W, H=W.T, phi=lambda z: -c * (z * z * z), lo=-k, hi=0.0, radius=r),
+                   channels=Channels(G=W, H=W.T, phi=lambda z: -c * (z * z * z), lo=-k, hi=0.0, radius=r,
+                                     narrow=cubic_slopes(c)),
                    x0=0.5 * r * _unit(rng, n), t_final=t_final, id=id,
                    params={"c": c, "r": r, "seed": int(seed), "max_re": float(max_re)},
                    notes="f = -c W (W'x)^3, W orthogonal: rho = 0, alpha = 3 c r^2, (beta, gamma) = (0, -3 c r^2) "

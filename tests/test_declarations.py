@@ -61,7 +61,7 @@ def test_a_channel_identity_broken_along_the_simulation_uncertifies_every_pair()
         assert not t.loc[d, "certified"], (d, t.loc[d, "reason"])
         assert "differs from f" in t.loc[d, "reason"]
     assert any(v["constant"] == "channels" for v in res.findings["disproved"])
-    assert "x_hat" in t.loc["lqr+lqe", "witness"]
+    assert "x_hat" in t.loc["lqr+lqe", "sim_witness"]
 
 
 def test_a_slope_bound_broken_beyond_the_sampled_range_is_found_from_the_reach():
@@ -141,7 +141,7 @@ def test_a_random_f_is_refused_as_not_deterministic():
 def _rec(**kw):
     rec = {"converged": False, "sim_status": "ok", "certified": True, "cert_scope": "global", "cert_horizon_s": 10.0,
            "in_region": None, "horizon_rule": "certified rate", "horizon_s": 10.0, "tail_rate": math.nan,
-           "decay_rate": 0.7, "witness": "t = 3 s, x = (1e7, 0), x_hat = (0, 0)"}
+           "decay_rate": 0.7, "sim_witness": "t = 3 s, x = (1e7, 0), x_hat = (0, 0)"}
     rec.update(kw)
     return rec
 
@@ -171,7 +171,7 @@ def test_an_inconsistent_pair_is_counted_in_the_findings():
 
     rec = blank_record("p", "d")
     rec.update(certified=True, decay_rate=0.5, reason="not converged (INCONSISTENT with the certificate: ...)",
-               witness="t = 1 s")
+               sim_witness="t = 1 s")
     found = findings(pd.DataFrame([rec]), {})
     assert found["counts"]["inconsistent"] == 1 and found["inconsistent"][0]["witness"] == "t = 1 s"
 

@@ -1,0 +1,326 @@
+"""What a class of nonlinearities allows, shown by its members: witnesses against a certificate, and
+the ceiling on a certified rate.
+
+A certificate of the ladder (:mod:`bench.certify`) proves ``V' <= -2 lam V`` for *every* f in a
+class (the trusted constants, or the channels ``f = G phi(H x)`` with slopes in a box). Two kinds
+of member bound what it can prove, with fixed gains K, F:
+
+- **linear members** ``f = L x``, with ``L = G diag(c) H`` for slopes ``c`` in the box (or ``L``
+  meeting every scalar constant of the class). With f linear the loop (9) is block triangular,
+  ``z' = [[A + L + B F, -B F], [0, A + L - K C]] z``: its eigenvalues are those of
+  ``A + L + B F`` and ``A + L - K C``. A certificate over the class makes every member decay at
+  ``lam`` at least, so an unstable member is a *witness* that no certificate over the class
+  exists (global or local: the LMI does not depend on the region), and the smallest decay rate
+  over the members is a *ceiling* on any certified rate (:func:`rate_ceiling`);
+- **equilibria** of the true closed loop other than the origin (:func:`equilibrium_witness`): the
+  loop is then not globally asymptotically stable, so no certificate of any form proves global
+  convergence.
+
+Members are the box's vertices and a grid for few channels, seeded samples beyond (the text of
+each result says which); a ceiling is then an upper bound found by search, not the exact minimum.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench import lmi
+
+__all__ = ["GRID", "SAMPLES", "Witness", "admits", "equilibrium_witness", "linear_witness", "loop_rates",
+           "members", "rate_ceiling"]
+
+#: Grid points per channel for few channels (q channels: ``GRID[q] ** q`` members, vertices included).
+GRID = {1: 41, 2: 9, 3: 5}
+
+#: Seeded members for more channels (half at random vertices, half inside the box).
+SAMPLES = 128
+
+#: A member is unstable when its loop has an eigenvalue with real part above this, relative to the
+#: size of A, B F and K C (the certificate ladder's pre-check uses the same test).
+UNSTABLE_TOL = 1e-9
+
+
+@dataclass
+class Witness:
+    """A member of the class that rules a certificate out.
+
+    Attributes
+    ----------
+    kind : str
+        ``"linear member"`` or ``"equilibrium"``.
+    text : str
+        The witness in words (slopes and eigenvalue, or the equilibrium and its residual).
+    slopes : ndarray or None
+        Channel slopes of a linear member (None for a scalar-class member or an equilibrium).
+    L : ndarray or None
+        The linear member ``f = L x``.
+    eig : complex
+        Its loop's eigenvalue of largest real part.
+    z : ndarray or None
+        The equilibrium ``(x, e)``.
+    residual : float
+        ``||z'||`` of the true closed loop at ``z``.
+    """
+
+    kind: str
+    text: str
+    slopes: np.ndarray | None = None
+    L: np.ndarray | None = None
+    eig: complex = complex("nan")
+    z: np.ndarray | None = None
+    residual: float = float("nan")
+
+
+def admits(L: np.ndarray, scalars: tuple[str, ...], constants) -> bool:
+    """True when ``f(x) = L x`` meets the scalar constants ``scalars`` (of ``"osl"``, ``"qib"``, ``"lip"``).
+
+    OSL: ``sym(L) <= rho I``; QIB: ``L' L <= beta I + gamma sym(L)``; Lipschitz: ``||L||_2 <= alpha``.
+    """
+    c, S = constants, (L + L.T) / 2
+    tol = 1e-12 * max(1.0, float(np.abs(L).max(initial=0.0)))
+    ok = {"osl": lambda: lmi.max_eig(S - (c.rho or 0.0) * np.eye(len(L))) <= tol,
+          "qib": lambda: lmi.max_eig(L.T @ L - (c.beta or 0.0) * np.eye(len(L)) - (c.gamma or 0.0) * S) <= tol,
+          "lip": lambda: float(np.linalg.norm(L, 2)) <= (c.alpha or 0.0) + tol}
+    return all(ok[k]() for k in scalars)
+
+
+def _slope_points(lo: np.ndarray, hi: np.ndarray, seed: int) -> tuple[np.ndarray, str]:
+    """Slope vectors in the box ``[lo, hi]``, shape (N, q), and how they were chosen."""
+    q = lo.size
+    if q in GRID:
+        axes = [np.unique(np.linspace(a, b, GRID[q])) for a, b in zip(lo, hi)]
+        pts = np.array(list(itertools.product(*axes)), dtype=float)
+        return pts, f"the box's vertices and a grid of {GRID[q]} slopes per channel ({len(pts)} members)"
+    rng = np.random.default_rng([seed, 24])
+    corners = np.where(rng.random((SAMPLES // 2, q)) < 0.5, lo, hi)
+    inside = lo + (hi - lo) * rng.random((SAMPLES - SAMPLES // 2, q))
+    pts = np.vstack([(lo + hi)[None] / 2, corners, inside])
+    return pts, f"{len(pts)} seeded members (random vertices and interior points of the box, q = {q})"
+
+
+def members(plant, know, *, channels: bool, scalars: tuple[str, ...], box: tuple | None = None,
+            seed: int = 0) -> tuple[list[tuple[np.ndarray | None, np.ndarray]], str]:
+    """Linear members ``f = L x`` of a class, with their slopes (None outside the channel class).
+
+    Parameters
+    ----------
+    plant : Plant
+    know : bench.constants.Knowledge
+        Trusted constants and channels.
+    channels : bool
+        The class is the channels' slope box (else the scalar constants alone).
+    scalars : tuple of str
+        Scalar constants every member must also meet (:func:`admits`).
+    box : (lo, hi), optional
+        Channel slope bounds to use instead of the declared ones (a narrowed box).
+    seed : int
+
+    Returns
+    -------
+    list of (slopes, L), str
+        The admissible members and how they were chosen.
+    """
+    n, out = plant.n, []
+    ch = know.channels
+    if ch is not None and (channels or scalars):
+        lo, hi = box if box is not None else (ch.lo, ch.hi)
+        pts, how = _slope_points(np.asarray(lo, float), np.asarray(hi, float), seed)
+        out = [(c, ch.G @ (c[:, None] * ch.H)) for c in pts]
+        if not channels:
+            how = f"channel members meeting the scalar constants, among {how}"
+    else:
+        a = know.constants.alpha
+        span = a if a is not None else max(abs(know.constants.rho or 0.0), math.sqrt(abs(know.constants.beta or 0.0)),
+                                           abs(know.constants.gamma or 0.0))
+        out = [(None, s * np.eye(n)) for s in np.linspace(-span, span, GRID[1])]
+        how = f"L = s I for {GRID[1]} values of s in [-{span:.3g}, {span:.3g}] meeting the constants"
+    if scalars:
+        out = [(c, L) for c, L in out if admits(L, scalars, know.constants)]
+    return out, how
+
+
+def loop_rates(plant, K: np.ndarray, F: np.ndarray, Ls: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Decay rates ``-max Re eig`` of the linear loops with ``f = L x``, one per L, and their worst eigenvalues.
+
+    The loop is block triangular in ``(x, e)``: its eigenvalues are those of ``A + L + B F`` and
+    ``A + L - K C``.
+    """
+    if not Ls:
+        return np.zeros(0), np.zeros(0, complex)
+    AL = plant.A[None] + np.stack(Ls)
+    eig = np.concatenate([np.linalg.eigvals(AL + plant.B @ F), np.linalg.eigvals(AL - K @ plant.C)], axis=1)
+    k = np.argmax(eig.real, axis=1)
+    worst = eig[np.arange(len(Ls)), k]
+    return -worst.real, worst
+
+
+def _scale(plant, K, F) -> float:
+    return max(1.0, *(float(np.abs(M).max(initial=0.0)) for M in (plant.A, plant.B @ F, K @ plant.C)))
+
+
+def linear_witness(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, scalars: tuple[str, ...],
+                   seed: int = 0) -> Witness | None:
+    """The least stable linear member of the class when its loop is unstable (None otherwise).
+
+    Parameters
+    ----------
+    plant, K, F, know, channels, scalars, seed
+        As for :func:`members`.
+
+    Returns
+    -------
+    Witness or None
+    """
+    cands, how = members(plant, know, channels=channels, scalars=scalars, seed=seed)
+    rates, worst = loop_rates(plant, K, F, [L for _, L in cands])
+    if not rates.size:
+        return None
+    i = int(np.argmin(rates))
+    if worst[i].real <= UNSTABLE_TOL * _scale(plant, K, F):
+        return None
+    c, L = cands[i]
+    what = ("f = 0" if not np.any(L) else f"phi(s) = c s with slopes c = {_vec(c)}" if c is not None
+            else f"f = {L[0, 0]:.4g} x")
+    text = (f"the linear member {what} (in the class; searched: {how}) leaves the loop with the eigenvalue "
+            f"{_eig(worst[i])}")
+    return Witness("linear member", text, slopes=c, L=L, eig=complex(worst[i]))
+
+
+def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, scalars: tuple[str, ...],
+                 box: tuple | None = None, seed: int = 0) -> tuple[float, str]:
+    """The smallest decay rate over the class's linear members: no certificate over the class proves more.
+
+    The members of :func:`members`; for a channel box the best is refined by a bounded local search
+    (Powell) over the slopes. Any member's rate bounds every certified rate from above, so the
+    value is a valid ceiling whether or not the search found the true minimum.
+
+    Returns
+    -------
+    float, str
+        The ceiling (NaN when the class has no linear member here) and how it was found.
+    """
+    cands, how = members(plant, know, channels=channels, scalars=scalars, box=box, seed=seed)
+    rates, _ = loop_rates(plant, K, F, [L for _, L in cands])
+    if not rates.size:
+        return float("nan"), "no linear member found in the class"
+    i = int(np.argmin(rates))
+    best, c0 = float(rates[i]), cands[i][0]
+    ch = know.channels
+    if c0 is not None and ch is not None:
+        from scipy.optimize import minimize
+
+        lo, hi = (np.asarray(b, float) for b in (box if box is not None else (ch.lo, ch.hi)))
+        free = hi > lo
+        if np.any(free):
+            def rate(v):
+                c = c0.copy()
+                c[free] = np.clip(v, lo[free], hi[free])
+                L = ch.G @ (c[:, None] * ch.H)
+                if scalars and not admits(L, scalars, know.constants):
+                    return best
+                return float(loop_rates(plant, K, F, [L])[0][0])
+            res = minimize(rate, c0[free], method="Powell", bounds=list(zip(lo[free], hi[free])),
+                           options={"maxfev": 60 * int(free.sum()), "xtol": 1e-6, "ftol": 1e-9})
+            if np.isfinite(res.fun) and res.fun < best:
+                best, how = float(res.fun), how + ", refined by a bounded local search"
+    return best, how
+
+
+def _rhs(plant, K, F, z: np.ndarray) -> np.ndarray:
+    """The true closed loop (9) in ``z = (x, e)``: ``x' = (A + B F) x - B F e + f(x)``,
+    ``e' = (A - K C) e + f(x) - f(x - e)``."""
+    n = plant.n
+    x, e = z[:n], z[n:]
+    BF = plant.B @ F
+    fx = np.asarray(plant.f(x), float)
+    return np.concatenate([(plant.A + BF) @ x - BF @ e + fx, (plant.A - K @ plant.C) @ e + fx
+                           - np.asarray(plant.f(x - e), float)])
+
+
+def _jac(plant, K, F, z: np.ndarray) -> np.ndarray:
+    n = plant.n
+    x, e = z[:n], z[n:]
+    BF = plant.B @ F
+    Jx, Jh = np.asarray(plant.jacobian(x), float), np.asarray(plant.jacobian(x - e), float)
+    return np.block([[plant.A + BF + Jx, -BF], [Jx - Jh, plant.A - K @ plant.C + Jh]])
+
+
+def _starts(plant, K, F, know, seed: int, n_random: int) -> list[np.ndarray]:
+    """Starts of the root search: null directions of the linear members' loops near singular (an
+    equilibrium ``z*`` makes ``A + B F + G diag(c) H`` or ``A - K C + G diag(d) H`` singular for the
+    secant slopes c, d of phi there), at several sizes, then seeded random points."""
+    n, out = plant.n, []
+    ch = know.channels
+    sizes = np.geomspace(0.3, 30.0, 7)
+    if ch is not None:
+        cands, _ = members(plant, know, channels=True, scalars=())
+        BF, KC = plant.B @ F, K @ plant.C
+        for blk, M0 in (("x", plant.A + BF), ("e", plant.A - KC)):
+            mats = [M0 + L for _, L in cands]
+            eig = [np.linalg.eigvals(M) for M in mats]
+            small = np.array([np.min(np.abs(ev)) for ev in eig])
+            for j in np.argsort(small)[:2]:
+                w, V = np.linalg.eig(mats[j])
+                v = np.real(V[:, int(np.argmin(np.abs(w)))])
+                hv = float(np.abs(ch.H @ v).max()) or 1.0
+                for s in sizes:
+                    for sign in (1.0, -1.0):
+                        d = sign * s * v / hv
+                        out.append(np.concatenate([d, np.zeros(n)]) if blk == "x" else np.concatenate([d, d]))
+    rng = np.random.default_rng([seed, 7])
+    for s in np.geomspace(0.3, 30.0, n_random):
+        d = rng.standard_normal(2 * n)
+        out.append(s * d / np.linalg.norm(d))
+    return out
+
+
+def equilibrium_witness(plant, K: np.ndarray, F: np.ndarray, know, *, seed: int = 0, n_random: int = 16,
+                        tol: float = 1e-9) -> Witness | None:
+    """An equilibrium of the true closed loop other than the origin (None if the search finds none).
+
+    A root search (scipy ``root``, hybrid Powell, with the plant's Jacobian when it has one) of the
+    closed loop's right-hand side from the starts of :func:`_starts`; a root counts when
+    ``||z'|| <= tol max(1, ||z||)`` recomputed with the plant's f and ``||z|| > 1e-6``.
+
+    Returns
+    -------
+    Witness or None
+        The equilibrium of smallest norm among those found.
+    """
+    from scipy.optimize import root
+
+    scale = _scale(plant, K, F)
+    jac = (lambda z: _jac(plant, K, F, z)) if plant.jacobian is not None else None
+    best = None
+    with np.errstate(all="ignore"):
+        for z0 in _starts(plant, K, F, know, seed, n_random):
+            try:
+                sol = root(lambda z: _rhs(plant, K, F, z), z0, jac=jac, method="hybr")
+            except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+                continue
+            z = sol.x
+            if not np.all(np.isfinite(z)) or np.linalg.norm(z) <= 1e-6:
+                continue
+            res = float(np.linalg.norm(_rhs(plant, K, F, z)))
+            if res <= tol * scale * max(1.0, float(np.linalg.norm(z))) and (
+                    best is None or np.linalg.norm(z) < np.linalg.norm(best[0])):
+                best = (z, res)
+    if best is None:
+        return None
+    z, res = best
+    text = (f"the closed loop has an equilibrium besides the origin at z = (x, e) = {_vec(z)} (residual "
+            f"{res:.1e}): it is not globally asymptotically stable")
+    return Witness("equilibrium", text, z=z, residual=res)
+
+
+def _vec(v: np.ndarray) -> str:
+    return "(" + ", ".join(f"{x:.5g}" for x in np.asarray(v, float)) + ")"
+
+
+def _eig(w: complex) -> str:
+    w = complex(w)
+    return f"{w.real:+.4g}" if abs(w.imag) < 1e-12 else f"{w.real:+.4g} {'+' if w.imag >= 0 else '-'} {abs(w.imag):.4g}j"
