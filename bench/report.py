@@ -20,7 +20,8 @@ import numpy as np
 
 from bench.harness import RunResult
 
-__all__ = ["git_revision", "package_versions", "render_markdown", "write_report"]
+__all__ = ["REASON_CHARS", "git_revision", "package_versions", "render_markdown", "results_table", "short_reason",
+           "write_report"]
 
 #: Plants that get per-design figures of states, estimates and errors (like the paper's Figures
 #: 2-5); every plant gets the norm comparison figure.
@@ -88,6 +89,77 @@ def format_cell(v, spec: str = ".3g") -> str:
 
 
 _fmt = format_cell
+
+#: The longest ``reason`` cell of :func:`results_table` (the full text is in ``details``).
+REASON_CHARS = 120
+
+
+def short_reason(text, limit: int = REASON_CHARS) -> str:
+    """The gist of a record's ``reason`` in at most ``limit`` characters.
+
+    The first clause (up to the first ``"; "``), without parenthesised asides of more than
+    30 characters, cut at a word boundary with ``"..."`` when still longer than ``limit``.
+    A text of at most ``limit`` characters is returned as it is.
+
+    Parameters
+    ----------
+    text : str or None
+        The full reason (None or NaN: ``""``).
+    limit : int
+        At least 20.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> short_reason("infeasible: no strictly feasible point; best margin t = -1.56 (max eig 1.56)")
+    'infeasible: no strictly feasible point; best margin t = -1.56 (max eig 1.56)'
+    >>> short_reason("x" * 10 + "; " + "y" * 200)
+    'xxxxxxxxxx'
+    """
+    import re
+
+    if text is None or (isinstance(text, float) and math.isnan(text)):
+        return ""
+    text = str(text)
+    if len(text) <= limit:
+        return text
+    head = text.split("; ", 1)[0]
+    while True:  # innermost asides first, so nested parentheses go too
+        shorter = re.sub(r" ?\([^()]{30,}\)", "", head)
+        if shorter == head:
+            break
+        head = shorter
+    if len(head) <= limit:
+        return head
+    cut = head[: limit - 3]
+    if " " in cut[limit // 2:]:
+        cut = cut[: cut.rindex(" ")]
+    return cut.rstrip(" ,;:") + "..."
+
+
+def results_table(df):
+    """The results table as results.csv and :attr:`bench.api.Results.table` show it.
+
+    The records (:data:`bench.pipeline.COLUMNS`, in the order asked for) with ``reason``
+    shortened by :func:`short_reason` and the full text in a last column ``details``.
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        :meth:`bench.harness.RunResult.frame`.
+
+    Returns
+    -------
+    pandas.DataFrame
+        A new frame.
+    """
+    out = df.copy()
+    out["details"] = df["reason"].fillna("")
+    out["reason"] = out["details"].map(short_reason)
+    return out
 
 
 def _table(df, columns: list[str], headers: list[str] | None = None) -> str:
@@ -397,6 +469,8 @@ def _gains(result: RunResult) -> list[dict]:
             out.append({
                 "plant": rec["plant"],
                 "design": rec["design"],
+                "status": rec["status"],
+                "reason": rec["reason"],
                 "route": rec["route"],
                 "K": None if r.K is None else np.asarray(r.K).tolist(),
                 "F": np.asarray(r.F).tolist(),
@@ -452,7 +526,7 @@ def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: t
     info = {**run_info, "findings": run_info.get("findings") or findings(df, result.constants)}
     figs = _figures(result, tmp / "figures", fmts) if figures else []
     (tmp / "REPORT.md").write_text(render_markdown(result, figs, info), encoding="utf-8")
-    df.to_csv(tmp / "results.csv", index=False)
+    results_table(df).to_csv(tmp / "results.csv", index=False)
     (tmp / "gains.json").write_text(json.dumps(_gains(result), indent=1) + "\n", encoding="utf-8")
     (tmp / "run.json").write_text(json.dumps(_run_json(result, info), indent=1, default=str) + "\n",
                                   encoding="utf-8")
