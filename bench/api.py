@@ -54,7 +54,8 @@ class Results:
 
     def write(self, out_dir: str | os.PathLike = "reports", *, figures: bool = True,
               figure_format: str | Iterable[str] = "png") -> Path:
-        """Write the report files (REPORT.md, results.csv, gains.json, run.json, tables.tex, figures/).
+        """Write the report files (REPORT.md, results.csv, gains.json, run.json, tables.tex, tables_standalone.tex,
+        figures/).
 
         Parameters
         ----------

@@ -405,7 +405,7 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         f"{'constants claimed by the sources' if o.use_claimed else 'valid constants (analytic, else sampled)'}; "
         f"{len(df)} pairs. One row per pair in `results.csv` (every verdict below is a column there), gains and "
         "certificates in `gains.json`, settings, versions and these findings in `run.json`, LaTeX tables in "
-        "`tables.tex`.",
+        "`tables.tex` (`pdflatex tables_standalone.tex` compiles them).",
         "",
         "## What the suite found",
         "",
@@ -519,7 +519,7 @@ def _formats(figure_format) -> tuple[str, ...]:
 def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: tuple[str, ...]) -> list[str]:
     """Render every file of the report into ``tmp``; return their paths relative to it."""
     from bench.findings import findings
-    from bench.latex import tables_tex
+    from bench.latex import minimal_document, tables_tex
 
     (tmp / "figures").mkdir()
     df = result.frame()
@@ -531,13 +531,15 @@ def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: t
     (tmp / "run.json").write_text(json.dumps(_run_json(result, info), indent=1, default=str) + "\n",
                                   encoding="utf-8")
     (tmp / "tables.tex").write_text(tables_tex(df), encoding="utf-8")
+    (tmp / "tables_standalone.tex").write_text(minimal_document(r"\input{tables.tex}"), encoding="utf-8")
     files = [f"figures/{p.name}" for p in sorted((tmp / "figures").iterdir())]
-    return files + ["results.csv", "gains.json", "run.json", "tables.tex", "REPORT.md"]
+    return files + ["results.csv", "gains.json", "run.json", "tables.tex", "tables_standalone.tex", "REPORT.md"]
 
 
 def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, *, figures: bool = True,
                  figure_format="png") -> Path:
-    """Write REPORT.md, results.csv, gains.json, run.json, tables.tex and figures/ into ``out_dir``, whole or not at all.
+    """Write REPORT.md, results.csv, gains.json, run.json, tables.tex (with tables_standalone.tex) and figures/
+    into ``out_dir``, whole or not at all.
 
     Parameters
     ----------
