@@ -255,7 +255,7 @@ def _figure_jobs(result: RunResult) -> list[_FigureJob]:
         norms = tuple((o.record["design"], o.trajectory.t, np.linalg.norm(o.trajectory.x, axis=0),
                        np.linalg.norm(o.trajectory.e, axis=0)) for o in outs)
         jobs.append(_FigureJob("norms", f"{pid}__norms", f"{pid}: state and error norms of every converging design "
-                               "(log scale)", pid, norms))
+                               f"(log scale; a norm below {NORM_FLOOR:.0e} is drawn on that floor)", pid, norms))
         if pid not in FIGURE_PLANTS:
             continue
         for o in outs:
@@ -270,6 +270,89 @@ def _figure_jobs(result: RunResult) -> list[_FigureJob]:
     return jobs
 
 
+#: Colours of the designs in a norms figure: 15 distinct ones (matplotlib's ten, then five more),
+#: each with its own line style too (:data:`NORM_STYLES`), so every design up to 15 is told apart
+#: in colour and in greyscale.
+NORM_COLOURS = ("C0", "C1", "C2", "C3", "C4", "C5", "C6", "C7", "C8", "C9", "black", "#b8860b", "#000080",
+                "#008080", "#ff1493")
+#: Line styles of a norms figure, cycled beside the colours (15 designs: 15 different pairs).
+NORM_STYLES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
+#: Norms below this are drawn on it (a log axis has no 0); the figure draws and names the floor.
+NORM_FLOOR = 1e-16
+
+
+def _norms_figure(job: _FigureJob):
+    """The norms figure of a plant: ||x(t)|| and ||e(t)|| of every converging design on log axes, the
+    designs told apart by colour and line style (:data:`NORM_COLOURS`, :data:`NORM_STYLES`), the key in
+    a panel of its own, and the floor :data:`NORM_FLOOR` drawn and named when a norm falls below it.
+
+    Returns
+    -------
+    (matplotlib.figure.Figure, int)
+        The figure and its dpi.
+    """
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(12, 4.2))
+    grid = fig.add_gridspec(1, 3, width_ratios=(1, 1, 0.36), left=0.06, right=0.995, bottom=0.12, top=0.86,
+                            wspace=0.22)
+    axes = [fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1])]
+    axes[1].sharex(axes[0])
+    clipped = False
+    for k, (did, t, nx, ne) in enumerate(job.data):
+        style = dict(color=NORM_COLOURS[k % len(NORM_COLOURS)], linestyle=NORM_STYLES[k % len(NORM_STYLES)],
+                     linewidth=1.3)
+        for ax, v in zip(axes, (nx, ne)):
+            clipped |= bool(np.any(v < NORM_FLOOR))
+            ax.semilogy(t, np.maximum(v, NORM_FLOOR), label=did, **style)
+    if clipped:
+        for ax in axes:
+            ax.axhline(NORM_FLOOR, color="0.35", linewidth=0.9, linestyle=(0, (1, 2)),
+                       label=f"floor {NORM_FLOOR:.0e}\n(smaller norms\ndrawn on it)")
+    axes[0].set(title="state", xlabel="t [s]", ylabel="||x(t)||")
+    axes[1].set(title="estimation error", xlabel="t [s]", ylabel="||e(t)|| = ||x(t) - x_hat(t)||")
+    for ax in axes:
+        ax.grid(True, which="major", alpha=0.3)
+    fig.suptitle(f"{job.title}: norms of every converging design (log scale)")
+    handles, labels = axes[1].get_legend_handles_labels()  # the error panel holds the floor if any
+    key = fig.add_subplot(grid[0, 2])
+    key.axis("off")
+    key.legend(handles, labels, loc="center left", bbox_to_anchor=(-0.12, 0.5), fontsize=8, frameon=False,
+               title="design", title_fontsize=9, handlelength=3.2)
+    return fig, 110
+
+
+def _states_figure(job: _FigureJob):
+    """One pair's states with their estimates (dashed) and estimation errors (the paper's Figures 2-5).
+
+    Returns
+    -------
+    (matplotlib.figure.Figure, int)
+        The figure and its dpi.
+    """
+    import matplotlib.pyplot as plt
+
+    t, x, x_hat, t_show = job.data
+    n = x.shape[0]
+    fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.09, top=0.88, wspace=0.35, hspace=0.4)
+    for i in range(n):
+        ax = axes[0, i]
+        ax.plot(t, x[i], label=f"x{i + 1}")
+        ax.plot(t, x_hat[i], "--", label=f"x_hat{i + 1}")
+        ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", ylabel=f"x{i + 1}, x_hat{i + 1}",
+               xlim=(0, t_show))
+        ax.legend(fontsize=8, loc="upper right")
+        ax.grid(True, alpha=0.3)
+        ax = axes[1, i]
+        ax.plot(t, x[i] - x_hat[i], color="C3")
+        ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", ylabel=f"e{i + 1} = x{i + 1} - x_hat{i + 1}",
+               xlim=(0, t_show))
+        ax.grid(True, alpha=0.3)
+    fig.suptitle(job.title)
+    return fig, 100
+
+
 def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
     """Draw one figure into ``figdir`` in every format; return the first file's name."""
     import matplotlib
@@ -277,37 +360,7 @@ def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    if job.kind == "norms":
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-        fig.subplots_adjust(left=0.06, right=0.99, bottom=0.13, top=0.91, wspace=0.15)
-        for k, (did, t, nx, ne) in enumerate(job.data):  # ten colours, then the same ten dashed
-            style = "-" if k < 10 else "--"
-            axes[0].semilogy(t, np.maximum(nx, 1e-16), style, label=did)
-            axes[1].semilogy(t, np.maximum(ne, 1e-16), style, label=did)
-        axes[0].set(title=f"{job.title}: ||x(t)||", xlabel="t [s]")
-        axes[1].set(title=f"{job.title}: ||e(t)|| = ||x - x_hat||", xlabel="t [s]")
-        for ax in axes:
-            ax.grid(True, which="both", alpha=0.3)
-        axes[0].legend(fontsize=8, loc="upper right")  # "best" searches every point: ~30 % of a figure
-        dpi = 110
-    else:
-        t, x, x_hat, t_show = job.data
-        n = x.shape[0]
-        fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
-        fig.subplots_adjust(left=0.05, right=0.99, bottom=0.09, top=0.88, wspace=0.25, hspace=0.4)
-        for i in range(n):
-            ax = axes[0, i]
-            ax.plot(t, x[i], label=f"x{i + 1}")
-            ax.plot(t, x_hat[i], "--", label=f"x_hat{i + 1}")
-            ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", xlim=(0, t_show))
-            ax.legend(fontsize=8, loc="upper right")
-            ax.grid(True, alpha=0.3)
-            ax = axes[1, i]
-            ax.plot(t, x[i] - x_hat[i], color="C3")
-            ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", xlim=(0, t_show))
-            ax.grid(True, alpha=0.3)
-        fig.suptitle(job.title)
-        dpi = 100
+    fig, dpi = _norms_figure(job) if job.kind == "norms" else _states_figure(job)
     name = _save(fig, figdir, job.stem, fmts, dpi=dpi)
     plt.close(fig)
     return name
