@@ -91,3 +91,10 @@ def test_my_design_runs_through_bench_run_as_an_object():
     finally:
         DESIGNS.unregister("my_poles")
         DESIGNS.unregister("poleplacement")
+
+
+def test_readme_design_example_is_the_example_file():
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = text[text.index("## Your own design"):]
+    code = section[section.index("```python\n") + len("```python\n"):]
+    assert code[: code.index("```")] == (ROOT / "examples" / "my_design.py").read_text(encoding="utf-8")
