@@ -97,9 +97,9 @@ REASON_CHARS = 120
 def short_reason(text, limit: int = REASON_CHARS) -> str:
     """The gist of a record's ``reason`` in at most ``limit`` characters.
 
-    The first clause (up to the first ``"; "``), without parenthesised asides of more than
-    30 characters, cut at a word boundary with ``"..."`` when still longer than ``limit``.
-    A text of at most ``limit`` characters is returned as it is.
+    The first clause (up to the first ``"; "`` outside parentheses), without parenthesised asides
+    of more than 30 characters, cut at a word boundary with ``"..."`` when still longer than
+    ``limit``. A text of at most ``limit`` characters is returned as it is.
 
     Parameters
     ----------
@@ -116,8 +116,8 @@ def short_reason(text, limit: int = REASON_CHARS) -> str:
     --------
     >>> short_reason("infeasible: no strictly feasible point; best margin t = -1.56 (max eig 1.56)")
     'infeasible: no strictly feasible point; best margin t = -1.56 (max eig 1.56)'
-    >>> short_reason("x" * 10 + "; " + "y" * 200)
-    'xxxxxxxxxx'
+    >>> short_reason("x" * 10 + " (a; b); " + "y" * 200)
+    'xxxxxxxxxx (a; b)'
     """
     import re
 
@@ -126,7 +126,12 @@ def short_reason(text, limit: int = REASON_CHARS) -> str:
     text = str(text)
     if len(text) <= limit:
         return text
-    head = text.split("; ", 1)[0]
+    depth, head = 0, text
+    for i, ch in enumerate(text):
+        depth += (ch == "(") - (ch == ")")
+        if depth <= 0 and text.startswith("; ", i):
+            head = text[:i]
+            break
     while True:  # innermost asides first, so nested parentheses go too
         shorter = re.sub(r" ?\([^()]{30,}\)", "", head)
         if shorter == head:
