@@ -118,6 +118,21 @@ def _register_objects(items, registry, kind: str) -> list[str]:
     return out
 
 
+def _registry_order(ids: list[str], registry) -> list[str]:
+    """``ids`` sorted as the registry lists them."""
+    rank = {i: k for k, i in enumerate(registry.ids())}
+    return sorted(ids, key=lambda i: rank.get(i, len(rank)))
+
+
+def _reorder(result, plant_ids: list[str], design_ids: list[str]) -> None:
+    """Put a run's outcomes and constants in the order of ``plant_ids`` x ``design_ids`` (in place)."""
+    p_rank = {p: k for k, p in enumerate(plant_ids)}
+    d_rank = {d: k for k, d in enumerate(design_ids)}
+    result.outcomes.sort(key=lambda o: (p_rank.get(o.record["plant"], 0), d_rank.get(o.record["design"], 0)))
+    result.constants = {p: result.constants[p] for p in plant_ids if p in result.constants}
+    result.constants_errors = {p: result.constants_errors[p] for p in plant_ids if p in result.constants_errors}
+
+
 def _progress(progress):
     if progress is True:
         from bench.progress import Progress
@@ -191,11 +206,13 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     jobs = min(jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
     bar = _progress(progress)
     store = None if cache is None else Cache(cache)
-    try:
-        result = run_pairs(plant_ids, design_ids, options, progress=bar, jobs=jobs, scheduler=scheduler, cache=store)
+    try:  # computed in the registry's order (as every run is), shown in the order asked for
+        result = run_pairs(_registry_order(plant_ids, PLANTS), _registry_order(design_ids, DESIGNS), options,
+                           progress=bar, jobs=jobs, scheduler=scheduler, cache=store)
     finally:
         if hasattr(bar, "close"):
             bar.close()
+    _reorder(result, plant_ids, design_ids)
     records = result.frame()
     gains = {(o.record["plant"], o.record["design"]): {"K": o.result.K, "F": o.result.F, "result": o.result,
                                                          "certificate": o.certificate, "trajectory": o.trajectory,
