@@ -2,23 +2,53 @@
 
 From the command line, ``python -m bench run`` writes ``reports/REPORT.md``; from Python::
 
-    import bench
-    r = bench.run(plants=["flexible_link"], designs=["thm1"])
-    r.table        # one row per pair (pandas)
+    from bench import Plant, run
+    r = run(plants=["flexible_link"], designs=["thm1"])
+    r.table        # one row per pair (pandas), in the order asked for
     r.write("out") # the same report files as the command
 
-``bench.run`` and ``bench.Results`` are imported on first use (``python -m bench --help`` stays fast).
+The public names (``dir(bench)``):
+
+- :func:`run`, :class:`Results`: the suite as a library (:mod:`bench.api`);
+- :class:`Plant`, :class:`Constants`, :class:`Channels`, :class:`PlantError`: what a plant is
+  (:mod:`plants`), and :func:`register_plant` to put your own in the registry;
+- :class:`Design`, :class:`DesignResult`, :class:`DesignError`: what a design is and returns
+  (:mod:`designs`), and :func:`register_design` to put your own in the registry.
+
+They are imported on first use (``python -m bench --help`` stays fast).
 """
 
 from bench import _env  # noqa: F401  (BLAS threads, before numpy)
 
 __version__ = "0.1.0"
-__all__ = ["Results", "run"]
+
+#: Public name -> the module that defines it (imported on first use).
+_PUBLIC = {
+    "run": "bench.api",
+    "Results": "bench.api",
+    "register_design": "bench.registry",
+    "register_plant": "bench.registry",
+    "Plant": "plants",
+    "Constants": "plants",
+    "Channels": "plants",
+    "PlantError": "plants",
+    "Design": "designs",
+    "DesignResult": "designs",
+    "DesignError": "designs",
+}
+
+__all__ = sorted(_PUBLIC)
 
 
 def __getattr__(name: str):
-    if name in ("run", "Results"):
-        from bench import api
+    if name in _PUBLIC:
+        import importlib
 
-        return getattr(api, name)
+        value = getattr(importlib.import_module(_PUBLIC[name]), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
     raise AttributeError(f"module 'bench' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_PUBLIC))

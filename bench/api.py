@@ -26,8 +26,10 @@ class Results:
     Attributes
     ----------
     table : pandas.DataFrame
-        One row per (plant, design) pair, the columns of results.csv
-        (:data:`bench.pipeline.COLUMNS`).
+        results.csv: one row per (plant, design) pair, plants and designs in the order asked for,
+        the columns :data:`bench.pipeline.COLUMNS` with ``reason`` cut to its gist (at most
+        :data:`bench.report.REASON_CHARS` characters) and the full text in a last column
+        ``details`` (:func:`bench.report.results_table`).
     gains : dict
         ``(plant, design) -> {"K", "F", "result", "certificate", "trajectory", "plant"}`` for every
         pair with a controller (``result`` is the :class:`designs.DesignResult`, ``certificate``
@@ -52,7 +54,8 @@ class Results:
 
     def write(self, out_dir: str | os.PathLike = "reports", *, figures: bool = True,
               figure_format: str | Iterable[str] = "png") -> Path:
-        """Write the report files (REPORT.md, results.csv, gains.json, run.json, tables.tex, figures/).
+        """Write the report files (REPORT.md, results.csv, gains.json, run.json, tables.tex, tables_standalone.tex,
+        figures/).
 
         Parameters
         ----------
@@ -115,6 +118,21 @@ def _register_objects(items, registry, kind: str) -> list[str]:
     return out
 
 
+def _registry_order(ids: list[str], registry) -> list[str]:
+    """``ids`` sorted as the registry lists them."""
+    rank = {i: k for k, i in enumerate(registry.ids())}
+    return sorted(ids, key=lambda i: rank.get(i, len(rank)))
+
+
+def _reorder(result, plant_ids: list[str], design_ids: list[str]) -> None:
+    """Put a run's outcomes and constants in the order of ``plant_ids`` x ``design_ids`` (in place)."""
+    p_rank = {p: k for k, p in enumerate(plant_ids)}
+    d_rank = {d: k for k, d in enumerate(design_ids)}
+    result.outcomes.sort(key=lambda o: (p_rank.get(o.record["plant"], 0), d_rank.get(o.record["design"], 0)))
+    result.constants = {p: result.constants[p] for p in plant_ids if p in result.constants}
+    result.constants_errors = {p: result.constants_errors[p] for p in plant_ids if p in result.constants_errors}
+
+
 def _progress(progress):
     if progress is True:
         from bench.progress import Progress
@@ -133,14 +151,17 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     Parameters
     ----------
     plants, designs : iterable, optional
-        Registry ids or globs (``"flexible_link*"``), or :class:`plants.Plant` objects (e.g. from
-        :meth:`plants.Plant.from_statespace`); default: every registered one.
+        Registry ids or globs (``"flexible_link*"``), :class:`plants.Plant` objects (e.g. from
+        :meth:`plants.Plant.from_statespace`) or :class:`designs.Design` objects (registered for
+        this process under their class name in lower case); default: every registered one. The
+        table keeps the order given (a glob's matches in the registry's order).
     seed : int
         Seed of the constants sampler and of the noise.
     claimed_constants : bool
         Design with the constants the sources claim (certificates still use the trusted ones).
     t_final : float, optional
-        A fixed horizon (default: each pair's horizon follows its certified rate).
+        A fixed horizon for every pair (default: each pair's horizon follows its certified rate,
+        or its linearised rate when uncertified: :func:`bench.verdicts.horizon`).
     noise : float
         Standard deviation of a seeded measurement noise.
     timeout : float, optional
@@ -176,25 +197,28 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     from bench.harness import RunOptions
     from bench.harness import run as run_pairs
     from bench.registry import DESIGNS, PLANTS
+    from bench.report import results_table
 
-    plant_ids = PLANTS.select(_register_objects(plants or [], PLANTS, "plant") or None)
-    design_ids = DESIGNS.select(_register_objects(designs or [], DESIGNS, "design") or None)
+    plant_ids = PLANTS.select(_register_objects(plants or [], PLANTS, "plant") or None, keep_order=True)
+    design_ids = DESIGNS.select(_register_objects(designs or [], DESIGNS, "design") or None, keep_order=True)
     options = RunOptions(seed=seed, use_claimed=claimed_constants, fail_fast=fail_fast, t_final=t_final, noise=noise,
                          timeout=timeout)
     jobs = min(jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
     bar = _progress(progress)
     store = None if cache is None else Cache(cache)
-    try:
-        result = run_pairs(plant_ids, design_ids, options, progress=bar, jobs=jobs, scheduler=scheduler, cache=store)
+    try:  # computed in the registry's order (as every run is), shown in the order asked for
+        result = run_pairs(_registry_order(plant_ids, PLANTS), _registry_order(design_ids, DESIGNS), options,
+                           progress=bar, jobs=jobs, scheduler=scheduler, cache=store)
     finally:
         if hasattr(bar, "close"):
             bar.close()
-    table = result.frame()
+    _reorder(result, plant_ids, design_ids)
+    records = result.frame()
     gains = {(o.record["plant"], o.record["design"]): {"K": o.result.K, "F": o.result.F, "result": o.result,
                                                          "certificate": o.certificate, "trajectory": o.trajectory,
                                                          "plant": o.plant}
              for o in result.outcomes if o.result is not None and o.result.has_controller}
     info = {"plants": plant_ids, "designs": design_ids, "jobs": jobs, "scheduler": scheduler,
             "cache_errors": list(store.errors) if store is not None else []}
-    return Results(table, gains, dict(result.constants), findings(table, result.constants), result,
+    return Results(results_table(records), gains, dict(result.constants), findings(records, result.constants), result,
                    command=command, info=info)

@@ -25,7 +25,7 @@ from typing import Iterator
 from bench.registry import DESIGNS, PLANTS
 from bench.selection import check_selection
 
-__all__ = ["main"]
+__all__ = ["main", "summary_line"]
 
 
 class _Parser(argparse.ArgumentParser):
@@ -79,7 +79,9 @@ def _build_parser() -> argparse.ArgumentParser:
     r.add_argument("--claimed-constants", action="store_true",
                    help="design with the constants the sources claim (the certificate still uses valid ones)")
     r.add_argument("--t-final", type=_positive_float, default=None, metavar="SECONDS",
-                   help="simulation horizon (default: each plant's)")
+                   help="one simulation horizon for every pair (default: each pair's horizon follows its "
+                        "certified rate, or its linearised rate when uncertified, from the plant's own "
+                        "horizon up to ten times it)")
     r.add_argument("--noise", type=_nonneg_float, default=0.0, metavar="SIGMA",
                    help="standard deviation of a seeded Gaussian measurement noise (default 0)")
     r.add_argument("--no-figures", action="store_true", help="skip the figures")
@@ -131,7 +133,7 @@ def _cmd_list() -> int:
 
 def _cmd_run(args, argv: list[str]) -> int:
     """``python -m bench run``: :func:`bench.api.run`, then :meth:`bench.api.Results.write`."""
-    selected = check_selection("python -m bench run", args.plant, args.design, args.out)
+    selected = check_selection("python -m bench run", args.plant, args.design, args.out, keep_order=True)
     if selected is None:
         return 2
     plant_ids, design_ids = selected
@@ -183,17 +185,48 @@ def _write_run(results, args, t0: float) -> int:
               f"({type(exc).__name__}: {exc}); the previous report, if any, is unchanged", file=sys.stderr)
         return 1
     if not args.quiet:
-        df, rr = results.table, results.run_result
-        counts = {k: int((df["status"] == k).sum()) for k in ("error", "timeout")}
+        rr = results.run_result
         cached = f"; {rr.cache_hits} from the cache" if rr.cache_dir else ""
-        timeouts = f", {counts['timeout']} timeouts" if counts["timeout"] else ""
-        print(f"{len(df)} pairs: {int(df['feasible'].sum())} feasible, {int(df['certified'].sum())} certified, "
-              f"{int(df['converged'].sum())} converged, {counts['error']} errors{timeouts}{cached}; "
-              f"{time.perf_counter() - t0:.1f} s", file=sys.stderr)
+        print(f"{summary_line(results.table)}{cached}; {time.perf_counter() - t0:.1f} s", file=sys.stderr)
         for msg in results.info.get("cache_errors", [])[:3]:
             print(f"python -m bench run: warning: {msg}", file=sys.stderr)
         print(f"wrote {path}", file=sys.stderr)
     return 0
+
+
+def summary_line(df) -> str:
+    """What a run gave, in one line: how many pairs got gains and how (feasible, computed, given),
+    how many did not and why, and how many of those with gains are certified and converged.
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        The results table (columns ``status``, ``certified``, ``converged``).
+
+    Returns
+    -------
+    str
+        E.g. ``"135 pairs: 81 with gains (45 feasible, 30 computed, 6 given), 54 without (40
+        infeasible, 14 inapplicable); of the 81 with gains, 53 certified and 70 converged"``.
+    """
+    from designs import GAIN_STATUSES, STATUSES
+
+    count = {k: int((df["status"] == k).sum()) for k in STATUSES}
+    with_gains = sum(count[k] for k in GAIN_STATUSES)
+    gains = ", ".join(f"{count[k]} {k}" for k in GAIN_STATUSES if count[k])
+    plural = {"error": "errors", "timeout": "timeouts"}
+    without = ", ".join(f"{count[k]} {plural.get(k, k) if count[k] != 1 else k}" for k in STATUSES
+                        if k not in GAIN_STATUSES and count[k])
+    other = len(df) - with_gains - sum(count[k] for k in STATUSES if k not in GAIN_STATUSES)
+    if other:
+        without += (", " if without else "") + f"{other} other"
+    line = f"{len(df)} pairs: {with_gains} with gains" + (f" ({gains})" if gains else "")
+    if len(df) - with_gains:
+        line += f", {len(df) - with_gains} without ({without})"
+    if with_gains:
+        line += (f"; of the {with_gains} with gains, {int(df['certified'].sum())} certified and "
+                 f"{int(df['converged'].sum())} converged")
+    return line
 
 
 @contextmanager

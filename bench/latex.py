@@ -1,11 +1,17 @@
 """LaTeX (booktabs) tables of a results frame, for papers.
 
 :func:`tables_tex` turns the results table (one row per (plant, design) pair, as
-``reports/results.csv``) into four ``table`` environments: feasibility (a plant x design matrix
-of ``status``), certified decay by certificate level, convergence and timing. Columns that are
-missing are skipped; a table with none of its value columns is left out. Every cell is escaped;
-numbers are written like ``.3g``, booleans as yes/no, NaN as a blank cell.
-:func:`minimal_document` wraps the fragment in a compilable document.
+``reports/results.csv``) into four kinds of ``table`` environments: feasibility (a plant x design
+matrix of ``status``), certified decay by certificate level (with the certificate's scope),
+convergence and timing. Columns that are missing are skipped; a table with none of its value
+columns is left out. Every cell is escaped; numbers are written like ``.3g``, booleans as yes/no,
+NaN as a blank cell.
+
+The tables need only ``booktabs`` (:data:`PACKAGES`) and are set at the text's own size, never
+scaled: a matrix wider than :data:`TEXT_WIDTH_PT` is split into several tables of fewer designs,
+a long table into several tables of fewer rows, and plants head their group of rows instead of
+taking a column. :func:`minimal_document` wraps the fragment (or ``\\input{tables.tex}``) in a
+document that ``pdflatex`` compiles as it is (the report writes it as ``tables_standalone.tex``).
 """
 
 from __future__ import annotations
@@ -16,18 +22,38 @@ import re
 
 import numpy as np
 
-__all__ = ["STATUS_SHORT", "escape_tex", "format_cell", "minimal_document", "tables_tex"]
+__all__ = ["CERT_SHORT", "PACKAGES", "STATUS_SHORT", "TEXT_WIDTH_PT", "escape_tex", "format_cell", "minimal_document",
+           "tables_tex"]
 
 #: Short cells of the feasibility matrix (a status not listed is written as it is).
 STATUS_SHORT: dict[str, str] = {
     "feasible": "yes",
+    "computed": "comp",
+    "given": "given",
     "infeasible": "no",
+    "marginal": "marg",
     "inapplicable": "n/a",
+    "undecided": "undec",
     "error": "err",
     "failed": "fail",
     "timeout": "t/o",
     "diverged": "div",
 }
+
+#: Cells of a certificate level that did not certify (a certified level shows its decay rate).
+CERT_SHORT: dict[str, str] = {
+    "not certified": "no",
+    "marginal": "marginal",
+    "inapplicable": "n/a",
+    "undecided": "undecided",
+}
+
+#: The LaTeX packages the fragment needs.
+PACKAGES = ("booktabs",)
+
+#: The text width (points) the tables are laid out for: A4 or US letter with 2 cm margins
+#: (:func:`minimal_document`) give 483 and 500 pt.
+TEXT_WIDTH_PT = 460.0
 
 _ESCAPES = {
     "\\": r"\textbackslash{}",
@@ -46,13 +72,19 @@ _ESCAPES = {
 }
 _ESCAPE_RE = re.compile("|".join(re.escape(c) for c in _ESCAPES))
 
-# (column, header) of the three row tables, in display order
+# (column, header) of the three row tables, in display order; a "\n" in a header breaks its line
 _DECAY_COLUMNS = (("decay_paper", "paper"), ("decay_full", "full"), ("decay_structured", "structured"),
-                  ("cert_level", "level"), ("rate_ceiling", "ceiling"), ("rate_ratio", "rate / ceiling"))
-_CONVERGENCE_COLUMNS = (("converged", "converged"), ("settling_x_s", "settling x [s]"),
-                        ("settling_e_s", "settling e [s]"), ("peak_u", "peak u"),
-                        ("horizon_s", "horizon [s]"))
-_TIMING_COLUMNS = (("design_s", "design [s]"), ("cert_s", "certificate [s]"), ("sim_s", "simulation [s]"))
+                  ("cert_level", "level"), ("cert_scope", "scope"), ("rate_ceiling", "ceiling"),
+                  ("rate_ratio", "rate /\nceiling"))
+_CONVERGENCE_COLUMNS = (("converged", "converged"), ("settling_x_s", "settling\nx [s]"),
+                        ("settling_e_s", "settling\ne [s]"), ("peak_u", "peak\n|u|"),
+                        ("horizon_s", "horizon\n[s]"))
+_TIMING_COLUMNS = (("design_s", "design\n[s]"), ("cert_s", "certificate\n[s]"), ("sim_s", "simulation\n[s]"))
+
+#: Width estimates (points) of the default 10 pt font: per character of a cell, and per column
+#: (``2 \tabcolsep``); generous, so that an estimate that fits does fit.
+_CHAR_PT = 5.6
+_COLSEP_PT = 12.0
 
 
 def escape_tex(text) -> str:
@@ -122,66 +154,109 @@ def format_cell(value) -> str:
     return escape_tex(value)
 
 
-def _tabular(spec: str, header: list[str], rows: list[list[str]]) -> str:
-    """A booktabs ``tabular``; a row None is an ``\\addlinespace``."""
+def _head(text: str) -> str:
+    """A header cell: escaped, with a line break at each ``"\n"`` (a one-column tabular: no package)."""
+    lines = [escape_tex(t) for t in text.split("\n")]
+    if len(lines) == 1:
+        return lines[0]
+    return r"\begin{tabular}[b]{@{}c@{}}" + r"\\{}".join(lines) + r"\end{tabular}"  # {}: "[s]" is no \\[length]
+
+
+def _width(cells) -> float:
+    """Estimated width in points of a column holding ``cells`` (plain texts, before escaping)."""
+    longest = max((max(len(line) for line in str(c).split("\n")) for c in cells), default=0)
+    return longest * _CHAR_PT + _COLSEP_PT
+
+
+def _tabular(spec: str, header: list[str], rows: list) -> str:
+    """A booktabs ``tabular``; a row None is an ``\\addlinespace``, a row str a full-width group heading."""
+    ncol = len(spec)
     lines = [rf"\begin{{tabular}}{{{spec}}}", r"\toprule", " & ".join(header) + r" \\", r"\midrule"]
-    lines += [r"\addlinespace" if row is None else " & ".join(row) + r" \\" for row in rows]
+    for row in rows:
+        if row is None:
+            lines.append(r"\addlinespace")
+        elif isinstance(row, str):
+            lines.append(rf"\multicolumn{{{ncol}}}{{@{{}}l}}{{\emph{{{row}}}}} \\")
+        else:
+            lines.append(" & ".join(row) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}"]
     return "\n".join(lines)
 
 
-def _table(tabular: str, caption: str, label: str | None, *, wide: bool) -> str:
-    """A ``table`` float around a tabular: scaled to the text width when wide, else ``\\small``."""
-    if wide:
-        body = "\\resizebox{\\textwidth}{!}{%\n" + tabular + "%\n}"
-    else:
-        body = "\\small\n" + tabular
-    lines = [r"\begin{table}[htbp]", r"\centering", body, rf"\caption{{{caption}}}"]
+def _table(tabular: str, caption: str, label: str | None) -> str:
+    """A ``table`` float around a tabular, at the text's own size (never scaled)."""
+    lines = [r"\begin{table}[htbp]", r"\centering", tabular, rf"\caption{{{caption}}}"]
     if label:
         lines.append(rf"\label{{{label}}}")
     return "\n".join(lines + [r"\end{table}"])
 
 
-def _row_table(frame, columns, caption: str, label: str, *, max_rows: int, wide_after: int = 7) -> str | None:
-    """One table (several when longer than ``max_rows``: continued, the label on the first)."""
+def _cert_cell(rec: dict, col: str) -> str:
+    """A decay cell: the rate where the level certified, else the level's status in short
+    (:data:`CERT_SHORT`: "no" for not certified, "marginal" apart from it); blank when unknown."""
+    level = col[len("decay_"):] if col.startswith("decay_") else None
+    status = rec.get(f"cert_{level}") if level else None
+    if level is None or _is_missing(status) or status in ("", "certified"):
+        return format_cell(rec[col])
+    return escape_tex(CERT_SHORT.get(str(status), str(status)))
+
+
+def _row_table(frame, columns, caption: str, label: str, *, max_rows: int, cell=None) -> str | None:
+    """Tables of one row per pair, grouped under a heading per plant; several tables (captions
+    "(continued)", the label on the first) when longer than ``max_rows`` lines."""
     present = [(col, head) for col, head in columns if col in frame.columns]
     if not present:
         return None
-    spec = "ll" + "".join("l" if col in ("cert_level",) else "r" for col, _ in present)
-    header = ["plant", "design"] + [escape_tex(head) for _, head in present]
-    records = frame.to_dict("records")
-    parts = []
-    for start in range(0, len(records), max_rows):
-        rows, previous = [], None
-        for rec in records[start:start + max_rows]:
-            plant = format_cell(rec["plant"])
-            if previous is not None and plant != previous:
-                rows.append(None)  # \addlinespace between plants
-            rows.append([plant if plant != previous else "", format_cell(rec["design"])]
-                        + [format_cell(rec[col]) for col, _ in present])
+    cell = cell or (lambda rec, col: format_cell(rec[col]))
+    spec = "l" + "".join("l" if col in ("cert_level", "cert_scope") else "r" for col, _ in present)
+    header = ["design"] + [_head(head) for _, head in present]
+    lines: list = []  # (plant, row) with row None for a plant heading
+    previous = None
+    for rec in frame.to_dict("records"):
+        plant = format_cell(rec["plant"])
+        if plant != previous:
+            lines.append((plant, None))
             previous = plant
-        cap = caption if start == 0 else caption + " (continued)"
-        parts.append(_table(_tabular(spec, header, rows), cap, label if start == 0 else None,
-                            wide=len(spec) > wide_after))
+        lines.append((plant, [format_cell(rec["design"])] + [cell(rec, col) for col, _ in present]))
+    parts, start = [], 0
+    while start < len(lines):
+        chunk = lines[start:start + max_rows]
+        if chunk[-1][1] is None and len(chunk) > 1:  # a heading never ends a table
+            chunk = chunk[:-1]
+        start += len(chunk)
+        rows: list = []
+        for i, (plant, row) in enumerate(chunk):
+            if row is None or i == 0:
+                if rows:
+                    rows.append(None)
+                rows.append(plant + (" (continued)" if row is not None else ""))
+            if row is not None:
+                rows.append(row)
+        cap = caption if not parts else caption + " (continued)"
+        parts.append(_table(_tabular(spec, header, rows), cap, label if not parts else None))
     return "\n\n".join(parts)
 
 
-def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslbench-", max_rows: int = 40) -> str:
-    r"""Booktabs tables of a results frame, as a LaTeX fragment.
+def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslbench-", max_rows: int = 40,
+               text_width_pt: float = TEXT_WIDTH_PT) -> str:
+    r"""Booktabs tables of a results frame, as a LaTeX fragment that needs only ``booktabs``.
 
-    Four ``table`` environments, each left out when the frame has none of its value columns:
+    Four kinds of ``table`` environments, each left out when the frame has none of its value
+    columns:
 
     1. feasibility: plant x design matrix of ``status`` (short cells, see :data:`STATUS_SHORT`;
-       a pair that was not run is blank);
+       a pair that was not run is blank), split into several tables of fewer designs when wider
+       than ``text_width_pt``;
     2. certified decay by certificate level: ``decay_paper``, ``decay_full``,
-       ``decay_structured``, ``cert_level`` (or ``decay_rate`` when none of the first three is
-       in the frame), ``rate_ceiling`` (the slowest linear member of the certified class: no
-       certificate over it proves more) and ``rate_ratio`` (the certified rate over it);
+       ``decay_structured`` (a level that did not certify shows its ``cert_<level>`` status in
+       short, :data:`CERT_SHORT`: "no" and "marginal" apart), ``cert_level`` and ``cert_scope``
+       (``global``, ``from x0`` or ``local``); ``decay_rate`` when none of the first three is in
+       the frame;
     3. convergence: ``converged``, ``settling_x_s``, ``settling_e_s``, ``peak_u``, ``horizon_s``;
     4. timing: ``design_s``, ``cert_s``, ``sim_s``.
 
-    Tables wider than a few columns are scaled to ``\textwidth`` with ``\resizebox`` (graphicx);
-    the others are set ``\small``. The fragment needs ``booktabs`` and ``graphicx``.
+    Tables are set at the text's size, never scaled; the file starts with a comment naming the
+    packages and the text width it is laid out for.
 
     Parameters
     ----------
@@ -195,8 +270,11 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
         Prefix of the ``\label`` of each table (``feasibility``, ``decay``, ``convergence``,
         ``timing`` follow it).
     max_rows : int
-        Rows per table of the decay, convergence and timing tables: a longer frame is split into
-        several tables (captions "(continued)"), since a float cannot break across pages.
+        Lines per table of the decay, convergence and timing tables (a plant's heading counts):
+        a longer frame is split into several tables (captions "(continued)"), since a float
+        cannot break across pages.
+    text_width_pt : float
+        The text width the feasibility matrix must fit (estimated from the cells' lengths).
 
     Returns
     -------
@@ -209,7 +287,7 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
         If ``frame`` is not a DataFrame.
     ValueError
         If ``frame`` lacks the column ``plant`` or ``design``, or has two rows for one pair, or
-        ``max_rows < 1``.
+        ``max_rows < 2``.
 
     Examples
     --------
@@ -222,31 +300,46 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     if frame.empty:
         return "% tables_tex: the results frame has no rows\n"
     frame = frame.reset_index(drop=True)
-    parts = []
+    parts = [_preamble_comment(text_width_pt)]
     if "status" in frame.columns:
-        parts.append(_feasibility_table(frame, caption_prefix, f"{label_prefix}feasibility"))
+        parts.append(_feasibility_tables(frame, caption_prefix, f"{label_prefix}feasibility", text_width_pt))
     decay = _DECAY_COLUMNS
     if not any(c in frame.columns for c, _ in _DECAY_COLUMNS[:3]):
         decay = (("decay_rate", "decay rate"),) + _DECAY_COLUMNS[3:]
-    table = _row_table(frame, decay, caption_prefix + "Certified decay rate by certificate level "
-                                                       "(blank: not certified at that level).",
-                       f"{label_prefix}decay", max_rows=int(max_rows))
-    if table and any(c in frame.columns for c, _ in decay if c != "cert_level"):
+    caption = (r"Certified decay rate $\lambda$ ($\dot V \le -2\lambda V$) by certificate level; no: not certified, "
+               "marginal: margin within the verification tolerance of zero, n/a: the level does not apply; scope: "
+               "global, from x0 (the certified level set holds the initial condition) or local.")
+    table = _row_table(frame, decay, caption_prefix + caption, f"{label_prefix}decay",
+                       max_rows=int(max_rows), cell=_cert_cell)
+    if table and any(c in frame.columns for c, _ in decay if c not in ("cert_level", "cert_scope")):
         parts.append(table)
     for columns, caption, key in (
         (_CONVERGENCE_COLUMNS, "Convergence of the closed loop (settling times of the state x and of the "
                                "estimation error e).", "convergence"),
         (_TIMING_COLUMNS, "Wall-clock time of the design, the certificate and the simulation.", "timing"),
     ):
-        table = _row_table(frame, columns, caption_prefix + caption, f"{label_prefix}{key}", max_rows=int(max_rows))
+        table = _row_table(frame, columns, caption_prefix + escape_tex(caption), f"{label_prefix}{key}",
+                           max_rows=int(max_rows))
         if table:
             parts.append(table)
     return "\n\n".join(parts) + "\n"
 
 
+def _preamble_comment(text_width_pt: float) -> str:
+    """The comment at the top of the fragment: what it needs, and the document that compiles it."""
+    needs = ", ".join(r"\usepackage{" + p + "}" for p in PACKAGES)
+    return "\n".join([
+        "% oslbench tables (bench.latex.tables_tex).",
+        f"% Needs: {needs}.",
+        f"% Laid out for a text width of at least {text_width_pt:g} pt (A4 or letter paper with 2 cm margins), "
+        "at the text's own size.",
+        "% tables_standalone.tex beside this file compiles it as it is: pdflatex tables_standalone.tex",
+    ])
+
+
 def _check_frame(frame, max_rows) -> None:
     """TypeError or ValueError unless ``frame`` is a DataFrame with one row per (plant, design) and
-    ``max_rows`` an integer >= 1 (the messages of :func:`tables_tex`)."""
+    ``max_rows`` an integer >= 2 (the messages of :func:`tables_tex`)."""
     import pandas as pd
 
     if not isinstance(frame, pd.DataFrame):
@@ -260,8 +353,8 @@ def _check_frame(frame, max_rows) -> None:
         first = frame.loc[dup, ["plant", "design"]].iloc[0].tolist()
         raise ValueError(f"frame: more than one row for the pair (plant, design) = {tuple(first)}; "
                          "tables_tex needs one row per pair")
-    if isinstance(max_rows, bool) or not isinstance(max_rows, numbers.Integral) or max_rows < 1:
-        raise ValueError(f"max_rows: expected an integer >= 1, got {max_rows!r}")
+    if isinstance(max_rows, bool) or not isinstance(max_rows, numbers.Integral) or max_rows < 2:
+        raise ValueError(f"max_rows: expected an integer >= 2 (a plant's heading and a row), got {max_rows!r}")
 
 
 def _short_status(status) -> str:
@@ -271,21 +364,35 @@ def _short_status(status) -> str:
     return escape_tex(STATUS_SHORT.get(str(status), str(status)))
 
 
-def _feasibility_table(frame, caption_prefix: str, label: str) -> str:
-    """The plant x design matrix of ``status``, with a legend of the short cells it uses."""
+def _feasibility_tables(frame, caption_prefix: str, label: str, text_width_pt: float) -> str:
+    """The plant x design matrix of ``status``, with a legend of the short cells it uses; split
+    into tables of consecutive designs when wider than ``text_width_pt`` (estimated)."""
     import pandas as pd
 
     plants = list(pd.unique(frame["plant"]))
     designs = list(pd.unique(frame["design"]))
     cells = {(r["plant"], r["design"]): r["status"] for r in frame.to_dict("records")}
-    shown = [[cells[(p, d)] if (p, d) in cells else None for d in designs] for p in plants]  # None: not run
-    rows = [[format_cell(p)] + [_short_status(status) for status in row] for p, row in zip(plants, shown)]
-    used = {str(status) for row in shown for status in row if not _is_missing(status)}
+    shown = {d: [cells.get((p, d)) for p in plants] for d in designs}  # None: not run
+    used = {str(st) for col in shown.values() for st in col if not _is_missing(st)}
     legend = ", ".join(f"{escape_tex(STATUS_SHORT[s])} = {escape_tex(s)}"
                        for s in STATUS_SHORT if s in used and STATUS_SHORT[s] != s)
-    caption = caption_prefix + "Feasibility of each design on each plant" + (f" ({legend})." if legend else ".")
-    tab = _tabular("l" + "c" * len(designs), ["plant"] + [format_cell(d) for d in designs], rows)
-    return _table(tab, caption, label, wide=len(designs) > 5)
+    room = text_width_pt - _width(["plant", *plants])
+    widths = {d: _width([d] + [STATUS_SHORT.get(str(st), str(st)) for st in shown[d] if not _is_missing(st)])
+              for d in designs}
+    groups: list[list] = [[]]
+    for d in designs:
+        if groups[-1] and sum(widths[g] for g in groups[-1]) + widths[d] > room:
+            groups.append([])
+        groups[-1].append(d)
+    parts = []
+    for k, group in enumerate(groups):
+        rows = [[format_cell(p)] + [_short_status(shown[d][i]) for d in group] for i, p in enumerate(plants)]
+        part = f", designs {designs.index(group[0]) + 1}-{designs.index(group[-1]) + 1} of {len(designs)}"
+        caption = (caption_prefix + "Feasibility of each design on each plant" + (part if len(groups) > 1 else "")
+                   + (f" ({legend})." if legend else "."))
+        tab = _tabular("l" + "c" * len(group), ["plant"] + [format_cell(d) for d in group], rows)
+        parts.append(_table(tab, caption, label if k == 0 else None))
+    return "\n\n".join(parts)
 
 
 def minimal_document(body: str, *, landscape: bool = False) -> str:
@@ -301,7 +408,8 @@ def minimal_document(body: str, *, landscape: bool = False) -> str:
     Returns
     -------
     str
-        ``\documentclass{article}`` with booktabs, graphicx and geometry (2 cm margins).
+        ``\documentclass{article}`` with :data:`PACKAGES` and geometry (2 cm margins): with
+        ``body = r"\input{tables.tex}"`` the report's ``tables_standalone.tex``.
 
     Raises
     ------
@@ -318,7 +426,7 @@ def minimal_document(body: str, *, landscape: bool = False) -> str:
     geometry = "margin=2cm,landscape" if landscape else "margin=2cm"
     return "\n".join([
         r"\documentclass{article}",
-        r"\usepackage{booktabs,graphicx}",
+        r"\usepackage{" + ",".join(PACKAGES) + "}",
         rf"\usepackage[{geometry}]{{geometry}}",
         r"\begin{document}",
         body.rstrip("\n"),

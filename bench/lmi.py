@@ -1,6 +1,6 @@
 """The LMI toolkit shared by the designs and the certificate: build, compile once, solve, verify.
 
-Conventions (see ``../shared/design/MATH.md``):
+Conventions (see ``docs/paper.md``):
 
 - every LMI is solved by an explicit solver (Clarabel by default; cvxpy would send SDPs to
   SCS), and a solve cut short by the runner's time limit raises

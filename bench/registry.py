@@ -177,8 +177,16 @@ class Registry:
         """Close matches for a mistyped id."""
         return difflib.get_close_matches(pattern, self.ids(), n=2, cutoff=0.5)
 
-    def select(self, patterns: list[str] | None) -> list[str]:
+    def select(self, patterns: list[str] | None, *, keep_order: bool = False) -> list[str]:
         """Ids matching any of the glob ``patterns`` (all ids if None or empty).
+
+        Parameters
+        ----------
+        patterns : list of str, optional
+            Ids or globs.
+        keep_order : bool
+            False: the registry's order (:meth:`ids`); True: the order of the patterns (the ids
+            a glob matches in the registry's order), each id once.
 
         Raises
         ------
@@ -194,7 +202,7 @@ class Registry:
             if not hits:
                 raise UnknownIdError(self.kind, pat, self.suggest(pat))
             chosen.extend(h for h in hits if h not in chosen)
-        return [i for i in ids if i in chosen]
+        return chosen if keep_order else [i for i in ids if i in chosen]
 
     def create(self, id: str, **overrides: Any) -> Any:
         """Build the registered object ``id``."""

@@ -20,7 +20,8 @@ import numpy as np
 
 from bench.harness import RunResult
 
-__all__ = ["git_revision", "package_versions", "render_markdown", "write_report"]
+__all__ = ["REASON_CHARS", "git_revision", "package_versions", "render_markdown", "results_table", "short_reason",
+           "write_report"]
 
 #: Plants that get per-design figures of states, estimates and errors (like the paper's Figures
 #: 2-5); every plant gets the norm comparison figure.
@@ -88,6 +89,82 @@ def format_cell(v, spec: str = ".3g") -> str:
 
 
 _fmt = format_cell
+
+#: The longest ``reason`` cell of :func:`results_table` (the full text is in ``details``).
+REASON_CHARS = 120
+
+
+def short_reason(text, limit: int = REASON_CHARS) -> str:
+    """The gist of a record's ``reason`` in at most ``limit`` characters.
+
+    The first clause (up to the first ``"; "`` outside parentheses), without parenthesised asides
+    of more than 30 characters, cut at a word boundary with ``"..."`` when still longer than
+    ``limit``. A text of at most ``limit`` characters is returned as it is.
+
+    Parameters
+    ----------
+    text : str or None
+        The full reason (None or NaN: ``""``).
+    limit : int
+        At least 20.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> short_reason("infeasible: no strictly feasible point; best margin t = -1.56 (max eig 1.56)")
+    'infeasible: no strictly feasible point; best margin t = -1.56 (max eig 1.56)'
+    >>> short_reason("x" * 10 + " (a; b); " + "y" * 200)
+    'xxxxxxxxxx (a; b)'
+    """
+    import re
+
+    if text is None or (isinstance(text, float) and math.isnan(text)):
+        return ""
+    text = str(text)
+    if len(text) <= limit:
+        return text
+    depth, head = 0, text
+    for i, ch in enumerate(text):
+        depth += (ch == "(") - (ch == ")")
+        if depth <= 0 and text.startswith("; ", i):
+            head = text[:i]
+            break
+    while True:  # innermost asides first, so nested parentheses go too
+        shorter = re.sub(r" ?\([^()]{30,}\)", "", head)
+        if shorter == head:
+            break
+        head = shorter
+    if len(head) <= limit:
+        return head
+    cut = head[: limit - 3]
+    if " " in cut[limit // 2:]:
+        cut = cut[: cut.rindex(" ")]
+    return cut.rstrip(" ,;:") + "..."
+
+
+def results_table(df):
+    """The results table as results.csv and :attr:`bench.api.Results.table` show it.
+
+    The records (:data:`bench.pipeline.COLUMNS`, in the order asked for) with ``reason``
+    shortened by :func:`short_reason` and the full text in a last column ``details``.
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        :meth:`bench.harness.RunResult.frame`.
+
+    Returns
+    -------
+    pandas.DataFrame
+        A new frame.
+    """
+    out = df.copy()
+    out["details"] = df["reason"].fillna("")
+    out["reason"] = out["details"].map(short_reason)
+    return out
 
 
 def _table(df, columns: list[str], headers: list[str] | None = None) -> str:
@@ -183,7 +260,7 @@ def _figure_jobs(result: RunResult) -> list[_FigureJob]:
         norms = tuple((o.record["design"], o.trajectory.t, np.linalg.norm(o.trajectory.x, axis=0),
                        np.linalg.norm(o.trajectory.e, axis=0)) for o in outs)
         jobs.append(_FigureJob("norms", f"{pid}__norms", f"{pid}: state and error norms of every converging design "
-                               "(log scale)", pid, norms))
+                               f"(log scale; a norm below {NORM_FLOOR:.0e} is drawn on that floor)", pid, norms))
         if pid not in FIGURE_PLANTS:
             continue
         for o in outs:
@@ -198,6 +275,89 @@ def _figure_jobs(result: RunResult) -> list[_FigureJob]:
     return jobs
 
 
+#: Colours of the designs in a norms figure: 15 distinct ones (matplotlib's ten, then five more),
+#: each with its own line style too (:data:`NORM_STYLES`), so every design up to 15 is told apart
+#: in colour and in greyscale.
+NORM_COLOURS = ("C0", "C1", "C2", "C3", "C4", "C5", "C6", "C7", "C8", "C9", "black", "#b8860b", "#000080",
+                "#008080", "#ff1493")
+#: Line styles of a norms figure, cycled beside the colours (15 designs: 15 different pairs).
+NORM_STYLES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
+#: Norms below this are drawn on it (a log axis has no 0); the figure draws and names the floor.
+NORM_FLOOR = 1e-16
+
+
+def _norms_figure(job: _FigureJob):
+    """The norms figure of a plant: ||x(t)|| and ||e(t)|| of every converging design on log axes, the
+    designs told apart by colour and line style (:data:`NORM_COLOURS`, :data:`NORM_STYLES`), the key in
+    a panel of its own, and the floor :data:`NORM_FLOOR` drawn and named when a norm falls below it.
+
+    Returns
+    -------
+    (matplotlib.figure.Figure, int)
+        The figure and its dpi.
+    """
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(12, 4.2))
+    grid = fig.add_gridspec(1, 3, width_ratios=(1, 1, 0.36), left=0.06, right=0.995, bottom=0.12, top=0.86,
+                            wspace=0.22)
+    axes = [fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1])]
+    axes[1].sharex(axes[0])
+    clipped = False
+    for k, (did, t, nx, ne) in enumerate(job.data):
+        style = dict(color=NORM_COLOURS[k % len(NORM_COLOURS)], linestyle=NORM_STYLES[k % len(NORM_STYLES)],
+                     linewidth=1.3)
+        for ax, v in zip(axes, (nx, ne)):
+            clipped |= bool(np.any(v < NORM_FLOOR))
+            ax.semilogy(t, np.maximum(v, NORM_FLOOR), label=did, **style)
+    if clipped:
+        for ax in axes:
+            ax.axhline(NORM_FLOOR, color="0.35", linewidth=0.9, linestyle=(0, (1, 2)),
+                       label=f"floor {NORM_FLOOR:.0e}\n(smaller norms\ndrawn on it)")
+    axes[0].set(title="state", xlabel="t [s]", ylabel="||x(t)||")
+    axes[1].set(title="estimation error", xlabel="t [s]", ylabel="||e(t)|| = ||x(t) - x_hat(t)||")
+    for ax in axes:
+        ax.grid(True, which="major", alpha=0.3)
+    fig.suptitle(f"{job.title}: norms of every converging design (log scale)")
+    handles, labels = axes[1].get_legend_handles_labels()  # the error panel holds the floor if any
+    key = fig.add_subplot(grid[0, 2])
+    key.axis("off")
+    key.legend(handles, labels, loc="center left", bbox_to_anchor=(-0.12, 0.5), fontsize=8, frameon=False,
+               title="design", title_fontsize=9, handlelength=3.2)
+    return fig, 110
+
+
+def _states_figure(job: _FigureJob):
+    """One pair's states with their estimates (dashed) and estimation errors (the paper's Figures 2-5).
+
+    Returns
+    -------
+    (matplotlib.figure.Figure, int)
+        The figure and its dpi.
+    """
+    import matplotlib.pyplot as plt
+
+    t, x, x_hat, t_show = job.data
+    n = x.shape[0]
+    fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.09, top=0.88, wspace=0.35, hspace=0.4)
+    for i in range(n):
+        ax = axes[0, i]
+        ax.plot(t, x[i], label=f"x{i + 1}")
+        ax.plot(t, x_hat[i], "--", label=f"x_hat{i + 1}")
+        ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", ylabel=f"x{i + 1}, x_hat{i + 1}",
+               xlim=(0, t_show))
+        ax.legend(fontsize=8, loc="upper right")
+        ax.grid(True, alpha=0.3)
+        ax = axes[1, i]
+        ax.plot(t, x[i] - x_hat[i], color="C3")
+        ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", ylabel=f"e{i + 1} = x{i + 1} - x_hat{i + 1}",
+               xlim=(0, t_show))
+        ax.grid(True, alpha=0.3)
+    fig.suptitle(job.title)
+    return fig, 100
+
+
 def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
     """Draw one figure into ``figdir`` in every format; return the first file's name."""
     import matplotlib
@@ -205,37 +365,7 @@ def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    if job.kind == "norms":
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-        fig.subplots_adjust(left=0.06, right=0.99, bottom=0.13, top=0.91, wspace=0.15)
-        for k, (did, t, nx, ne) in enumerate(job.data):  # ten colours, then the same ten dashed
-            style = "-" if k < 10 else "--"
-            axes[0].semilogy(t, np.maximum(nx, 1e-16), style, label=did)
-            axes[1].semilogy(t, np.maximum(ne, 1e-16), style, label=did)
-        axes[0].set(title=f"{job.title}: ||x(t)||", xlabel="t [s]")
-        axes[1].set(title=f"{job.title}: ||e(t)|| = ||x - x_hat||", xlabel="t [s]")
-        for ax in axes:
-            ax.grid(True, which="both", alpha=0.3)
-        axes[0].legend(fontsize=8, loc="upper right")  # "best" searches every point: ~30 % of a figure
-        dpi = 110
-    else:
-        t, x, x_hat, t_show = job.data
-        n = x.shape[0]
-        fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
-        fig.subplots_adjust(left=0.05, right=0.99, bottom=0.09, top=0.88, wspace=0.25, hspace=0.4)
-        for i in range(n):
-            ax = axes[0, i]
-            ax.plot(t, x[i], label=f"x{i + 1}")
-            ax.plot(t, x_hat[i], "--", label=f"x_hat{i + 1}")
-            ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", xlim=(0, t_show))
-            ax.legend(fontsize=8, loc="upper right")
-            ax.grid(True, alpha=0.3)
-            ax = axes[1, i]
-            ax.plot(t, x[i] - x_hat[i], color="C3")
-            ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", xlim=(0, t_show))
-            ax.grid(True, alpha=0.3)
-        fig.suptitle(job.title)
-        dpi = 100
+    fig, dpi = _norms_figure(job) if job.kind == "norms" else _states_figure(job)
     name = _save(fig, figdir, job.stem, fmts, dpi=dpi)
     plt.close(fig)
     return name
@@ -344,7 +474,7 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         f"{'constants claimed by the sources' if o.use_claimed else 'valid constants (analytic, else sampled)'}; "
         f"{len(df)} pairs. One row per pair in `results.csv` (every verdict below is a column there), gains and "
         "certificates in `gains.json`, settings, versions and these findings in `run.json`, LaTeX tables in "
-        "`tables.tex`.",
+        "`tables.tex` (`pdflatex tables_standalone.tex` compiles them).",
         "",
         "## What the suite found",
         "",
@@ -408,6 +538,8 @@ def _gains(result: RunResult) -> list[dict]:
             out.append({
                 "plant": rec["plant"],
                 "design": rec["design"],
+                "status": rec["status"],
+                "reason": rec["reason"],
                 "route": rec["route"],
                 "K": None if r.K is None else np.asarray(r.K).tolist(),
                 "F": np.asarray(r.F).tolist(),
@@ -456,25 +588,27 @@ def _formats(figure_format) -> tuple[str, ...]:
 def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: tuple[str, ...]) -> list[str]:
     """Render every file of the report into ``tmp``; return their paths relative to it."""
     from bench.findings import findings
-    from bench.latex import tables_tex
+    from bench.latex import minimal_document, tables_tex
 
     (tmp / "figures").mkdir()
     df = result.frame()
     info = {**run_info, "findings": run_info.get("findings") or findings(df, result.constants)}
     figs = _figures(result, tmp / "figures", fmts) if figures else []
     (tmp / "REPORT.md").write_text(render_markdown(result, figs, info), encoding="utf-8")
-    df.to_csv(tmp / "results.csv", index=False)
+    results_table(df).to_csv(tmp / "results.csv", index=False)
     (tmp / "gains.json").write_text(json.dumps(_gains(result), indent=1) + "\n", encoding="utf-8")
     (tmp / "run.json").write_text(json.dumps(_run_json(result, info), indent=1, default=str) + "\n",
                                   encoding="utf-8")
     (tmp / "tables.tex").write_text(tables_tex(df), encoding="utf-8")
+    (tmp / "tables_standalone.tex").write_text(minimal_document(r"\input{tables.tex}"), encoding="utf-8")
     files = [f"figures/{p.name}" for p in sorted((tmp / "figures").iterdir())]
-    return files + ["results.csv", "gains.json", "run.json", "tables.tex", "REPORT.md"]
+    return files + ["results.csv", "gains.json", "run.json", "tables.tex", "tables_standalone.tex", "REPORT.md"]
 
 
 def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, *, figures: bool = True,
                  figure_format="png") -> Path:
-    """Write REPORT.md, results.csv, gains.json, run.json, tables.tex and figures/ into ``out_dir``, whole or not at all.
+    """Write REPORT.md, results.csv, gains.json, run.json, tables.tex (with tables_standalone.tex) and figures/
+    into ``out_dir``, whole or not at all.
 
     Parameters
     ----------

@@ -9,7 +9,8 @@ from bench.registry import DESIGNS, PLANTS, UnknownIdError
 __all__ = ["check_selection"]
 
 
-def check_selection(prog: str, plant_globs, design_globs, out, *, all_by_default: bool = True):
+def check_selection(prog: str, plant_globs, design_globs, out, *, all_by_default: bool = True,
+                    keep_order: bool = False):
     """What ``run`` and ``study`` check before any computing: the ids the globs select, and ``out`` usable.
 
     Parameters
@@ -22,6 +23,8 @@ def check_selection(prog: str, plant_globs, design_globs, out, *, all_by_default
         ``--out`` (created if missing).
     all_by_default : bool
         Without globs: every registered id (True), or None for the caller's own default.
+    keep_order : bool
+        The ids in the order of the globs (True) or of the registry (:meth:`bench.registry.Registry.select`).
 
     Returns
     -------
@@ -32,8 +35,8 @@ def check_selection(prog: str, plant_globs, design_globs, out, *, all_by_default
     from bench.outdir import OutDirError, check_out_dir
 
     try:
-        plant_ids = PLANTS.select(plant_globs) if plant_globs or all_by_default else None
-        design_ids = DESIGNS.select(design_globs) if design_globs or all_by_default else None
+        plant_ids = PLANTS.select(plant_globs, keep_order=keep_order) if plant_globs or all_by_default else None
+        design_ids = DESIGNS.select(design_globs, keep_order=keep_order) if design_globs or all_by_default else None
         check_out_dir(out)  # an unusable --out is found now, not after the run
     except (UnknownIdError, OutDirError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)

@@ -2,7 +2,7 @@
 
 Without the Young coupling the corrected Theorem 1 (and Corollary 1) LMI splits into an x-side
 LMI in (Q, Fh, kappa) and an e-side LMI in (R, Kh, multipliers), each 2n x 2n. The joint LMI
-is feasible iff both are (MATH.md): given strictly feasible sides with margins ``X < 0`` and
+is feasible iff both are (``docs/paper.md``): given strictly feasible sides with margins ``X < 0`` and
 ``E < 0``, Schur complements on the Young blocks ``-Q/phi`` and ``-phi Q`` show that the joint
 matrix is negative definite iff
 
@@ -70,7 +70,7 @@ def append_schur_column(rows: list, Q, corner) -> list:
 def young_layout(n: int, eside: Callable[[dict], list], schur_weight: Callable[[dict], object] | None):
     """Block functions ``(joint, xside, eside)`` of a corrected Theorem 1 / Corollary 1 LMI.
 
-    Both LMIs share one layout (MATH.md): the x-side block ``s11 = AQ + QA' + B Fh' + Fh B' +
+    Both LMIs share one layout (``docs/paper.md``): the x-side block ``s11 = AQ + QA' + B Fh' + Fh B' +
     kappa I``, an e-side 2 x 2 block matrix ``[[E11, E12], [E12', E22]]``, the Young coupling of
     ``-B F e`` through ``-Q/phi`` and ``-phi Q``, and, when ``schur_weight`` is given, the Schur
     column ``Q`` with ``-w I`` (``w = kappa / beta_eff`` or ``kappa / alpha^2``)::

@@ -1,4 +1,4 @@
-"""The design flow shared by the corrected Theorem 1 and Corollary 1 (MATH.md).
+"""The design flow shared by the corrected Theorem 1 and Corollary 1 (``docs/paper.md``).
 
 Both are one LMI in the Young layout (:func:`designs._separated.young_layout`), solved either
 jointly with the Young weight searched on a log grid (``method="joint"``), or side by side with

@@ -3,7 +3,7 @@
 References
 ----------
 Observer-based stabilization of one-sided Lipschitz systems with application to flexible link
-manipulator, Corollary 1, eqs. (27)-(32), Remarks 2-3. Corrections: ``../shared/design/MATH.md``.
+manipulator, Corollary 1, eqs. (27)-(32), Remarks 2-3. Errata and corrected forms: ``docs/paper.md``.
 """
 
 from __future__ import annotations
@@ -28,11 +28,12 @@ def lipschitz_w22(d: dict, I: np.ndarray):
     return A.T @ R + R @ A - C.T @ Kh - Kh.T @ C + d["mu2"] * d["a2"] * I
 
 
-@register_design("cor1_sep", order=16, method="separated")
+@register_design("cor1_sep", "Corollary 1, corrected, separated: x-side and e-side 2n LMIs solved apart, joint "
+                 "certificate rebuilt and verified.", order=16, method="separated")
 @register_design("cor1", order=12)
 @dataclass(frozen=True, kw_only=True)
 class Cor1(YoungDesign):
-    """Corollary 1, corrected (kappa = 1/mu1 exact, MATH.md); Young weight phi2 searched.
+    """Corollary 1, corrected (kappa = 1/mu1 exact, docs/paper.md): the joint 6n LMI, Young weight phi2 searched.
 
     For fixed phi2, the 6n x 6n LMI in Q, R, Fh, Kh, kappa, mu2 is the Young layout
     (:func:`designs._separated.young_layout`) with the e-side ``[[W22, R], [R, -mu2 I]]``,

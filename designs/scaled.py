@@ -77,8 +77,10 @@ def _sym(M: np.ndarray) -> np.ndarray:
     return (M + M.T) / 2
 
 
-@register_design("cor1_scaled", order=19, inner="cor1_sep")
-@register_design("thm1_scaled", order=18, inner="thm1_sep")
+@register_design("cor1_scaled", "Corrected Corollary 1 (separated) after a searched diagonal state scaling x = D x~ "
+                 "(needs channels).", order=19, inner="cor1_sep")
+@register_design("thm1_scaled", "Corrected Theorem 1 (separated) after a searched diagonal state scaling x = D x~ "
+                 "(needs channels).", order=18, inner="thm1_sep")
 @dataclass(frozen=True, kw_only=True)
 class Scaled(Design):
     """Corrected Theorem 1 / Corollary 1 after a searched diagonal state scaling (needs channels).

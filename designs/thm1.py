@@ -3,7 +3,7 @@
 References
 ----------
 Observer-based stabilization of one-sided Lipschitz systems with application to flexible link
-manipulator, Theorem 1, eqs. (12)-(15), Remark 1. Corrections: ``../shared/design/MATH.md``.
+manipulator, Theorem 1, eqs. (12)-(15), Remark 1. Errata and corrected forms: ``docs/paper.md``.
 """
 
 from __future__ import annotations
@@ -35,11 +35,12 @@ def osl_qib_eside(d: dict, I: np.ndarray) -> tuple:
     return S22, X
 
 
-@register_design("thm1_sep", order=15, method="separated")
+@register_design("thm1_sep", "Theorem 1, corrected, separated: x-side and e-side 2n LMIs solved apart, joint certificate "
+                 "rebuilt and verified.", order=15, method="separated")
 @register_design("thm1", order=10)
 @dataclass(frozen=True, kw_only=True)
 class Thm1(YoungDesign):
-    """Theorem 1, corrected convex form (MATH.md); Young weight phi1 searched on a log grid.
+    """Theorem 1, corrected convex form (docs/paper.md): the joint 6n LMI, Young weight phi1 searched.
 
     For ``gamma >= 0`` the OSL multiplier is tied to the QIB one, ``eps1 = gamma eps2`` (so the
     missing condition ``eta2 = 0`` holds), ``kappa = 1 / (2 eps2)`` and

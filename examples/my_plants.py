@@ -1,7 +1,6 @@
 import numpy as np
 
-from bench.registry import register_plant
-from plants import Channels, Constants, Plant
+from bench import Channels, Constants, Plant, register_plant
 
 
 @register_plant("my_plant")

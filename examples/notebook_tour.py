@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import bench
-from plants import Channels, Constants, Plant
+from bench import Channels, Constants, Plant
 
 # %% [markdown]
 # ## A plant from python-control

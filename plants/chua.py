@@ -20,7 +20,7 @@ Constants (analytic, global): sat is monotone with slopes in [0, 1], so along an
 ``df = k s dx1 e1`` with ``s in [0, 1]``. Lipschitz alpha = |k| = a |m0 - m1|; OSL
 ``<df, dx> = k s dx1^2``, so rho = max(k, 0) (= k = 27/7 here, tight inside |x1| < 1);
 QIB ``(beta, gamma) = (k^2, 0)``. (For k > 0 the pair (0, k) is valid too, since
-``||df||^2 = k^2 s^2 dx1^2 <= k <dx, df>``.) Claimed (PLANTS.md): alpha = a |m0 - m1|.
+``||df||^2 = k^2 s^2 dx1^2 <= k <dx, df>``.) Claimed by the source: alpha = a |m0 - m1|.
 Channel structure (global): ``G = H' = e1``, ``phi(z) = k sat(z)`` with slope ``k s``,
 ``s in [0, 1]``, so in ``[min(k, 0), max(k, 0)]``.
 

@@ -28,7 +28,7 @@ between two of its points stays in it):
   ``(0, -4 r^2)`` is valid but looser (the condition gets weaker as gamma decreases, because
   ``<dx, df> <= 0``).
 
-Claimed (as recorded in PLANTS.md from the sources): rho = 0; on ``||x|| <= r``:
+Claimed (as the sources state them): rho = 0; on ``||x|| <= r``:
 beta = 0, gamma = -4 r^2, Lipschitz 3 r^2. The analytic bounds use the tight gamma = -3 r^2.
 gamma < 0 needs the fixed-eps form of the corrected Theorem 1.
 

@@ -15,7 +15,7 @@ Constants of ``f = (0, -k sin(x1))``, ``k = g / l`` (analytic, global):
 alpha = k (``|sin a - sin b| <= |a - b|``); rho = k / 2, since
 ``<df, dx> = -k (sin a - sin b) d2 <= k |d1| |d2| <= (k/2)(d1^2 + d2^2)``, tight for
 ``dx = (d, -d)`` near x1 = 0; ``(beta, gamma) = (k^2, 0)``.
-Claimed (PLANTS.md, the textbook values): alpha = g/l, rho = (g/l)/2.
+Claimed (the textbook values): alpha = g/l, rho = (g/l)/2.
 Channel structure (global): ``G = e2``, ``H = e1'``, ``phi(z) = -(g/l) sin(z)``, slopes in ``[-g/l, g/l]``.
 
 References

@@ -35,7 +35,7 @@ def hurwitz(M):
     return float(np.linalg.eigvals(M).real.max()) < 0
 
 
-# -- independent rebuilds of the paper's matrices (numpy and cvxpy, written from the paper and MATH.md) ----
+# -- independent rebuilds of the paper's matrices (numpy and cvxpy, written from the paper and docs/paper.md) ----
 # Nothing below imports the suite's LMI code: these are the tests' own readings of the formulas.
 
 def _stack(blocks, numeric):
@@ -110,7 +110,7 @@ def paper20_certificate(plant, K, F, constants, lam):
 
 
 def thm1_joint_blocks(v, numeric):
-    """MATH.md's corrected Theorem 1 (gamma >= 0), 6n x 6n, as printed there::
+    """docs/paper.md's corrected Theorem 1 (gamma >= 0), 6n x 6n, as printed there::
 
         [ S11+kappa I  0        0        B Fh'    0        Q                   ]
         [ 0            S22      R+eta3 I 0        I        0                   ]
@@ -143,7 +143,7 @@ def thm1_joint_blocks(v, numeric):
 
 
 def cor1_joint_blocks(v, numeric):
-    """MATH.md's corrected Corollary 1, 6n x 6n, as printed there::
+    """docs/paper.md's corrected Corollary 1, 6n x 6n, as printed there::
 
         [ S11+kappa I  0     0      Q                  B Fh'    0        ]
         [ 0            W22   R      0                  0        I        ]
@@ -172,7 +172,7 @@ def cor1_joint_blocks(v, numeric):
 
 
 def joint_holds_for_gains(kind, plant, K, F, constants, phi, cap=1e3):
-    """Do the gains (K, F) satisfy MATH.md's corrected Theorem 1 (``kind="thm1"``, gamma >= 0,
+    """Do the gains (K, F) satisfy docs/paper.md's corrected Theorem 1 (``kind="thm1"``, gamma >= 0,
     beta_eff > 0) or Corollary 1 (``"cor1"``, alpha > 0) at Young weight ``phi``?
 
     With K, F fixed, ``Fh = Q F'`` and ``Kh = K' R`` make the 6n matrix linear in Q, R and the
@@ -223,7 +223,7 @@ def gains_satisfy_joint_lmi(kind, plant, K, F, constants, phis=(1e-3, 1e-2, 1e-1
 
 
 def thm1_synthesis_margin(plant, constants, phi, cap=1e3):
-    """The test's own solve of MATH.md's corrected Theorem 1 (gamma >= 0) as a synthesis LMI at a fixed
+    """The test's own solve of docs/paper.md's corrected Theorem 1 (gamma >= 0) as a synthesis LMI at a fixed
     Young weight: max t s.t. M(Q, R, Fh, Kh, kappa, eps3, eps4) << -t I, Q, R >> t I, Q, R << cap I,
     t <= 1. Returns t (> 0: strictly feasible under this normalisation; < 0: not)."""
     import warnings

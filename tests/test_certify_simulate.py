@@ -31,7 +31,7 @@ def test_paper_gains_certified_and_converge(flex, paper_cert):
     assert paper_cert.certified and paper_cert.levels["paper"].certified
     tr = simulate(flex, PAPER_K, PAPER_F)
     assert tr.status == "ok" and tr.t[-1] == 20.0
-    # MATH.md: ||x(20)|| ~ 1e-9 from the paper's initial conditions
+    # docs/paper.md: ||x(20)|| ~ 1e-9 from the paper's initial conditions
     assert np.linalg.norm(tr.x[:, -1]) < 1e-6
     np.testing.assert_allclose(tr.x[:, 0], [-2, -2, -1.5, 2])
     np.testing.assert_allclose(tr.x_hat[:, 0], [0.5, 1, 1, -1])

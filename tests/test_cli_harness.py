@@ -36,8 +36,11 @@ def test_run_small_selection_writes_the_whole_report(tmp_path):
                "--out", str(tmp_path)])
     assert rc == 0
     df = pd.read_csv(tmp_path / "results.csv")
-    assert list(df.columns) == COLUMNS
-    assert set(df["design"]) == {"paper_gains", "thm1_printed"}
+    assert list(df.columns) == COLUMNS + ["details"]  # the full reason beside the short one
+    assert list(df["design"]) == ["paper_gains", "thm1_printed"]  # the order asked for
+    assert df["reason"].fillna("").str.len().max() <= 120
+    assert (df["details"].fillna("").str.len() >= df["reason"].fillna("").str.len()).all()
+    assert (tmp_path / "tables_standalone.tex").read_text().count(r"\input{tables.tex}") == 1
     row = df.set_index("design").loc["paper_gains"]
     assert bool(row["certified"]) and bool(row["converged"]) and row["final_x"] < 1e-6
     assert df.set_index("design").loc["thm1_printed", "status"] == "infeasible"

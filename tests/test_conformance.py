@@ -19,7 +19,7 @@ PLANT_IDS = PLANTS.ids()
 #: Ids that predate versioned ids (tests and the report depend on them).
 LEGACY_IDS = {"flexible_link", "flexible_link_printed"}
 
-#: Claims known to be wrong, with the tight value derived independently (MATH.md): the
+#: Claims known to be wrong, with the tight value derived independently (docs/paper.md): the
 #: paper's rho = 0.1109 for f4 = -0.333 sin(x_i) is c^2; the tight OSL constant is c/2.
 KNOWN_WRONG = {
     ("flexible_link", "rho"): 0.333 / 2,

@@ -1,7 +1,7 @@
 """The corrected and printed Theorem 1 / Corollary 1 on the flexible link.
 
-Expectations come from MATH.md and from the tests' own rebuilds (tests/conftest.py): the joint
-matrices of the corrected forms written from MATH.md, solved and verified with numpy in the test.
+Expectations come from docs/paper.md and from the tests' own rebuilds (tests/conftest.py): the joint
+matrices of the corrected forms written from docs/paper.md, solved and verified with numpy in the test.
 """
 
 import numpy as np
@@ -28,7 +28,7 @@ def test_corrected_designs_feasible_verified_and_hurwitz(flex, designed, did):
 @pytest.mark.parametrize("did", ["thm1", "cor1"])
 def test_corrected_gains_satisfy_math_md_and_the_ladder(flex, flex_constants, flex_knowledge, designed, did):
     r = designed[did]
-    # MATH.md's joint matrix, rebuilt in the test, is negative definite for these gains
+    # docs/paper.md's joint matrix, rebuilt in the test, is negative definite for these gains
     assert gains_satisfy_joint_lmi(did, flex, r.K, r.F, flex_constants.valid)
     cert = certify(flex, r.K, r.F, flex_knowledge, rates=False)
     assert cert.certified and cert.best.margin < 0
@@ -36,7 +36,7 @@ def test_corrected_gains_satisfy_math_md_and_the_ladder(flex, flex_constants, fl
 
 def test_thm1_printed_infeasible_on_flexible_link(flex_constants, designed):
     """As printed, S3 holds -zeta I with zeta = 1/(eps2 gamma - eps1); the flexible link has gamma = 0, so
-    zeta = -1/eps1 < 0 for every eps1 > 0 and S < 0 is impossible (MATH.md): decided without a solve."""
+    zeta = -1/eps1 < 0 for every eps1 > 0 and S < 0 is impossible (docs/paper.md): decided without a solve."""
     assert flex_constants.valid.gamma == 0.0
     r = designed["thm1_printed"]
     assert r.status == "infeasible" and r.K is None and r.n_solves == 0
@@ -44,15 +44,15 @@ def test_thm1_printed_infeasible_on_flexible_link(flex_constants, designed):
 
 
 def test_cor1_printed_infeasible_on_flexible_link(designed):
-    # MATH.md: Corollary 1 + Remarks 2-3 is infeasible as printed on the flexible link
+    # docs/paper.md: Corollary 1 + Remarks 2-3 is infeasible as printed on the flexible link
     r = designed["cor1_printed"]
     assert r.status == "infeasible", r.reason
     assert "under the normalisation" in r.reason and r.margin > 0 and r.K is None
 
 
 def test_thm1_feasibility_in_phi1_matches_the_tests_own_solve(flex, flex_constants):
-    """MATH.md: feasible for phi1 in [1e-4, 0.06], infeasible from 0.07 on. The test's own solve of the
-    6n LMI (written from MATH.md) agrees with the design at a feasible and an infeasible phi1."""
+    """docs/paper.md: feasible for phi1 in [1e-4, 0.06], infeasible from 0.07 on. The test's own solve of the
+    6n LMI (written from docs/paper.md) agrees with the design at a feasible and an infeasible phi1."""
     c = flex_constants.valid
     assert thm1_synthesis_margin(flex, c, 0.01) > 0
     ok = DESIGNS.create("thm1", phi1=0.01).design(flex, c)
@@ -68,7 +68,7 @@ def test_thm1_feasibility_in_phi1_matches_the_tests_own_solve(flex, flex_constan
 def test_thm1_reports_its_search_scalars(designed, flex_constants):
     p = designed["thm1"].params
     assert 1e-4 <= p["phi1"] <= 0.07
-    # MATH.md: rho = c/2 for f4 = -c sin(x3), and gamma = 0 is the best QIB pair
+    # docs/paper.md: rho = c/2 for f4 = -c sin(x3), and gamma = 0 is the best QIB pair
     assert p["rho"] == 0.333 / 2 and p["gamma"] == 0.0 and p["beta"] == pytest.approx(0.333**2)
 
 
@@ -93,7 +93,7 @@ def test_paper_gains_only_for_flexible_link(flex, flex_constants):
     assert "flexible link" in d.applicable(other, flex_constants.valid)
     r = d.design(flex, flex_constants.valid)
     assert r.status == "given" and r.route == "given"
-    # MATH.md's printed gains (37)-(38)
+    # docs/paper.md's printed gains (37)-(38)
     np.testing.assert_array_equal(r.F, [[-11.7561, -1.8562, 6.4643, -14.2175]])
     np.testing.assert_array_equal(r.K[0], [1.2907, -24.3525])
 

@@ -83,7 +83,7 @@ def test_the_ladder_is_monotone(pid, did):
 
 
 def test_issue_figures_for_the_flexible_link():
-    """The independent prototype's figures (issue 11, STRUCTURE.md): paper gains 0.09-0.11 under (20) and
+    """The independent prototype's figures (issue 11, docs/structured.md): paper gains 0.09-0.11 under (20) and
     1.1-1.3 structured; every LQR pairing 0.7-0.9 structured and not certified by (20)."""
     plant = PLANTS.create("flexible_link")
     know = Knowledge.trusting(plant)

@@ -1,4 +1,4 @@
-"""The literature plants 2-5 of PLANTS.md, the random families, and the constants machinery
+"""The literature plants of the catalog, the random families, and the constants machinery
 they rely on (claimed region, report flags). Expected values are derived by hand here."""
 
 import json

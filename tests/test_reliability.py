@@ -178,7 +178,7 @@ def test_cli_timeout_option(tmp_path, register, capsys):
     rc = main(["run", "-j", "1", "--no-cache", "--no-figures", "--timeout", "1", "--plant", "flexible_link",
                "--design", "_sleeps", "--out", str(tmp_path)])
     assert rc == 0
-    assert "1 timeouts" in capsys.readouterr().err
+    assert "1 without (1 timeout)" in capsys.readouterr().err
     df = pd.read_csv(tmp_path / "results.csv")
     assert df.loc[0, "status"] == "timeout"
     assert "timeout" in (tmp_path / "REPORT.md").read_text()

@@ -2,7 +2,7 @@
 
 "Joint feasible iff both sides are" is tested in both directions on plants whose side
 infeasibility is proven here in closed form, and every separated gain pair is checked against
-the joint matrix of MATH.md rebuilt in the test (tests/conftest.py), not against the code's
+the joint matrix of docs/paper.md rebuilt in the test (tests/conftest.py), not against the code's
 own rebuild.
 
 Closed forms used (A = diag(-sigma, 1), gamma = 0, beta_eff = beta):
@@ -61,7 +61,7 @@ def test_separated_feasible_certified_on_flexible_link(flex, flex_constants, fle
     assert r.margin < 0 and r.lmi_size == 24
     assert r.params["raw_joint_margin"] < 0
     assert hurwitz(flex.A + flex.B @ r.F) and hurwitz(flex.A - r.K @ flex.C)
-    # the joint matrix of MATH.md, rebuilt here, holds for these gains
+    # the joint matrix of docs/paper.md, rebuilt here, holds for these gains
     assert gains_satisfy_joint_lmi(kind, flex, r.K, r.F, flex_constants.valid)
     assert not gains_satisfy_joint_lmi(kind, flex, r.K, -r.F, flex_constants.valid)  # the check can fail
     assert certify(flex, r.K, r.F, flex_knowledge, rates=False).certified
