@@ -186,8 +186,8 @@ def _cell(rec) -> str:
     if rec["status"] not in ("feasible", "computed", "given"):
         return s
     cert = f"cert {rec['cert_level']}" if rec["certified"] else "no cert"
-    if rec["certified"] and rec["cert_scope"] == "local":
-        cert += " (local)"
+    if rec["certified"] and rec["cert_scope"] in ("local", "from x0"):
+        cert += f" ({rec['cert_scope']})"
     conv = "conv" if rec["converged"] else "no conv"
     return f"{s}: {cert}, {conv}"
 
