@@ -360,15 +360,9 @@ def test_cache_keys_follow_content(tmp_path, monkeypatch):
     monkeypatch.setattr(report, "package_versions", lambda: {"numpy": "0.0"})
     assert Cache(tmp_path).pair_key(flex, "flexible_link", thm1, "thm1", FAST) != key
     monkeypatch.undo()
-    other = Cache(tmp_path)
-    other._sources["designs.thm1"] = "edited"
-    assert other.pair_key(flex, "flexible_link", thm1, "thm1", FAST) != key
-    # cor1 imports its helpers from designs._separated (they moved there from designs.thm1 in the
-    # refactor): its key follows that module's source too
-    other._sources["designs._separated"] = "edited"
-    cor1 = DESIGNS.create("cor1")
-    assert other.pair_key(flex, "flexible_link", cor1, "cor1", FAST) != cache.pair_key(flex, "flexible_link", cor1,
-                                                                                        "cor1", FAST)
+    # the options that change results: every field but the wall-clock limits
+    for opt in (dict(horizon_cap=5.0), dict(certificate="none"), dict(simulate=False), dict(use_claimed=True)):
+        assert cache.pair_key(flex, "flexible_link", thm1, "thm1", dataclasses.replace(FAST, **opt)) != key, opt
 
 
 def test_a_damaged_or_unwritable_cache_costs_a_recomputation_only(tmp_path):
