@@ -46,6 +46,7 @@ key that cannot be computed or a folder that cannot be written.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import importlib
 import json
@@ -96,6 +97,11 @@ def _sha_file(path: str) -> str:
         return "unreadable"
 
 
+@functools.lru_cache(maxsize=None)
+def _realpath(path: str) -> str:
+    return os.path.realpath(path)
+
+
 def _outside_file(module: str) -> str | None:
     """The file of a loaded module that is neither of the project nor installed, else None."""
     if module.split(".")[0] in _PROJECT:
@@ -103,7 +109,7 @@ def _outside_file(module: str) -> str | None:
     path = getattr(sys.modules.get(module), "__file__", None)
     if not isinstance(path, str):
         return None
-    real = os.path.realpath(path)
+    real = _realpath(path)
     return None if real.startswith(tuple(r + os.sep for r in _INSTALLED)) else real
 
 
@@ -260,6 +266,7 @@ class Cache:
         self.errors: list[str] = []
         self._files: dict[str, str] = {}
         self._project: dict[str, str] | None = None
+        self._versions: dict[str, str] | None = None
         self._writable = True
 
     # -- keys ---------------------------------------------------------------------------------------
@@ -276,8 +283,9 @@ class Cache:
 
         plugins = {m for reg in (PLANTS, DESIGNS) for i in reg.ids() if (m := reg[i].module).startswith(_PLUGIN_MODULE)}
         files = {f for m in plugins | modules if (f := _outside_file(m))}
-        folders = tuple({os.path.dirname(f) + os.sep for f in files})
-        files |= {f for m in list(sys.modules) if (f := _outside_file(m)) and f.startswith(folders)}
+        if files:
+            folders = tuple({os.path.dirname(f) + os.sep for f in files})
+            files |= {f for m in list(sys.modules) if (f := _outside_file(m)) and f.startswith(folders)}
         for f in files - self._files.keys():
             self._files[f] = _sha_file(f)
         return {**self._project, **{f: self._files[f] for f in sorted(files)}}
@@ -328,14 +336,16 @@ class Cache:
     def _build_key(self, what: str, kind: str, plant, plant_id: str, **parts) -> str | None:
         """The key of an entry, or None with the problem noted (then a miss)."""
         try:
-            from bench.report import package_versions
+            if self._versions is None:
+                from bench.report import package_versions
 
+                self._versions = package_versions()
             p = self.plant_fingerprint(plant, plant_id)
             modules = p.pop("modules")
             if "design" in parts:
                 design, design_id = parts.pop("design")
                 parts["design"] = {"id": design_id, "design": _canon(design, modules)}
-            return self._key({"kind": kind, "format": CACHE_FORMAT, "versions": package_versions(),
+            return self._key({"kind": kind, "format": CACHE_FORMAT, "versions": self._versions,
                               "code": self._code(modules), "plant": p, **parts})
         except Exception as exc:  # noqa: BLE001 - a cache problem never fails a run: no key, a miss
             self.errors.append(f"cannot compute the cache key of {what}: {type(exc).__name__}: {exc}")
