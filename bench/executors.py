@@ -3,6 +3,7 @@
 - ``jobs == 1``: in-process, serial (no pickling; plugins and monkeypatches are visible);
 - ``jobs > 1``: local worker processes (``concurrent.futures.ProcessPoolExecutor``, fork start
   method, so workers inherit the registries, including plugin plants, and the imported modules);
+  a worker never outlives its parent process (:func:`_worker_init`);
 - ``scheduler="ADDRESS"``: a Dask distributed cluster (``pip install ".[dist]"``), through
   ``Client.get_executor()``; workers must have the project installed.
 
@@ -44,12 +45,34 @@ class SerialExecutor(Executor):
         return fut
 
 
-def _worker_init() -> None:
-    """Workers ignore SIGINT: a terminal's Ctrl-C reaches the whole process group, and the parent
-    alone handles it (it terminates the workers), so no worker prints its own traceback."""
+def _worker_init(parent: int) -> None:
+    """Set up a local worker process.
+
+    It ignores SIGINT: a terminal's Ctrl-C reaches the whole process group, and the parent alone
+    handles it (it terminates the workers), so no worker prints its own traceback. It dies with
+    its parent, even a parent killed by SIGKILL: on Linux the kernel sends it SIGKILL then
+    (``prctl(PR_SET_PDEATHSIG)``); everywhere, a daemon thread exits it within a second of its
+    parent's death (its parent process id changes).
+    """
+    import ctypes
     import signal
+    import threading
+    import time
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        ctypes.CDLL(None).prctl(1, int(signal.SIGKILL))  # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # not Linux: the thread below alone
+        pass
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    if os.getppid() != parent:  # the parent died before this worker was set up
+        os._exit(1)
+    threading.Thread(target=watch, name="oslbench-parent-watch", daemon=True).start()
 
 
 def warm_imports() -> None:
@@ -106,7 +129,7 @@ def executor(jobs: int | None = None, scheduler: str | None = None, *, connect_t
 
     warm_imports()
     pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"),
-                               initializer=_worker_init)
+                               initializer=_worker_init, initargs=(os.getpid(),))
     try:
         yield pool
     finally:

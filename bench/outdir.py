@@ -21,13 +21,18 @@ runs:
    version, the backup folder), keeps the previous versions of the files it replaces (a hard
    link, or a move where links are not supported) and moves the stale files it deletes into a
    backup folder ``<out>/.tmp-backup.<pid>.<host>.<random>/``, moves the new files in (the
-   last one last: ``REPORT.md``), and deletes the journal: that is the commit. The backup
-   folder is removed after it.
+   manifest first, the last one last: ``REPORT.md``), and deletes the journal: that is the
+   commit. The backup folder is removed after it.
 5. On any error (or Ctrl-C) during 4 it moves every previous version back and removes the new
    files that had none, then re-raises: the previous files are intact. A writer killed during
    4 leaves the journal, and the next writer rolls the swap back before it starts.
 
-The lock file stays in the folder (deleting a lock file is itself a race); it is empty.
+The manifest ``<out>/.oslbench.manifest.json`` records, for each writer (``"report"``), the files
+it published and the SHA-256 of each. A file is stale when the writer's previous publish recorded
+it, this one does not write it, and it still holds what was written; only stale files are
+removed (and named in a warning of the ``bench.outdir`` logger). Every other file stays: the
+user's own, another command's, one the user changed since. The lock file stays in the folder
+(deleting a lock file is itself a race); it is empty.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ import contextlib
 import errno
 import hashlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -43,7 +49,7 @@ import socket
 import tempfile
 import time
 from pathlib import Path, PurePosixPath
-from typing import Callable, Iterable, Iterator
+from typing import Iterable, Iterator
 
 try:  # POSIX; elsewhere writers are not serialised (documented in publish)
     import fcntl
@@ -53,6 +59,7 @@ except ImportError:  # pragma: no cover - Windows
 __all__ = [
     "JOURNAL_NAME",
     "LOCK_NAME",
+    "MANIFEST_NAME",
     "LOCK_TIMEOUT",
     "OutDirError",
     "check_out_dir",
@@ -66,6 +73,8 @@ __all__ = [
 LOCK_NAME = ".oslbench.lock"
 #: The journal of a swap in progress, inside the output folder.
 JOURNAL_NAME = ".oslbench.journal"
+#: The files each writer published, with their SHA-256, inside the output folder.
+MANIFEST_NAME = ".oslbench.manifest.json"
 #: Seconds a writer waits for another writer's lock (a swap takes milliseconds).
 LOCK_TIMEOUT = 120.0
 #: Temporary names in an output folder start with this.
@@ -74,6 +83,7 @@ JOURNAL_FORMAT = 1
 _POLL_S = 0.05
 _HOST = hashlib.sha256(socket.gethostname().encode("utf-8", "replace")).hexdigest()[:8]
 _NO_LOCKING = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
+_log = logging.getLogger(__name__)
 
 
 class OutDirError(ValueError):
@@ -363,8 +373,8 @@ def _keep_old(src: Path, dst: Path, *, move: bool) -> None:
     os.replace(src, dst)
 
 
-def publish(out_dir, stage_dir, files: Iterable[str], *, owned: Callable[[str], bool] | None = None,
-            dirs: Iterable[str] = (), timeout: float = LOCK_TIMEOUT) -> list[Path]:
+def publish(out_dir, stage_dir, files: Iterable[str], *, writer: str | None = None,
+            timeout: float = LOCK_TIMEOUT) -> list[Path]:
     """Move rendered files from ``stage_dir`` into ``out_dir``, all of them or none.
 
     Parameters
@@ -377,13 +387,10 @@ def publish(out_dir, stage_dir, files: Iterable[str], *, owned: Callable[[str], 
     files : iterable of str
         The new files, as relative POSIX paths (``"figures/a.png"``), in the order they are
         moved in: the last one last (the file readers open first, e.g. ``REPORT.md``).
-    owned : callable, optional
-        ``owned(relpath) -> bool``: files of ``out_dir`` this writer owns; an owned file that is
-        not among ``files`` is stale and deleted (with the same guarantee). Only the top level
-        and the folders of ``files`` and ``dirs`` are scanned; names starting with "." never are.
-    dirs : iterable of str
-        Further folders to scan for stale owned files (e.g. ``("figures",)`` when this run
-        may have drawn no figure).
+    writer : str, optional
+        Record ``files`` in the folder's manifest under this name, and delete (with the same
+        guarantee) the stale files of this writer: recorded by its previous publish, not among
+        ``files``, and unchanged since. Without it nothing is recorded or deleted.
     timeout : float
         Seconds to wait for another writer's lock.
 
@@ -414,7 +421,10 @@ def publish(out_dir, stage_dir, files: Iterable[str], *, owned: Callable[[str], 
     files = _staged_files(stage, files)
     with locked(out, timeout):
         recover(out)
-        stale = _stale_owned(out, files, dirs, owned) if owned is not None else []
+        stale = []
+        if writer is not None:
+            stale = _update_manifest(out, stage, files, writer)
+            files = [MANIFEST_NAME, *files]
         backup = Path(tempfile.mkdtemp(prefix=_tmp_prefix("backup"), dir=out))
         entries = ([{"path": rel, "old": True, "new": False} for rel in stale]
                    + [{"path": rel, "old": os.path.lexists(out / rel), "new": True} for rel in files])
@@ -427,7 +437,10 @@ def publish(out_dir, stage_dir, files: Iterable[str], *, owned: Callable[[str], 
             raise
         _swap(out, stage, doc, backup)
         shutil.rmtree(backup, ignore_errors=True)
-    return [out / rel for rel in files]
+    if stale:
+        _log.warning("%s: removed %d file(s) that an earlier run of this suite wrote and this one does not: %s",
+                     out, len(stale), ", ".join(stale))
+    return [out / rel for rel in files if rel != MANIFEST_NAME]
 
 
 def _staged_files(stage: Path, files: Iterable[str]) -> list[str]:
@@ -441,20 +454,36 @@ def _staged_files(stage: Path, files: Iterable[str]) -> list[str]:
     return files
 
 
-def _stale_owned(out: Path, files: list[str], dirs: Iterable[str], owned: Callable[[str], bool]) -> list[str]:
-    """The owned files of ``out`` that are not among ``files``: in the top level and the folders of ``files``
-    and ``dirs``, names starting with "." never."""
+def _sha_file(path: Path) -> str | None:
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def _update_manifest(out: Path, stage: Path, files: list[str], writer: str) -> list[str]:
+    """Write the new manifest into ``stage`` (``writer``'s entry: ``files`` and their SHA-256) and return
+    ``writer``'s stale files: recorded before, not among ``files``, and still as written (see the module
+    docstring). An unreadable manifest records nothing: then nothing is stale."""
+    try:
+        writers = dict(json.loads((out / MANIFEST_NAME).read_text(encoding="utf-8"))["writers"])
+    except (OSError, ValueError, KeyError, TypeError):
+        writers = {}
+    try:
+        previous = {_relpath(rel): str(sha) for rel, sha in writers.get(writer, {}).items()}
+    except (ValueError, TypeError, AttributeError):
+        previous = {}
     new = set(files)
-    stale: list[str] = []
-    scan = {str(PurePosixPath(f).parent) for f in files} | {str(PurePosixPath(d)) for d in dirs} | {"."}
-    for d in sorted(scan):
-        folder = out if d == "." else out / d
-        if not folder.is_dir():
-            continue
-        for p in sorted(folder.iterdir()):
-            rel = p.name if d == "." else f"{d}/{p.name}"
-            if not p.name.startswith(".") and rel not in new and p.is_file() and owned(rel):
-                stale.append(rel)
+    stale, kept = [], []
+    for rel, sha in sorted(previous.items()):
+        path = out / rel
+        if rel not in new and path.is_file() and not path.is_symlink():
+            (stale if _sha_file(path) == sha else kept).append(rel)
+    if kept:
+        _log.warning("%s: kept %s: written by an earlier run of this suite, changed since", out, ", ".join(kept))
+    writers[writer] = {rel: _sha_file(stage / rel) for rel in files}
+    (stage / MANIFEST_NAME).write_text(json.dumps({"format": 1, "writers": writers}, indent=1, sort_keys=True),
+                                       encoding="utf-8")
     return stale
 
 

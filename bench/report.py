@@ -639,8 +639,7 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
     out.mkdir(parents=True, exist_ok=True)
     with staged(out, "report") as tmp:  # a folder of its own; stale ones are removed by publish
         files = _render(result, tmp, run_info, figures, fmts)
-        # swap it in whole or not at all (bench.outdir), REPORT.md last; stale figures of the main report
-        # (figures/*__*.png|pdf) go, the studies' and perf's stay
-        publish(out, tmp, files, dirs=("figures",),
-                owned=lambda rel: rel.startswith("figures/") and "__" in rel and rel.endswith((".png", ".pdf")))
+        # swap it in whole or not at all (bench.outdir), REPORT.md last; files an earlier report wrote and
+        # this one does not are removed, every other file stays (the folder's manifest)
+        publish(out, tmp, files, writer="report")
     return out / "REPORT.md"

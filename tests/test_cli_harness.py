@@ -114,17 +114,30 @@ def test_every_module_registers_something():
         assert modules <= registered, f"modules that registered nothing: {modules - registered}"
 
 
-def test_main_report_keeps_other_commands_figures(tmp_path):
+def test_a_run_removes_only_its_own_stale_files_and_names_them(tmp_path, caplog):
+    """The user's files stay (even named like the suite's figures); the figure an earlier run wrote and
+    this run does not is removed and named; one the user changed since stays."""
     figs = tmp_path / "figures"
     figs.mkdir()
-    (figs / "study_noise_x.png").write_bytes(b"study")
-    (figs / "perf_scaling.png").write_bytes(b"perf")
-    (figs / "flexible_link__stale_design.png").write_bytes(b"old")
-    assert main(["run", "-q", "--plant", "flexible_link", "--design", "paper_gains", "--out", str(tmp_path)]) == 0
-    assert (figs / "study_noise_x.png").read_bytes() == b"study"
-    assert (figs / "perf_scaling.png").read_bytes() == b"perf"
-    assert not (figs / "flexible_link__stale_design.png").exists()
+    mine = {"figures/holiday__photo.png": b"holiday", "figures/thesis__fig3.pdf": b"thesis",
+            "figures/study_noise_x.png": b"study", "notes.txt": b"notes"}
+    for rel, data in mine.items():
+        (tmp_path / rel).write_bytes(data)
+    base = ["run", "-q", "-j", "1", "--plant", "flexible_link", "--out", str(tmp_path)]
+    assert main([*base, "--design", "paper_gains", "--design", "lqr+lqe", "--design", "cor1_sep"]) == 0
+    assert (figs / "flexible_link__lqr+lqe.png").exists() and (figs / "flexible_link__cor1_sep.png").exists()
+    (figs / "flexible_link__cor1_sep.png").write_bytes(b"annotated by the user")
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="bench.outdir"):
+        assert main([*base, "--design", "paper_gains"]) == 0
+    for rel, data in mine.items():
+        assert (tmp_path / rel).read_bytes() == data, rel
+    assert not (figs / "flexible_link__lqr+lqe.png").exists()
+    assert (figs / "flexible_link__cor1_sep.png").read_bytes() == b"annotated by the user"
     assert (figs / "flexible_link__paper_gains.png").exists()
+    text = caplog.text
+    assert "removed 1 file" in text and "figures/flexible_link__lqr+lqe.png" in text
+    assert "kept figures/flexible_link__cor1_sep.png" in text and "holiday" not in text
 
 
 def test_stale_temp_folders_of_a_killed_writer_are_removed(tmp_path):

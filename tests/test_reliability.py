@@ -240,6 +240,8 @@ def test_a_cached_rerun_writes_an_identical_report(tmp_path):
     second = _snapshot(out)
     assert json.loads(second.pop("run.json"))["cache"]["hits"] == 1
     first.pop("run.json")
+    for snap in (first, second):  # the folder's record of the files written (run.json's digest among them)
+        snap.pop(".oslbench.manifest.json")
     assert second == first  # REPORT.md, results.csv, gains.json and every figure, byte for byte
 
 
@@ -272,10 +274,33 @@ class Stuck(Design):
 
     def design(self, plant, constants):
         if os.environ.get("OSLBENCH_TEST_STUCK") == "1":
-            pathlib.Path(os.environ["OSLBENCH_TEST_MARK"]).write_text("started")
-            time.sleep(120)
+            pathlib.Path(os.environ["OSLBENCH_TEST_MARK"]).write_text(str(os.getpid()))
+            time.sleep(3600)  # longer than any test: only a signal ends it
         return DesignResult(status="infeasible", reason="nothing to design")
 '''
+
+#: Safety nets only: every wait below ends on an event (a file written, a process gone), long before.
+_GUARD_S = 600
+
+
+def _children(pid: int) -> set[int]:
+    """Ids of the live (not zombie) processes whose parent is ``pid`` (from /proc)."""
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out.add(int(stat.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
 
 
 def _start(args, mark: Path, pairs: Path, n_cached: int):
@@ -283,16 +308,29 @@ def _start(args, mark: Path, pairs: Path, n_cached: int):
     env = {**os.environ, "OSLBENCH_TEST_STUCK": "1", "OSLBENCH_TEST_MARK": str(mark)}
     proc = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.monotonic() + 120
-    while not (mark.exists() and len(list(pairs.glob("*.npz"))) >= n_cached):
+    deadline = time.monotonic() + _GUARD_S
+    while not (mark.exists() and mark.read_text() and len(list(pairs.glob("*.npz"))) >= n_cached):
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() < deadline, "the stuck design never started"
         time.sleep(0.05)
     return proc
 
 
+def _gone_soon(pids: set[int], within: float) -> set[int]:
+    """The processes of ``pids`` still alive after ``within`` seconds (killed then, so none is left behind)."""
+    deadline = time.monotonic() + within
+    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = {p for p in pids if _alive(p)}
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    return left
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
 def test_sigint_and_sigkill_mid_run(tmp_path, monkeypatch, capsys):
-    """Real signals to a real process: the report survives, finished pairs survive, a re-run resumes."""
+    """Real signals to a real process: the report survives, finished pairs survive, no worker outlives its
+    parent (SIGKILL included), a re-run resumes."""
     out = tmp_path / "rep"
     plugin = tmp_path / "stuck.py"
     plugin.write_text(PLUGIN)
@@ -303,19 +341,29 @@ def test_sigint_and_sigkill_mid_run(tmp_path, monkeypatch, capsys):
     stuck = [*base, "--plugin", str(plugin), "--design", "paper_gains", "--design", "lqr+lqe", "--design", "zz_stuck"]
 
     # Ctrl-C in a terminal: SIGINT to the whole process group, two worker processes busy
-    proc = _start([*stuck, "-j", "2"], tmp_path / "mark1", pairs, 2)  # lqr+lqe is cached by now
+    mark = tmp_path / "mark1"
+    # the plugin is in every key of its runs: paper_gains and lqr+lqe are cached (again) by now
+    proc = _start([*stuck, "-j", "2"], mark, pairs, 3)
+    workers = _children(proc.pid)
+    assert int(mark.read_text()) in workers
     os.killpg(proc.pid, signal.SIGINT)
-    # the stuck worker sleeps 120 s: communicate's 60 s guard raises if it were waited for
-    stdout, stderr = proc.communicate(timeout=60)
+    # the stuck worker sleeps an hour: the run ends only if the parent stops its workers
+    stdout, stderr = proc.communicate(timeout=_GUARD_S)
     assert proc.returncode == 130, stderr
     assert "interrupted" in stderr and "unchanged" in stderr and "resume" in stderr and "Traceback" not in stderr
+    assert not _gone_soon(workers, 10.0)
     assert _snapshot(out) == before
     _no_temporaries(tmp_path)
 
-    proc = _start([*stuck, "-j", "1", "--design", "lqr+rh_riccati"], tmp_path / "mark2", pairs, 3)
-    proc.kill()  # SIGKILL: no handler runs at all
-    proc.communicate(timeout=60)
-    assert proc.returncode == -signal.SIGKILL
+    # SIGKILL of the parent: no handler runs at all; its workers, one stuck, follow it within seconds
+    mark = tmp_path / "mark2"
+    proc = _start([*stuck, "-j", "2", "--design", "lqr+rh_riccati"], mark, pairs, 4)
+    workers = _children(proc.pid)
+    assert int(mark.read_text()) in workers
+    proc.kill()
+    assert proc.wait(timeout=_GUARD_S) == -signal.SIGKILL  # not communicate: a live worker holds the pipes
+    assert not _gone_soon(workers, 5.0), "workers outlived their killed parent"
+    proc.communicate(timeout=_GUARD_S)
     assert _snapshot(out) == before
     for entry in (default_cache_dir(out) / "pairs").iterdir():  # every entry whole and readable
         assert entry.suffix == ".npz"
@@ -328,7 +376,7 @@ def test_sigint_and_sigkill_mid_run(tmp_path, monkeypatch, capsys):
     finally:
         DESIGNS.unregister("zz_stuck")
     info = json.loads((out / "run.json").read_text())
-    # paper_gains (first run), lqr+lqe (the interrupted run) and lqr+rh_riccati (the killed run)
+    # paper_gains, lqr+lqe (the interrupted run) and lqr+rh_riccati (the killed run)
     assert info["cache"] == {"dir": str(default_cache_dir(out)), "hits": 3, "misses": 1}
     assert pd.read_csv(out / "results.csv").set_index("design").loc["zz_stuck", "status"] == "infeasible"
 
@@ -363,15 +411,9 @@ def test_cache_keys_follow_content(tmp_path, monkeypatch):
     monkeypatch.setattr(report, "package_versions", lambda: {"numpy": "0.0"})
     assert Cache(tmp_path).pair_key(flex, "flexible_link", thm1, "thm1", FAST) != key
     monkeypatch.undo()
-    other = Cache(tmp_path)
-    other._sources["designs.thm1"] = "edited"
-    assert other.pair_key(flex, "flexible_link", thm1, "thm1", FAST) != key
-    # cor1 imports its helpers from designs._separated (they moved there from designs.thm1 in the
-    # refactor): its key follows that module's source too
-    other._sources["designs._separated"] = "edited"
-    cor1 = DESIGNS.create("cor1")
-    assert other.pair_key(flex, "flexible_link", cor1, "cor1", FAST) != cache.pair_key(flex, "flexible_link", cor1,
-                                                                                        "cor1", FAST)
+    # the options that change results: every field but the wall-clock limits
+    for opt in (dict(horizon_cap=5.0), dict(certificate="none"), dict(simulate=False), dict(use_claimed=True)):
+        assert cache.pair_key(flex, "flexible_link", thm1, "thm1", dataclasses.replace(FAST, **opt)) != key, opt
 
 
 def test_a_damaged_or_unwritable_cache_costs_a_recomputation_only(tmp_path):

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import subprocess
@@ -176,8 +177,7 @@ for i in range(int(sys.argv[4])):
         (st / "figures" / "p__fig.png").write_text(f"{tag} {i}")
         (st / "data.csv").write_text(f"{tag} {i}")
         (st / "INDEX.md").write_text(f"{tag} {i}")
-        publish(out, st, ["figures/p__fig.png", "data.csv", "INDEX.md"], owned=lambda rel: "__" in rel,
-                dirs=("figures",))
+        publish(out, st, ["figures/p__fig.png", "data.csv", "INDEX.md"], writer="stress")
 print("ok")
 """
 
@@ -227,7 +227,7 @@ real, moved = os.replace, []
 def dying(src, dst):
     if any(part.startswith(".tmp-killed") for part in Path(src).parts):  # a new file moving in from the stage
         moved.append(src)
-        if len(moved) == 4:  # figure, c.txt, a.txt are in; b.txt is next
+        if len(moved) == 5:  # the manifest, figure, c.txt, a.txt are in; b.txt is next
             os._exit(9)  # killed: no handler, no finally
     return real(src, dst)
 
@@ -237,8 +237,7 @@ with outdir.staged(out, "killed") as st:
     (st / "figures" / "p__new.png").write_text("new figure")
     for name in ("a.txt", "b.txt", "c.txt"):
         (st / name).write_text("new " + name)
-    outdir.publish(out, st, ["figures/p__new.png", "c.txt", "a.txt", "b.txt"], owned=lambda rel: "__" in rel,
-                   dirs=("figures",))
+    outdir.publish(out, st, ["figures/p__new.png", "c.txt", "a.txt", "b.txt"], writer="w")
 """
 
 
@@ -246,6 +245,8 @@ def test_a_writer_killed_mid_swap_is_rolled_back_by_the_next_writer(tmp_path):
     out = tmp_path
     (out / "figures").mkdir()
     (out / "figures" / "p__old.png").write_text("old figure")  # stale: the killed writer deletes it
+    digest = hashlib.sha256(b"old figure").hexdigest()  # as the writer's previous publish recorded it
+    (out / outdir.MANIFEST_NAME).write_text(json.dumps({"format": 1, "writers": {"w": {"figures/p__old.png": digest}}}))
     for name in ("a.txt", "b.txt"):
         (out / name).write_text("old " + name)
     before = _snapshot(out)

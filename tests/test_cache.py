@@ -1,8 +1,10 @@
-"""The cache never serves a stale verdict (issue "Nothing wrong reported as valid", items 1, 2, 5).
+"""The on-disk cache (bench.cache): keys follow what a result depends on, a damaged entry is a miss.
 
 - editing only a helper module that a plugin imports (``import mylib``) is a miss;
 - f is probed at many points and the Jacobian is probed too (changes hidden in closures);
-- a plugin that changes a suite setting does not poison the catalog pairs of its run;
+- a plugin that changes a suite setting does not poison the catalog pairs of its run (the plugin
+  files of a run are in every key of the run);
+- every source file of the project is in the key;
 - a cache problem (a key that cannot be computed, an entry that cannot be stored) never fails a run;
 - the module docstring names every part of the key.
 """
@@ -18,10 +20,12 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
+import pytest
 
 import bench.cache as cache_mod
 import bench.metrics
-from bench.cache import Cache
+from bench.cache import Cache, default_cache_dir
 from bench.cli import main
 from bench.harness import RunOptions, run
 from bench.registry import DESIGNS, PLANTS
@@ -212,19 +216,24 @@ def test_a_plugin_changing_a_setting_does_not_poison_the_catalog_pairs(tmp_path,
     assert _cache_counts(out) == (1, 0)
 
 
-def test_settings_of_every_module_in_the_key_are_read_at_key_time(tmp_path, monkeypatch):
-    flex, thm1 = PLANTS.create("flexible_link"), DESIGNS.create("thm1")
-    cache = Cache(tmp_path)
-    key, ckey = cache.pair_key(flex, "flexible_link", thm1, "thm1", FAST), cache.constants_key(flex, "flexible_link",
-                                                                                               FAST)
-    monkeypatch.setattr(bench.metrics, "SETTLING_FRACTION", 0.05)
-    assert cache.pair_key(flex, "flexible_link", thm1, "thm1", FAST) != key  # the same Cache: read now, not once
-    monkeypatch.undo()
-    assert cache.pair_key(flex, "flexible_link", thm1, "thm1", FAST) == key
-    import plants.flexible_link as fl
+def test_every_project_source_file_is_in_the_key(tmp_path, monkeypatch):
+    """Editing any file of the project is a miss: cor1's helpers live in designs/_separated.py, and the
+    constants do not depend on the designs at all, yet a change of either file changes both keys."""
+    flex, cor1 = PLANTS.create("flexible_link"), DESIGNS.create("cor1")
 
-    monkeypatch.setattr(fl, "SOURCE", fl.SOURCE + " (edited at run time)")
-    assert cache.constants_key(flex, "flexible_link", FAST) != ckey
+    def keys():
+        c = Cache(tmp_path)
+        return c.pair_key(flex, "flexible_link", cor1, "cor1", FAST), c.constants_key(flex, "flexible_link", FAST)
+
+    before = keys()
+    assert None not in before
+    real = cache_mod._sha_file
+    for edited in ("designs/_separated.py", "bench/metrics.py"):
+        monkeypatch.setattr(cache_mod, "_sha_file", lambda p, e=edited: "edited" if p.endswith(e) else real(p))
+        after = keys()
+        assert after[0] != before[0] and after[1] != before[1], edited
+    monkeypatch.undo()
+    assert keys() == before
 
 
 # -- item 5: a cache problem never fails a run ---------------------------------------------------
@@ -269,5 +278,65 @@ def test_the_docstring_names_every_part_of_the_key(tmp_path, monkeypatch):
         assert set(doc) <= named, f"parts of the key the docstring does not name: {set(doc) - named}"
     assert {"pair", "constants"} <= {d["kind"] for d in docs}
     plant_doc = docs[0]["plant"]
-    assert set(plant_doc) == {"id", "plant", "probe", "code"}
+    assert set(plant_doc) == {"id", "plant", "probe"}
     assert str(cache_mod.PROBE_POINTS) == "64" and "PROBE_POINTS" in text
+
+
+# -- a damaged entry is a miss with a warning naming it ------------------------------------------
+def _edit_pair_entries(cache_dir: Path, edit, *, reseal: bool) -> list[Path]:
+    """Apply ``edit(record)`` to every pair entry's record; ``reseal``: recompute the checksum too (an edit
+    made with knowledge of the format), else leave the old one."""
+    entries = sorted((cache_dir / "pairs").glob("*.npz"))
+    for path in entries:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        doc = json.loads(str(arrays.pop("meta")))
+        old_sha = str(arrays.pop("sha256"))
+        edit(doc["value"]["fields"]["record"]["__dict__"])
+        meta = json.dumps(doc)
+        sha = cache_mod._checksum(meta, arrays) if reseal else old_sha
+        np.savez_compressed(path, **arrays, meta=np.array(meta), sha256=np.array(sha))
+    return entries
+
+
+@pytest.mark.parametrize("edit, reseal", [
+    (lambda r: r.update(decay_rate="fast"), False),
+    (lambda r: r.update(decay_rate="fast"), True),  # the checksum matches: the column's kind is checked
+    (lambda r: r.update(certified=not r["certified"], cert_level="none"), False),  # an edited verdict
+])
+def test_a_damaged_entry_is_a_miss_with_a_warning_and_the_row_is_recomputed(tmp_path, capsys, edit, reseal):
+    out = tmp_path / "rep"
+    args = ["run", "-j", "1", "--no-figures", "--plant", "flexible_link", "--design", "paper_gains", "--out", str(out)]
+    assert main(args) == 0
+    first = pd.read_csv(out / "results.csv")
+    assert first.loc[0, "certified"] and np.isfinite(first.loc[0, "decay_rate"])
+    capsys.readouterr()
+    (entry,) = _edit_pair_entries(default_cache_dir(out), edit, reseal=reseal)
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "warning" in err and str(entry) in err and "damaged cache entry" in err and "Traceback" not in err
+    assert _cache_counts(out) == (0, 1)
+    again = pd.read_csv(out / "results.csv")
+    verdicts = ["status", "certified", "cert_level", "decay_rate", "converged"]
+    pd.testing.assert_frame_equal(again[verdicts], first[verdicts])
+    # the recomputed row replaced the damaged entry: the next run takes it from the cache, silently
+    assert main(args) == 0
+    assert _cache_counts(out) == (1, 0) and "damaged cache entry" not in capsys.readouterr().err
+
+
+def test_entries_round_trip_whole(tmp_path):
+    """A stored pair reads back equal, field by field (arrays exactly), and carries a checksum of its content."""
+    cache = Cache(tmp_path)
+    res = run(["flexible_link"], ["lqr+lqe"], FAST, cache=cache)
+    (o,) = res.outcomes
+    key = cache.pair_key(o.plant, "flexible_link", DESIGNS.create("lqr+lqe"), "lqr+lqe", FAST)
+    back = Cache(tmp_path).load_pair(key)
+    assert back is not None and back.plant is None
+    assert json.dumps(back.record, default=str) == json.dumps(o.record, default=str)
+    np.testing.assert_array_equal(back.result.K, o.result.K)
+    np.testing.assert_array_equal(back.trajectory.x, o.trajectory.x)
+    assert back.certificate.levels.keys() == o.certificate.levels.keys()
+    for lv, r in o.certificate.levels.items():
+        assert back.certificate.levels[lv].status == r.status
+    with np.load(tmp_path / "pairs" / f"{key}.npz", allow_pickle=False) as z:
+        assert len(str(z["sha256"])) == 64
