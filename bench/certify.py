@@ -35,9 +35,10 @@ Only *trusted* knowledge enters (:meth:`bench.constants.ConstantsReport.knowledg
 constants that no sample disproved, declared channels that no sample disproved. Constants that
 were only sampled are lower bounds and never certify.
 
-Decay rates: after ``lam = 0``, the largest certified ``lam`` is bracketed by doubling and then
-bisected geometrically (relative tolerance ``rate_rtol``); each level starts from the rate of
-the level below (warm start). The bracket's upper end is the decay rate of the closed loop
+Decay rates: after ``lam = 0``, the largest certified ``lam`` is searched on the fixed grid of
+:mod:`bench.search` (relative tolerance ``rate_rtol``; a probe counts only when its LMI verifies
+with a margin of :data:`bench.joint.CLEAR` tolerances); each level starts from the rate of the
+level below (warm start). The bracket's upper end is the decay rate of the closed loop
 linearised at the origin (no certificate can beat it).
 """
 
@@ -52,6 +53,8 @@ import numpy as np
 
 from bench import lmi
 from bench.constants import Knowledge
+from bench.joint import CLEAR
+from bench.search import RATE_RTOL, largest_passing
 from plants import Plant
 
 __all__ = ["LADDER_MAX_N", "LEVELS", "LEVEL_TITLES", "Certificate", "Knowledge", "LevelResult", "adopt", "certify",
@@ -278,24 +281,15 @@ def _blocks(spec: _Spec, Gw: np.ndarray, Hc: np.ndarray | None, d: dict) -> list
                 ww[side] = ww[side] - tau * GtG
         if spec.channels:
             tau = d[f"ch_{side}"]
-            diag[side] = diag[side] + Hc.T @ _diag(-_times(tau, d["lohi"])) @ Hc
-            cross[side] = cross[side] + Hc.T @ _diag(0.5 * _times(tau, d["losum"]))
-            ww[side] = ww[side] - _diag(tau)
+            diag[side] = diag[side] + Hc.T @ lmi.diag(-_times(tau, d["lohi"])) @ Hc
+            cross[side] = cross[side] + Hc.T @ lmi.diag(0.5 * _times(tau, d["losum"]))
+            ww[side] = ww[side] - lmi.diag(tau)
     return [
         [xx + diag["x"], xe, xwx + cross["x"], xwe],
         [xe.T, ee + diag["e"], ewx, ewe + cross["e"]],
         [(xwx + cross["x"]).T, ewx.T, ww["x"], Zw],
         [xwe.T, (ewe + cross["e"]).T, Zw, ww["e"]],
     ]
-
-
-def _diag(v):
-    """A diagonal matrix from a vector (cvxpy or numpy)."""
-    if isinstance(v, np.ndarray):
-        return np.diag(v)
-    import cvxpy as cp
-
-    return cp.diag(v)
 
 
 def _times(a, b):
@@ -315,8 +309,9 @@ def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
     return np.block([[vals["P1"], np.zeros((n, n))], [np.zeros((n, n)), vals["P2"]]])
 
 
-def _check(prog: lmi.Program, lam: float) -> tuple[str, float]:
-    """Solve at ``lam``; ``("verified" | "marginal" | "violated" | solver status, margin)``."""
+def _check(prog: lmi.Program, lam: float, clear: float = 1.0) -> tuple[str, float]:
+    """Solve at ``lam``; ``("verified" | "marginal" | "violated" | solver status, margin)``; "verified" needs a
+    margin below ``-clear`` times the tolerance (a rate probe asks for :data:`bench.joint.CLEAR`)."""
     prog.solve(lam=lam)
     if prog.last_status not in ("optimal", "optimal_inaccurate"):
         return prog.last_status, float("nan")
@@ -326,38 +321,28 @@ def _check(prog: lmi.Program, lam: float) -> tuple[str, float]:
     vals = prog.values()
     if verdict == "verified" and not all(lmi.is_positive_definite(vals[k]) for k in prog.positive):
         verdict = "violated"
+    if verdict == "verified" and margin >= -clear * lmi.verify_tol(M):
+        verdict = "marginal"
     return verdict, margin
 
 
 def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float) -> tuple[float, np.ndarray]:
-    """Largest verified rate in ``[lam0, hi)``, from a verified solve at ``lam0`` (held by ``prog``).
+    """Largest rate in ``[lam0, hi)`` on the grid of :func:`bench.search.largest_passing` whose LMI verifies
+    clearly, from a verified solve at ``lam0`` (held by ``prog``); 0 when none above 0 does."""
+    found = {lam0: _full_p(prog, spec)}
 
-    Bracketed by doubling from ``lam0`` (or by quartering down from ``hi`` when ``lam0 = 0``),
-    then bisected geometrically until the bracket is within ``rtol`` (relative). Only verified
-    rates count; a solve that fails or is marginal closes the bracket from above.
-    """
-    lo, best_p, top = lam0, _full_p(prog, spec), hi
-    if lo <= 0:  # a first positive rate: quarter down from hi
-        lam = hi / 2
-        while lam > 1e-6 * max(1.0, hi):
-            if _check(prog, lam)[0] == "verified":
-                lo, best_p = lam, _full_p(prog, spec)
-                break
-            top, lam = lam, lam / 4
-        if lo <= 0:
-            return 0.0, best_p
-    while 2 * lo < top:  # double until the bracket closes
-        if _check(prog, 2 * lo)[0] == "verified":
-            lo, best_p = 2 * lo, _full_p(prog, spec)
-        else:
-            top = 2 * lo
-    while top / lo - 1 > rtol:
-        mid = math.sqrt(lo * top)
-        if _check(prog, mid)[0] == "verified":
-            lo, best_p = mid, _full_p(prog, spec)
-        else:
-            top = mid
-    return lo, best_p
+    def passes(lam: float) -> bool:
+        ok = _check(prog, lam, clear=CLEAR)[0] == "verified"
+        if ok:
+            found[lam] = _full_p(prog, spec)
+        return ok
+
+    if lam0 > 0:
+        out = largest_passing(passes, rtol=rtol, lo=lam0, hi=hi)
+    else:  # a first positive rate: down from hi by factors of 4
+        out = largest_passing(passes, rtol=rtol, hi=hi, factor=4.0, down_until=1e-6 * max(1.0, hi))
+    lam = out["lo"] if math.isfinite(out["lo"]) else 0.0
+    return lam, found.get(lam, found[lam0])
 
 
 def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
@@ -501,7 +486,7 @@ def certify(
     *,
     levels: tuple[str, ...] = LEVELS,
     rates: bool = True,
-    rate_rtol: float = 0.03,
+    rate_rtol: float = RATE_RTOL,
     inherit: bool = True,
 ) -> Certificate:
     """Certify the observer-based closed loop with gains K, F at each level of the ladder.

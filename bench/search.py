@@ -78,7 +78,8 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
         Bracketing down stops below this value (``"below_range"``).
     stop : callable, optional
         ``stop() -> bool``, asked after each failing probe while bracketing down; True ends the
-        search (``"below_range"``; e.g. the last probe lay outside the test's valid range).
+        search (``"below_range"``, the last probe lay outside the test's valid range: ``hi`` stays
+        the failing value before it).
 
     Returns
     -------
@@ -121,17 +122,20 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
         if passes(x):
             kl, lo_val = k, x
             break
-        kh = k
-        if stop is not None and stop():
+        if stop is not None and stop():  # the probe lay outside the valid range: hi stays the last valid one
             break
+        kh = k
     if kl is None:
-        return {"lo": math.nan, "hi": _point(kh, rtol) if hi is None or kh != _index(hi, rtol, up=True) else hi,
-                "kind": "below_range"}
+        return {"lo": math.nan, "hi": _value(kh, hi, rtol), "kind": "below_range"}
     while kh - kl > 1:
         k = (kl + kh) // 2
         if passes(_point(k, rtol)):
             kl, lo_val = k, _point(k, rtol)
         else:
             kh = k
-    hi_val = hi if hi is not None and kh == _index(hi, rtol, up=True) else _point(kh, rtol)
-    return {"lo": lo_val, "hi": hi_val, "kind": "bracketed"}
+    return {"lo": lo_val, "hi": _value(kh, hi, rtol), "kind": "bracketed"}
+
+
+def _value(k: int, given: float | None, rtol: float) -> float:
+    """The value of grid index k, or the given bound it was taken from."""
+    return given if given is not None and k == _index(given, rtol, up=True) else _point(k, rtol)

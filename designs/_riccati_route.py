@@ -57,7 +57,7 @@ RESIDUAL_TOL = 1e-8
 #: Default tau grid, relative to the natural scale (smallest gain first).
 TAU_GRID = (1.0, 10.0, 1e2, 1e3, 1e4, 1e5)
 #: Default eps grid, relative to the natural scale.
-EPS_GRID = (1e-2,)
+EPS_GRID = (1e-2, 1e-4)
 
 
 def _eig_at(M: np.ndarray, index: int) -> float:
@@ -202,7 +202,12 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
             X, max_re, definite, reason = _schur_are(a, M, q)
         elif method == "sign":
             X, definite, reason = _sign_are(a, M, q)
-            max_re = -math.inf  # not computed: the side's Lyapunov test (P > 0, side matrix < 0) implies it
+            # the side's Lyapunov test (P > 0, side matrix < 0) proves the closed loop Hurwitz; the spectrum
+            # is computed only where it is cheap
+            if X is not None and n <= 128:
+                max_re = float(np.linalg.eigvals(a - M @ X).real.max())
+            else:
+                max_re = -math.inf
         else:
             X = sla.solve_continuous_are(a, b, q, np.diag(rr))
             max_re = float(np.linalg.eigvals(a - M @ X).real.max())
@@ -250,8 +255,6 @@ class SideSolution:
         F (m x n, x-side) or K (n x p, e-side).
     side_matrix : ndarray (n, n)
         ``Mx`` or ``Me`` of :mod:`bench.joint` at the side's lam, recomputed from the gain.
-    margin : float
-        Jacobi-equilibrated largest eigenvalue of ``side_matrix`` (< 0).
     min_eig : float
         Smallest eigenvalue of P (or R) over its largest.
     multiplier, tau, eps, lam : float
@@ -262,7 +265,6 @@ class SideSolution:
     P: np.ndarray
     gain: np.ndarray
     side_matrix: np.ndarray
-    margin: float
     min_eig: float
     multiplier: float
     tau: float
@@ -367,7 +369,7 @@ def _verified_side(side, M, P, gain, pmin, mult, tau, eps, lam, info) -> tuple[S
     v = joint.verdict(M)
     if v != "verified":
         return None, f"{side} matrix not verified negative definite ({v})"
-    return SideSolution(P=P, gain=gain, side_matrix=M, margin=math.nan, min_eig=pmin, multiplier=mult, tau=tau,
+    return SideSolution(P=P, gain=gain, side_matrix=M, min_eig=pmin, multiplier=mult, tau=tau,
                         eps=eps, are=info, lam=lam), ""
 
 
@@ -439,7 +441,7 @@ class _Side:
     def __init__(self, label, solve, taus, epss, max_gain, tries):
         self.label, self.solve, self.taus, self.epss = label, solve, list(taus), list(epss)
         self.max_gain, self.tries, self.found, self.index, self.why = max_gain, tries, {}, {}, "empty grid"
-        self.tau_from = 0  # the smallest tau that verified at a lower target (a larger target needs no less)
+        self.tau_from = None  # the smallest tau that verified at a lower target (a larger target needs no less)
 
     def at(self, lam: float) -> SideSolution | None:
         """The verified solution with the smallest grid tau at ``lam`` (None: none; gains not checked)."""
@@ -447,7 +449,10 @@ class _Side:
             return self.found[lam]
         sol = None
         for eps in self.epss:
-            for i in range(self.tau_from if lam > 0 else 0, len(self.taus)):
+            # the whole grid until a target passes; then the smallest tau that passed and the next one
+            first = self.tau_from is None
+            span = range(len(self.taus)) if first else range(self.tau_from, min(self.tau_from + 2, len(self.taus)))
+            for i in span:
                 sol, why = self.solve(lam, self.taus[i], eps)
                 self.tries.append((self.label, lam, self.taus[i], eps, why or "ok"))
                 if sol is not None:
@@ -461,9 +466,11 @@ class _Side:
 
     def passes(self, lam: float) -> bool:
         sol = self.at(lam)
+        if sol is not None and self.tau_from is None:
+            self.tau_from = self.index[lam]
         ok = sol is not None and sol.gain_norm <= self.max_gain
         if ok:
-            self.tau_from = max(self.tau_from, self.index[lam])
+            self.tau_from = max(self.tau_from or 0, self.index[lam])
         return ok
 
 
@@ -473,6 +480,7 @@ def _search(side: _Side, lam: float | None, max_decay: float, rtol: float) -> fl
         return lam if side.at(lam) is not None else None
     if side.at(0.0) is None:
         return None
+    side.tau_from = side.index[0.0]
     start = min(0.5, max_decay / 2)
     out = largest_passing(side.passes, rtol=rtol, start=start, hi=max_decay, max_moves=12)
     return out["lo"] if math.isfinite(out["lo"]) else 0.0
@@ -544,7 +552,7 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
         res.timings = {"search": time.perf_counter() - t_start, "total": time.perf_counter() - t_start}
         return res
     res.lam = min(lam_x, lam_e)
-    x, e = xs.at(res.lam), es.at(res.lam)
+    x, e = xs.at(res.lam) or xs.at(lam_x), es.at(res.lam) or es.at(lam_e)
     t1 = time.perf_counter()
     # normalise P and R to a unit largest eigenvalue: (P, s) -> (P/a, s a), (R, t) -> (R/b, t/b) keep both sides
     a_x, a_e = _eig_at(x.P, -1), _eig_at(e.P, -1)
