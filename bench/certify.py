@@ -36,9 +36,9 @@ constants that no sample disproved, declared channels that no sample disproved. 
 were only sampled are lower bounds and never certify.
 
 Decay rates: after ``lam = 0``, the largest certified ``lam`` is searched on the fixed grid of
-:mod:`bench.search` (relative tolerance ``rate_rtol``; a probe counts only when its LMI verifies
-with a margin of :data:`bench.joint.CLEAR` tolerances); each level starts from the rate of the
-level below (warm start). The bracket's upper end is the decay rate of the closed loop
+:mod:`bench.search` (relative tolerance ``rate_rtol``; a marginal probe counts as failing, and
+the fixed grid makes the answer move by at most one step where a probe's verdict flips); each
+level starts from the rate of the level below (warm start). The bracket's upper end is the decay rate of the closed loop
 linearised at the origin (no certificate can beat it).
 """
 
@@ -53,7 +53,6 @@ import numpy as np
 
 from bench import lmi
 from bench.constants import Knowledge
-from bench.joint import CLEAR
 from bench.search import RATE_RTOL, largest_passing
 from plants import Plant
 
@@ -309,9 +308,8 @@ def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
     return np.block([[vals["P1"], np.zeros((n, n))], [np.zeros((n, n)), vals["P2"]]])
 
 
-def _check(prog: lmi.Program, lam: float, clear: float = 1.0) -> tuple[str, float]:
-    """Solve at ``lam``; ``("verified" | "marginal" | "violated" | solver status, margin)``; "verified" needs a
-    margin below ``-clear`` times the tolerance (a rate probe asks for :data:`bench.joint.CLEAR`)."""
+def _check(prog: lmi.Program, lam: float) -> tuple[str, float]:
+    """Solve at ``lam``; ``("verified" | "marginal" | "violated" | solver status, margin)``."""
     prog.solve(lam=lam)
     if prog.last_status not in ("optimal", "optimal_inaccurate"):
         return prog.last_status, float("nan")
@@ -321,18 +319,17 @@ def _check(prog: lmi.Program, lam: float, clear: float = 1.0) -> tuple[str, floa
     vals = prog.values()
     if verdict == "verified" and not all(lmi.is_positive_definite(vals[k]) for k in prog.positive):
         verdict = "violated"
-    if verdict == "verified" and margin >= -clear * lmi.verify_tol(M):
-        verdict = "marginal"
     return verdict, margin
 
 
 def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float) -> tuple[float, np.ndarray]:
-    """Largest rate in ``[lam0, hi)`` on the grid of :func:`bench.search.largest_passing` whose LMI verifies
-    clearly, from a verified solve at ``lam0`` (held by ``prog``); 0 when none above 0 does."""
+    """Largest rate in ``[lam0, hi)`` on the grid of :func:`bench.search.largest_passing` whose LMI is
+    verified, from a verified solve at ``lam0`` (held by ``prog``); 0 when none above 0 does. A marginal
+    probe counts as failing."""
     found = {lam0: _full_p(prog, spec)}
 
     def passes(lam: float) -> bool:
-        ok = _check(prog, lam, clear=CLEAR)[0] == "verified"
+        ok = _check(prog, lam)[0] == "verified"
         if ok:
             found[lam] = _full_p(prog, spec)
         return ok

@@ -65,7 +65,7 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
     rtol : float
         The grid ``(1 + rtol)^k``: the answer is within ``1 + rtol`` of the threshold.
     start : float, optional
-        The first probe when neither ``lo`` nor ``hi`` is given.
+        The first probe when ``lo`` is not given (and ``start`` is below ``hi``).
     lo : float, optional
         A value known to pass (not probed).
     hi : float, optional
@@ -97,7 +97,7 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
         kl = _index(lo, rtol, up=False)
     if hi is not None:
         kh = _index(hi, rtol, up=True)
-    if kl is None and kh is None:
+    if kl is None and start is not None and (kh is None or _index(start, rtol, up=False) < kh):
         k = _index(start, rtol, up=False)
         if passes(_point(k, rtol)):
             kl, lo_val = k, _point(k, rtol)

@@ -298,7 +298,7 @@ def _side_are(a, inputs, acts, reads, mult, tau, eps, method):
     bb = np.hstack([inputs, acts])
     rr = np.concatenate([np.full(inputs.shape[1], 1.0 / (2 * tau)), np.full(acts.shape[1], -1.0 / mult)])
     qq = reads.T @ reads / mult + eps * np.eye(n)
-    return solve_are(a, bb, rr, qq, method=method)
+    return solve_are(a, bb, rr, qq, method=method, fallback=False)  # a failing probe is a failed probe
 
 
 def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> tuple[SideSolution | None, str]:
@@ -441,6 +441,7 @@ class _Side:
     def __init__(self, label, solve, taus, epss, max_gain, tries):
         self.label, self.solve, self.taus, self.epss = label, solve, list(taus), list(epss)
         self.max_gain, self.tries, self.found, self.index, self.why = max_gain, tries, {}, {}, "empty grid"
+        self.eps_at, self.eps_from = {}, None
         self.tau_from = None  # the smallest tau that verified at a lower target (a larger target needs no less)
 
     def at(self, lam: float) -> SideSolution | None:
@@ -448,7 +449,8 @@ class _Side:
         if lam in self.found:
             return self.found[lam]
         sol = None
-        for eps in self.epss:
+        # the strictness that passed first is kept once a target passed
+        for eps in (self.epss if self.tau_from is None else [self.eps_from]):
             # the whole grid until a target passes; then the smallest tau that passed and the next one
             first = self.tau_from is None
             span = range(len(self.taus)) if first else range(self.tau_from, min(self.tau_from + 2, len(self.taus)))
@@ -456,7 +458,7 @@ class _Side:
                 sol, why = self.solve(lam, self.taus[i], eps)
                 self.tries.append((self.label, lam, self.taus[i], eps, why or "ok"))
                 if sol is not None:
-                    self.index[lam] = i
+                    self.index[lam], self.eps_at[lam] = i, eps
                     break
                 self.why = why
             if sol is not None:
@@ -467,22 +469,24 @@ class _Side:
     def passes(self, lam: float) -> bool:
         sol = self.at(lam)
         if sol is not None and self.tau_from is None:
-            self.tau_from = self.index[lam]
+            self.tau_from, self.eps_from = self.index[lam], self.eps_at[lam]
         ok = sol is not None and sol.gain_norm <= self.max_gain
         if ok:
             self.tau_from = max(self.tau_from or 0, self.index[lam])
         return ok
 
 
-def _search(side: _Side, lam: float | None, max_decay: float, rtol: float) -> float | None:
-    """The side's largest passing decay target (``lam`` fixed: that one), or None when lam = 0 fails."""
+def _search(side: _Side, lam: float | None, max_decay: float, rtol: float, other: bool = False) -> float | None:
+    """The side's largest passing decay target up to ``max_decay`` (``lam`` fixed: that one), or None when
+    lam = 0 fails; ``other``: ``max_decay`` is the other side's target (tried first)."""
     if lam is not None:
         return lam if side.at(lam) is not None else None
     if side.at(0.0) is None:
         return None
-    side.tau_from = side.index[0.0]
-    start = min(0.5, max_decay / 2)
-    out = largest_passing(side.passes, rtol=rtol, start=start, hi=max_decay, max_moves=12)
+    side.tau_from, side.eps_from = side.index[0.0], side.eps_at[0.0]
+    if other and side.passes(max_decay):  # the other side's target: no need to go further
+        return max_decay
+    out = largest_passing(side.passes, rtol=rtol, start=min(0.5, max_decay / 2), hi=max_decay, max_moves=12)
     return out["lo"] if math.isfinite(out["lo"]) else 0.0
 
 
@@ -544,7 +548,9 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
                taus, eps, max_gain, tries)
     es = _Side("e", lambda la, tau, e: solve_e_side(A0, C, G, H, r, la, t, tau * tau0_e, e * sigma, method=method),
                taus, eps, max_gain, tries)
-    lam_x, lam_e = _search(xs, lam, max_decay, rtol), _search(es, lam, max_decay, rtol)
+    # the e-side first, then the x-side up to its target (the joint rate is the slower side's)
+    lam_e = _search(es, lam, max_decay, rtol)
+    lam_x = _search(xs, lam, lam_e if lam is None and lam_e else max_decay, rtol, other=bool(lam is None and lam_e))
     if lam_x is None or lam_e is None:
         res.reason = "; ".join(w for w in (
             f"x-side infeasible on the grid (last: {xs.why})" if lam_x is None else "",
