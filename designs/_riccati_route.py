@@ -127,23 +127,32 @@ def _schur_are(a, M, q):
 
 
 def _sign_are(a, M, q, *, tol=1e-13, maxit=60):
+    """The Newton iteration ``Z <- (c Z + Z^-1 / c) / 2`` for the sign of the Hamiltonian, determinant
+    scaling ``c = |det Z|^(-1/2n)`` while far off; once the relative step is below 1e-7 (quadratic
+    convergence), one more step. ``Z^-1`` by LU solves against I (LAPACK's getri is slower)."""
     n = a.shape[0]
     Z = np.block([[a, -M], [-q, -a.T]])
+    I2 = np.eye(2 * n)
+    last = False
     for it in range(maxit):
         try:
             lu, piv = sla.lu_factor(Z, check_finite=False)
         except (np.linalg.LinAlgError, ValueError) as exc:
             return None, True, f"sign iteration: singular iterate ({exc}): eigenvalues on the imaginary axis"
-        logdet = float(np.sum(np.log(np.abs(np.diag(lu)))))
-        Zi, info = sla.lapack.dgetri(lu, piv)
-        if info != 0 or not np.all(np.isfinite(Zi)):
+        with np.errstate(divide="ignore"):
+            logdet = float(np.sum(np.log(np.abs(np.diag(lu)))))
+        if not math.isfinite(logdet):
+            return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
+        Zi = sla.lu_solve((lu, piv), I2, check_finite=False)
+        if not np.all(np.isfinite(Zi)):
             return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
         c = math.exp(-logdet / (2 * n)) if it < 8 else 1.0  # determinant scaling while far off
         Zn = 0.5 * (c * Z + Zi / c)
         err = float(np.abs(Zn - Z).sum(axis=0).max() / max(np.abs(Zn).sum(axis=0).max(), 1e-300))
         Z = Zn
-        if err < tol:
+        if err < tol or last:
             break
+        last = err < 1e-7 and it >= 8
     else:
         return None, True, f"sign iteration did not converge in {maxit} steps (eigenvalues near the imaginary axis)"
     I = np.eye(n)
