@@ -197,8 +197,9 @@ def equilibrated_max_eig(M: np.ndarray) -> float:
 
 def verdict(M: np.ndarray, *, clear: float = 1.0) -> str:
     """``"verified"``, ``"marginal"`` or ``"violated"`` for a symmetric M, by Cholesky factorisations of
-    the equilibrated matrix: verified when ``D M D + clear * VERIFY_TOL I < 0``, violated when
-    ``D M D - VERIFY_TOL I`` is not negative semidefinite-free (some eigenvalue above the tolerance)."""
+    the equilibrated matrix ``E = D M D``: verified when ``E + clear * VERIFY_TOL I < 0``, marginal when
+    not but ``E - VERIFY_TOL I < 0`` (every eigenvalue within the tolerance of zero or below), violated
+    otherwise."""
     E = _equilibrate(np.asarray(M, dtype=float))
     if not np.all(np.isfinite(E)):
         return "violated"
