@@ -38,7 +38,9 @@ were only sampled are lower bounds and never certify.
 Decay rates: after ``lam = 0``, the largest certified ``lam`` is searched on the fixed grid of
 :mod:`bench.search` (relative tolerance ``rate_rtol``; a marginal probe counts as failing, and
 the fixed grid makes the answer move by at most one step where a probe's verdict flips); each
-level starts from the rate of the level below (warm start). The bracket's upper end is the decay rate of the closed loop
+level starts from the rate of the level below (warm start). A local level (constraints on a region
+only) reports the grid point below its largest verified rate: the region its level set proves
+collapses as the rate nears the optimum. The bracket's upper end is the decay rate of the closed loop
 linearised at the origin (no certificate can beat it).
 """
 
@@ -53,7 +55,7 @@ import numpy as np
 
 from bench import lmi
 from bench.constants import Knowledge
-from bench.search import RATE_RTOL, largest_passing
+from bench.search import RATE_RTOL, grid_floor, largest_passing
 from plants import Plant
 
 __all__ = ["LADDER_MAX_N", "LEVELS", "LEVEL_TITLES", "Certificate", "Knowledge", "LevelResult", "adopt", "certify",
@@ -322,10 +324,12 @@ def _check(prog: lmi.Program, lam: float) -> tuple[str, float]:
     return verdict, margin
 
 
-def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float) -> tuple[float, np.ndarray]:
+def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float,
+          local: bool = False) -> tuple[float, np.ndarray]:
     """Largest rate in ``[lam0, hi)`` on the grid of :func:`bench.search.largest_passing` whose LMI is
     verified, from a verified solve at ``lam0`` (held by ``prog``); 0 when none above 0 does. A marginal
-    probe counts as failing."""
+    probe counts as failing. ``local``: the constraints hold on a region only, whose largest level set
+    collapses as the rate nears its optimum; the grid point below the largest verified one is reported."""
     found = {lam0: _full_p(prog, spec)}
 
     def passes(lam: float) -> bool:
@@ -339,6 +343,9 @@ def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float) -
     else:  # a first positive rate: down from hi by factors of 4
         out = largest_passing(passes, rtol=rtol, hi=hi, factor=4.0, down_until=1e-6 * max(1.0, hi))
     lam = out["lo"] if math.isfinite(out["lo"]) else 0.0
+    if local and lam > lam0:
+        below = grid_floor(lam / (1 + rtol) * (1 + 1e-9), rtol)
+        lam = below if below > lam0 and (below in found or passes(below)) else lam0
     return lam, found.get(lam, found[lam0])
 
 
@@ -436,7 +443,7 @@ def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: flo
         out.P = _full_p(prog, spec)
         out.decay_rate = 0.0
         if rates and hi > 0:
-            out.decay_rate, out.P = _rate(prog, spec, lam0, hi, rtol)
+            out.decay_rate, out.P = _rate(prog, spec, lam0, hi, rtol, local=radius is not None)
     elif verdict == "marginal":
         out.status, out.reason = "marginal", (
             f"best max eig {margin:.3g} is within the verification tolerance of zero (trace(P) = 1)")
