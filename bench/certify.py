@@ -35,9 +35,12 @@ Only *trusted* knowledge enters (:meth:`bench.constants.ConstantsReport.knowledg
 constants that no sample disproved, declared channels that no sample disproved. Constants that
 were only sampled are lower bounds and never certify.
 
-Decay rates: after ``lam = 0``, the largest certified ``lam`` is bracketed by doubling and then
-bisected geometrically (relative tolerance ``rate_rtol``); each level starts from the rate of
-the level below (warm start). The bracket's upper end is the decay rate of the closed loop
+Decay rates: after ``lam = 0``, the largest certified ``lam`` is searched on the fixed grid of
+:mod:`bench.search` (relative tolerance ``rate_rtol``; a marginal probe counts as failing, and
+the fixed grid makes the answer move by at most one step where a probe's verdict flips); each
+level starts from the rate of the level below (warm start). A local level (constraints on a region
+only) reports the grid point below its largest verified rate: the region its level set proves
+collapses as the rate nears the optimum. The bracket's upper end is the decay rate of the closed loop
 linearised at the origin (no certificate can beat it).
 """
 
@@ -52,6 +55,7 @@ import numpy as np
 
 from bench import lmi, witness
 from bench.constants import Knowledge
+from bench.search import RATE_RTOL, grid_floor, largest_passing
 from plants import Plant
 
 __all__ = ["LADDER_MAX_N", "LEVELS", "LEVEL_TITLES", "LEVEL_USES", "Certificate", "Knowledge", "LevelResult", "adopt",
@@ -314,24 +318,15 @@ def _blocks(spec: _Spec, Gw: np.ndarray, Hc: np.ndarray | None, d: dict) -> list
                 ww[side] = ww[side] - tau * GtG
         if spec.channels:
             tau = d[f"ch_{side}"]
-            diag[side] = diag[side] + Hc.T @ _diag(-_times(tau, d["lohi"])) @ Hc
-            cross[side] = cross[side] + Hc.T @ _diag(0.5 * _times(tau, d["losum"]))
-            ww[side] = ww[side] - _diag(tau)
+            diag[side] = diag[side] + Hc.T @ lmi.diag(-_times(tau, d["lohi"])) @ Hc
+            cross[side] = cross[side] + Hc.T @ lmi.diag(0.5 * _times(tau, d["losum"]))
+            ww[side] = ww[side] - lmi.diag(tau)
     return [
         [xx + diag["x"], xe, xwx + cross["x"], xwe],
         [xe.T, ee + diag["e"], ewx, ewe + cross["e"]],
         [(xwx + cross["x"]).T, ewx.T, ww["x"], Zw],
         [xwe.T, (ewe + cross["e"]).T, Zw, ww["e"]],
     ]
-
-
-def _diag(v):
-    """A diagonal matrix from a vector (cvxpy or numpy)."""
-    if isinstance(v, np.ndarray):
-        return np.diag(v)
-    import cvxpy as cp
-
-    return cp.diag(v)
 
 
 def _times(a, b):
@@ -365,35 +360,29 @@ def _check(prog: lmi.Program, lam: float) -> tuple[str, float]:
     return verdict, margin
 
 
-def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float) -> tuple[float, np.ndarray]:
-    """Largest verified rate in ``[lam0, hi)``, from a verified solve at ``lam0`` (held by ``prog``).
+def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float,
+          local: bool = False) -> tuple[float, np.ndarray]:
+    """Largest rate in ``[lam0, hi)`` on the grid of :func:`bench.search.largest_passing` whose LMI is
+    verified, from a verified solve at ``lam0`` (held by ``prog``); 0 when none above 0 does. A marginal
+    probe counts as failing. ``local``: the constraints hold on a region only, whose largest level set
+    collapses as the rate nears its optimum; the grid point below the largest verified one is reported."""
+    found = {lam0: _full_p(prog, spec)}
 
-    Bracketed by doubling from ``lam0`` (or by quartering down from ``hi`` when ``lam0 = 0``),
-    then bisected geometrically until the bracket is within ``rtol`` (relative). Only verified
-    rates count; a solve that fails or is marginal closes the bracket from above.
-    """
-    lo, best_p, top = lam0, _full_p(prog, spec), hi
-    if lo <= 0:  # a first positive rate: quarter down from hi
-        lam = hi / 2
-        while lam > 1e-6 * max(1.0, hi):
-            if _check(prog, lam)[0] == "verified":
-                lo, best_p = lam, _full_p(prog, spec)
-                break
-            top, lam = lam, lam / 4
-        if lo <= 0:
-            return 0.0, best_p
-    while 2 * lo < top:  # double until the bracket closes
-        if _check(prog, 2 * lo)[0] == "verified":
-            lo, best_p = 2 * lo, _full_p(prog, spec)
-        else:
-            top = 2 * lo
-    while top / lo - 1 > rtol:
-        mid = math.sqrt(lo * top)
-        if _check(prog, mid)[0] == "verified":
-            lo, best_p = mid, _full_p(prog, spec)
-        else:
-            top = mid
-    return lo, best_p
+    def passes(lam: float) -> bool:
+        ok = _check(prog, lam)[0] == "verified"
+        if ok:
+            found[lam] = _full_p(prog, spec)
+        return ok
+
+    if lam0 > 0:
+        out = largest_passing(passes, rtol=rtol, lo=lam0, hi=hi)
+    else:  # a first positive rate: down from hi by factors of 4
+        out = largest_passing(passes, rtol=rtol, hi=hi, factor=4.0, down_until=1e-6 * max(1.0, hi))
+    lam = out["lo"] if math.isfinite(out["lo"]) else 0.0
+    if local and lam > lam0:
+        below = grid_floor(lam / (1 + rtol) * (1 + 1e-9), rtol)
+        lam = below if below > lam0 and (below in found or passes(below)) else lam0
+    return lam, found.get(lam, found[lam0])
 
 
 def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
@@ -464,7 +453,7 @@ def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: flo
         out.P = _full_p(prog, spec)
         out.decay_rate = 0.0
         if rates and hi > 0:
-            out.decay_rate, out.P = _rate(prog, spec, lam0, hi, rtol)
+            out.decay_rate, out.P = _rate(prog, spec, lam0, hi, rtol, local=radius is not None)
     elif verdict == "marginal":
         out.status, out.reason = "marginal", (
             f"best max eig {margin:.3g} is within the verification tolerance of zero (trace(P) = 1)")
@@ -511,7 +500,7 @@ def certify(
     *,
     levels: tuple[str, ...] = LEVELS,
     rates: bool = True,
-    rate_rtol: float = 0.03,
+    rate_rtol: float = RATE_RTOL,
     inherit: bool = True,
 ) -> Certificate:
     """Certify the observer-based closed loop with gains K, F at each level of the ladder.

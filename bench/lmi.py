@@ -43,6 +43,7 @@ __all__ = [
     "is_positive_definite",
     "clear_program_cache",
     "conclude",
+    "diag",
     "digest",
     "log_search",
     "margin_program",
@@ -69,6 +70,15 @@ VERIFY_TOL = 1e-7
 def sym(M):
     """Symmetric part of a cvxpy expression or array (so ``<<`` sees a symmetric matrix)."""
     return 0.5 * (M + M.T)  # a product, not a division: cvxpy 1.9.3's COO backend fails on "/ 2" of parameter-affine terms (n = 32)
+
+
+def diag(v):
+    """``diag(v)`` of a cvxpy vector or of a numpy array."""
+    if isinstance(v, np.ndarray):
+        return np.diag(v)
+    import cvxpy as cp
+
+    return cp.diag(v)
 
 
 def max_eig(M: np.ndarray) -> float:

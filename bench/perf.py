@@ -4,10 +4,12 @@ Writes ``PERF.md``, ``perf.csv`` and ``figures/perf_scaling.png`` into the outpu
 (default ``reports/``), whole or not at all. Every figure is a measurement on this machine,
 printed as it is taken:
 
-- the structured design on the chain family (n = 2N up to 1024): the Riccati route at every
-  size and the SDP route where it finishes, design plus certificate, with status, certified or
-  not, peak memory and the fitted growth exponent;
-- one closed-loop trajectory at n = 1000 and a Monte Carlo batch at n = 100;
+- the structured design on the chain family (n = 2N up to 2048): the Riccati route at every
+  size and the SDP route up to n = 64, design plus certificate, with the certified rate beside
+  the linearised rate of the same gains, peak memory and the fitted growth exponent, and at
+  n = 1024 an unordered Schur form of a random 2n x 2n matrix as the machine's reference;
+- one closed-loop trajectory at n = 1024 over seven time constants of its certified rate, and a
+  Monte Carlo batch at n = 100;
 - design time vs n (``random_lipschitz_v1`` plants, m = p = max(1, n // 4), c = 0.1, seed 0) for
   the corrected Theorem 1 joint LMI at a fixed phi1 (one solve) and separated (two solves),
   split into compile and solve seconds, with the peak memory of the process that ran it
@@ -34,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["default_run_breakdown", "default_run_times", "measure_design", "perf_main", "route_rows", "sim_rows",
-           "theorem1_rows"]
+__all__ = ["default_run_breakdown", "default_run_times", "measure_design", "perf_main", "reference_rows", "route_rows",
+           "sim_rows", "theorem1_rows"]
 
 
 def _measure_child(design_id: str, n: int, kw: dict, queue) -> None:
@@ -164,13 +166,15 @@ def design_sweeps(echo=print) -> list[dict]:
 
 
 #: The structured design on the chain family, per route: sizes n = 2N and a per-measurement limit.
-ROUTE_SIZES = (16, 32, 64, 128, 256, 512, 1024)
+ROUTE_SIZES = (16, 32, 64, 128, 256, 512, 1024, 2048)
 #: The SDP route is measured up to this n (interior-point cost grows like n^4 - n^6).
 SDP_MAX_N = 64
 
 
 def _route_child(route: str, n: int, queue) -> None:
-    """One structured design + certificate on the chain of n = 2N states (in a forked process)."""
+    """One structured design + certificate on the chain of n = 2N states (in a forked process), with the
+    certified rate beside the linearised loop's rate of the same gains."""
+    from bench.certify import linearised_rate
     from bench.constants import compute_constants
     from bench.lmi import clear_program_cache
     from bench.pipeline import RunOptions, evaluate_pair
@@ -183,15 +187,41 @@ def _route_child(route: str, n: int, queue) -> None:
     t0 = time.perf_counter()
     report = compute_constants(plant, n_samples=200, n_refine=0)
     t1 = time.perf_counter()
-    rec = evaluate_pair(plant, Structured(route=route), report, RunOptions(simulate=False, certificate="own"),
-                        design_id=f"structured ({route})").record
+    out = evaluate_pair(plant, Structured(route=route), report, RunOptions(simulate=False, certificate="own"),
+                        design_id=f"structured ({route})")
+    rec = out.record
     wall = time.perf_counter() - t1
+    res = out.result
+    lin = linearised_rate(plant, res.K, res.F) if res is not None and res.K is not None else float("nan")
     queue.put({"route": route, "n": n, "status": rec["status"], "certified": bool(rec["certified"]),
-               "cert_level": rec["cert_level"], "decay_rate": rec["decay_rate"], "wall_s": wall,
+               "cert_level": rec["cert_level"], "decay_rate": rec["decay_rate"], "linearised_rate": lin,
+               "decay_target": (res.params or {}).get("decay_target", float("nan")) if res is not None else float("nan"),
+               "ares_or_sdps": rec["n_solves"], "wall_s": wall,
                "design_s": rec["design_s"], "cert_s": rec["cert_s"], "constants_s": t1 - t0,
                "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                "rss_increase_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - base) / 1024,
                "reason": rec["reason"][:200]})
+
+
+def _schur_child(n: int, queue) -> None:
+    """The reference: an unordered real Schur form of a random 2n x 2n matrix (one BLAS thread, as the suite)."""
+    rng = np.random.default_rng(0)
+    M = rng.standard_normal((2 * n, 2 * n))
+    import scipy.linalg as sla
+
+    t0 = time.perf_counter()
+    sla.schur(M, output="real", overwrite_a=True, check_finite=False)
+    queue.put({"n": n, "status": "ok", "wall_s": time.perf_counter() - t0})
+
+
+def reference_rows(sizes=(1024,), echo=print) -> list[dict]:
+    """The Schur reference at each size (:func:`_schur_child`), measured beside the route rows."""
+    rows = []
+    for n in sizes:
+        r = _forked(_schur_child, (n,), 1800.0, {"n": n})
+        rows.append(r)
+        echo(f"reference: unordered scipy.linalg.schur of a random {2 * n} x {2 * n} matrix: {_fmt(r['wall_s'])} s")
+    return rows
 
 
 def _forked(target, args: tuple, timeout: float, label: dict) -> dict:
@@ -211,7 +241,7 @@ def _forked(target, args: tuple, timeout: float, label: dict) -> dict:
         return {**label, "status": f"worker exit {proc.exitcode}", "wall_s": float("nan")}
 
 
-def route_rows(sizes=ROUTE_SIZES, *, sdp_max_n: int = SDP_MAX_N, timeout: float = 600.0, echo=print) -> list[dict]:
+def route_rows(sizes=ROUTE_SIZES, *, sdp_max_n: int = SDP_MAX_N, timeout: float = 3600.0, echo=print) -> list[dict]:
     """The structured design on the chain family, Riccati route at every size, SDP route up to ``sdp_max_n``.
 
     Each row: route, n, status, certified, level, decay rate, wall seconds (design + certificate),
@@ -225,13 +255,18 @@ def route_rows(sizes=ROUTE_SIZES, *, sdp_max_n: int = SDP_MAX_N, timeout: float 
                 continue
             r = _forked(_route_child, (route, n), timeout, {"route": route, "n": n})
             rows.append(r)
-            echo(f"structured, {route:7s} n = {n:5d}: {r['status']:12s} certified {r.get('certified')} wall "
-                 f"{_fmt(r['wall_s'])} s peak {_fmt(r.get('peak_rss_mb', float('nan')))} MB")
+            echo(f"structured, {route:7s} n = {n:5d}: {r['status']:12s} certified {r.get('certified')} rate "
+                 f"{_fmt(r.get('decay_rate', float('nan')))} (linearised {_fmt(r.get('linearised_rate', float('nan')))}) "
+                 f"wall {_fmt(r['wall_s'])} s peak {_fmt(r.get('peak_rss_mb', float('nan')))} MB")
     return rows
 
 
 def _sim_child(kind: str, n: int, queue) -> None:
-    """A closed-loop trajectory (or a Monte Carlo batch) of the chain of n states with Riccati-route gains."""
+    """A closed-loop trajectory (or a Monte Carlo batch) of the chain of n states with Riccati-route gains.
+
+    The trajectory runs for ``7 / rate`` seconds (at least the plant's horizon), the certified rate's
+    time constant seven times over: ``V`` falls by ``e^-14`` and the state by about ``e^-7 sqrt(cond P)``.
+    """
     from bench.batch import simulate_batch
     from bench.simulate import SimOptions, simulate
     from designs.structured import Structured
@@ -239,25 +274,34 @@ def _sim_child(kind: str, n: int, queue) -> None:
 
     plant = chain_plant(N=n // 2)
     res = Structured(route="riccati").design(plant, plant.bounds)
+    rate = res.certificate["decay_rate"] if res.certificate else float("nan")
     t0 = time.perf_counter()
+    row = {"n": n, "rate": rate}
     if kind == "trajectory":
-        tr = simulate(plant, res.K, res.F, options=SimOptions(n_points=401))
-        status, what = tr.status, "one trajectory, 20 s"
+        T = max(plant.t_final, 7.0 / rate) if rate > 0 else plant.t_final
+        tr = simulate(plant, res.K, res.F, t_final=T, options=SimOptions(n_points=401))
+        x, xh = tr.x, tr.x_hat
+        row.update(kind="one trajectory from x0, horizon 7 / rate", horizon_s=T, status=tr.status,
+                   x0_norm=float(np.linalg.norm(plant.x0)), final_x=float(np.linalg.norm(x[:, -1])),
+                   final_e=float(np.linalg.norm(x[:, -1] - xh[:, -1])), peak_x=float(np.linalg.norm(x, axis=0).max()))
     else:
         rng = np.random.default_rng(0)
         X = rng.uniform(-0.5, 0.5, (n, 200))
         tr = simulate_batch(plant, res.K, res.F, X, np.zeros_like(X))
-        status, what = tr.status, "Monte Carlo batch, 200 initial conditions, 20 s"
-    queue.put({"kind": what, "n": n, "status": status, "wall_s": time.perf_counter() - t0})
+        row.update(kind="Monte Carlo batch, 200 initial conditions, 20 s", status=tr.status)
+    row["wall_s"] = time.perf_counter() - t0
+    queue.put(row)
 
 
 def sim_rows(echo=print) -> list[dict]:
-    """One n = 1000 closed-loop trajectory and an n = 100 Monte Carlo batch (issue 14)."""
+    """One n = 1024 closed-loop trajectory over its certified rate's horizon and an n = 100 Monte Carlo batch."""
     rows = []
-    for kind, n in (("trajectory", 1000), ("batch", 100)):
-        r = _forked(_sim_child, (kind, n), 600.0, {"kind": kind, "n": n})
+    for kind, n in (("trajectory", 1024), ("batch", 100)):
+        r = _forked(_sim_child, (kind, n), 3600.0, {"kind": kind, "n": n})
         rows.append(r)
-        echo(f"simulation {r.get('kind', kind)} n = {n}: {r['status']} {_fmt(r['wall_s'])} s")
+        echo(f"simulation {r.get('kind', kind)} n = {n}: {r['status']} horizon {_fmt(r.get('horizon_s', float('nan')))} s, "
+             f"final |x| {_fmt(r.get('final_x', float('nan')))}, |e| {_fmt(r.get('final_e', float('nan')))}, "
+             f"{_fmt(r['wall_s'])} s")
     return rows
 
 
@@ -464,43 +508,49 @@ def _figure(path: Path, thm_rows: list[dict], routes: list[dict]) -> None:
 
 
 def _agreement(routes: list[dict]) -> str:
-    """Where both routes ran: do their verdicts agree (the Riccati route is only sufficient)?"""
+    """Where both routes ran: both certified rates, their ratio and each pair of gains' linearised rate."""
     by = {(r["route"], r["n"]): r for r in routes if "certified" in r}
-    lines = []
+    lines = ["| n | SDP rate | Riccati rate | Riccati / SDP | SDP linearised | Riccati linearised | verdicts |",
+             "|---|---|---|---|---|---|---|"]
     for n in sorted({r["n"] for r in routes}):
         s, r = by.get(("sdp", n)), by.get(("riccati", n))
         if s is None or r is None:
             continue
         if bool(s["certified"]) == bool(r["certified"]):
-            verdict = "agree: both certified" if s["certified"] else "agree: neither certified"
-        elif s["certified"]:
-            verdict = f"differ: the SDP route certifies, the Riccati route does not ({r['status']}: sufficient only)"
+            verdict = "both certified" if s["certified"] else "neither certified"
         else:
-            verdict = f"differ: the Riccati route certifies, the SDP route does not ({s['status']})"
-        lines.append(f"- n = {n}: {verdict}; decay rates {_fmt(s.get('decay_rate'))} (SDP) and "
-                     f"{_fmt(r.get('decay_rate'))} (Riccati).")
-    return "\n".join(lines) if lines else "No size where both routes ran."
+            verdict = f"only the {'SDP' if s['certified'] else 'Riccati'} route certifies"
+        sr, rr = s.get("decay_rate", math.nan), r.get("decay_rate", math.nan)
+        ratio = rr / sr if isinstance(sr, float) and sr > 0 else math.nan
+        lines.append(f"| {n} | {_fmt(sr)} | {_fmt(rr)} | {_fmt(ratio)} | {_fmt(s.get('linearised_rate', math.nan))} | "
+                     f"{_fmt(r.get('linearised_rate', math.nan))} | {verdict} |")
+    return "\n".join(lines) if len(lines) > 2 else "No size where both routes ran."
 
 
-def _targets(routes: list[dict], sims: list[dict], runs: list[dict]) -> str:
+def _targets(routes: list[dict], sims: list[dict], runs: list[dict], refs: list[dict] = ()) -> str:
     """The scale and speed targets of the issues beside what this run measured."""
     def wall(route, n):
         r = next((r for r in routes if r["route"] == route and r["n"] == n), None)
         return r["wall_s"] if r is not None else float("nan")
 
-    traj = next((r["wall_s"] for r in sims if r.get("n") == 1000), float("nan"))
+    traj = next((r["wall_s"] for r in sims if r.get("n") == 1024), float("nan"))
     run2 = next((r["median_s"] for r in runs if r["jobs"] == 2), float("nan"))
+    ref = next((r["wall_s"] for r in refs if r.get("n") == 1024), float("nan"))
+    w1024 = wall("riccati", 1024)
     rows = [("structured, Riccati route, n = 256, design + certificate", "<= 10 s", wall("riccati", 256)),
-            ("structured, Riccati route, n = 1024, design + certificate", "<= 180 s", wall("riccati", 1024)),
+            ("structured, Riccati route, n = 1024, design (rate searched) + certificate with its rate", "<= 15 s",
+             w1024),
+            ("  the same, over an unordered scipy.linalg.schur of a random 2048 x 2048 matrix "
+             f"({_fmt(ref)} s in this run)", "<= 2.1 (15 s / 7.2 s)", w1024 / ref if ref > 0 else float("nan")),
             ("growth exponent of the Riccati route (n >= 64)", "<= 3.2", _exponent(routes, "riccati", "route", 64)),
-            ("one closed-loop trajectory, n = 1000, default horizon", "<= 10 s", traj),
+            ("one closed-loop trajectory, n = 1024, horizon 7 / certified rate", "-", traj),
             ("default run, cold, --jobs 2 (median)", "<= 20 s", run2)]
     out = ["| target | wanted | measured |", "|---|---|---|"]
     out += [f"| {what} | {want} | {_fmt(got)} |" for what, want, got in rows]
     return "\n".join(out)
 
 
-def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs, breakdown=None) -> str:
+def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs, breakdown=None, refs=()) -> str:
     cert = [r for r in routes if r["route"] == "riccati" and "certified" in r]
     frac = sum(r["certified"] for r in cert) / len(cert) if cert else float("nan")
     run_md = _md_table(runs, ["jobs", "runs", "median_s", "min_s", "max_s"]) if runs else "Not measured (--no-run)."
@@ -512,20 +562,23 @@ def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs, breakdown=None) -> s
         "",
         "## Targets",
         "",
-        _targets(routes, sims, runs),
+        _targets(routes, sims, runs, refs),
         "",
         "## Structured design: Riccati route vs SDP route (chain family, n = 2N)",
         "",
-        "Design plus its own joint certificate (V = x'Px + mu e'Re with the design's multipliers, verified by the "
-        "eigenvalues of the joint matrix; the ladder's SDPs are not run here). The SDP route is skipped above n = 64.",
+        "Design (decay target searched within max_gain = 20) plus its own joint certificate (bench.joint: "
+        "V = x'Px + mu e'Re, verified by the eigenvalues of the joint matrix; the ladder's SDPs are not run here). "
+        "`decay_rate` is the rate the certificate proves (a generalised eigenvalue, on the 1 % rate grid), "
+        "`linearised_rate` the rate of the same gains' loop linearised at the origin (no certificate beats it). "
+        "The SDP route is skipped above n = 64.",
         "",
-        _md_table(routes, ["route", "n", "status", "certified", "cert_level", "decay_rate", "wall_s", "design_s",
-                           "cert_s", "peak_rss_mb", "reason"]),
+        _md_table(routes, ["route", "n", "status", "certified", "decay_rate", "linearised_rate", "decay_target",
+                           "ares_or_sdps", "wall_s", "design_s", "cert_s", "peak_rss_mb", "reason"]),
         "",
         f"Growth exponent (log time vs log n, n >= 64): Riccati route {_exponent(routes, 'riccati', 'route', 64):.2f}; "
         f"SDP route {_exponent(routes, 'sdp', 'route', 16):.2f}. Certified Riccati rows: {100 * frac:.0f} %.",
         "",
-        "Where both routes ran (the Riccati route is sufficient, not necessary):",
+        "Where both routes ran (certified rates, their ratio, and each pair of gains' linearised rate):",
         "",
         _agreement(routes),
         "",
@@ -533,7 +586,8 @@ def _markdown(thm_rows, routes, sweep, dsweeps, sims, runs, breakdown=None) -> s
         "",
         "## Simulation at scale",
         "",
-        _md_table(sims, ["kind", "n", "status", "wall_s"]),
+        _md_table(sims, ["kind", "n", "status", "rate", "horizon_s", "x0_norm", "peak_x", "final_x", "final_e",
+                         "wall_s"]),
         "",
         "## Corrected Theorem 1: time vs n (random_lipschitz_v1, m = p = max(1, n // 4), c = 0.1)",
         "",
@@ -577,6 +631,7 @@ def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, 
     PLANTS.ids()
     DESIGNS.ids()
     routes = route_rows(route_sizes, echo=echo) if route_sizes else []
+    refs = reference_rows(tuple(n for n in (1024,) if n in (route_sizes or ())), echo=echo)
     sims = sim_rows(echo) if with_sims else []
     thm_rows = theorem1_rows(sizes, max_joint_n, echo)
     sweep = _sweep_overhead()
@@ -593,9 +648,10 @@ def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, 
     with staged(out, "perf") as tmp:
         (tmp / "figures").mkdir()
         _figure(tmp / "figures" / "perf_scaling.png", thm_rows, routes)
-        (tmp / "PERF.md").write_text(_markdown(thm_rows, routes, sweep, dsweeps, sims, runs, breakdown),
+        (tmp / "PERF.md").write_text(_markdown(thm_rows, routes, sweep, dsweeps, sims, runs, breakdown, refs),
                                      encoding="utf-8")
-        pd.DataFrame([*({"section": "structured", **r} for r in routes), *({"section": "theorem1", **r} for r in thm_rows),
+        pd.DataFrame([*({"section": "structured", **r} for r in routes), *({"section": "schur reference", **r} for r in refs),
+                      *({"section": "theorem1", **r} for r in thm_rows),
                       *({"section": "simulation", **r} for r in sims), *({"section": "default run", **r} for r in runs),
                       *([{"section": "default run breakdown", **breakdown}] if breakdown else [])]
                      ).to_csv(tmp / "perf.csv", index=False)

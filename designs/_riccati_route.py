@@ -1,117 +1,39 @@
-"""The Riccati route: the structured (channel) design and its joint certificate without an SDP.
+"""The Riccati route of the structured design: each side by an algebraic Riccati equation, searched.
 
-Setting (``../shared/design/STRUCTURE.md``): ``x' = A x + B u + G phi(H x)``, ``y = C x``,
-``u = F x_hat``, observer ``x_hat' = A x_hat + B u + G phi(H x_hat) + K (y - C x_hat)``, each
-channel slope-restricted, ``lo_i <= dphi_i / dz_i <= hi_i``. Loop transformation:
-``c0 = (lo + hi) / 2``, ``r = (hi - lo) / 2``, ``A0 = A + G diag(c0) H``, ``psi(z) = phi(z) - c0 z``
-so that ``|psi_i(a) - psi_i(b)| <= r_i |a - b|``; with ``e = x - x_hat``::
+The loop and the joint certificate are :mod:`bench.joint`'s. With one multiplier per side
+(``S = s I``, ``T = t I``) and ``Y = -tau B'`` (``F = -tau B' P``), the Schur complement of the x-side
+LMI of :mod:`designs.structured`, multiplied by ``P = Q^-1`` on both sides, is the Riccati inequality ::
 
-    x' = (A0 + B F) x - B F e + G psi(H x)
-    e' = (A0 - K C) e + G (psi(H x) - psi(H x_hat))
+    (A0 + lam I)' P + P (A0 + lam I) - P (2 tau B B' - s G G') P + H' Dr^2 H / s < 0,
 
-Channels with ``r_i = 0`` are exactly linear (they are inside A0) and are dropped.
+the ARE ``a' P + P a - P M P + q = 0`` with ``a = A0 + lam I``, ``M = b diag(rr)^-1 b'``,
+``b = [B, G]``, ``rr = (1/(2 tau), -1/s)``, ``q = H' Dr^2 H / s + eps I``: at a solution the side
+matrix is ``-eps I``. The e-side is the dual: ``a = (A0 + lam I)'``, ``b = [C', H' Dr]``,
+``rr = (1/(2 tau'), -1/t)``, ``q = G G' / t + eps I``, ``R = X^-1``, ``K = tau' X C'``. The
+multipliers s, t are redundant (the x-side is invariant under ``(tau, s, eps, P) -> (a tau, a s, eps / a, P / a)``),
+so they are fixed at ``s = ||Dr H|| / ||G||``, ``t = 1 / s``; tau and eps are taken from grids
+relative to the natural scales ``tau0 = sigma / ||B||^2``, ``eps0 = sigma``, ``sigma = ||Dr H|| ||G||``.
 
-Side Riccati equations
-----------------------
-With one multiplier per side (``S = s I``, ``T = t I``) and ``Y = -tau B'`` (so ``F = Y Q^{-1} =
--tau B' P`` with ``P = Q^{-1}``), the Schur complement of the x-side LMI, multiplied by P on both
-sides, is the Riccati inequality ::
+The design searches, side by side, the largest decay target lam (on the grid of
+:mod:`bench.search`) at which the side's ARE has a solution that verifies (P > 0 and the side
+matrix negative definite, recomputed from the gain) with a gain norm within ``max_gain``, taking
+for each lam the smallest tau that verifies. Both sides are then solved at the smaller of the two
+targets, and the pair is certified by :func:`bench.joint.certify`, which measures the rate the
+certificate proves.
 
-    (A0 + lam I)' P + P (A0 + lam I) - P (2 tau B B' - s G G') P + H' Dr^2 H / s  < 0,
-
-i.e. the ARE ``a' P + P a - P M P + q = 0`` with ``a = A0 + lam I``, ``M = b diag(rr)^{-1} b'``,
-``b = [B, G]``, ``rr = (1/(2 tau), ..., -1/s, ...)``, ``q = H' Dr^2 H / s + eps I``: any solution has
-the side matrix equal to ``-eps I`` (in P coordinates), so P > 0 makes the x-side LMI strictly
-feasible (``Q = P^{-1}``, ``Y = -tau B'``, ``S = s I``). With ``Kh = tau' C'`` (K = R^{-1} Kh) the e-side's
-Schur complement, multiplied by ``X = R^{-1}`` on both sides, is ::
-
-    (A0 + lam I) X + X (A0 + lam I)' - X (2 tau' C' C - t H' Dr^2 H) X + G G' / t  < 0,
-
-the ARE with ``a = (A0 + lam I)'``, ``b = [C', H' Dr]``, ``rr = (1/(2 tau'), ..., -1/t, ...)``,
-``q = G G' / t + eps I``; then ``R = X^{-1}`` and ``K = R^{-1} Kh = tau' X C'``. These are the formulas
-of STRUCTURE.md ("A Riccati route for large n"), re-derived here and found right; STRUCTURE.md
-writes the choice as ``Kh = tau' C'`` and the gain as ``K = tau' X C'``, which agree since
-``R^{-1} = X``. (Its "searched" multipliers s, t are redundant: the x-side is invariant under
-``(tau, s, eps, P) -> (a tau, a s, eps / a, P / a)``, which leaves F unchanged, and likewise the
-e-side, so s and t are fixed here at the balance ``s = ||Dr H|| / ||G||``, ``t = 1 / s`` and only
-``tau`` and ``eps`` are searched.)
-
-Joint certificate
------------------
-``V = x' P x + mu e' R e``, S-procedure multipliers ``1/s`` on ``r^2 (Hx)^2 - psi(Hx)^2 >= 0`` and
-``mu t`` on ``r^2 (He)^2 - dpsi^2 >= 0``; with ``xi = (x, e, psi(Hx), dpsi)`` ::
-
-    V' + 2 lam V <= xi' M xi,
-    M = [[(A0+BF)'P + P(A0+BF) + 2 lam P + H'Dr^2 H / s,  -P B F,  P G,  0     ],
-         [*,  mu ((A0-KC)'R + R(A0-KC) + 2 lam R + t H'Dr^2 H),     0,    mu R G],
-         [*,  *,  -I / s,  0     ],
-         [*,  *,  *,      -mu t I]]
-
-(re-derived: ``x' = ... - B F e`` enters ``V'`` as ``2 x' P (-B F) e``, hence the (x, e) block
-``-P B F``; ``e' = ... + G dpsi`` as ``2 mu e' R G dpsi``). ``M < 0`` certifies
-``V(t) <= exp(-2 lam t) V(0)`` along every trajectory (for channels with a local slope bound, while
-the trajectory stays in the region).
-
-The last two block rows are diagonal (``-I/s`` and ``-mu t I``) and couple only to x (through
-``P G``) and to e (through ``mu R G``). By the Schur complement lemma, ``M < 0`` iff those blocks
-are negative definite (they are, s, t, mu > 0) and ::
-
-    M_red = [[Mx, -P B F], [-(P B F)', mu Me]] < 0,     (2n x 2n)
-    Mx = (A0+BF)'P + P(A0+BF) + 2 lam P + H'Dr^2 H / s + s P G G' P,
-    Me = (A0-KC)'R + R(A0-KC) + 2 lam R + t H'Dr^2 H + R G G' R / t,
-
-so the eigenvalue test runs on 2n x 2n, not 2n + 2q. (The eigenvalues of ``M_red`` are not those of
-M; only the inertia test is equivalent. Mx and Me are the side matrices with the channel blocks
-eliminated: ``Mx = -eps I`` and ``Me = -eps R^2`` at an exact ARE solution, but they are recomputed
-here from K, F, P, R, never taken from the ARE.)
-
-Choice of mu. The cross term has rank <= m: ``P B F = U F`` with ``U = P B``. Given ``Mx < 0`` and
-``Me < 0``, the Schur complement ``mu Me + F' W F`` with ``W = U' (-Mx)^{-1} U`` (m x m) is
-negative definite iff ``mu > mu_min = lambda_max(W^{1/2} F (-Me)^{-1} F' W^{1/2})``, an m x m
-eigenvalue problem (closed form, no search). Any ``mu = kappa mu_min``, kappa > 1, certifies, and
-``mu Me + F' W F <= (1 - 1/kappa) mu Me``: kappa = 10 keeps 90 % of the e-side's margin. (A search of
-mu is pointless for the reported margin: with the Jacobi equilibration below, the margin is
-``lambda_max`` of ``[[Mx~, N~ / sqrt(mu)], [N~' / sqrt(mu), Me~]]``, an even convex function of
-``1 / sqrt(mu)``, so it only improves as mu grows.)
-
-Margin. ``margin = lambda_max(D M_red D)``, ``D = diag(|M_red,ii|^{-1/2})`` (a Jacobi equilibration: a
-congruence, so the inertia is kept; for a negative definite M_red the diagonal of ``D M_red D`` is
-``-1`` and the margin lies in ``[-1, 0)``). Status: ``"feasible"`` when ``margin < -1e-7`` (and a
-Cholesky factorisation of ``-D M_red D`` succeeds), ``"marginal"`` when ``|margin| <= 1e-7``,
-``"infeasible"`` otherwise, each with a reason in words.
-
-ARE solver
-----------
-``a' X + X a - X M X + q = 0`` with ``M`` indefinite, the stabilizing solution (``a - M X``
-Hurwitz). Methods (:func:`solve_are`):
-
-- ``"schur"`` (default): ordered real Schur form of the 2n x 2n Hamiltonian
-  ``[[a, -M], [-q, -a']]`` (``scipy.linalg.schur(..., sort='lhp')``), ``X = U21 U11^{-1}``; the
-  closed-loop spectrum of the ARE is that of ``T11``, whose real parts are the diagonal of T11 in
-  LAPACK's standardised real Schur form, so the Hurwitz check costs nothing.
-- ``"sign"``: the matrix sign function of the Hamiltonian (Newton iteration with determinant
-  scaling; Roberts 1971, Byers 1987), X from ``[W12; W22 + I] X = -[W11 + I; W21]``; the Hurwitz
-  check is an eigenvalue computation of ``a - M X``.
-- ``"scipy"``: ``scipy.linalg.solve_continuous_are`` on the extended (2n + k) pencil, balanced.
-
-Measured on this 2-core machine, shared with other jobs (one ARE of the chain plant, one BLAS
-thread, ``python benchmarks/riccati_scaling.py --solvers --sizes 128 256 512 1024``), seconds at
-n = 128 / 256 / 512 / 1024: schur 0.14 / 0.46 / 1.8 / 11 (the 2n x 2n Schur form takes 7.7 s and its
-reordering 3.3 s at n = 1024; everything else < 0.5 s); sign (13 iterations, plus the eigenvalues
-of a - M X for the Hurwitz check) 0.07 / 0.45 / 3.2 / 20; scipy 0.19 / 2.0 / 18 / -; Newton-Kleinman
-from X0 = 0 (A is Hurwitz there) 0.40 / 2.8 / 34 / - with 30 / 34 / 38 Lyapunov solves. All residuals
-<= 2e-15. On 400 random instances (n = 4 .. 32, random tau, s, eps, many without a solution) the
-three direct methods accepted and rejected exactly the same ones. Schur is kept (backward stable,
-the Hurwitz check is free, a clean failure when eigenvalues sit on the imaginary axis); scipy's
-solver is the fallback when the Schur solution fails an accuracy check. Every solution is checked:
-residual, symmetry, closed-loop Hurwitz.
+AREs (:func:`solve_are`, indefinite ``M``, the stabilizing solution): ``"sign"`` (default) is the
+matrix sign function of the Hamiltonian ``[[a, -M], [-q, -a']]`` (Newton iteration with
+determinant scaling), ``X`` from ``[W12; W22 + I] X = -[W11 + I; W21]``; ``"schur"`` the ordered
+real Schur form (``X = U21 U11^-1``); ``"scipy"`` ``scipy.linalg.solve_continuous_are``, the
+fallback when a solution fails its accuracy checks (residual, symmetry). A solution is used only
+through the side's own Lyapunov test, which also proves the closed loop Hurwitz.
 
 References
 ----------
 J. D. Roberts, "Linear model reduction and solution of the algebraic Riccati equation by use of
-the sign function", Int. J. Control 32(4), 1980 (report 1971). R. Byers, "Solving the algebraic
-Riccati equation with the matrix sign function", Linear Algebra Appl. 85, 1987. A. J. Laub,
-"A Schur method for solving algebraic Riccati equations", IEEE TAC 24(6), 1979.
+the sign function", Int. J. Control 32(4), 1980. R. Byers, "Solving the algebraic Riccati equation
+with the matrix sign function", Linear Algebra Appl. 85, 1987. A. J. Laub, "A Schur method for
+solving algebraic Riccati equations", IEEE TAC 24(6), 1979.
 """
 
 from __future__ import annotations
@@ -124,71 +46,27 @@ from typing import Sequence
 import numpy as np
 import scipy.linalg as sla
 
-__all__ = [
-    "AREInfo",
-    "RiccatiRouteResult",
-    "SideSolution",
-    "constants_riccati",
-    "equilibrated_max_eig",
-    "joint_matrix",
-    "joint_margin",
-    "min_mu",
-    "solve_are",
-    "solve_e_side",
-    "solve_x_side",
-    "structured_riccati",
-]
+from bench import joint, lmi
+from bench.search import RATE_RTOL, largest_passing
 
-#: Relative margin (after Jacobi equilibration) below which a matrix counts as negative definite.
-MARGIN_TOL = 1e-7
+__all__ = ["AREInfo", "RiccatiRouteResult", "SideSolution", "constants_riccati", "solve_are", "solve_e_side",
+           "solve_x_side", "structured_riccati"]
+
 #: Largest relative ARE residual accepted.
 RESIDUAL_TOL = 1e-8
-#: Default tau grid, relative to the natural scale (see :func:`structured_riccati`).
+#: Default tau grid, relative to the natural scale (smallest gain first).
 TAU_GRID = (1.0, 10.0, 1e2, 1e3, 1e4, 1e5)
 #: Default eps grid, relative to the natural scale.
 EPS_GRID = (1e-2, 1e-4)
 
 
-# -- small helpers ------------------------------------------------------------------------------
-def _sym(X: np.ndarray) -> np.ndarray:
-    return (X + X.T) / 2
-
-
-def equilibrated_max_eig(M: np.ndarray) -> float:
-    """Largest eigenvalue of ``D M D``, ``D = diag(|M_ii|^{-1/2})`` (Jacobi equilibration).
-
-    Parameters
-    ----------
-    M : ndarray, shape (k, k)
-        Symmetric (its symmetric part is used).
-
-    Returns
-    -------
-    float
-        ``lambda_max(D M D)``. The congruence keeps the inertia, so the sign says whether M is
-        negative definite; for a negative definite M the value lies in ``[-1, 0)``. A zero
-        diagonal entry is scaled as if it were ``1e-300`` relative to the largest.
-    """
-    M = _sym(np.asarray(M, dtype=float))
-    d = np.abs(np.diag(M))
-    d = np.maximum(d, 1e-300 * max(float(d.max(initial=0.0)), 1e-300))
-    s = 1.0 / np.sqrt(d)
-    E = M * s[:, None] * s[None, :]
-    return _eig_at(E, -1)
-
-
 def _eig_at(M: np.ndarray, index: int) -> float:
-    """The ``index``-th smallest eigenvalue of a symmetric M (``-1``: the largest).
-
-    LAPACK's subset driver (``evr``) is O(k^2) for one eigenvalue but can stop with "Internal
-    Error" on tightly clustered spectra (seen on a near-identity Gram matrix at n = 16); the full
-    divide-and-conquer driver is the fallback.
-    """
+    """The ``index``-th smallest eigenvalue of a symmetric M (``-1``: the largest)."""
     k = M.shape[0]
     i = index % k
     try:
         return float(sla.eigvalsh(M, subset_by_index=[i, i], check_finite=False)[0])
-    except (np.linalg.LinAlgError, ValueError):
+    except (np.linalg.LinAlgError, ValueError):  # LAPACK's subset driver can fail on clustered spectra
         return float(np.linalg.eigvalsh(M)[i])
 
 
@@ -201,24 +79,11 @@ def _norm2(X: np.ndarray) -> float:
     return float(math.sqrt(max(_eig_at(Gm, -1), 0.0)))
 
 
-# -- the ARE ------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class AREInfo:
-    """Diagnostics of one ARE solve (:func:`solve_are`).
-
-    Attributes
-    ----------
-    method : str
-        The method that produced the solution (``"schur"``, ``"sign"`` or ``"scipy"``).
-    residual : float
-        ``||a'X + Xa - XMX + q||_1 / (2 ||a||_1 ||X||_1 + ||M||_1 ||X||_1^2 + ||q||_1)``.
-    closed_loop_max_re : float
-        Largest real part of an eigenvalue of ``a - M X`` (negative: stabilizing).
-    seconds : float
-        Wall time of the solve and its checks.
-    reason : str
-        Empty on success, else why the solution was rejected (or not found).
-    """
+    """Diagnostics of one ARE solve (:func:`solve_are`): method, relative residual
+    ``||a'X + Xa - XMX + q||_1 / (2 ||a||_1 ||X||_1 + ||M||_1 ||X||_1^2 + ||q||_1)``, largest real part
+    of ``a - M X`` (-inf when not computed), seconds, and the reason of a failure (empty on success)."""
 
     method: str
     residual: float = math.inf
@@ -262,33 +127,42 @@ def _schur_are(a, M, q):
 
 
 def _sign_are(a, M, q, *, tol=1e-13, maxit=60):
+    """The Newton iteration ``Z <- (c Z + Z^-1 / c) / 2`` for the sign of the Hamiltonian, determinant
+    scaling ``c = |det Z|^(-1/2n)`` while far off; once the relative step is below 1e-7 (quadratic
+    convergence), one more step. ``Z^-1`` by LU solves against I (LAPACK's getri is slower)."""
     n = a.shape[0]
     Z = np.block([[a, -M], [-q, -a.T]])
+    I2 = np.eye(2 * n)
+    last = False
     for it in range(maxit):
         try:
             lu, piv = sla.lu_factor(Z, check_finite=False)
         except (np.linalg.LinAlgError, ValueError) as exc:
             return None, True, f"sign iteration: singular iterate ({exc}): eigenvalues on the imaginary axis"
-        logdet = float(np.sum(np.log(np.abs(np.diag(lu)))))
-        Zi, info = sla.lapack.dgetri(lu, piv)
-        if info != 0:
+        with np.errstate(divide="ignore"):
+            logdet = float(np.sum(np.log(np.abs(np.diag(lu)))))
+        if not math.isfinite(logdet):
+            return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
+        Zi = sla.lu_solve((lu, piv), I2, check_finite=False)
+        if not np.all(np.isfinite(Zi)):
             return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
         c = math.exp(-logdet / (2 * n)) if it < 8 else 1.0  # determinant scaling while far off
         Zn = 0.5 * (c * Z + Zi / c)
         err = float(np.abs(Zn - Z).sum(axis=0).max() / max(np.abs(Zn).sum(axis=0).max(), 1e-300))
         Z = Zn
-        if err < tol:
+        if err < tol or last:
             break
+        last = err < 1e-7 and it >= 8
     else:
         return None, True, f"sign iteration did not converge in {maxit} steps (eigenvalues near the imaginary axis)"
     I = np.eye(n)
     lhs = np.vstack([Z[:n, n:], Z[n:, n:] + I])
     rhs = -np.vstack([Z[:n, :n] + I, Z[n:, :n]])
-    X = sla.lstsq(lhs, rhs, check_finite=False)[0]
+    X = sla.lstsq(lhs, rhs, check_finite=False, lapack_driver="gelsy")[0]
     return X, False, ""
 
 
-def solve_are(a, b, rr, q, *, method: str = "schur", fallback: bool = True, fallback_max_n: int = 512,
+def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallback_max_n: int = 512,
               residual_tol: float = RESIDUAL_TOL) -> tuple[np.ndarray | None, AREInfo]:
     """Stabilizing solution of ``a' X + X a - X b diag(rr)^{-1} b' X + q = 0`` (rr may be indefinite).
 
@@ -322,12 +196,12 @@ def solve_are(a, b, rr, q, *, method: str = "schur", fallback: bool = True, fall
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     rr = np.asarray(rr, dtype=float).reshape(-1)
-    q = _sym(np.asarray(q, dtype=float))
+    q = lmi.sym(np.asarray(q, dtype=float))
     if method not in ("schur", "sign", "scipy"):
         raise ValueError(f"method: expected 'schur', 'sign' or 'scipy', got {method!r}")
     if np.any(rr == 0) or not np.all(np.isfinite(rr)):
         raise ValueError(f"rr: weights must be finite and nonzero, got {rr.tolist()}")
-    M = _sym((b / rr) @ b.T)
+    M = lmi.sym((b / rr) @ b.T)
     n = a.shape[0]
     # definite: the Hamiltonian has eigenvalues on (or within rounding of) the imaginary axis, so
     # no method has a stabilizing solution and a fallback would only waste time
@@ -337,8 +211,12 @@ def solve_are(a, b, rr, q, *, method: str = "schur", fallback: bool = True, fall
             X, max_re, definite, reason = _schur_are(a, M, q)
         elif method == "sign":
             X, definite, reason = _sign_are(a, M, q)
-            if X is not None:
+            # the side's Lyapunov test (P > 0, side matrix < 0) proves the closed loop Hurwitz; the spectrum
+            # is computed only where it is cheap
+            if X is not None and n <= 128:
                 max_re = float(np.linalg.eigvals(a - M @ X).real.max())
+            else:
+                max_re = -math.inf
         else:
             X = sla.solve_continuous_are(a, b, q, np.diag(rr))
             max_re = float(np.linalg.eigvals(a - M @ X).real.max())
@@ -350,7 +228,7 @@ def solve_are(a, b, rr, q, *, method: str = "schur", fallback: bool = True, fall
             X, reason = None, "non-finite solution"
         else:
             asym = float(np.abs(X - X.T).max() / max(np.abs(X).max(), 1e-300))
-            X = _sym(X)
+            X = lmi.sym(X)
             res = _are_residual(a, M, q, X)
             if asym > 1e-6:
                 reason = f"solution not symmetric (relative asymmetry {asym:.2g})"
@@ -372,46 +250,41 @@ def solve_are(a, b, rr, q, *, method: str = "schur", fallback: bool = True, fall
     return X, info
 
 
-# -- the two sides ------------------------------------------------------------------------------
+
+# -- the two sides ------------------------------------------------------------
 @dataclass(frozen=True)
 class SideSolution:
     """A verified solution of one side (:func:`solve_x_side` or :func:`solve_e_side`).
 
     Attributes
     ----------
-    P : ndarray, shape (n, n)
-        The side's Lyapunov matrix: P (x-side) or R = X^{-1} (e-side), positive definite.
+    P : ndarray (n, n)
+        The side's Lyapunov matrix: P (x-side) or R = X^-1 (e-side), positive definite.
     gain : ndarray
         F (m x n, x-side) or K (n x p, e-side).
-    side_matrix : ndarray, shape (n, n)
-        The side's matrix with the channel block eliminated (Mx or Me of the module docstring),
-        recomputed from the gain, not taken from the ARE.
-    margin : float
-        Jacobi-equilibrated largest eigenvalue of ``side_matrix`` (< 0).
+    side_matrix : ndarray (n, n)
+        ``Mx`` or ``Me`` of :mod:`bench.joint` at the side's lam, recomputed from the gain.
     min_eig : float
         Smallest eigenvalue of P (or R) over its largest.
-    multiplier, tau, eps : float
-        s (or t), tau (or tau'), eps.
+    multiplier, tau, eps, lam : float
+        s (or t), tau (or tau'), eps and the decay target.
     are : AREInfo
     """
 
     P: np.ndarray
     gain: np.ndarray
     side_matrix: np.ndarray
-    margin: float
     min_eig: float
     multiplier: float
     tau: float
     eps: float
     are: AREInfo
+    lam: float = 0.0
 
-
-def _reduce_channels(G, H, r):
-    G = np.asarray(G, dtype=float)
-    H = np.asarray(H, dtype=float)
-    r = np.asarray(r, dtype=float).reshape(-1)
-    keep = r > 0
-    return G[:, keep], r[keep, None] * H[keep, :]  # G, Dr H
+    @property
+    def gain_norm(self) -> float:
+        """``||gain||_2``."""
+        return _norm2(self.gain)
 
 
 def _pos_def(P: np.ndarray) -> float:
@@ -420,225 +293,95 @@ def _pos_def(P: np.ndarray) -> float:
     return lo / hi if hi > 0 else -math.inf
 
 
-def x_side_matrix(A0, B, F, P, G, DH, lam, s):
-    """``Mx = (A0+BF)'P + P(A0+BF) + 2 lam P + H'Dr^2 H / s + s P G G' P`` (channels eliminated)."""
-    Acl = A0 + B @ F
-    M = Acl.T @ P
-    M = M + M.T + 2 * lam * P
-    if DH.shape[0]:
-        PG = P @ G
-        M = M + DH.T @ DH / s + s * PG @ PG.T
-    return _sym(M)
-
-
-def e_side_matrix(A0, C, K, R, G, DH, lam, t):
-    """``Me = (A0-KC)'R + R(A0-KC) + 2 lam R + t H'Dr^2 H + R G G' R / t`` (channels eliminated)."""
-    Acl = A0 - K @ C
-    M = Acl.T @ R
-    M = M + M.T + 2 * lam * R
-    if DH.shape[0]:
-        RG = R @ G
-        M = M + t * DH.T @ DH + RG @ RG.T / t
-    return _sym(M)
+def _loop(A0, B, C, G, H, r) -> joint.Loop:
+    n = A0.shape[0]
+    C = np.zeros((0, n)) if C is None else C
+    B = np.zeros((n, 0)) if B is None else B
+    r = np.asarray(r, dtype=float).reshape(-1)
+    return joint.loop(A0, B, C, G, H, -r, r)
 
 
 def _side_are(a, inputs, acts, reads, mult, tau, eps, method):
-    """One side's ARE: ``b = [inputs, acts]``, ``rr = (1/(2 tau), -1/mult)``, ``q = reads' reads / mult + eps I``.
-
-    The x-side is ``(A0 + lam I, B, G, Dr H)`` with multiplier s; the e-side is its dual,
-    ``((A0 + lam I)', C', (Dr H)', G')`` with multiplier t.
-    """
+    """One side's ARE: ``b = [inputs, acts]``, ``rr = (1/(2 tau), -1/mult)``, ``q = reads' reads / mult + eps I``."""
     n = a.shape[0]
     bb = np.hstack([inputs, acts])
     rr = np.concatenate([np.full(inputs.shape[1], 1.0 / (2 * tau)), np.full(acts.shape[1], -1.0 / mult)])
     qq = reads.T @ reads / mult + eps * np.eye(n)
-    return solve_are(a, bb, rr, qq, method=method)
+    return solve_are(a, bb, rr, qq, method=method, fallback=False)  # a failing probe is a failed probe
 
 
-def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "schur") -> tuple[SideSolution | None, str]:
+def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> tuple[SideSolution | None, str]:
     """x-side: ``F = -tau B' P`` from the ARE with ``a = A0 + lam I``, ``b = [B, G]``, ``rr = (1/(2 tau), -1/s)``.
 
     Parameters
     ----------
-    A0 : ndarray, shape (n, n)
+    A0 : ndarray (n, n)
         ``A + G diag(c0) H``.
-    B : ndarray, shape (n, m)
-    G, H : ndarray, shapes (n, q), (q, n)
+    B : ndarray (n, m)
+    G, H : ndarray (n, q), (q, n)
         Channels.
-    r : ndarray, shape (q,)
+    r : ndarray (q,)
         Half widths of the slope intervals (channels with ``r_i = 0`` are dropped).
     lam : float
-        Decay target (>= 0 in use; any real accepted).
+        Decay target.
     s, tau, eps : float
-        Channel multiplier (> 0), gain scale (> 0), strictness (> 0).
+        Channel multiplier, gain scale, strictness (all > 0).
     method : str
         ARE method (:func:`solve_are`).
 
     Returns
     -------
     (SideSolution or None, str)
-        The verified solution (P > 0, ``Mx < 0`` by an eigenvalue computation, small residual) and
-        ``""``, or None and the reason in words.
+        The verified solution (P > 0, ``Mx < 0``) and ``""``, or None and the reason in words.
     """
-    A0 = np.asarray(A0, dtype=float)
-    B = np.asarray(B, dtype=float)
-    n = B.shape[0]
-    Gk, DH = _reduce_channels(G, H, r)
-    P, info = _side_are(A0 + lam * np.eye(n), B, Gk, DH, s, tau, eps, method)
+    A0, B = np.asarray(A0, dtype=float), np.asarray(B, dtype=float)
+    lp = _loop(A0, B, None, G, H, r)
+    n = A0.shape[0]
+    P, info = _side_are(A0 + lam * np.eye(n), B, lp.G, lp.DH, s, tau, eps, method)
     if P is None:
         return None, f"x-side ARE: {info.reason}"
     pmin = _pos_def(P)
     if not pmin > 0:
         return None, f"x-side: P is not positive definite (min/max eigenvalue {pmin:.3g})"
     F = -tau * (B.T @ P)
-    return _verified_side("x-side", x_side_matrix(A0, B, F, P, Gk, DH, lam, s), P, F, pmin, s, tau, eps, info)
+    Mx = joint.side_matrices(lp, F, np.zeros((n, 0)), P, np.eye(n), s, 1.0, lam)[0]
+    return _verified_side("x-side", Mx, P, F, pmin, s, tau, eps, lam, info)
 
 
-def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "schur") -> tuple[SideSolution | None, str]:
-    """e-side: ``K = tau' X C'``, ``R = X^{-1}``, X from the ARE with ``a = (A0 + lam I)'``, ``b = [C', H' Dr]``.
+def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign") -> tuple[SideSolution | None, str]:
+    """e-side: ``K = tau' X C'``, ``R = X^-1``, X from the ARE with ``a = (A0 + lam I)'``, ``b = [C', H' Dr]``.
 
-    Parameters
-    ----------
-    A0 : ndarray, shape (n, n)
-    C : ndarray, shape (p, n)
-    G, H, r
-        Channels, as in :func:`solve_x_side`.
-    lam : float
-        Decay target.
-    t, tau, eps : float
-        Channel multiplier (> 0), gain scale tau' (> 0), strictness (> 0);
-        ``rr = (1/(2 tau'), -1/t)``, ``q = G G' / t + eps I``.
-    method : str
-        ARE method (:func:`solve_are`).
-
-    Returns
-    -------
-    (SideSolution or None, str)
-        ``SideSolution.P`` is R and ``.gain`` is K; or None and the reason.
+    Parameters and returns as :func:`solve_x_side` (``t`` the e-side multiplier; ``SideSolution.P``
+    is R and ``.gain`` is K).
     """
-    A0 = np.asarray(A0, dtype=float)
-    C = np.asarray(C, dtype=float)
-    n = C.shape[1]
-    Gk, DH = _reduce_channels(G, H, r)
-    X, info = _side_are((A0 + lam * np.eye(n)).T, C.T, DH.T, Gk.T, t, tau, eps, method)
+    A0, C = np.asarray(A0, dtype=float), np.asarray(C, dtype=float)
+    lp = _loop(A0, None, C, G, H, r)
+    n = A0.shape[0]
+    X, info = _side_are((A0 + lam * np.eye(n)).T, C.T, lp.DH.T, lp.G.T, t, tau, eps, method)
     if X is None:
         return None, f"e-side ARE: {info.reason}"
     try:
         cf = sla.cho_factor(X, lower=True, check_finite=False)
     except np.linalg.LinAlgError:
         return None, f"e-side: X is not positive definite (min/max eigenvalue {_pos_def(X):.3g})"
-    R = _sym(sla.cho_solve(cf, np.eye(n), check_finite=False))
+    R = lmi.sym(sla.cho_solve(cf, np.eye(n), check_finite=False))
     rmin = _pos_def(R)
     if not rmin > 0:
         return None, f"e-side: R = X^-1 is not positive definite (min/max eigenvalue {rmin:.3g})"
     K = tau * (X @ C.T)
-    return _verified_side("e-side", e_side_matrix(A0, C, K, R, Gk, DH, lam, t), R, K, rmin, t, tau, eps, info)
+    Me = joint.side_matrices(lp, np.zeros((0, n)), K, np.eye(n), R, 1.0, t, lam)[1]
+    return _verified_side("e-side", Me, R, K, rmin, t, tau, eps, lam, info)
 
 
-def _verified_side(side: str, M, P, gain, pmin, mult, tau, eps, info) -> tuple[SideSolution | None, str]:
-    """The side's solution when its matrix ``M`` is negative definite (equilibrated eigenvalues), else
-    None and the reason."""
-    margin = equilibrated_max_eig(M)
-    if not margin < -MARGIN_TOL:
-        return None, f"{side} matrix not negative definite (equilibrated max eigenvalue {margin:.3g})"
-    return SideSolution(P=P, gain=gain, side_matrix=M, margin=margin, min_eig=pmin, multiplier=mult, tau=tau,
-                        eps=eps, are=info), ""
+def _verified_side(side, M, P, gain, pmin, mult, tau, eps, lam, info) -> tuple[SideSolution | None, str]:
+    """The side's solution when its matrix is verified negative definite (:func:`bench.joint.verdict`)."""
+    v = joint.verdict(M)
+    if v != "verified":
+        return None, f"{side} matrix not verified negative definite ({v})"
+    return SideSolution(P=P, gain=gain, side_matrix=M, min_eig=pmin, multiplier=mult, tau=tau,
+                        eps=eps, are=info, lam=lam), ""
 
 
-# -- the joint certificate ----------------------------------------------------------------------
-def min_mu(B, F, P, Mx, Me) -> float:
-    """Smallest mu making ``[[Mx, -P B F], [-(P B F)', mu Me]]`` negative definite (Mx, Me < 0).
-
-    Parameters
-    ----------
-    B, F, P : ndarray
-        Shapes (n, m), (m, n), (n, n).
-    Mx, Me : ndarray, shape (n, n)
-        Negative definite side matrices (channels eliminated).
-
-    Returns
-    -------
-    float
-        ``lambda_max(W^{1/2} F (-Me)^{-1} F' W^{1/2})`` with ``W = (P B)' (-Mx)^{-1} (P B)``: the
-        joint matrix is negative definite iff ``mu > min_mu``.
-
-    Raises
-    ------
-    numpy.linalg.LinAlgError
-        If Mx or Me is not negative definite (Cholesky fails).
-    """
-    U = P @ B
-    cx = sla.cho_factor(-Mx, lower=True, check_finite=False)
-    ce = sla.cho_factor(-Me, lower=True, check_finite=False)
-    W = _sym(U.T @ sla.cho_solve(cx, U, check_finite=False))
-    Z = _sym(F @ sla.cho_solve(ce, F.T, check_finite=False))
-    w, V = np.linalg.eigh(W)
-    Wh = (V * np.sqrt(np.maximum(w, 0))) @ V.T
-    return float(max(np.linalg.eigvalsh(_sym(Wh @ Z @ Wh)).max(initial=0.0), 0.0))
-
-
-def joint_matrix(A0, B, C, F, K, P, R, G, H, r, *, s, t, mu, lam=0.0, reduced: bool = True) -> np.ndarray:
-    """The joint certificate matrix for fixed gains.
-
-    Parameters
-    ----------
-    A0, B, C : ndarray
-        ``A0 = A + G diag(c0) H``, B, C.
-    F, K : ndarray
-        Gains, shapes (m, n), (n, p).
-    P, R : ndarray, shape (n, n)
-        x-side and e-side Lyapunov matrices (``P_joint = diag(P, mu R)``).
-    G, H, r
-        Channels and the half widths of their slope intervals.
-    s, t, mu, lam : float
-        Multipliers ``1/s`` (x channels) and ``mu t`` (e channels), e-side weight, decay target.
-    reduced : bool
-        True: the 2n x 2n matrix with the (diagonal) channel blocks eliminated by the Schur
-        complement (negative definite iff the full one is). False: the full
-        ``(2n + 2q) x (2n + 2q)`` matrix in ``(x, e, psi(Hx), dpsi)`` (for tests at small n).
-
-    Returns
-    -------
-    ndarray
-    """
-    A0, B, C, F, K, P, R = (np.asarray(v, dtype=float) for v in (A0, B, C, F, K, P, R))
-    Gk, DH = _reduce_channels(G, H, r)
-    Mx = x_side_matrix(A0, B, F, P, Gk, DH, lam, s) if reduced else None
-    Me = e_side_matrix(A0, C, K, R, Gk, DH, lam, t) if reduced else None
-    PBF = P @ B @ F
-    if reduced:
-        return np.block([[Mx, -PBF], [-PBF.T, mu * Me]])
-    n, q = A0.shape[0], Gk.shape[1]
-    Ax, Ae = A0 + B @ F, A0 - K @ C
-    HH = DH.T @ DH
-    M11 = _sym(Ax.T @ P + P @ Ax + 2 * lam * P + HH / s)
-    M22 = mu * _sym(Ae.T @ R + R @ Ae + 2 * lam * R + t * HH)
-    Z = np.zeros
-    return np.block([
-        [M11, -PBF, P @ Gk, Z((n, q))],
-        [-PBF.T, M22, Z((n, q)), mu * R @ Gk],
-        [Gk.T @ P, Z((q, n)), -np.eye(q) / s, Z((q, q))],
-        [Z((q, n)), mu * Gk.T @ R, Z((q, q)), -mu * t * np.eye(q)],
-    ])
-
-
-def joint_margin(M: np.ndarray) -> tuple[float, str, str]:
-    """Status of a joint matrix: ``(margin, status, reason)`` with the thresholds of the module docstring."""
-    margin = equilibrated_max_eig(M)
-    if margin < -MARGIN_TOL:
-        s = 1.0 / np.sqrt(np.abs(np.diag(M)))
-        try:
-            sla.cholesky(-(M * s[:, None] * s[None, :]), lower=True, check_finite=False)
-        except np.linalg.LinAlgError:
-            return margin, "marginal", (f"equilibrated max eigenvalue {margin:.3g} but the Cholesky factorisation "
-                                        "of its negative failed")
-        return margin, "feasible", f"joint matrix negative definite (equilibrated max eigenvalue {margin:.3g})"
-    if margin <= MARGIN_TOL:
-        return margin, "marginal", f"equilibrated max eigenvalue {margin:.3g} within {MARGIN_TOL:g} of 0"
-    return margin, "infeasible", f"joint matrix not negative definite (equilibrated max eigenvalue {margin:.3g})"
-
-
-# -- the route ----------------------------------------------------------------------------------
 @dataclass
 class RiccatiRouteResult:
     """Outcome of :func:`structured_riccati`.
@@ -646,34 +389,30 @@ class RiccatiRouteResult:
     Attributes
     ----------
     status : str
-        ``"feasible"`` (joint matrix verified negative definite, margin < -1e-7), ``"marginal"``
-        or ``"infeasible"``.
+        ``"feasible"`` (joint certificate verified), ``"marginal"`` or ``"infeasible"``.
     reason : str
-        In words.
     K, F : ndarray or None
         Observer gain (n x p) and feedback (m x n), ``u = F x_hat``.
     P, R : ndarray or None
-        Side Lyapunov matrices, normalised to a largest eigenvalue of 1; the certificate is
-        ``V = x'Px + mu e'Re``.
-    s, t, mu, mu_min : float
-        Multipliers (``1/s`` on the x channels, ``mu t`` on the e channels), the e-side weight and
-        the smallest admissible one.
+        Side Lyapunov matrices (largest eigenvalue 1); ``V = x'Px + mu e'Re``.
+    s, t, mu : float
+        Multipliers (``1/s`` x channels, ``mu t`` e channels) and the e-side weight.
     tau, tau_e, eps_x, eps_e : float
         The grid point used on each side.
     lam : float
-        Decay target built into the certificate (``V' <= -2 lam V``).
+        The decay target the sides were designed for.
+    rate : float
+        The rate the joint certificate proves (:func:`bench.joint.certify`; NaN unless feasible).
+    rate_bound : float
+        Its exact generalised eigenvalue (``rate`` is the grid point below).
     margin : float
-        Jacobi-equilibrated max eigenvalue of the reduced joint matrix (in [-1, 0) when feasible).
-    margin_x, margin_e : float
-        The same for each side matrix.
+        Equilibrated max eigenvalue of the reduced joint matrix at rate 0.
     residual_x, residual_e : float
-        Relative ARE residuals.
     methods : tuple of str
-        ARE method that produced each side.
     timings : dict
-        Seconds per step (``x_side``, ``e_side``, ``mu``, ``joint_build``, ``joint_eig``, ``total``).
+        Seconds: ``search``, ``certificate``, ``total``.
     tries : list of tuple
-        Every grid point tried: ``(side, tau, eps, reason or "ok")``.
+        ``(side, lam, tau, eps, reason or "ok")`` of every ARE solved.
     """
 
     status: str
@@ -685,15 +424,14 @@ class RiccatiRouteResult:
     s: float = math.nan
     t: float = math.nan
     mu: float = math.nan
-    mu_min: float = math.nan
     tau: float = math.nan
     tau_e: float = math.nan
     eps_x: float = math.nan
     eps_e: float = math.nan
     lam: float = 0.0
+    rate: float = math.nan
+    rate_bound: float = math.nan
     margin: float = math.nan
-    margin_x: float = math.nan
-    margin_e: float = math.nan
     residual_x: float = math.nan
     residual_e: float = math.nan
     methods: tuple = ()
@@ -706,23 +444,66 @@ class RiccatiRouteResult:
         return self.status == "feasible"
 
 
-def _search_side(solve, taus, epss, tries, label):
-    last = "empty grid"
-    for eps in epss:  # the largest strictness first (a robust margin), then the smallest gain
-        for tau in taus:
-            sol, why = solve(tau, eps)
-            tries.append((label, float(tau), float(eps), why or "ok"))
+class _Side:
+    """One side's solutions by decay target, the smallest verifying tau on the grid first."""
+
+    def __init__(self, label, solve, taus, epss, max_gain, tries):
+        self.label, self.solve, self.taus, self.epss = label, solve, list(taus), list(epss)
+        self.max_gain, self.tries, self.found, self.index, self.why = max_gain, tries, {}, {}, "empty grid"
+        self.eps_at, self.eps_from = {}, None
+        self.tau_from = None  # the smallest tau that verified at a lower target (a larger target needs no less)
+
+    def at(self, lam: float) -> SideSolution | None:
+        """The verified solution with the smallest grid tau at ``lam`` (None: none; gains not checked)."""
+        if lam in self.found:
+            return self.found[lam]
+        sol = None
+        # the strictness that passed first is kept once a target passed
+        for eps in (self.epss if self.tau_from is None else [self.eps_from]):
+            # the whole grid until a target passes; then the smallest tau that passed and the next one
+            first = self.tau_from is None
+            span = range(len(self.taus)) if first else range(self.tau_from, min(self.tau_from + 2, len(self.taus)))
+            for i in span:
+                sol, why = self.solve(lam, self.taus[i], eps)
+                self.tries.append((self.label, lam, self.taus[i], eps, why or "ok"))
+                if sol is not None:
+                    self.index[lam], self.eps_at[lam] = i, eps
+                    break
+                self.why = why
             if sol is not None:
-                return sol, ""
-            last = why
-    return None, last
+                break
+        self.found[lam] = sol
+        return sol
+
+    def passes(self, lam: float) -> bool:
+        sol = self.at(lam)
+        if sol is not None and self.tau_from is None:
+            self.tau_from, self.eps_from = self.index[lam], self.eps_at[lam]
+        ok = sol is not None and sol.gain_norm <= self.max_gain
+        if ok:
+            self.tau_from = max(self.tau_from or 0, self.index[lam])
+        return ok
 
 
-def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float = 0.0, taus: Sequence[float] = TAU_GRID,
-                       eps: Sequence[float] = EPS_GRID, taus_e: Sequence[float] | None = None,
-                       eps_e: Sequence[float] | None = None, s: float | None = None, t: float | None = None,
-                       mu_factor: float = 10.0, method: str = "schur") -> RiccatiRouteResult:
-    """Structured observer-based design by two AREs, certified by one 2n x 2n eigenvalue test.
+def _search(side: _Side, lam: float | None, max_decay: float, rtol: float, other: bool = False) -> float | None:
+    """The side's largest passing decay target up to ``max_decay`` (``lam`` fixed: that one), or None when
+    lam = 0 fails; ``other``: ``max_decay`` is the other side's target (tried first)."""
+    if lam is not None:
+        return lam if side.at(lam) is not None else None
+    if side.at(0.0) is None:
+        return None
+    side.tau_from, side.eps_from = side.index[0.0], side.eps_at[0.0]
+    if other and side.passes(max_decay):  # the other side's target: no need to go further
+        return max_decay
+    out = largest_passing(side.passes, rtol=rtol, start=min(0.5, max_decay / 2), hi=max_decay, max_moves=12)
+    return out["lo"] if math.isfinite(out["lo"]) else 0.0
+
+
+def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_gain: float = math.inf,
+                       max_decay: float = 10.0, rtol: float = 0.05, taus: Sequence[float] = TAU_GRID,
+                       eps: Sequence[float] = EPS_GRID, s: float | None = None, t: float | None = None,
+                       method: str = "sign") -> RiccatiRouteResult:
+    """Structured observer-based design by AREs, certified by :func:`bench.joint.certify`.
 
     Parameters
     ----------
@@ -730,115 +511,78 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float = 0.0, taus: Sequenc
         Shapes (n, n), (n, m), (p, n).
     G, H : array_like
         Channels ``f(x) = G phi(H x)``, shapes (n, q), (q, n).
-    lo, hi : float or array_like, shape (q,)
+    lo, hi : float or array_like (q,)
         Slope bounds of each channel.
-    lam : float
-        Decay target: the certificate proves ``V' <= -2 lam V`` (default 0).
+    lam : float or None
+        A fixed decay target, or None to search the largest one (see the module docstring).
+    max_gain : float
+        Bound on ``||F||`` and ``||K||`` in the search.
+    max_decay : float
+        Upper end of the search.
+    rtol : float
+        The search's grid (:mod:`bench.search`).
     taus, eps : sequence of float
-        Grids of the gain scale tau and the strictness eps, relative to the natural scales
-        ``tau0 = sigma / ||B||^2`` and ``eps0 = sigma``, ``sigma = ||Dr H|| ||G||`` (or ``||A0||``
-        without channels). Tried in order, eps outer (the largest strictness first: a robust
-        margin), tau inner (the smallest gain first); the first point that passes every check is
-        kept.
-    taus_e, eps_e : sequence of float, optional
-        The same for the e-side (``tau0' = sigma / ||C||^2``); default: the x-side grids.
+        Grids of the gain scale and the strictness relative to their natural scales (module docstring).
     s, t : float, optional
-        Channel multipliers; default ``s = ||Dr H|| / ||G||``, ``t = 1 / s`` (they need no search:
-        see the module docstring).
-    mu_factor : float
-        ``mu = mu_factor * mu_min`` (> 1; see the module docstring).
+        Channel multipliers (default ``s = ||Dr H|| / ||G||``, ``t = 1 / s``).
     method : str
         ARE method (:func:`solve_are`).
 
     Returns
     -------
     RiccatiRouteResult
-        Status ``"feasible"`` only when the joint matrix is verified negative definite.
+        ``"feasible"`` only when the joint certificate is verified; ``rate`` is the rate it proves.
     """
     t_start = time.perf_counter()
-    A = np.asarray(A, dtype=float)
-    B = np.asarray(B, dtype=float)
-    C = np.asarray(C, dtype=float)
-    G = np.asarray(G, dtype=float)
-    H = np.asarray(H, dtype=float)
+    A, B, C, G, H = (np.asarray(v, dtype=float) for v in (A, B, C, G, H))
     n = A.shape[0]
     q = G.shape[1] if G.ndim == 2 else -1
     for name, X, shape in (("A", A, (n, n)), ("B", B, (n, B.shape[-1])), ("C", C, (C.shape[0], n)),
                            ("G", G, (n, q)), ("H", H, (q, n))):
         if X.ndim != 2 or X.shape != shape:
             raise ValueError(f"{name}: expected shape {shape} (A is {A.shape}, G is {G.shape}), got {X.shape}")
-    lo = np.broadcast_to(np.asarray(lo, dtype=float), (q,))
-    hi = np.broadcast_to(np.asarray(hi, dtype=float), (q,))
-    if np.any(lo > hi):
+    if np.any(np.broadcast_to(lo, (q,)) > np.broadcast_to(hi, (q,))):
         raise ValueError("lo/hi: every channel needs lo <= hi")
-    if not mu_factor > 1:
-        raise ValueError(f"mu_factor: must be > 1, got {mu_factor!r}")
-    c0, r = (lo + hi) / 2, (hi - lo) / 2
-    A0 = A + (G * c0) @ H
-    Gk, DH = _reduce_channels(G, H, r)
-    nG, nDH = _norm2(Gk), _norm2(DH)
-    if nG > 0 and nDH > 0:
-        sigma = nG * nDH
-        s0, t0 = nDH / nG, nG / nDH
-    else:
-        sigma = max(_norm2(A0), 1e-12)
-        s0 = t0 = 1.0
+    lp = joint.loop(A, B, C, G, H, lo, hi)
+    r = np.broadcast_to(np.asarray((np.asarray(hi, float) - np.asarray(lo, float)) / 2), (q,))
+    A0 = lp.A0
+    nG, nDH = _norm2(lp.G), _norm2(lp.DH)
+    sigma, s0 = (nG * nDH, nDH / nG) if nG > 0 and nDH > 0 else (max(_norm2(A0), 1e-12), 1.0)
     s = s0 if s is None else float(s)
-    t = t0 if t is None else float(t)
-    tau0_x = sigma / max(_norm2(B) ** 2, 1e-300)
-    tau0_e = sigma / max(_norm2(C) ** 2, 1e-300)
-    taus_e = taus if taus_e is None else taus_e
-    eps_e = eps if eps_e is None else eps_e
-    timings: dict[str, float] = {}
+    t = 1 / s0 if t is None else float(t)
+    tau0_x, tau0_e = sigma / max(_norm2(B) ** 2, 1e-300), sigma / max(_norm2(C) ** 2, 1e-300)
     tries: list = []
-    res = RiccatiRouteResult(status="infeasible", reason="", s=s, t=t, lam=float(lam), timings=timings, tries=tries)
-
-    t1 = time.perf_counter()
-    xs, why_x = _search_side(
-        lambda tau, e: solve_x_side(A0, B, G, H, r, lam, s, tau * tau0_x, e * sigma, method=method),
-        taus, eps, tries, "x")
-    timings["x_side"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    es, why_e = _search_side(
-        lambda tau, e: solve_e_side(A0, C, G, H, r, lam, t, tau * tau0_e, e * sigma, method=method),
-        taus_e, eps_e, tries, "e")
-    timings["e_side"] = time.perf_counter() - t1
-    if xs is None or es is None:
+    res = RiccatiRouteResult(status="infeasible", reason="", s=s, t=t, tries=tries)
+    xs = _Side("x", lambda la, tau, e: solve_x_side(A0, B, G, H, r, la, s, tau * tau0_x, e * sigma, method=method),
+               taus, eps, max_gain, tries)
+    es = _Side("e", lambda la, tau, e: solve_e_side(A0, C, G, H, r, la, t, tau * tau0_e, e * sigma, method=method),
+               taus, eps, max_gain, tries)
+    # the e-side first, then the x-side up to its target (the joint rate is the slower side's)
+    lam_e = _search(es, lam, max_decay, rtol)
+    lam_x = _search(xs, lam, lam_e if lam is None and lam_e else max_decay, rtol, other=bool(lam is None and lam_e))
+    if lam_x is None or lam_e is None:
         res.reason = "; ".join(w for w in (
-            f"x-side infeasible on the grid (last: {why_x})" if xs is None else "",
-            f"e-side infeasible on the grid (last: {why_e})" if es is None else "") if w)
-        timings["total"] = time.perf_counter() - t_start
+            f"x-side infeasible on the grid (last: {xs.why})" if lam_x is None else "",
+            f"e-side infeasible on the grid (last: {es.why})" if lam_e is None else "") if w)
+        res.timings = {"search": time.perf_counter() - t_start, "total": time.perf_counter() - t_start}
         return res
-    # Normalise P and R to unit largest eigenvalue: (P, s, Mx) -> (P/a, s a, Mx/a) and
-    # (R, t, Me) -> (R/b, t/b, Me/b) leave both sides' matrices negative definite (scaled by 1/a, 1/b)
-    # and make mu the relative weight of two unit-size quadratic forms.
-    a_x, a_e = _eig_at(xs.P, -1), _eig_at(es.P, -1)
-    P, R, Mx, Me = xs.P / a_x, es.P / a_e, xs.side_matrix / a_x, es.side_matrix / a_e
-    res.s, res.t = s * a_x, t / a_e
-    res.F, res.P, res.K, res.R = xs.gain, P, es.gain, R
-    res.tau, res.eps_x, res.tau_e, res.eps_e = xs.tau, xs.eps, es.tau, es.eps
-    res.margin_x, res.margin_e = xs.margin, es.margin
-    res.residual_x, res.residual_e = xs.are.residual, es.are.residual
-    res.methods = (xs.are.method, es.are.method)
-
+    res.lam = min(lam_x, lam_e)
+    x, e = xs.at(res.lam) or xs.at(lam_x), es.at(res.lam) or es.at(lam_e)
     t1 = time.perf_counter()
-    try:
-        mu_min = min_mu(B, xs.gain, P, Mx, Me)
-    except np.linalg.LinAlgError:
-        res.reason = "a side matrix failed its Cholesky factorisation (not negative definite)"
-        timings["total"] = time.perf_counter() - t_start
-        return res
-    mu = mu_factor * mu_min if mu_min > 0 else 1.0
-    res.mu, res.mu_min = mu, mu_min
-    timings["mu"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    PBF = P @ B @ xs.gain
-    M = np.block([[Mx, -PBF], [-PBF.T, mu * Me]])
-    timings["joint_build"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    res.margin, res.status, res.reason = joint_margin(M)
-    timings["joint_eig"] = time.perf_counter() - t1
-    timings["total"] = time.perf_counter() - t_start
+    # normalise P and R to a unit largest eigenvalue: (P, s) -> (P/a, s a), (R, t) -> (R/b, t/b) keep both sides
+    a_x, a_e = _eig_at(x.P, -1), _eig_at(e.P, -1)
+    res.P, res.R, res.s, res.t = x.P / a_x, e.P / a_e, s * a_x, t / a_e
+    res.F, res.K = x.gain, e.gain
+    res.tau, res.eps_x, res.tau_e, res.eps_e = x.tau, x.eps, e.tau, e.eps
+    res.residual_x, res.residual_e = x.are.residual, e.are.residual
+    res.methods = (x.are.method, e.are.method)
+    cert = joint.certify(lp, res.F, res.K, res.P, res.R, res.s, res.t)
+    res.mu, res.margin, res.rate, res.rate_bound = cert.mu, cert.margin, cert.rate, cert.bound
+    res.status = {"verified": "feasible", "marginal": "marginal"}.get(cert.status, "infeasible")
+    res.reason = (f"joint certificate verified (equilibrated max eigenvalue {cert.margin:.3g}), rate {cert.rate:.4g}"
+                  if cert.verified else f"joint certificate {cert.status} (equilibrated max eigenvalue {cert.margin:.3g})")
+    res.timings = {"search": t1 - t_start, "certificate": time.perf_counter() - t1,
+                   "total": time.perf_counter() - t_start}
     return res
 
 

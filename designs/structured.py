@@ -30,15 +30,12 @@ certified rate bought with a huge gain is no win, so the bound is part of the de
 Two routes solve the sides (``route``): ``"sdp"`` (the LMIs above, Clarabel or SCS) and
 ``"riccati"`` (one scalar multiplier per side and ``F = -tau B' P``, ``K = tau' X C'``: each side is
 an algebraic Riccati equation, :func:`designs._riccati_route.structured_riccati`; O(n^3), for
-large n; sufficient, not necessary, and with the decay target fixed at ``decay`` (default 0)
-since each try costs two AREs). ``"auto"`` takes the Riccati route from
-:data:`RICCATI_FROM_N` states on.
+large n; sufficient, not necessary; the decay target is searched side by side). ``"auto"`` takes
+the Riccati route from :data:`RICCATI_FROM_N` states on.
 
-The joint certificate is then verified: ``V = x' Q^-1 x + mu e' R e`` with multipliers
-``S^-1`` (x-side) and ``mu T`` (e-side) makes the joint matrix in ``(x, e, psi, delta psi)``
-negative definite for ``mu`` large enough to absorb the cross term ``-P B F`` (a cascade);
-``mu = 2 ||P B F||^2 / (a_x a_e)`` with ``a_x``, ``a_e`` the sides' margins, and the matrix is
-checked by its eigenvalues (after a Jacobi equilibration, which keeps the inertia).
+Either way the gains are certified by the joint certificate of :mod:`bench.joint`
+(``V = x' Q^-1 x + mu e' R e`` with multipliers ``S^-1`` and ``mu T``), and the certificate's
+``decay_rate`` is the rate it proves (a generalised eigenvalue), not the design's target.
 
 References
 ----------
@@ -49,77 +46,28 @@ quadratic constraints", Automatica 47(7), 2011. A. Zemouche and M. Boutayeb, Aut
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 
-from bench import lmi
+from bench import joint, lmi
+from bench.search import largest_passing
 from bench.registry import register_design
 from designs._core import Design, DesignResult, check_choice, check_positive
 from plants import Constants, Plant
 
-__all__ = ["RICCATI_FROM_N", "Structured", "joint_matrix"]
+__all__ = ["RICCATI_FROM_N", "Structured"]
 
 #: ``route="auto"`` solves the sides by Riccati equations from this n on (the SDP sides'
 #: interior-point cost grows like n^4 - n^6; measured by ``python -m bench perf``).
 RICCATI_FROM_N = 64
 
 
-def _loop(plant: Plant) -> dict:
-    """The loop-transformed data of a plant with channels."""
+def _loop(plant: Plant) -> joint.Loop:
+    """The loop-transformed data of a plant with channels (:func:`bench.joint.loop`)."""
     ch = plant.channels
-    return {"A0": plant.A + ch.G @ np.diag(ch.center) @ ch.H, "B": plant.B, "C": plant.C, "G": ch.G, "H": ch.H,
-            "Dr": np.diag(ch.spread)}
-
-
-def joint_matrix(d: dict, K: np.ndarray, F: np.ndarray, P: np.ndarray, R: np.ndarray, s: np.ndarray, t: np.ndarray,
-                 mu: float, lam: float = 0.0) -> np.ndarray:
-    """The joint analysis matrix in ``(x, e, psi(Hx), delta psi)`` of the structured design.
-
-    Parameters
-    ----------
-    d : dict
-        Loop data ``A0, B, C, G, H, Dr``.
-    K, F : ndarray
-        Gains.
-    P, R : ndarray
-        ``V = x' P x + mu e' R e``.
-    s, t : ndarray (q,)
-        x-side multipliers are ``1 / s``, e-side ``mu t``.
-    mu : float
-    lam : float
-        Decay rate tested (``V' <= -2 lam V``).
-
-    Returns
-    -------
-    ndarray
-        Symmetric ``(2n + 2q)`` matrix; negative definite certifies the loop.
-    """
-    A0, B, C, G, H, Dr = d["A0"], d["B"], d["C"], d["G"], d["H"], d["Dr"]
-    n, q = A0.shape[0], G.shape[1]
-    Ax, Ae = A0 + B @ F, A0 - K @ C
-    Xb = Ax.T @ P + P @ Ax + 2 * lam * P + H.T @ Dr @ np.diag(1 / s) @ Dr @ H
-    Eb = Ae.T @ R + R @ Ae + 2 * lam * R + H.T @ Dr @ np.diag(t) @ Dr @ H
-    Z = np.zeros
-    M = np.block([
-        [Xb, -P @ B @ F, P @ G, Z((n, q))],
-        [(-P @ B @ F).T, mu * Eb, Z((n, q)), mu * R @ G],
-        [(P @ G).T, Z((q, n)), -np.diag(1 / s), Z((q, q))],
-        [Z((q, n)), mu * (R @ G).T, Z((q, q)), -mu * np.diag(t)],
-    ])
-    return (M + M.T) / 2
-
-
-def _equilibrated_margin(M: np.ndarray) -> tuple[float, np.ndarray]:
-    """Largest eigenvalue of ``D M D``, ``D = diag(|M_ii|^-1/2)`` (same inertia), and that matrix."""
-    diag = np.diag(M)
-    if not np.all(diag < 0):
-        return math.inf, M
-    dd = 1.0 / np.sqrt(-diag)
-    Me = M * dd[:, None] * dd[None, :]
-    return lmi.max_eig(Me), Me
+    return joint.loop(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi)
 
 
 @register_design("structured", order=17)
@@ -169,7 +117,7 @@ class Structured(Design):
 
     # -- the sides -------------------------------------------------------------------------------
     def _programs(self, plant: Plant) -> tuple[lmi.Program, lmi.Program]:
-        d = _loop(plant)
+        d = _side_data(plant)
         n, m, p, q = plant.n, plant.m, plant.p, plant.channels.q
         # the side programs bake the loop data in (A0, G, H, Dr): the key must hold their values
         key = ("structured", n, m, p, q, tuple((k, lmi.digest(v)) for k, v in d.items()))
@@ -193,29 +141,22 @@ class Structured(Design):
                 "gain": max(np.linalg.norm(F, 2), np.linalg.norm(K, 2))}
 
     def _search(self, progs) -> tuple[dict | None, int]:
-        """The largest decay target within the gain bound (or the fixed one)."""
+        """The largest decay target within the gain bound (:func:`bench.search.largest_passing`), or the fixed one."""
         if self.decay is not None:
             return self._try(progs, float(self.decay)), 1
-        tries = 0
-        lo = self._try(progs, 0.0)
-        tries += 1
-        if lo is None:
-            return None, tries
-        top = self.max_decay
-        lam = min(0.5, top / 2)
-        while lo["gain"] <= self.max_gain and top / max(lo["lam"], 1e-12) - 1 > self.rtol:
-            cand = self._try(progs, lam)
-            tries += 1
-            if cand is not None and cand["gain"] <= self.max_gain:
-                lo = cand
-                lam = min(2 * lam, math.sqrt(lam * top)) if top < self.max_decay else 2 * lam
-                lam = min(lam, top)
-            else:
-                top = lam
-                lam = math.sqrt(lo["lam"] * top) if lo["lam"] > 0 else top / 4
-            if lam <= 1e-6:
-                break
-        return lo, tries
+        tried: dict[float, dict | None] = {0.0: self._try(progs, 0.0)}
+        if tried[0.0] is None:
+            return None, 1
+
+        def passes(lam: float) -> bool:
+            tried[lam] = cand = self._try(progs, lam)
+            return cand is not None and cand["gain"] <= self.max_gain
+
+        if tried[0.0]["gain"] > self.max_gain:
+            return tried[0.0], 1
+        out = largest_passing(passes, rtol=self.rtol, start=min(0.5, self.max_decay / 2), hi=self.max_decay,
+                              down_until=1e-6)
+        return tried[out["lo"]] if out["lo"] in tried else tried[0.0], len(tried)
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Search the decay target, then verify the joint certificate of the gains."""
@@ -235,40 +176,44 @@ class Structured(Design):
         return _conclude(plant, best, tries, self, base)
 
     def _design_riccati(self, plant: Plant) -> DesignResult:
-        """The Riccati route at the fixed decay target ``decay`` (default 0)."""
+        """The Riccati route: the decay target searched side by side (or the fixed ``decay``)."""
         import time
 
         from designs._riccati_route import structured_riccati
 
         ch = plant.channels
-        lam = float(self.decay or 0.0)
         t0 = time.perf_counter()
-        rr = structured_riccati(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi, lam=lam)
+        rr = structured_riccati(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi, lam=self.decay,
+                                max_gain=self.max_gain, max_decay=self.max_decay, rtol=self.rtol)
         wall = time.perf_counter() - t0
-        params = {"decay_target": lam, "mu": rr.mu, "tau": rr.tau, "tau_e": rr.tau_e, "x_margin": rr.margin_x,
-                  "e_margin": rr.margin_e, "residual_x": rr.residual_x, "residual_e": rr.residual_e}
-        base = dict(route="riccati", solver="scipy.linalg.schur (ARE)", solver_status=rr.status, solve_s=wall,
-                    n_solves=2, margin=rr.margin, lmi_size=2 * plant.n, params=params)
+        params = {"decay_target": rr.lam, "rate_bound": rr.rate_bound, "mu": rr.mu, "tau": rr.tau,
+                  "tau_e": rr.tau_e, "residual_x": rr.residual_x, "residual_e": rr.residual_e,
+                  "ares": len(rr.tries), "max_gain": self.max_gain}
+        if rr.F is not None:
+            params["gain_norm"] = max(np.linalg.norm(rr.F, 2), np.linalg.norm(rr.K, 2))
+        base = dict(route="riccati", solver=f"{'/'.join(dict.fromkeys(rr.methods)) or 'sign'} (ARE)",
+                    solver_status=rr.status, solve_s=wall, n_solves=len(rr.tries), margin=rr.margin,
+                    lmi_size=2 * plant.n, params=params)
         if not rr.ok:
             return DesignResult(status=rr.status, reason=f"structured design (Riccati route): {rr.reason}", **base)
         n = plant.n
         P = np.block([[rr.P, np.zeros((n, n))], [np.zeros((n, n)), rr.mu * rr.R]])
-        cert = {"level": "structured", "P": P, "decay_rate": lam, "margin": rr.margin, "radius": ch.radius,
-                "how": "the design's own joint certificate (Riccati route), verified by an eigenvalue test"}
+        cert = {"level": "structured", "P": P, "decay_rate": rr.rate, "margin": rr.margin, "radius": ch.radius,
+                "how": "the design's own joint certificate (Riccati route), its rate by a generalised eigenvalue"}
         return DesignResult(status="feasible", K=rr.K, F=rr.F, certificate=cert, **base)
 
 
-def _diag(v):
-    """``diag(v)`` of a cvxpy vector or of a numpy array (the blocks build both)."""
-    import cvxpy as cp
-
-    return np.diag(v) if isinstance(v, np.ndarray) else cp.diag(v)
+def _side_data(plant: Plant) -> dict:
+    """The side programs' loop data ``A0, B, C, G, H, Dr`` (all channels, as the multipliers are per channel)."""
+    ch = plant.channels
+    return {"A0": plant.A + ch.G @ np.diag(ch.center) @ ch.H, "B": plant.B, "C": plant.C, "G": ch.G, "H": ch.H,
+            "Dr": np.diag(ch.spread)}
 
 
 def _x_blocks(d: dict, x: dict) -> list:
     """x-side: ``[[A0 Q + Q A0' + B Y + Y' B' + G S G' + 2 lam Q, Q H' Dr], [Dr H Q, -S]]``."""
     A0, B, G, H, Dr = d["A0"], d["B"], d["G"], d["H"], d["Dr"]
-    Q, Y, S = x["Q"], x["Y"], _diag(x["s"])
+    Q, Y, S = x["Q"], x["Y"], lmi.diag(x["s"])
     return [[A0 @ Q + Q @ A0.T + B @ Y + Y.T @ B.T + G @ S @ G.T + 2 * x["lam"] * Q, Q @ H.T @ Dr],
             [Dr @ H @ Q, -S]]
 
@@ -276,7 +221,7 @@ def _x_blocks(d: dict, x: dict) -> list:
 def _e_blocks(d: dict, x: dict) -> list:
     """e-side: ``[[A0' R + R A0 - Kh C - C' Kh' + H' Dr T Dr H + 2 lam R, R G], [G' R, -T]]``."""
     A0, C, G, H, Dr = d["A0"], d["C"], d["G"], d["H"], d["Dr"]
-    R, Kh, T = x["R"], x["Kh"], _diag(x["t"])
+    R, Kh, T = x["R"], x["Kh"], lmi.diag(x["t"])
     return [[A0.T @ R + R @ A0 - Kh @ C - C.T @ Kh.T + H.T @ Dr @ T @ Dr @ H + 2 * x["lam"] * R, R @ G],
             [G.T @ R, -T]]
 
@@ -313,34 +258,25 @@ def _min_gain_program(blocks, v: dict, prm: dict, pos: str, gain: str, mult: str
 
 
 def _conclude(plant: Plant, best: dict, tries: int, design: Structured, base: dict) -> DesignResult:
-    """Verify the joint certificate of the chosen gains and build the result."""
-    d = _loop(plant)
+    """Certify the chosen gains by the joint certificate (:func:`bench.joint.certify`) and build the result."""
     P, R, F, K = best["P"], best["R"], best["F"], best["K"]
     s, t = np.maximum(best["s"], 1e-12), np.maximum(best["t"], 1e-12)
-    lam = best["lam"]
-    Mx = joint_matrix(d, K, F, P, R, s, t, mu=0.0, lam=lam)
+    cert = joint.certify(_loop(plant), F, K, P, R, s, t)
     n, q = plant.n, plant.channels.q
-    ix = np.r_[0:n, 2 * n:2 * n + q]
-    ie = np.r_[n:2 * n, 2 * n + q:2 * n + 2 * q]
-    ax = -lmi.max_eig(Mx[np.ix_(ix, ix)])
-    Me = joint_matrix(d, K, F, P, R, s, t, mu=1.0, lam=lam)[np.ix_(ie, ie)]
-    ae = -lmi.max_eig(Me)
-    cross = float(np.linalg.norm(P @ plant.B @ F, 2))
-    mu = 2 * cross**2 / (ax * ae) if ax > 0 and ae > 0 else math.nan
-    margin, Meq = _equilibrated_margin(joint_matrix(d, K, F, P, R, s, t, mu=mu, lam=lam)) if math.isfinite(mu) \
-        else (math.inf, None)
-    params = {"decay_target": best["lam"], "gain_norm": best["gain"], "max_gain": design.max_gain, "mu": mu,
-              "x_margin": ax, "e_margin": ae, "decay_searches": tries}
-    if Meq is not None and lmi.classify(margin, Meq) == "verified":
+    params = {"decay_target": best["lam"], "rate_bound": cert.bound, "gain_norm": best["gain"],
+              "max_gain": design.max_gain, "mu": cert.mu, "x_rate": cert.side_rates[0], "e_rate": cert.side_rates[1],
+              "decay_searches": tries}
+    if cert.verified:
         note = "" if best["gain"] <= design.max_gain else (
             f"the gains exceed max_gain = {design.max_gain:g} already at decay 0 (||F||, ||K|| up to "
             f"{best['gain']:.3g}): the smallest gains found are returned")
-        Pj = np.block([[P, np.zeros((n, n))], [np.zeros((n, n)), mu * R]])
-        cert = {"level": "structured", "P": Pj, "decay_rate": lam, "margin": margin, "radius": plant.channels.radius,
-                "how": "the design's own joint certificate (V = x'Q^-1 x + mu e'Re), verified by eigenvalues"}
-        return DesignResult(status="feasible", reason=note, K=K, F=F, margin=margin, lmi_size=2 * n + 2 * q,
-                            min_eig={"Q^-1": lmi.min_eig(P), "R": lmi.min_eig(R)}, params=params, certificate=cert,
+        out = {"level": "structured", "P": cert.P, "decay_rate": cert.rate, "margin": cert.margin,
+               "radius": plant.channels.radius,
+               "how": "the design's own joint certificate (V = x'Q^-1 x + mu e'Re), its rate by a generalised eigenvalue"}
+        return DesignResult(status="feasible", reason=note, K=K, F=F, margin=cert.margin, lmi_size=2 * n + 2 * q,
+                            min_eig={"Q^-1": lmi.min_eig(P), "R": lmi.min_eig(R)}, params=params, certificate=out,
                             **base)
     return DesignResult(status="undecided", reason=(
         f"structured design: both sides verified at decay {best['lam']:.3g}, but the joint certificate with "
-        f"mu = {mu:.3g} has max eig {margin:.3g} (equilibrated)"), margin=margin, params=params, **base)
+        f"mu = {cert.mu:.3g} is {cert.status} (equilibrated max eig {cert.margin:.3g})"), margin=cert.margin,
+        params=params, **base)

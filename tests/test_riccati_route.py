@@ -13,11 +13,10 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import solve_continuous_are
 
 from bench.registry import PLANTS
+from bench import joint
+from bench.joint import equilibrated_max_eig, min_mu
 from designs._riccati_route import (
     constants_riccati,
-    equilibrated_max_eig,
-    joint_matrix,
-    min_mu,
     solve_are,
     solve_e_side,
     solve_x_side,
@@ -59,6 +58,12 @@ def plants_small():
 
 PLANTS_SMALL = plants_small()
 IDS = [f"{p.id}" for p in PLANTS_SMALL]
+
+
+def joint_matrix(A0, B, C, F, K, P, R, G, H, r, *, s, t, mu, lam=0.0, reduced=True):
+    """bench.joint's matrix for the loop data given as A0 and the half widths r (centre 0)."""
+    lp = joint.loop(A0, B, C, G, H, -np.asarray(r, float), np.asarray(r, float))
+    return joint.joint_matrix(lp, F, K, P, R, s, t, mu, lam, reduced=reduced)
 
 
 def route(p, **kw):
@@ -138,10 +143,10 @@ def test_side_solvers_direct():
     ch = p.channels
     xs, why = solve_x_side(p.A, p.B, ch.G, ch.H, ch.spread, 0.0, 1.0, 1.0, 0.01)
     assert xs is not None, why
-    assert xs.are.residual < 1e-10 and xs.min_eig > 0 and xs.margin < 0
+    assert xs.are.residual < 1e-10 and xs.min_eig > 0
     es, why = solve_e_side(p.A, p.C, ch.G, ch.H, ch.spread, 0.0, 1.0, 1.0, 0.01)
     assert es is not None, why
-    assert es.are.residual < 1e-10 and es.min_eig > 0 and es.margin < 0
+    assert es.are.residual < 1e-10 and es.min_eig > 0
     # at an exact ARE solution the x-side matrix (channels eliminated) is -eps I in P coordinates
     np.testing.assert_allclose(xs.side_matrix, -0.01 * np.eye(4), atol=1e-8)
     # and the e-side one is -eps R^2
@@ -158,16 +163,16 @@ def test_side_solvers_direct():
 def test_joint_certificate_rebuilt_independently(p):
     res = route(p)
     assert res.status == "feasible", res.reason
-    assert -1 <= res.margin < -1e-7
+    assert -1 <= res.margin < -1e-7 and res.rate >= 0
     ch = p.channels
     A0 = p.A + ch.G @ np.diag(ch.center) @ ch.H
-    M = full_joint(A0, p.B, p.C, ch.G, ch.H, ch.spread, res.F, res.K, res.P, res.R, res.s, res.t, res.mu, res.lam)
+    M = full_joint(A0, p.B, p.C, ch.G, ch.H, ch.spread, res.F, res.K, res.P, res.R, res.s, res.t, res.mu, res.rate)
     assert max_eig(M) < 0
     assert max_eig(jacobi(M)) < 0
     np.linalg.cholesky(-jacobi(M))
     # the module's full form is the same matrix
     Mm = joint_matrix(A0, p.B, p.C, res.F, res.K, res.P, res.R, ch.G, ch.H, ch.spread, s=res.s, t=res.t,
-                      mu=res.mu, lam=res.lam, reduced=False)
+                      mu=res.mu, lam=res.rate, reduced=False)
     np.testing.assert_allclose(Mm, M, rtol=1e-12, atol=1e-12 * np.abs(M).max())
 
 
@@ -184,7 +189,10 @@ def test_schur_complement_and_min_mu(p):
                           mu=mu, lam=res.lam)
         return max_eig(jacobi(Mf)) < 0, max_eig(jacobi(Mr)) < 0
 
-    lo, hi = 0.0, res.mu
+    lp = joint.loop(A0, p.B, p.C, ch.G, ch.H, -ch.spread, ch.spread)
+    Mx, Me = joint.side_matrices(lp, res.F, res.K, res.P, res.R, res.s, res.t, res.lam)
+    mu_min = min_mu(p.B, res.F, res.P, Mx, Me)
+    lo, hi = 0.0, 10 * mu_min
     assert signs(hi) == (True, True)
     for _ in range(60):
         mid = math.sqrt(lo * hi) if lo > 0 else hi / 1e6
@@ -193,9 +201,9 @@ def test_schur_complement_and_min_mu(p):
         lo, hi = (lo, mid) if ok_red else (mid, hi)
         if hi / max(lo, 1e-300) < 1 + 1e-4:
             break
-    assert res.mu_min == pytest.approx(hi, rel=1e-3)
-    assert signs(0.9 * res.mu_min) == (False, False)
-    assert signs(1.1 * res.mu_min) == (True, True)
+    assert mu_min == pytest.approx(hi, rel=1e-3)
+    assert signs(0.9 * mu_min) == (False, False)
+    assert signs(1.1 * mu_min) == (True, True)
 
 
 @pytest.mark.parametrize("p", [PLANTS.create("flexible_link"), chain_plant(N=5)], ids=["flexible_link", "chain_N5"])
@@ -272,9 +280,10 @@ def test_closed_loop_decays(p):
 def test_certified_decay_rate_holds_along_the_trajectory():
     """With lam > 0, V = x'Px + mu e'Re must satisfy V(t) <= exp(-2 lam t) V(0) on the simulation."""
     p = PLANTS.create("flexible_link")
-    lam = 0.5
-    res = route(p, lam=lam)
+    res = route(p, lam=0.5)
     assert res.ok, res.reason
+    lam = res.rate
+    assert lam > 0.4  # designed for 0.5: each side proves more, the joint certificate nine tenths of the slower
     n = p.n
     z0 = np.concatenate([p.x0, p.x_hat0])
     ts = np.linspace(0, 10, 201)
@@ -317,15 +326,10 @@ def test_min_mu_requires_negative_sides():
         min_mu(np.ones((2, 1)), np.ones((1, 2)), np.eye(2), np.eye(2), -np.eye(2))
 
 
-def test_joint_margin_statuses():
-    from designs._riccati_route import joint_margin
-
-    m, status, why = joint_margin(-np.diag([1.0, 1e-9, 1e9]))
-    assert status == "feasible" and m == pytest.approx(-1.0) and why
-    m, status, why = joint_margin(np.array([[-1.0, 1.0], [1.0, -1.0]]))  # singular: eigenvalues 0, -2
-    assert status == "marginal" and abs(m) < 1e-12 and why
-    m, status, why = joint_margin(np.array([[-1.0, 2.0], [2.0, -1.0]]))  # eigenvalues 1, -3
-    assert status == "infeasible" and m == pytest.approx(1.0) and why
+def test_joint_verdicts():
+    assert joint.verdict(-np.diag([1.0, 1e-9, 1e9])) == "verified"
+    assert joint.verdict(np.array([[-1.0, 1.0], [1.0, -1.0]])) == "marginal"  # singular: eigenvalues 0, -2
+    assert joint.verdict(np.array([[-1.0, 2.0], [2.0, -1.0]])) == "violated"  # eigenvalues 1, -3
 
 
 def test_bad_shapes_name_the_matrix():

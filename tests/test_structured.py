@@ -99,3 +99,19 @@ def test_a_sweep_over_the_scale_of_f_designs_what_a_cold_process_designs(did):
     if cold.F is not None:
         np.testing.assert_allclose(warm.F, cold.F, rtol=1e-6, atol=1e-9)
         np.testing.assert_allclose(warm.K, cold.K, rtol=1e-6, atol=1e-9)
+
+
+def test_riccati_route_rate_at_least_half_the_sdp_route_on_a_chain():
+    """Issue 22.3 on the chain of n = 16: both routes' certified rates (each the rate its own certificate
+    proves), the Riccati one at least half the SDP one, neither above the linearised loop's rate."""
+    from bench.certify import linearised_rate
+    from plants.chain import chain_plant
+
+    plant = chain_plant(N=8)
+    out = {}
+    for route in ("sdp", "riccati"):
+        res = DESIGNS.create("structured", route=route).design(plant, plant.bounds)
+        assert res.status == "feasible", res.reason
+        out[route] = res.certificate["decay_rate"]
+        assert 0 < out[route] <= linearised_rate(plant, res.K, res.F)
+    assert out["riccati"] >= 0.5 * out["sdp"]

@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from bench.search import largest_passing
 from bench.report import format_cell as fmt  # one cell formatter for every report
 
 __all__ = [
@@ -200,7 +201,8 @@ def bisect_largest(
     rtol: float = 0.01,
     max_doublings: int = 12,
 ) -> dict:
-    """Largest value at which ``check(value)["ok"]`` holds, by geometric bisection.
+    """Largest value at which ``check(value)["ok"]`` holds (:func:`bench.search.largest_passing`: a fixed
+    geometric grid, bracketed by doubling or halving, then bisected).
 
     Parameters
     ----------
@@ -241,19 +243,16 @@ def bisect_largest(
     if not ok(first) and ok.evals[0].get("status") == "inapplicable":  # no value of the knob changes that
         return {"lo": math.nan, "hi": math.nan, "kind": "inapplicable", "evals": ok.evals}
     if bounds is not None:
-        lo, hi, kind = _bracket_within(ok, *bounds)
-    elif ok(default):
-        lo, hi, kind = _bracket_up(ok, default, max_doublings)
+        if not ok(bounds[0]):
+            return {"lo": math.nan, "hi": bounds[0], "kind": "below_range", "evals": ok.evals}
+        if ok(bounds[1]):
+            return {"lo": bounds[1], "hi": math.nan, "kind": "above_range", "evals": ok.evals}
+        out = largest_passing(ok, rtol=rtol, lo=bounds[0], hi=bounds[1])
     else:
-        lo, hi, kind = _bracket_down(ok, default, max_doublings)
-    if kind == "bracketed":
-        while hi / lo - 1 > rtol:
-            mid = math.sqrt(lo * hi)
-            if ok(mid):
-                lo = mid
-            else:
-                hi = mid
-    return {"lo": lo, "hi": hi, "kind": kind, "evals": ok.evals}
+        known = {"lo": default} if ok(default) else {"hi": default}
+        out = largest_passing(ok, rtol=rtol, max_moves=max_doublings,
+                              stop=lambda: ok.evals[-1].get("status") == "invalid", **known)
+    return {**out, "evals": ok.evals}
 
 
 class _Probe:
@@ -271,37 +270,6 @@ class _Probe:
             r = self._seen[value] = self.check(value)
             self.evals.append(r)
         return bool(r["ok"])
-
-
-def _bracket_within(ok: _Probe, a: float, b: float) -> tuple[float, float, str]:
-    """``(lo, hi, kind)`` from given bounds: ``a`` must pass and ``b`` fail to bracket."""
-    if not ok(a):
-        return math.nan, a, "below_range"
-    if ok(b):
-        return b, math.nan, "above_range"
-    return a, b, "bracketed"
-
-
-def _bracket_up(ok: _Probe, lo: float, max_doublings: int) -> tuple[float, float, str]:
-    """``(lo, hi, kind)`` by doubling from a passing ``lo`` until a value fails."""
-    for _ in range(max_doublings):
-        if not ok(lo * 2):
-            return lo, lo * 2, "bracketed"
-        lo *= 2
-    return lo, math.nan, "above_range"
-
-
-def _bracket_down(ok: _Probe, hi: float, max_doublings: int) -> tuple[float, float, str]:
-    """``(lo, hi, kind)`` by halving from a failing ``hi`` until a value passes (or is invalid: below the
-    knob's valid range, ``hi`` stays the last valid value)."""
-    for _ in range(max_doublings):
-        v = hi / 2
-        if ok(v):
-            return v, hi, "bracketed"
-        if ok.evals[-1]["status"] == "invalid":
-            break
-        hi = v
-    return math.nan, hi, "below_range"
 
 
 # -- plants, gains, initial conditions --------------------------------------------------------

@@ -1,0 +1,311 @@
+"""The joint certificate of the channel-structured loop: its matrix, its verdict and the rate it proves.
+
+Setting (``../shared/design/STRUCTURE.md``): ``x' = A x + B u + G phi(H x)``, ``y = C x``,
+``u = F x_hat``, the observer copies f, each channel slope-restricted, ``lo_i <= phi_i' <= hi_i``.
+The loop transformation ``c0 = (lo + hi) / 2``, ``r = (hi - lo) / 2``, ``A0 = A + G diag(c0) H``,
+``psi(z) = phi(z) - c0 z`` gives ``|psi_i(a) - psi_i(b)| <= r_i |a - b|`` and, with ``e = x - x_hat``, ::
+
+    x' = (A0 + B F) x - B F e + G psi(H x)
+    e' = (A0 - K C) e + G (psi(H x) - psi(H x_hat))
+
+Channels with ``r_i = 0`` are linear (inside A0) and are dropped; ``Dr = diag(r)``.
+
+``V = x' P x + mu e' R e`` with S-procedure multipliers ``diag(1/s)`` on
+``(Dr H x)^2 - psi^2 >= 0`` and ``mu diag(t)`` on ``(Dr H e)^2 - dpsi^2 >= 0`` gives, in
+``xi = (x, e, psi(Hx), dpsi)``, ``V' + 2 lam V <= xi' M(lam) xi`` with ::
+
+    M = [[Xb,  -P B F,  P G,        0        ],
+         [*,   mu Eb,   0,          mu R G   ],
+         [*,   *,       -diag(1/s), 0        ],
+         [*,   *,       *,          -mu diag(t)]],
+    Xb = (A0+BF)'P + P(A0+BF) + 2 lam P + H'Dr diag(1/s) Dr H,
+    Eb = (A0-KC)'R + R(A0-KC) + 2 lam R + H'Dr diag(t) Dr H.
+
+``M(lam) < 0`` proves ``V(t) <= exp(-2 lam t) V(0)``. The channel blocks are diagonal and
+negative, so by the Schur complement ``M < 0`` iff the 2n x 2n reduced matrix
+``[[Mx, -P B F], [-(P B F)', mu Me]] < 0`` with the *side matrices* ::
+
+    Mx = Xb + P G diag(s) G' P,     Me = Eb + R G diag(1/t) G' R.
+
+The rate a certificate proves. Only the ``2 lam`` terms depend on lam:
+``M_red(lam) = M_red(0) + 2 lam W``, ``W = blkdiag(P, mu R) > 0``, so the largest lam with
+``M_red(lam) <= 0`` is half the smallest generalised eigenvalue of ``(-M_red(0), W)``; the rate
+reported is the largest point of the grid of :mod:`bench.search` below it at which the matrix
+verifies clearly (:func:`verdict`).
+
+The weight mu. With ``Mx(lam), Me(lam) < 0`` the reduced matrix is negative definite iff
+``mu > mu_min(lam) = lambda_max(W^1/2 F (-Me)^-1 F' W^1/2)``, ``W = (P B)' (-Mx)^-1 (P B)`` (an
+m x m problem). A larger mu only helps the rate (the cross term scales as ``1 / sqrt(mu)`` after a
+congruence), towards the smaller of the two sides' own rates; :func:`certify` takes
+``mu = 2 mu_min`` at nine tenths of that.
+
+Verdicts use the suite's one tolerance :data:`bench.lmi.VERIFY_TOL` on the Jacobi-equilibrated
+matrix ``D M D``, ``D = diag(|M_ii|^-1/2)`` (a congruence: same inertia, unit diagonal).
+
+References
+----------
+B. Acikmese and M. Corless, "Observers for systems with nonlinearities satisfying incremental
+quadratic constraints", Automatica 47(7), 2011. S. Boyd et al., Linear Matrix Inequalities in
+System and Control Theory, SIAM 1994, section 5.1 (decay rate as a generalised eigenvalue problem).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+from bench import lmi
+from bench.search import RATE_RTOL, grid_floor
+
+__all__ = ["Loop", "JointCertificate", "certify", "equilibrated_max_eig", "joint_matrix", "loop", "min_mu",
+           "side_matrices", "verdict"]
+
+#: A rate probe passes when the equilibrated margin is below ``-CLEAR * VERIFY_TOL``: clearly
+#: verified, not within the tolerance where machines may disagree.
+CLEAR = 10.0
+
+
+@dataclass(frozen=True)
+class Loop:
+    """Loop-transformed data: ``A0 = A + G diag(c0) H``; ``G`` and ``DH = Dr H`` of the channels with
+    ``r_i > 0``; ``keep`` marks those channels among all q."""
+
+    A0: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    G: np.ndarray
+    DH: np.ndarray
+    keep: np.ndarray
+
+
+def loop(A, B, C, G, H, lo, hi) -> Loop:
+    """The loop transformation of a plant with channels (see the module docstring).
+
+    Parameters
+    ----------
+    A, B, C : array_like
+        Shapes (n, n), (n, m), (p, n).
+    G, H : array_like
+        Shapes (n, q), (q, n).
+    lo, hi : float or array_like (q,)
+        Slope bounds of the channels.
+
+    Returns
+    -------
+    Loop
+    """
+    A, B, C, G, H = (np.asarray(v, dtype=float) for v in (A, B, C, G, H))
+    q = G.shape[1]
+    lo = np.broadcast_to(np.asarray(lo, dtype=float), (q,))
+    hi = np.broadcast_to(np.asarray(hi, dtype=float), (q,))
+    c0, r = (lo + hi) / 2, (hi - lo) / 2
+    keep = r > 0
+    return Loop(A + (G * c0) @ H, B, C, G[:, keep], r[keep, None] * H[keep, :], keep)
+
+
+def _mult(lp: Loop, v) -> np.ndarray:
+    """Multipliers of the kept channels: a scalar broadcast, or a (q,) vector restricted."""
+    v = np.asarray(v, dtype=float)
+    return np.full(lp.G.shape[1], float(v)) if v.ndim == 0 else v[lp.keep]
+
+
+def side_matrices(lp: Loop, F, K, P, R, s, t, lam: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """``Mx`` and ``Me`` of the module docstring (channel blocks eliminated), symmetric.
+
+    Parameters
+    ----------
+    lp : Loop
+    F, K : ndarray
+        Gains (m x n, n x p).
+    P, R : ndarray (n, n)
+        x-side and e-side Lyapunov matrices.
+    s, t : float or ndarray (q,)
+        Multipliers: ``1/s`` on the x channels, ``t`` on the e channels (one per channel or one for all).
+    lam : float
+        Decay rate tested.
+    """
+    s, t = _mult(lp, s), _mult(lp, t)
+    Mx = (lp.A0 + lp.B @ F).T @ P
+    Mx = Mx + Mx.T + 2 * lam * P + (lp.DH.T / s) @ lp.DH + (P @ lp.G * s) @ (lp.G.T @ P)
+    Me = (lp.A0 - K @ lp.C).T @ R
+    Me = Me + Me.T + 2 * lam * R + (lp.DH.T * t) @ lp.DH + (R @ lp.G / t) @ (lp.G.T @ R)
+    return lmi.sym(Mx), lmi.sym(Me)
+
+
+def joint_matrix(lp: Loop, F, K, P, R, s, t, mu: float, lam: float = 0.0, *, reduced: bool = True) -> np.ndarray:
+    """The joint matrix: reduced (2n x 2n, channels eliminated) or full ((2n + 2q) square, in
+    ``(x, e, psi(Hx), dpsi)``); negative definite iff the loop is certified at rate ``lam``."""
+    PBF = P @ lp.B @ F
+    if reduced:
+        Mx, Me = side_matrices(lp, F, K, P, R, s, t, lam)
+        return np.block([[Mx, -PBF], [-PBF.T, mu * Me]])
+    s, t = _mult(lp, s), _mult(lp, t)
+    n, q = lp.A0.shape[0], lp.G.shape[1]
+    Ax, Ae = lp.A0 + lp.B @ F, lp.A0 - K @ lp.C
+    Xb = Ax.T @ P + P @ Ax + 2 * lam * P + (lp.DH.T / s) @ lp.DH
+    Eb = Ae.T @ R + R @ Ae + 2 * lam * R + (lp.DH.T * t) @ lp.DH
+    Z = np.zeros
+    return lmi.sym(np.block([
+        [Xb, -PBF, P @ lp.G, Z((n, q))],
+        [-PBF.T, mu * Eb, Z((n, q)), mu * R @ lp.G],
+        [(P @ lp.G).T, Z((q, n)), -np.diag(1 / s), Z((q, q))],
+        [Z((q, n)), mu * (R @ lp.G).T, Z((q, q)), -mu * np.diag(t)],
+    ]))
+
+
+def min_mu(B, F, P, Mx, Me) -> float:
+    """Smallest mu making ``[[Mx, -P B F], [-(P B F)', mu Me]]`` negative definite (Mx, Me < 0).
+
+    Returns
+    -------
+    float
+        ``lambda_max(W^1/2 F (-Me)^-1 F' W^1/2)``, ``W = (P B)' (-Mx)^-1 (P B)``.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        If Mx or Me is not negative definite.
+    """
+    U = P @ B
+    W = lmi.sym(U.T @ sla.cho_solve(sla.cho_factor(-Mx, lower=True), U))
+    Z = lmi.sym(F @ sla.cho_solve(sla.cho_factor(-Me, lower=True), F.T))
+    w, V = np.linalg.eigh(W)
+    Wh = (V * np.sqrt(np.maximum(w, 0))) @ V.T
+    return float(max(np.linalg.eigvalsh(lmi.sym(Wh @ Z @ Wh)).max(initial=0.0), 0.0))
+
+
+def _equilibrate(M: np.ndarray) -> np.ndarray:
+    d = np.abs(np.diag(M))
+    d = np.maximum(d, 1e-300 * max(float(d.max(initial=0.0)), 1e-300))
+    s = 1.0 / np.sqrt(d)
+    return lmi.sym(M * s[:, None] * s[None, :])
+
+
+def equilibrated_max_eig(M: np.ndarray) -> float:
+    """Largest eigenvalue of ``D M D``, ``D = diag(|M_ii|^-1/2)`` (same inertia as M; in ``[-1, 0)``
+    for a negative definite M)."""
+    E = _equilibrate(np.asarray(M, dtype=float))
+    k = E.shape[0]
+    try:
+        return float(sla.eigh(E, eigvals_only=True, subset_by_index=[k - 1, k - 1])[0])
+    except (np.linalg.LinAlgError, ValueError):  # LAPACK's subset driver can fail on clustered spectra
+        return float(np.linalg.eigvalsh(E)[-1])
+
+
+def verdict(M: np.ndarray, *, clear: float = 1.0) -> str:
+    """``"verified"``, ``"marginal"`` or ``"violated"`` for a symmetric M, by Cholesky factorisations of
+    the equilibrated matrix ``E = D M D``: verified when ``E + clear * VERIFY_TOL I < 0``, marginal when
+    not but ``E - VERIFY_TOL I < 0`` (every eigenvalue within the tolerance of zero or below), violated
+    otherwise."""
+    E = _equilibrate(np.asarray(M, dtype=float))
+    if not np.all(np.isfinite(E)):
+        return "violated"
+    I = np.eye(E.shape[0])
+    try:
+        sla.cholesky(-E - clear * lmi.VERIFY_TOL * I, lower=True, check_finite=False)
+        return "verified"
+    except np.linalg.LinAlgError:
+        pass
+    try:
+        sla.cholesky(-E + lmi.VERIFY_TOL * I, lower=True, check_finite=False)
+        return "marginal"
+    except np.linalg.LinAlgError:
+        return "violated"
+
+
+def _rate_bound(M0: np.ndarray, W: np.ndarray) -> float:
+    """Half the smallest generalised eigenvalue of ``(-M0, W)``: the largest lam with ``M0 + 2 lam W <= 0``."""
+    k = M0.shape[0]
+    try:
+        return float(sla.eigh(-M0, W, eigvals_only=True, subset_by_index=[0, 0], check_finite=False)[0]) / 2
+    except (np.linalg.LinAlgError, ValueError):
+        return float(sla.eigh(-M0, W, eigvals_only=True)[0]) / 2 if k else math.inf
+
+
+@dataclass
+class JointCertificate:
+    """A verified (or not) joint certificate of fixed gains.
+
+    Attributes
+    ----------
+    status : str
+        ``"verified"``, ``"marginal"`` or ``"violated"`` at rate 0.
+    rate : float
+        The largest grid rate at which the matrix verifies clearly (0 when only rate 0 does; NaN
+        unless verified).
+    bound : float
+        The exact largest rate of this certificate (the generalised eigenvalue), for reference.
+    mu : float
+    margin : float
+        Equilibrated max eigenvalue of the reduced matrix at rate 0.
+    P : ndarray or None
+        ``blkdiag(P, mu R)``: ``V = z' P z``, ``z = (x, e)``.
+    side_rates : tuple of float
+        Each side's own largest rate (``(-Mx(0), P)`` and ``(-Me(0), R)``).
+    """
+
+    status: str
+    rate: float = math.nan
+    bound: float = math.nan
+    mu: float = math.nan
+    margin: float = math.nan
+    P: np.ndarray | None = None
+    side_rates: tuple = (math.nan, math.nan)
+
+    @property
+    def verified(self) -> bool:
+        """True when the certificate holds (at rate 0 at least)."""
+        return self.status == "verified"
+
+
+def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool = True) -> JointCertificate:
+    """Choose mu, verify the joint matrix and measure the rate it proves (see the module docstring).
+
+    Parameters
+    ----------
+    lp : Loop
+    F, K, P, R, s, t
+        Gains, side Lyapunov matrices and multipliers (:func:`side_matrices`).
+    rtol : float
+        The rate grid (:mod:`bench.search`).
+    margin : bool
+        Also compute the equilibrated max eigenvalue at rate 0 (one more eigenvalue problem).
+
+    Returns
+    -------
+    JointCertificate
+    """
+    n = P.shape[0]
+    try:
+        Mx, Me = side_matrices(lp, F, K, P, R, s, t)
+        sx = _rate_bound(Mx, P)
+        se = _rate_bound(Me, R)
+        target = 0.9 * min(sx, se)
+        if not target > 0:
+            return JointCertificate("violated", side_rates=(sx, se))
+        mu = 2 * min_mu(lp.B, F, P, Mx + 2 * target * P, Me + 2 * target * R)
+        mu = mu if mu > 0 else 1.0
+    except (np.linalg.LinAlgError, ValueError):
+        return JointCertificate("violated")
+    PBF = P @ lp.B @ F
+    M0 = np.block([[Mx, -PBF], [-PBF.T, mu * Me]])
+    W = np.zeros_like(M0)
+    W[:n, :n], W[n:, n:] = P, mu * R
+    out = JointCertificate(verdict(M0), mu=mu, side_rates=(sx, se), P=W)
+    if margin:
+        out.margin = equilibrated_max_eig(M0)
+    if not out.verified:
+        return out
+    out.bound = _rate_bound(M0, W)
+    out.rate = 0.0
+    if out.bound > 0:
+        lam = grid_floor(out.bound * (1 - 1e-9), rtol)
+        for _ in range(3):  # a grid point that verifies clearly (the first one, but for rounding)
+            if verdict(M0 + 2 * lam * W, clear=CLEAR) == "verified":
+                out.rate = lam
+                break
+            lam = grid_floor(lam / (1 + rtol) * (1 + 1e-12), rtol)
+    return out

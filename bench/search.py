@@ -1,0 +1,141 @@
+"""The largest value that passes a monotone test, searched on a fixed geometric grid.
+
+Every search of the suite for "the largest value that still passes" (a certified decay rate, a
+design's decay target, a study's admissible scale) probes only points of one grid,
+``g_k = (1 + rtol)^k`` for integer k, brackets the threshold by moves of a fixed factor and then
+bisects the grid indices until the passing and failing points are neighbours. The answer is the
+largest grid point that passed, within a factor ``1 + rtol`` below the threshold.
+
+The points probed depend only on the outcomes, never on arithmetic between them, so two machines
+whose floating point differs in the last bits probe the same points and report the same value
+unless a probe itself flips; a probe near the threshold that flips moves the answer by one grid
+step, within ``rtol``. A caller counts a probe as passing only when its evidence is clear (a
+certificate verified with a margin beyond its tolerance); a probe within the tolerance is not a
+pass.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+__all__ = ["RATE_RTOL", "grid_floor", "largest_passing"]
+
+#: The suite's rate tolerance: a reported rate is within this factor (relative) below the largest
+#: one its test admits.
+RATE_RTOL = 0.01
+
+# the grid's log step is a hair below log(1 + rtol), so that neighbours are within 1 + rtol in floats
+_SHRINK = 1 - 1e-12
+
+
+def _step(rtol: float) -> float:
+    if not (math.isfinite(rtol) and rtol > 0):
+        raise ValueError(f"rtol: must be finite and > 0, got {rtol!r}")
+    return math.log1p(rtol) * _SHRINK
+
+
+def _point(k: int, rtol: float) -> float:
+    return math.exp(k * _step(rtol))
+
+
+def _index(x: float, rtol: float, up: bool) -> int:
+    """The grid index at or below (``up=False``) or at or above (``up=True``) ``x > 0``."""
+    v = math.log(x) / _step(rtol)
+    k = round(v)
+    if abs(v - k) < 1e-9:  # x is a grid point (to rounding)
+        return int(k)
+    return math.ceil(v) if up else math.floor(v)
+
+
+def grid_floor(x: float, rtol: float = RATE_RTOL) -> float:
+    """The largest point ``(1 + rtol)^k`` of the grid at or below ``x > 0``."""
+    return _point(_index(x, rtol, up=False), rtol)
+
+
+def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL, start: float | None = None,
+                    lo: float | None = None, hi: float | None = None, factor: float = 2.0, max_moves: int = 12,
+                    down_until: float = 0.0, stop: Callable[[], bool] | None = None) -> dict:
+    """The largest grid point at which ``passes`` holds, for a test that holds below a threshold.
+
+    Parameters
+    ----------
+    passes : callable
+        ``passes(x) -> bool`` for ``x > 0``; assumed monotone (passing below a threshold).
+    rtol : float
+        The grid ``(1 + rtol)^k``: the answer is within ``1 + rtol`` of the threshold.
+    start : float, optional
+        The first probe when ``lo`` is not given (and ``start`` is below ``hi``).
+    lo : float, optional
+        A value known to pass (not probed).
+    hi : float, optional
+        A value known to fail, or an upper bound of the threshold (not probed).
+    factor : float
+        Bracketing moves up from a passing point (or down from a failing one) by this factor.
+    max_moves : int
+        Bracketing gives up after this many moves (``"above_range"`` or ``"below_range"``).
+    down_until : float
+        Bracketing down stops below this value (``"below_range"``).
+    stop : callable, optional
+        ``stop() -> bool``, asked after each failing probe while bracketing down; True ends the
+        search (``"below_range"``, the last probe lay outside the test's valid range: ``hi`` stays
+        the failing value before it).
+
+    Returns
+    -------
+    dict
+        ``lo`` (the largest passing value, NaN if none), ``hi`` (the smallest failing value or the
+        bound, NaN if none) and ``kind``: ``"bracketed"`` (``hi / lo <= 1 + rtol``),
+        ``"above_range"`` or ``"below_range"``.
+    """
+    if start is None and lo is None and hi is None:
+        raise ValueError("largest_passing: give start, lo or hi")
+    moves = max(1, round(math.log(factor) / _step(rtol)))
+    kl = kh = None  # grid indices known to pass / fail
+    lo_val = lo
+    if lo is not None:
+        kl = _index(lo, rtol, up=False)
+    if hi is not None:
+        kh = _index(hi, rtol, up=True)
+    if kl is None and start is not None and (kh is None or _index(start, rtol, up=False) < kh):
+        k = _index(start, rtol, up=False)
+        if passes(_point(k, rtol)):
+            kl, lo_val = k, _point(k, rtol)
+        else:
+            kh = k
+    if kl is not None and kh is not None and kh <= kl:  # an upper bound at or below a passing value
+        return {"lo": lo_val, "hi": hi, "kind": "bracketed"}
+    for _ in range(max_moves if kh is None else 0):
+        k = kl + moves
+        if passes(_point(k, rtol)):
+            kl, lo_val = k, _point(k, rtol)
+        else:
+            kh = k
+            break
+    if kh is None:
+        return {"lo": lo_val, "hi": math.nan, "kind": "above_range"}
+    for _ in range(max_moves if kl is None else 0):
+        k = kh - moves
+        x = _point(k, rtol)
+        if x < down_until:
+            break
+        if passes(x):
+            kl, lo_val = k, x
+            break
+        if stop is not None and stop():  # the probe lay outside the valid range: hi stays the last valid one
+            break
+        kh = k
+    if kl is None:
+        return {"lo": math.nan, "hi": _value(kh, hi, rtol), "kind": "below_range"}
+    while kh - kl > 1:
+        k = (kl + kh) // 2
+        if passes(_point(k, rtol)):
+            kl, lo_val = k, _point(k, rtol)
+        else:
+            kh = k
+    return {"lo": lo_val, "hi": _value(kh, hi, rtol), "kind": "bracketed"}
+
+
+def _value(k: int, given: float | None, rtol: float) -> float:
+    """The value of grid index k, or the given bound it was taken from."""
+    return given if given is not None and k == _index(given, rtol, up=True) else _point(k, rtol)
