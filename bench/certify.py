@@ -565,7 +565,7 @@ def certify(
 
 
 def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *,
-            rate_rtol: float = 0.03, local: bool = True) -> Certificate:
+            rate_rtol: float = RATE_RTOL, local: bool = True) -> Certificate:
     """Complete a ladder's outcome with why it is what it is: witnesses, and a certificate from x0.
 
     Where no level certified globally and a linear member already rules the ladder out, or no level
@@ -677,7 +677,7 @@ FROM_X0_SHRINK = 1e-4
 FROM_X0_MORE = 2
 
 
-def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *, rate_rtol: float = 0.03,
+def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *, rate_rtol: float = RATE_RTOL,
                     r_max: float | None = None) -> tuple[LevelResult | None, str]:
     """A certificate from the initial condition where the channel slopes narrow on a region.
 
