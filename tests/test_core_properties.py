@@ -97,7 +97,7 @@ def test_a_failing_joint_certificate_leaves_the_structured_design_undecided(monk
                                     hi=0.5))
     ok = st.Structured().design(plant, Constants())
     assert ok.status == "feasible" and ok.certificate is not None
-    monkeypatch.setattr(st, "_equilibrated_margin", lambda M: (1.0, M))  # max eig +1: not negative definite
+    monkeypatch.setattr(st.joint, "verdict", lambda M, **kw: "violated")  # the joint matrix is not negative definite
     res = st.Structured().design(plant, Constants())
     assert res.status == "undecided" and res.certificate is None
 

@@ -40,7 +40,7 @@ def test_a_design_certificate_on_disproved_slopes_is_refused():
     assert row["status"] == "feasible"  # the gains exist ...
     assert not row["certified"] and row["cert_level"] == ""  # ... but nothing is certified
     assert row["cert_structured"] == "not certified"
-    assert "refused" in row["reason"] and "channel 0" in row["reason"] and "slope bound = 1" in row["reason"]
+    assert "refused" in row["details"] and "channel 0" in row["details"] and "slope bound = 1" in row["details"]
     assert res.findings["plants"]["liar"]["best"] is None
 
 
@@ -58,8 +58,8 @@ def test_a_channel_identity_broken_along_the_simulation_uncertifies_every_pair()
     res = api.run([plant], ["structured", "lqr+lqe"], jobs=1, progress=False)
     t = res.table.set_index("design")
     for d in ("structured", "lqr+lqe"):
-        assert not t.loc[d, "certified"], (d, t.loc[d, "reason"])
-        assert "differs from f" in t.loc[d, "reason"]
+        assert not t.loc[d, "certified"], (d, t.loc[d, "details"])
+        assert "differs from f" in t.loc[d, "details"]
     assert any(v["constant"] == "channels" for v in res.findings["disproved"])
     assert "x_hat" in t.loc["lqr+lqe", "sim_witness"]
 

@@ -30,7 +30,8 @@ def test_notebook_tour_runs_and_its_loop_converges_in_python_control(tmp_path):
 _SDP_ONLY = {"lmi_margin", "lmi_size", "solver", "solver_status", "compile_s", "solve_s"}
 #: Columns filled only when some level certifies (the rate, the level, the scope of the certificate).
 _IF_CERTIFIED = {"cert_level", "decay_rate", "cert_scope", "level_x0", "level_set", "cert_radius", "decay_paper",
-                 "decay_full", "decay_structured"}
+                 "decay_full", "decay_structured", "cert_margin", "rate_ceiling", "rate_ratio", "ceiling_how",
+                 "cert_horizon_s"}
 
 
 def _filled(row) -> set[str]:
