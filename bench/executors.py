@@ -18,11 +18,9 @@ from concurrent.futures import Executor, Future
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
+from bench.errors import ExecutorError
+
 __all__ = ["ExecutorError", "SerialExecutor", "default_jobs", "executor", "warm_imports"]
-
-
-class ExecutorError(RuntimeError):
-    """The requested executor cannot be created (bad job count, unreachable scheduler, ...)."""
 
 
 def default_jobs() -> int:
