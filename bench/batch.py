@@ -46,14 +46,7 @@ from bench.errors import SimulationStopped as _BatchStop
 from bench.metrics import batch_metrics as _batch_metrics
 from bench.simulate import SimOptions, check_gains, choose_method
 
-__all__ = [
-    "BATCH_OPTIONS",
-    "BatchTrajectory",
-    "batch_metrics",
-    "digital_matrix",
-    "simulate_batch",
-    "simulate_digital_batch",
-]
+__all__ = ["simulate_batch", "simulate_digital_batch"]
 
 
 @dataclass

@@ -20,7 +20,7 @@ from typing import Callable, Iterator
 
 from bench.errors import ExecutorError
 
-__all__ = ["ExecutorError", "SerialExecutor", "default_jobs", "executor", "warm_imports"]
+__all__ = ["default_jobs", "executor"]
 
 
 def default_jobs() -> int:

@@ -18,7 +18,7 @@ from typing import Iterator
 
 from bench.errors import DeadlineExceeded, HardStop as _HardStop
 
-__all__ = ["DeadlineExceeded", "check_deadline", "hard_stop", "remaining_time", "time_limit"]
+__all__ = ["check_deadline", "hard_stop", "time_limit"]
 
 
 #: (monotonic deadline, limit in seconds) of the innermost scope of this thread or task.

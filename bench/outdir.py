@@ -58,18 +58,7 @@ try:  # POSIX; elsewhere writers are not serialised (documented in publish)
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
-__all__ = [
-    "JOURNAL_NAME",
-    "LOCK_NAME",
-    "MANIFEST_NAME",
-    "LOCK_TIMEOUT",
-    "OutDirError",
-    "check_out_dir",
-    "locked",
-    "publish",
-    "recover",
-    "staged",
-]
+__all__ = ["check_out_dir", "publish", "staged"]
 
 #: The lock file, inside the output folder.
 LOCK_NAME = ".oslbench.lock"

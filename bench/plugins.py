@@ -26,7 +26,7 @@ from pathlib import Path
 from bench.errors import PluginError
 from bench.registry import DESIGNS, PLANTS
 
-__all__ = ["PluginError", "load_plugin", "load_plugins"]
+__all__ = ["load_plugin", "load_plugins"]
 
 
 def _module_name(path: Path) -> str:

@@ -21,18 +21,7 @@ from typing import Any, Callable
 
 from bench.errors import RegistryError, UnknownIdError
 
-__all__ = [
-    "DESIGNS",
-    "ID_CHARS",
-    "PLANTS",
-    "Entry",
-    "Registry",
-    "RegistryError",
-    "UnknownIdError",
-    "check_id",
-    "register_design",
-    "register_plant",
-]
+__all__ = ["DESIGNS", "PLANTS", "Registry", "register_design", "register_plant"]
 
 
 @dataclass(frozen=True)

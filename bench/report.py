@@ -20,8 +20,7 @@ import numpy as np
 
 from bench.harness import RunResult
 
-__all__ = ["REASON_CHARS", "git_revision", "package_versions", "render_markdown", "results_table", "short_reason",
-           "write_report"]
+__all__ = ["draw_figures", "results_table", "write_report"]
 
 #: Plants that get per-design figures of states, estimates and errors (like the paper's Figures
 #: 2-5); every plant gets the norm comparison figure.

@@ -22,7 +22,7 @@ import numpy as np
 from bench.errors import SimulationStopped as _Stop
 from plants import Plant
 
-__all__ = ["STIFF", "SimOptions", "Trajectory", "check_gains", "choose_method", "simulate", "simulate_controller"]
+__all__ = ["SimOptions", "Trajectory", "simulate", "simulate_controller"]
 
 
 @dataclass(frozen=True, kw_only=True)

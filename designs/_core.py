@@ -16,22 +16,6 @@ import numpy as np
 from bench.errors import DesignError
 from plants import Constants, Plant
 
-__all__ = [
-    "Design",
-    "DesignError",
-    "DesignResult",
-    "GAIN_STATUSES",
-    "STATUSES",
-    "Configurable",
-    "check_choice",
-    "check_hyperparameter_names",
-    "check_int",
-    "check_positive",
-    "check_range",
-    "check_values_in",
-    "missing_constants",
-]
-
 #: Possible design statuses.
 #:
 #: - ``feasible``: a feasibility problem (an LMI, or a Riccati equation's existence condition)

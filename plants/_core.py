@@ -16,9 +16,6 @@ import numpy as np
 
 from bench.errors import PlantError
 
-__all__ = ["Channels", "Constants", "Plant", "PlantError", "SineTerms", "check_int", "check_real", "cubic_slopes",
-           "jacobian_mismatch", "saturation_slopes", "sine_slopes", "sine_terms"]
-
 
 def _finite_scalar(name: str, value, *, allow_none: bool = True, positive: bool = False):
     if value is None:

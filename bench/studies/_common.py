@@ -23,28 +23,6 @@ from bench.errors import StudyError
 from bench.search import largest_passing
 from bench.report import format_cell as fmt  # one cell formatter for every report
 
-__all__ = [
-    "StudyError",
-    "StudyResult",
-    "bisect_largest",
-    "check_box",
-    "check_count",
-    "check_horizon",
-    "check_levels",
-    "check_range",
-    "check_rtol",
-    "default_box",
-    "evaluate",
-    "fmt",
-    "map_tasks",
-    "md_table",
-    "random_ics",
-    "skipped_lines",
-    "study_constants",
-    "study_header",
-    "write_study",
-]
-
 
 @dataclass
 class StudyResult:
