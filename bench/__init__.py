@@ -10,15 +10,17 @@ From the command line, ``python -m bench run`` writes ``reports/REPORT.md``; fro
 The public names (``dir(bench)``):
 
 - :func:`run`, :class:`Results`: the suite as a library (:mod:`bench.api`);
-- :class:`Plant`, :class:`Constants`, :class:`Channels`, :class:`PlantError`: what a plant is
-  (:mod:`plants`), and :func:`register_plant` to put your own in the registry;
-- :class:`Design`, :class:`DesignResult`, :class:`DesignError`: what a design is and returns
-  (:mod:`designs`), and :func:`register_design` to put your own in the registry.
+- :class:`Plant`, :class:`Constants`, :class:`Channels`: what a plant is (:mod:`plants`), and
+  :func:`register_plant` to put your own in the registry;
+- :class:`Design`, :class:`DesignResult`: what a design is and returns (:mod:`designs`), and
+  :func:`register_design` to put your own in the registry;
+- :class:`OslbenchError` and the errors beneath it (:class:`PlantError`, :class:`DesignError`, ...):
+  what the suite raises (:mod:`bench.errors`).
 
 They are imported on first use (``python -m bench --help`` stays fast).
 """
 
-from bench import _env  # noqa: F401  (BLAS threads, before numpy)
+from . import _env, errors  # noqa: F401  (_env: BLAS threads, before numpy; errors imports nothing)
 
 __version__ = "0.1.0"
 
@@ -31,11 +33,10 @@ _PUBLIC = {
     "Plant": "plants",
     "Constants": "plants",
     "Channels": "plants",
-    "PlantError": "plants",
     "Design": "designs",
     "DesignResult": "designs",
-    "DesignError": "designs",
 }
+_PUBLIC.update(dict.fromkeys(errors.__all__, "bench.errors"))
 
 __all__ = sorted(_PUBLIC)
 

@@ -42,17 +42,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.errors import SimulationStopped as _BatchStop
 from bench.metrics import batch_metrics as _batch_metrics
 from bench.simulate import SimOptions, check_gains, choose_method
 
-__all__ = [
-    "BATCH_OPTIONS",
-    "BatchTrajectory",
-    "batch_metrics",
-    "digital_matrix",
-    "simulate_batch",
-    "simulate_digital_batch",
-]
+__all__ = ["simulate_batch", "simulate_digital_batch"]
 
 
 @dataclass
@@ -217,14 +211,6 @@ def simulate_batch(
     diverged = ~np.all(_norms(xs, xhs) <= limit[:, None], axis=1)
     return BatchTrajectory(t_out, xs, xhs, diverged, status, message, wall, nfev, method,
                            u=np.einsum("mi,ijk->mjk", F, xhs))
-
-
-class _BatchStop(Exception):
-    """A batch stopped by its right-hand side (budget of calls or wall time): ``status`` is the run's."""
-
-    def __init__(self, status: str, message: str):
-        super().__init__(message)
-        self.status = status
 
 
 class _BatchRHS:

@@ -61,7 +61,7 @@ from typing import IO, Any, Callable
 
 import numpy as np
 
-__all__ = ["CACHE_FORMAT", "PROBE_POINTS", "Cache", "default_cache_dir"]
+__all__ = ["Cache"]
 
 #: Bumped when the layout or the meaning of an entry changes.
 CACHE_FORMAT = 4

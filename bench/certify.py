@@ -58,8 +58,7 @@ from bench.constants import Knowledge
 from bench.search import RATE_RTOL, grid_floor, largest_passing
 from plants import Plant
 
-__all__ = ["LADDER_MAX_N", "LEVELS", "LEVEL_TITLES", "LEVEL_USES", "Certificate", "Knowledge", "LevelResult", "adopt",
-           "ceiling", "certify", "certify_from_x0", "explain", "level_set", "linearised_rate"]
+__all__ = ["Certificate", "certify", "certify_from_x0", "explain", "level_set"]
 
 #: The ladder, weakest first.
 LEVELS = ("paper", "full", "structured")

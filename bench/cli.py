@@ -25,7 +25,7 @@ from typing import Iterator
 from bench.registry import DESIGNS, PLANTS
 from bench.selection import check_selection
 
-__all__ = ["main", "summary_line"]
+__all__ = ["main"]
 
 
 class _Parser(argparse.ArgumentParser):

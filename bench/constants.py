@@ -26,8 +26,7 @@ import numpy as np
 from plants import Channels, Constants, Plant, PlantError
 from plants._core import jacobian_mismatch
 
-__all__ = ["GLOBAL_RANGE", "REACH_FACTOR", "ConstantsReport", "Knowledge", "Violation", "check_trajectory",
-           "compute_constants", "linear_prechecks", "resolve_constants", "sampled_range"]
+__all__ = ["ConstantsReport", "Knowledge", "check_trajectory", "compute_constants"]
 
 _REL_TOL = 1e-7  # a constant is flagged when a sample exceeds it by more than this (relative)
 

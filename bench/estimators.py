@@ -12,7 +12,7 @@ import numpy as np
 from designs.ekf import EKFSpec
 from plants import Plant
 
-__all__ = ["ContinuousDiscreteEKF", "numeric_jacobian", "runtime_estimator"]
+__all__ = ["ContinuousDiscreteEKF"]
 
 
 def runtime_estimator(spec, plant: Plant, x_hat0: np.ndarray, *, t_final: float, options=None):

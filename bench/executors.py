@@ -18,11 +18,9 @@ from concurrent.futures import Executor, Future
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
-__all__ = ["ExecutorError", "SerialExecutor", "default_jobs", "executor", "warm_imports"]
+from bench.errors import ExecutorError
 
-
-class ExecutorError(RuntimeError):
-    """The requested executor cannot be created (bad job count, unreachable scheduler, ...)."""
+__all__ = ["default_jobs", "executor"]
 
 
 def default_jobs() -> int:

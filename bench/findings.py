@@ -10,7 +10,7 @@ and any row whose verdicts disagree (which should never happen). run.json stores
 
 from __future__ import annotations
 
-__all__ = ["constants_rows", "findings"]
+__all__ = ["findings"]
 
 
 def _best(sub) -> dict | None:

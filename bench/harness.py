@@ -25,7 +25,7 @@ from bench.pipeline import COLUMNS, PairOutcome, RunOptions, blank_record, evalu
 from bench.registry import DESIGNS, PLANTS
 from plants import Plant
 
-__all__ = ["COLUMNS", "CONSTANTS_TIMEOUT_FACTOR", "PairOutcome", "RunOptions", "RunResult", "run", "run_pair"]
+__all__ = ["RunResult", "run"]
 
 #: A plant's constants may take this many times the per-pair ``timeout``.
 CONSTANTS_TIMEOUT_FACTOR = 10

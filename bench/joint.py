@@ -60,8 +60,7 @@ import scipy.linalg as sla
 from bench import lmi
 from bench.search import RATE_RTOL, grid_floor
 
-__all__ = ["Loop", "JointCertificate", "certify", "equilibrated_max_eig", "joint_matrix", "loop", "min_mu",
-           "side_matrices", "verdict"]
+__all__ = ["JointCertificate", "Loop", "certify", "loop"]
 
 #: A rate probe passes when the equilibrated margin is below ``-CLEAR * VERIFY_TOL``: clearly
 #: verified, not within the tolerance where machines may disagree.

@@ -22,8 +22,7 @@ import re
 
 import numpy as np
 
-__all__ = ["CERT_SHORT", "PACKAGES", "STATUS_SHORT", "TEXT_WIDTH_PT", "escape_tex", "format_cell", "minimal_document",
-           "tables_tex"]
+__all__ = ["minimal_document", "tables_tex"]
 
 #: Short cells of the feasibility matrix (a status not listed is written as it is).
 STATUS_SHORT: dict[str, str] = {

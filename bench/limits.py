@@ -16,21 +16,9 @@ import time
 from contextlib import contextmanager
 from typing import Iterator
 
-__all__ = ["DeadlineExceeded", "check_deadline", "hard_stop", "remaining_time", "time_limit"]
+from bench.errors import DeadlineExceeded, HardStop as _HardStop
 
-
-class DeadlineExceeded(BaseException):
-    """The time limit of the current :func:`time_limit` scope ran out.
-
-    Parameters
-    ----------
-    where : str
-        What was running when the limit ran out (for the row's reason).
-    """
-
-    def __init__(self, where: str):
-        super().__init__(where)
-        self.where = where
+__all__ = ["check_deadline", "hard_stop", "time_limit"]
 
 
 #: (monotonic deadline, limit in seconds) of the innermost scope of this thread or task.
@@ -75,13 +63,6 @@ def check_deadline(where: str) -> None:
     left = remaining_time()
     if left is not None and left <= 0:
         raise DeadlineExceeded(where)
-
-
-class _HardStop(DeadlineExceeded):
-    """:class:`DeadlineExceeded` raised into a thread by :func:`hard_stop` (built without arguments)."""
-
-    def __init__(self, where: str = "code that checks no time limit (hard stop in a thread)"):
-        super().__init__(where)
 
 
 @contextmanager

@@ -29,36 +29,7 @@ import numpy as np
 
 from bench.limits import DeadlineExceeded, check_deadline, remaining_time
 
-__all__ = [
-    "SCS_FROM_N",
-    "SCS_OPTS",
-    "VERIFY_TOL",
-    "Matrices",
-    "Pattern",
-    "Program",
-    "SolveOutcome",
-    "assemble",
-    "cached_program",
-    "classify",
-    "is_positive_definite",
-    "clear_program_cache",
-    "conclude",
-    "diag",
-    "digest",
-    "log_search",
-    "margin_program",
-    "matrices",
-    "max_eig",
-    "min_eig",
-    "plant_matrices",
-    "scalar_parameters",
-    "reset_solve_tally",
-    "solve_side",
-    "solve_tally",
-    "solve_timed",
-    "sym",
-    "verify_tol",
-]
+__all__ = ["VERIFY_TOL", "Program", "cached_program", "classify", "conclude", "margin_program"]
 
 #: The one verification tolerance: a numeric LMI matrix M is *verified* negative definite when
 #: its largest eigenvalue is below ``-VERIFY_TOL * max(1, max |M_ij|)``, *marginal* within that

@@ -29,8 +29,7 @@ import math
 
 import numpy as np
 
-__all__ = ["CONVERGED_RATIO", "SETTLING_FRACTION", "batch_metrics", "batch_settling_time", "dense_metrics",
-           "settling_time", "trajectory_metrics"]
+__all__ = ["settling_time", "trajectory_metrics"]
 
 SETTLING_FRACTION = 0.02
 CONVERGED_RATIO = 1e-3

@@ -51,23 +51,14 @@ import time
 from pathlib import Path, PurePosixPath
 from typing import Iterable, Iterator
 
+from bench.errors import OutDirError
+
 try:  # POSIX; elsewhere writers are not serialised (documented in publish)
     import fcntl
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
-__all__ = [
-    "JOURNAL_NAME",
-    "LOCK_NAME",
-    "MANIFEST_NAME",
-    "LOCK_TIMEOUT",
-    "OutDirError",
-    "check_out_dir",
-    "locked",
-    "publish",
-    "recover",
-    "staged",
-]
+__all__ = ["check_out_dir", "publish", "staged"]
 
 #: The lock file, inside the output folder.
 LOCK_NAME = ".oslbench.lock"
@@ -84,13 +75,6 @@ _POLL_S = 0.05
 _HOST = hashlib.sha256(socket.gethostname().encode("utf-8", "replace")).hexdigest()[:8]
 _NO_LOCKING = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
 _log = logging.getLogger(__name__)
-
-
-class OutDirError(ValueError):
-    """An output folder that cannot be used, or a write that could not be completed.
-
-    The message names the folder (and the option, for :func:`check_out_dir`).
-    """
 
 
 # -- checks ---------------------------------------------------------------------------------------

@@ -345,7 +345,7 @@ def _breakdown_child(plant_ids, design_ids, queue) -> None:
     from bench.lmi import clear_program_cache, reset_solve_tally, solve_tally
     from bench.pipeline import RunOptions, evaluate_pair
     from bench.registry import DESIGNS, PLANTS
-    from bench.report import _figures
+    from bench.report import draw_figures as _figures
 
     clear_program_cache()  # cold, like a fresh run: every program compiled here
     reset_solve_tally()

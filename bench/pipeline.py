@@ -31,7 +31,7 @@ from bench.verdicts import certificate_scope, certified_horizon, convergence_not
 from designs import GAIN_STATUSES, Design, DesignResult
 from plants import Plant
 
-__all__ = ["COLUMNS", "PairOutcome", "RunOptions", "Scenario", "blank_record", "evaluate_pair", "rejudge"]
+__all__ = ["PairOutcome", "RunOptions", "Scenario", "evaluate_pair"]
 
 #: Columns of every record, in order.
 COLUMNS = [

@@ -23,13 +23,10 @@ import sys
 import traceback
 from pathlib import Path
 
+from bench.errors import PluginError
 from bench.registry import DESIGNS, PLANTS
 
-__all__ = ["PluginError", "load_plugin", "load_plugins"]
-
-
-class PluginError(ValueError):
-    """A plugin file could not be loaded; the message names the file."""
+__all__ = ["load_plugin", "load_plugins"]
 
 
 def _module_name(path: Path) -> str:

@@ -19,36 +19,9 @@ import re
 from dataclasses import dataclass
 from typing import Any, Callable
 
-__all__ = [
-    "DESIGNS",
-    "ID_CHARS",
-    "PLANTS",
-    "Entry",
-    "Registry",
-    "RegistryError",
-    "UnknownIdError",
-    "check_id",
-    "register_design",
-    "register_plant",
-]
+from bench.errors import RegistryError, UnknownIdError
 
-
-class RegistryError(ValueError):
-    """A registration problem (duplicate id, bad id)."""
-
-
-class UnknownIdError(KeyError):
-    """An id or glob that matches nothing in a registry."""
-
-    def __init__(self, kind: str, pattern: str, suggestions: list[str]):
-        self.kind = kind
-        self.pattern = pattern
-        self.suggestions = suggestions
-        hint = f"; did you mean {' or '.join(repr(s) for s in suggestions)}?" if suggestions else ""
-        super().__init__(f"unknown {kind} {pattern!r}{hint}")
-
-    def __str__(self) -> str:  # KeyError quotes its message otherwise
-        return self.args[0]
+__all__ = ["DESIGNS", "PLANTS", "Registry", "register_design", "register_plant"]
 
 
 @dataclass(frozen=True)

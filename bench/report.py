@@ -20,8 +20,7 @@ import numpy as np
 
 from bench.harness import RunResult
 
-__all__ = ["REASON_CHARS", "git_revision", "package_versions", "render_markdown", "results_table", "short_reason",
-           "write_report"]
+__all__ = ["draw_figures", "results_table", "write_report"]
 
 #: Plants that get per-design figures of states, estimates and errors (like the paper's Figures
 #: 2-5); every plant gets the norm comparison figure.
@@ -371,10 +370,26 @@ def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
     return name
 
 
-def _figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png",), jobs: int | None = None
+def draw_figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png",), jobs: int | None = None
              ) -> list[tuple[str, str]]:
-    """Draw the figures in each format, ``jobs`` at a time (default: all cores); return
-    (caption, relative path of the first format) pairs in report order."""
+    """Draw the report's figures of a run into ``figdir``.
+
+    Parameters
+    ----------
+    result : RunResult
+        The run whose figures to draw.
+    figdir : Path
+        The folder to write them into.
+    fmts : tuple of str
+        The file formats (e.g. ``("png", "pdf")``); each figure is saved in every one.
+    jobs : int, optional
+        How many figures to draw at a time (default: all cores).
+
+    Returns
+    -------
+    list of (str, str)
+        (caption, path of the first format relative to the report) pairs, in report order.
+    """
     from bench.executors import default_jobs, executor
 
     todo = _figure_jobs(result)
@@ -593,7 +608,7 @@ def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: t
     (tmp / "figures").mkdir()
     df = result.frame()
     info = {**run_info, "findings": run_info.get("findings") or findings(df, result.constants)}
-    figs = _figures(result, tmp / "figures", fmts) if figures else []
+    figs = draw_figures(result, tmp / "figures", fmts) if figures else []
     (tmp / "REPORT.md").write_text(render_markdown(result, figs, info), encoding="utf-8")
     results_table(df).to_csv(tmp / "results.csv", index=False)
     (tmp / "gains.json").write_text(json.dumps(_gains(result), indent=1) + "\n", encoding="utf-8")

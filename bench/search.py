@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-__all__ = ["RATE_RTOL", "grid_floor", "largest_passing"]
+__all__ = ["RATE_RTOL", "largest_passing"]
 
 #: The suite's rate tolerance: a reported rate is within this factor (relative) below the largest
 #: one its test admits.

@@ -19,9 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench.errors import SimulationStopped as _Stop
 from plants import Plant
 
-__all__ = ["STIFF", "SimOptions", "Trajectory", "check_gains", "choose_method", "simulate", "simulate_controller"]
+__all__ = ["SimOptions", "Trajectory", "simulate", "simulate_controller"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -149,14 +150,6 @@ def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: st
         return "DOP853"
     fast = max(float(np.max(-np.linalg.eigvals(M).real)) for M in (A + BF, A - KC))
     return stiff if fast * t_final > STIFF else "DOP853"
-
-
-class _Stop(Exception):
-    """A run stopped by its right-hand side: ``status`` is the trajectory's."""
-
-    def __init__(self, status: str, message: str):
-        super().__init__(message)
-        self.status = status
 
 
 def _all_finite(v: np.ndarray) -> bool:

@@ -25,7 +25,7 @@ import numpy as np
 
 from bench.metrics import CONVERGED_RATIO
 
-__all__ = ["LINEAR_FACTOR", "certificate_scope", "certified_horizon", "convergence_note", "horizon"]
+__all__ = ["certificate_scope", "certified_horizon", "convergence_note", "horizon"]
 
 #: An uncertified pair is simulated ``LINEAR_FACTOR * ln(1 / CONVERGED_RATIO) / rate`` seconds
 #: (its linearisation's rate: no bound on the transient, so a margin of 2).

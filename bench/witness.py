@@ -30,8 +30,7 @@ import numpy as np
 
 from bench import lmi
 
-__all__ = ["GRID", "SAMPLES", "Witness", "admits", "equilibrium_witness", "linear_witness", "loop_rates",
-           "members", "rate_ceiling"]
+__all__ = ["Witness", "rate_ceiling"]
 
 #: Grid points per channel for few channels (q channels: ``GRID[q] ** q`` members, vertices included).
 GRID = {1: 41, 2: 9, 3: 5}

@@ -13,23 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from bench.errors import DesignError
 from plants import Constants, Plant
-
-__all__ = [
-    "Design",
-    "DesignError",
-    "DesignResult",
-    "GAIN_STATUSES",
-    "STATUSES",
-    "Configurable",
-    "check_choice",
-    "check_hyperparameter_names",
-    "check_int",
-    "check_positive",
-    "check_range",
-    "check_values_in",
-    "missing_constants",
-]
 
 #: Possible design statuses.
 #:
@@ -48,10 +33,6 @@ STATUSES = ("feasible", "computed", "given", "infeasible", "marginal", "inapplic
 
 #: Statuses that come with gains (or an estimator) to simulate and certify.
 GAIN_STATUSES = ("feasible", "computed", "given")
-
-
-class DesignError(ValueError):
-    """A design parameter is invalid; the message names the parameter."""
 
 
 def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> float:

@@ -19,16 +19,7 @@ from bench.registry import DESIGNS, Registry
 from designs._core import GAIN_STATUSES, Configurable, Design, DesignError, DesignResult
 from plants import Constants, Plant
 
-__all__ = [
-    "ESTIMATORS",
-    "FEEDBACKS",
-    "Composite",
-    "Part",
-    "check_weight",
-    "register_estimator",
-    "register_feedback",
-    "register_pairing",
-]
+__all__ = ["Part", "register_estimator", "register_feedback", "register_pairing"]
 
 FEEDBACKS = Registry("feedback part", "designs")
 ESTIMATORS = Registry("estimator part", "designs")

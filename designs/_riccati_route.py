@@ -49,8 +49,7 @@ import scipy.linalg as sla
 from bench import joint, lmi
 from bench.search import RATE_RTOL, largest_passing
 
-__all__ = ["AREInfo", "RiccatiRouteResult", "SideSolution", "constants_riccati", "solve_are", "solve_e_side",
-           "solve_x_side", "structured_riccati"]
+__all__ = ["structured_riccati"]
 
 #: Largest relative ARE residual accepted.
 RESIDUAL_TOL = 1e-8

@@ -45,9 +45,6 @@ import numpy as np
 from bench import lmi
 from designs._core import DesignResult
 
-__all__ = ["YoungForm", "append_schur_column", "coordinate_hint", "joint_result", "paper_gains_from", "recombine",
-           "scalar", "separated_design", "settle_joint", "state_feedback_block", "synthesis_variables", "young_layout"]
-
 #: The decision matrix that sets each side's scale.
 SIDE_MATRIX = {"x-side": "Q", "e-side": "R"}
 

@@ -17,8 +17,6 @@ from designs._core import Design, DesignResult, check_choice, check_int, check_p
 from designs._separated import YoungForm, coordinate_hint, joint_result, separated_design, settle_joint
 from plants import Constants, Plant
 
-__all__ = ["YoungDesign"]
-
 
 @dataclass(frozen=True, kw_only=True)
 class YoungDesign(Design):

@@ -30,7 +30,7 @@ from designs._core import DesignResult
 from designs._parts import Part, register_estimator
 from plants import Constants, Plant
 
-__all__ = ["RHRiccati", "rh_solve"]
+__all__ = ["RHRiccati"]
 
 
 def rh_solve(A: np.ndarray, C: np.ndarray, alpha: float, eps: float) -> tuple[np.ndarray | None, str]:

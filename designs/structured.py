@@ -57,7 +57,7 @@ from bench.registry import register_design
 from designs._core import Design, DesignResult, check_choice, check_positive
 from plants import Constants, Plant
 
-__all__ = ["RICCATI_FROM_N", "Structured"]
+__all__ = ["Structured"]
 
 #: ``route="auto"`` solves the sides by Riccati equations from this n on (the SDP sides'
 #: interior-point cost grows like n^4 - n^6; measured by ``python -m bench perf``).

@@ -14,12 +14,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-__all__ = ["Channels", "Constants", "Plant", "PlantError", "SineTerms", "check_int", "check_real", "cubic_slopes",
-           "jacobian_mismatch", "saturation_slopes", "sine_slopes", "sine_terms"]
-
-
-class PlantError(ValueError):
-    """A plant (or one of its fields) is invalid. The message names the field."""
+from bench.errors import PlantError
 
 
 def _finite_scalar(name: str, value, *, allow_none: bool = True, positive: bool = False):

@@ -94,7 +94,7 @@ import numpy as np
 from bench.registry import register_plant
 from plants._core import Plant, PlantError, check_int, check_real, sine_terms
 
-__all__ = ["MAX_N", "chain_matrices", "chain_plant", "chain_sparsity", "chain_v1", "default_masses"]
+__all__ = ["chain_plant", "chain_v1"]
 
 #: Largest number of masses accepted (n = 2 N states, dense A of 8 n^2 bytes: 8 MB at N = 512).
 MAX_N = 2048

@@ -33,7 +33,7 @@ import numpy as np
 from bench.registry import register_plant
 from plants._core import Constants, Plant, check_real, sine_terms
 
-__all__ = ["A", "B", "C", "X0", "X_HAT0", "flexible_joint"]
+__all__ = ["flexible_joint"]
 
 SOURCE = (
     "Zemouche & Boutayeb, Automatica 49(2), 2013 (flexible-joint robot example); also Nguyen, "

@@ -47,7 +47,7 @@ import numpy as np
 from bench.registry import register_plant
 from plants._core import Constants, Plant, PlantError, check_real
 
-__all__ = ["A", "B", "C", "X0", "X_HAT0", "moving_object", "moving_object_bounds"]
+__all__ = ["moving_object"]
 
 SOURCE = (
     "Abbaszadeh & Marquez, ACC 2010 (nonlinearity); Nguyen, Pathirana & Trinh, Eur. J. Control 2018, "

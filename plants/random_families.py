@@ -56,14 +56,7 @@ import numpy as np
 from bench.registry import register_plant
 from plants._core import Channels, Constants, Plant, PlantError, check_int, check_real, cubic_slopes, sine_slopes
 
-__all__ = [
-    "is_detectable",
-    "is_stabilizable",
-    "pbh_margin",
-    "random_lipschitz_plant",
-    "random_lti",
-    "random_osl_plant",
-]
+__all__ = ["random_lipschitz_plant", "random_lti", "random_osl_plant"]
 
 #: Relative PBH margin below which a pair is declared not stabilizable / not detectable.
 PBH_TOL = 1e-8

@@ -14,8 +14,9 @@ from bench.report import REASON_CHARS, results_table, short_reason
 
 
 def test_public_names_import_and_are_listed():
-    public = {"run", "Results", "Plant", "Constants", "Channels", "PlantError", "Design", "DesignResult",
-              "DesignError", "register_design", "register_plant"}
+    public = {"run", "Results", "Plant", "Constants", "Channels", "Design", "DesignResult", "register_design",
+              "register_plant", "OslbenchError", "PlantError", "DesignError", "PluginError", "RegistryError",
+              "UnknownIdError", "StudyError", "OutDirError", "ExecutorError"}
     assert public <= set(dir(bench))
     assert set(bench.__all__) == public
     from bench import Design, DesignResult, Plant, register_design, register_plant, run  # noqa: F401

@@ -19,47 +19,9 @@ from typing import Any, Callable
 
 import numpy as np
 
+from bench.errors import StudyError
 from bench.search import largest_passing
 from bench.report import format_cell as fmt  # one cell formatter for every report
-
-__all__ = [
-    "StudyError",
-    "StudyResult",
-    "bisect_largest",
-    "check_box",
-    "check_count",
-    "check_horizon",
-    "check_levels",
-    "check_range",
-    "check_rtol",
-    "default_box",
-    "evaluate",
-    "fmt",
-    "map_tasks",
-    "md_table",
-    "random_ics",
-    "skipped_lines",
-    "study_constants",
-    "study_header",
-    "write_study",
-]
-
-
-class StudyError(ValueError):
-    """A bad argument of a study.
-
-    Parameters
-    ----------
-    param : str
-        The parameter's name (the CLI maps it to its option, e.g. ``box`` -> ``--box``).
-    message : str
-        What is wrong; ``str(error)`` is ``"<param>: <message>"``.
-    """
-
-    def __init__(self, param: str, message: str):
-        self.param = param
-        self.message = message
-        super().__init__(f"{param}: {message}")
 
 
 @dataclass

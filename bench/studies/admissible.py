@@ -42,8 +42,7 @@ from bench.studies._common import (StudyError, StudyResult, bisect_largest, chec
                                    md_table, pyplot, study_header, write_study)
 from designs import GAIN_STATUSES
 
-__all__ = ["DEFAULT_DESIGNS", "KNOBS", "AdmissibleResult", "evaluate_at", "knob_of",
-           "run_admissible", "write_admissible"]
+__all__ = ["run_admissible", "write_admissible"]
 
 #: Scale knob of each catalog plant (keyword of its factory; f scales with it, A, B, C do not).
 KNOBS = {

@@ -25,7 +25,7 @@ import numpy as np
 from bench.studies._common import (StudyResult, check_box, check_count, check_horizon, default_box, fmt, map_tasks,
                                    md_table, pyplot, random_ics, skipped_lines, study_header, write_study)
 
-__all__ = ["MonteCarloResult", "run_montecarlo", "write_montecarlo"]
+__all__ = ["run_montecarlo", "write_montecarlo"]
 
 
 def _mc_task(plant_id: str, design_id: str, n: int, box: float | None, seed: int, t_final: float | None,

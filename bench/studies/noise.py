@@ -28,7 +28,7 @@ import numpy as np
 from bench.studies._common import (StudyError, StudyResult, check_horizon, check_levels, fmt, map_tasks, md_table,
                                    pyplot, skipped_lines, study_header, write_study)
 
-__all__ = ["DEFAULT_LEVELS", "DEFAULT_PLANTS", "MATCHED_EKF", "NoiseResult", "run_noise", "write_noise"]
+__all__ = ["run_noise", "write_noise"]
 
 DEFAULT_LEVELS = tuple(float(v) for v in np.logspace(-4, -1, 7))
 DEFAULT_PLANTS = ("flexible_link", "random_osl_v1")

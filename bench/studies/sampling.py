@@ -38,7 +38,7 @@ from bench.studies._common import (StudyError, StudyResult, bisect_largest, chec
                                    check_range, check_rtol, default_box, fmt, map_tasks, md_table, pyplot, random_ics,
                                    skipped_lines, study_header, write_study)
 
-__all__ = ["DEFAULT_PLANTS", "SamplingResult", "linear_h_bound", "run_sampling", "write_sampling"]
+__all__ = ["run_sampling", "write_sampling"]
 
 DEFAULT_PLANTS = ("flexible_link", "random_lipschitz_v1", "moving_object_v1")
 

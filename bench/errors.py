@@ -1,0 +1,116 @@
+"""The errors of oslbench, in one place.
+
+Everything the suite raises for a caller derives from :class:`OslbenchError`; an error about a bad
+input is also a :class:`ValueError` (an unknown id is also a :class:`KeyError`), and its message
+names the input. The modules that raise an error re-export it (``from plants import PlantError``
+works). :class:`SimulationStopped` and :class:`DeadlineExceeded` are the runner's own control flow
+and never reach a caller: a stopped simulation is a trajectory status, a time limit a ``timeout`` row.
+"""
+
+from __future__ import annotations
+
+__all__ = ["DesignError", "ExecutorError", "OslbenchError", "OutDirError", "PlantError", "PluginError",
+           "RegistryError", "StudyError", "UnknownIdError"]
+
+
+class OslbenchError(Exception):
+    """Base class of the errors oslbench raises."""
+
+
+class PlantError(OslbenchError, ValueError):
+    """A plant (or one of its fields) is invalid. The message names the field."""
+
+
+class DesignError(OslbenchError, ValueError):
+    """A design parameter is invalid; the message names the parameter."""
+
+
+class PluginError(OslbenchError, ValueError):
+    """A plugin file could not be loaded; the message names the file."""
+
+
+class RegistryError(OslbenchError, ValueError):
+    """A registration problem (duplicate id, bad id)."""
+
+
+class UnknownIdError(OslbenchError, KeyError):
+    """An id or glob that matches nothing in a registry."""
+
+    def __init__(self, kind: str, pattern: str, suggestions: list[str]):
+        self.kind = kind
+        self.pattern = pattern
+        self.suggestions = suggestions
+        hint = f"; did you mean {' or '.join(repr(s) for s in suggestions)}?" if suggestions else ""
+        super().__init__(f"unknown {kind} {pattern!r}{hint}")
+
+    def __str__(self) -> str:  # KeyError quotes its message otherwise
+        return self.args[0]
+
+
+class StudyError(OslbenchError, ValueError):
+    """A bad argument of a study.
+
+    Parameters
+    ----------
+    param : str
+        The parameter's name (the CLI maps it to its option, e.g. ``box`` -> ``--box``).
+    message : str
+        What is wrong; ``str(error)`` is ``"<param>: <message>"``.
+    """
+
+    def __init__(self, param: str, message: str):
+        self.param = param
+        self.message = message
+        super().__init__(f"{param}: {message}")
+
+
+class OutDirError(OslbenchError, ValueError):
+    """An output folder that cannot be used, or a write that could not be completed.
+
+    The message names the folder (and the option, for :func:`bench.outdir.check_out_dir`).
+    """
+
+
+class ExecutorError(OslbenchError, RuntimeError):
+    """The requested executor cannot be created (bad job count, unreachable scheduler, ...)."""
+
+
+# -- the runner's control flow (not exported from ``bench``) --------------------------------------
+class SimulationStopped(Exception):
+    """A simulation stopped by its right-hand side (budget of calls or wall time, non-finite state).
+
+    Parameters
+    ----------
+    status : str
+        The trajectory's status (``budget``, ``timeout``, ``diverged``).
+    message : str
+        What stopped it.
+    """
+
+    def __init__(self, status: str, message: str):
+        super().__init__(message)
+        self.status = status
+
+
+class DeadlineExceeded(BaseException):
+    """The time limit of the current :func:`bench.limits.time_limit` scope ran out.
+
+    A ``BaseException``, so that no ``except Exception`` in a design can turn a timeout into an
+    "infeasible" row.
+
+    Parameters
+    ----------
+    where : str
+        What was running when the limit ran out (for the row's reason).
+    """
+
+    def __init__(self, where: str):
+        super().__init__(where)
+        self.where = where
+
+
+class HardStop(DeadlineExceeded):
+    """:class:`DeadlineExceeded` raised into a thread by :func:`bench.limits.hard_stop` (built without arguments)."""
+
+    def __init__(self, where: str = "code that checks no time limit (hard stop in a thread)"):
+        super().__init__(where)
