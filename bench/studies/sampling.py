@@ -239,8 +239,8 @@ def run_sampling(
     t_start = time.perf_counter()
     n_ics, box, h_range = _check_args(n_ics, box, h_range, discretisation, rtol, t_final)
     plant_ids, design_ids = selection(plant_ids, design_ids, DEFAULT_PLANTS)
-    ordered, evals = _bisect_pairs(plant_ids, design_ids, required, (n_ics, box, seed, discretisation, h_range, rtol,
-                                                                     t_final), jobs, progress)
+    args = (n_ics, box, seed, discretisation, h_range, rtol, t_final)
+    ordered, evals = _bisect_pairs(plant_ids, design_ids, required, args, jobs, progress)
     settings = {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
                 "seed": seed, "discretisation": discretisation,
                 "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
@@ -250,8 +250,9 @@ def run_sampling(
 
 def _bisect_pairs(plant_ids: list[str], design_ids: list[str], required, args: tuple, jobs: int,
                   progress) -> tuple[list[dict], list[dict]]:
-    """Design every pair, then bisect h for those with fixed gains (``args``: :func:`_sampling_task`'s after
-    the prior): the rows in plant x design order and every evaluation, sorted by pair and h."""
+    """Design every pair, then bisect h for those with fixed gains: the rows in plant x design order and every
+    evaluation, sorted by pair and h. ``args``: :func:`_sampling_task`'s arguments after the prior (the last
+    is the horizon, also the designs')."""
     from bench.executors import executor
 
     t_final = args[-1]
