@@ -38,8 +38,6 @@ __all__ = [
     "map_tasks",
     "md_table",
     "random_ics",
-    "run_tasks",
-    "selection",
     "skipped_lines",
     "study_constants",
     "study_header",
