@@ -195,7 +195,6 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     from bench.executors import default_jobs
     from bench.findings import findings
     from bench.harness import RunOptions
-    from bench.harness import run as run_pairs
     from bench.registry import DESIGNS, PLANTS
     from bench.report import results_table
 
@@ -204,21 +203,36 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     options = RunOptions(seed=seed, use_claimed=claimed_constants, fail_fast=fail_fast, t_final=t_final, noise=noise,
                          timeout=timeout)
     jobs = min(jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
-    bar = _progress(progress)
     store = None if cache is None else Cache(cache)
-    try:  # computed in the registry's order (as every run is), shown in the order asked for
+    result = _run_in_registry_order(plant_ids, design_ids, options, _progress(progress), jobs, scheduler, store)
+    records = result.frame()
+    info = {"plants": plant_ids, "designs": design_ids, "jobs": jobs, "scheduler": scheduler,
+            "cache_errors": list(store.errors) if store is not None else []}
+    return Results(results_table(records), _controllers(result), dict(result.constants),
+                   findings(records, result.constants), result, command=command, info=info)
+
+
+def _run_in_registry_order(plant_ids: list[str], design_ids: list[str], options, bar, jobs: int,
+                           scheduler: str | None, store):
+    """The pairs computed in the registry's order (as every run is), then put in the order asked for;
+    the progress ``bar`` is closed however the run ends."""
+    from bench.harness import run as run_pairs
+    from bench.registry import DESIGNS, PLANTS
+
+    try:
         result = run_pairs(_registry_order(plant_ids, PLANTS), _registry_order(design_ids, DESIGNS), options,
                            progress=bar, jobs=jobs, scheduler=scheduler, cache=store)
     finally:
         if hasattr(bar, "close"):
             bar.close()
     _reorder(result, plant_ids, design_ids)
-    records = result.frame()
-    gains = {(o.record["plant"], o.record["design"]): {"K": o.result.K, "F": o.result.F, "result": o.result,
-                                                         "certificate": o.certificate, "trajectory": o.trajectory,
-                                                         "plant": o.plant}
-             for o in result.outcomes if o.result is not None and o.result.has_controller}
-    info = {"plants": plant_ids, "designs": design_ids, "jobs": jobs, "scheduler": scheduler,
-            "cache_errors": list(store.errors) if store is not None else []}
-    return Results(results_table(records), gains, dict(result.constants), findings(records, result.constants), result,
-                   command=command, info=info)
+    return result
+
+
+def _controllers(result) -> dict:
+    """(plant, design) -> gains, design result, certificate, trajectory and plant, for every pair with a
+    controller."""
+    return {(o.record["plant"], o.record["design"]): {"K": o.result.K, "F": o.result.F, "result": o.result,
+                                                        "certificate": o.certificate, "trajectory": o.trajectory,
+                                                        "plant": o.plant}
+            for o in result.outcomes if o.result is not None and o.result.has_controller}

@@ -184,8 +184,6 @@ def simulate_batch(
     BatchTrajectory
         ``method`` records the method actually used.
     """
-    from scipy.integrate import solve_ivp
-
     K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
     n, N = X.shape
     limit = options.blowup * np.maximum(1.0, _norms(X, XH))
@@ -196,21 +194,30 @@ def simulate_batch(
         extra["jac_sparsity"] = _batch_sparsity(n, N)
     # state layout: y.reshape(n, 2N) = [x_1 .. x_N, x_hat_1 .. x_hat_N], so f takes it as it is
     Y0 = np.concatenate([X, XH], axis=1)
-    t_eval = np.linspace(0.0, T, int(options.n_points))
     t0 = time.perf_counter()
-    try:
-        sol = solve_ivp(rhs, (0.0, T), Y0.ravel(), method=method, t_eval=t_eval, rtol=options.rtol,
-                        atol=options.atol, **extra)
-        t_out, y, status, nfev = sol.t, sol.y, "ok" if sol.status == 0 else "failed", int(sol.nfev)
-        message = "" if status == "ok" else sol.message
-    except _BatchStop as stop:
-        t_out, y, status, message, nfev = np.array([0.0]), Y0.ravel()[:, None], stop.status, str(stop), rhs.count
+    t_out, y, status, message, nfev = _integrate(rhs, Y0.ravel(), T, method, options, extra)
     wall = time.perf_counter() - t0
     Yt = y.reshape(n, 2 * N, -1)
     xs, xhs = Yt[:, :N], Yt[:, N:]
     diverged = ~np.all(_norms(xs, xhs) <= limit[:, None], axis=1)
     return BatchTrajectory(t_out, xs, xhs, diverged, status, message, wall, nfev, method,
                            u=np.einsum("mi,ijk->mjk", F, xhs))
+
+
+def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options: SimOptions,
+               extra: dict) -> tuple[np.ndarray, np.ndarray, str, str, int]:
+    """One ``solve_ivp`` call over ``[0, T]`` on ``options.n_points`` instants: ``t, y, status, message, nfev``;
+    a run stopped by its right-hand side returns the initial state alone with the stop's status."""
+    from scipy.integrate import solve_ivp
+
+    t_eval = np.linspace(0.0, T, int(options.n_points))
+    try:
+        sol = solve_ivp(rhs, (0.0, T), y0, method=method, t_eval=t_eval, rtol=options.rtol, atol=options.atol,
+                        **extra)
+    except _BatchStop as stop:
+        return np.array([0.0]), y0[:, None], stop.status, str(stop), rhs.count
+    status = "ok" if sol.status == 0 else "failed"
+    return sol.t, sol.y, status, "" if status == "ok" else sol.message, int(sol.nfev)
 
 
 class _BatchRHS:
@@ -314,14 +321,25 @@ def simulate_digital_batch(
     n_steps, n_sub = _periods(plant.A, T, h, discretisation, dt_max)
     loop = _DigitalLoop(plant, K, F, h, n_sub, zoh=discretisation == "zoh")
     rec_idx = _record_indices(n_steps, max_records)
+    limit = blowup * np.maximum(1.0, np.linalg.norm(np.vstack([X, XH]), axis=0))
+    t0 = time.perf_counter()
+    xs, xhs, diverged, nfev = _march(loop, X, XH, n_steps, rec_idx, limit)
+    wall = time.perf_counter() - t0
+    t = np.array([kk * h for kk in rec_idx])
+    return BatchTrajectory(t, xs, xhs, diverged, "ok", "", wall, nfev, u=np.einsum("mi,ijk->mjk", F, xhs))
+
+
+def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, rec_idx: list[int],
+           limit: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Advance the batch by ``n_steps`` periods, recording the samples ``rec_idx``; a member above its
+    ``limit`` (or non-finite) is frozen. Returns the recorded states and estimates, the diverged members
+    and the right-hand sides spent."""
     rec_pos = {k: i for i, k in enumerate(rec_idx)}
     n, N = X.shape
     xs = np.empty((n, N, len(rec_idx)))
     xhs = np.empty((n, N, len(rec_idx)))
-    limit = blowup * np.maximum(1.0, np.linalg.norm(np.vstack([X, XH]), axis=0))
     active = np.ones(N, dtype=bool)
     x, xh = X.copy(), XH.copy()
-    t0 = time.perf_counter()
     nfev = 0
     with np.errstate(over="ignore", invalid="ignore"):
         for k in range(n_steps + 1):
@@ -337,10 +355,7 @@ def simulate_digital_batch(
                             xhs[:, :, rec_pos[kk]] = xh
                 break
             nfev += loop.advance(x, xh, active if not active.all() else slice(None))
-    wall = time.perf_counter() - t0
-    t = np.array([kk * h for kk in rec_idx])
-    diverged = ~active | ~(_norms(x, xh) <= limit)
-    return BatchTrajectory(t, xs, xhs, diverged, "ok", "", wall, nfev, u=np.einsum("mi,ijk->mjk", F, xhs))
+    return xs, xhs, ~active | ~(_norms(x, xh) <= limit), nfev
 
 
 def _periods(A: np.ndarray, T: float, h, discretisation: str, dt_max) -> tuple[int, int]:

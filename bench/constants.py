@@ -446,85 +446,111 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
     PlantError
         A declared Jacobian that is not the derivative of f at a simulated state (the entry named).
     """
-    X = np.asarray(X, dtype=float).reshape(plant.n, -1)
-    XH = np.asarray(XH, dtype=float).reshape(plant.n, -1)
-    keep = np.all(np.isfinite(X), axis=0) & np.all(np.isfinite(XH), axis=0)
-    X, XH = X[:, keep], XH[:, keep]
-    if X.shape[1] > max_points:
-        idx = np.unique(np.linspace(0, X.shape[1] - 1, max_points).astype(int))
-        X, XH = X[:, idx], XH[:, idx]
+    X, XH = _finite_instants(plant.n, X, XH, max_points)
     reach = float(max(np.linalg.norm(X, axis=0).max(initial=0.0), np.linalg.norm(XH, axis=0).max(initial=0.0)))
     if plant.jacobian is not None and X.shape[1]:
-        pts = np.concatenate([X, XH], axis=1)[:, np.linspace(0, 2 * X.shape[1] - 1, 8).astype(int)]
-        why = jacobian_mismatch(plant.f, plant.jacobian, pts)
-        if why:
-            raise PlantError(f"{why} (a state along the simulation)")
-    bad: dict[str, str] = {}
-    fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
+        _jacobian_along(plant, X, XH)
     ch, c = know.channels, know.constants
-    if ch is not None and X.shape[1]:
-        P = np.concatenate([X, XH], axis=1)
-        P = P[:, _inside(P, ch.radius)]
-        if P.shape[1]:
-            with np.errstate(all="ignore"):
-                err = np.abs(ch.apply(P) - _values(plant.f, P))
-            scale = np.maximum(1.0, np.abs(_values(plant.f, P)))
-            worst = np.max(err / scale, axis=0)
-            if worst.max() > 1e-9:
-                j = int(np.argmax(worst))
-                bad["channels"] = (f"the declared channels: G phi(H x) differs from f by {err[:, j].max():.3g} at the "
-                                   f"simulated state x = {fmt(P[:, j])}")
-        if "channels" not in bad:
-            for X2 in (XH, np.zeros_like(X)):
-                inside = _inside(X, ch.radius) & _inside(X2, ch.radius)
-                Z1, Z2 = ch.H @ X[:, inside], ch.H @ X2[:, inside]
-                with np.errstate(all="ignore"):
-                    p1, p2 = np.asarray(ch.phi(Z1), dtype=float), np.asarray(ch.phi(Z2), dtype=float)
-                vs = [v for i in range(ch.q) for v in _slope_violations(ch, i, p1[i], p2[i], Z1, Z2)]
-                if vs:
-                    bad["channels"] = "the declared channels: " + vs[0].describe("declared") + " (along the simulation)"
-                    break
+    bad = _channels_along(plant, ch, X, XH) if ch is not None and X.shape[1] else {}
     scalars = {k: getattr(c, k) for k in ("alpha", "rho", "beta") if getattr(c, k) is not None}
     if scalars and X.shape[1]:
         for X2 in (XH, np.zeros_like(X)):
             apart = np.linalg.norm(X - X2, axis=0) > _MIN_STEP * (1 + np.linalg.norm(X, axis=0)
                                                                   + np.linalg.norm(X2, axis=0))
             inside = _inside(X, c.radius) & _inside(X2, c.radius) & apart
-            a, b = X[:, inside], X2[:, inside]
-            if not a.shape[1]:
-                continue
-            with np.errstate(all="ignore"):
-                ratios = dict(zip(("alpha", "rho", "beta"), _ratios(plant.f, a, b, c.gamma or 0.0)))
-            for k, stated in scalars.items():
-                r = np.where(np.isfinite(ratios[k]), ratios[k], -np.inf)
-                j = int(np.argmax(r))
-                if k not in bad and r[j] > stated + _REL_TOL * max(1.0, abs(stated)):
-                    v = Violation(k, stated, float(r[j]), tuple(a[:, j]), tuple(b[:, j]))
-                    bad[k] = "analytic " + v.describe("analytic") + " (along the simulation)"
+            for k, v in _scalar_violations(plant.f, X[:, inside], X2[:, inside], c.gamma, scalars).items():
+                bad.setdefault(k, "analytic " + v.describe("analytic") + " (along the simulation)")
     far = REACH_FACTOR * reach
     glob = [k for k in ("channels", *scalars) if k not in bad and
             (ch.radius if k == "channels" and ch is not None else c.radius) is None
             and (k != "channels" or ch is not None)]
     checked = f"along the simulation (||x||, ||x_hat|| <= {reach:.3g})"
     if glob and (checked_on is None or far > checked_on):
-        rng = np.random.default_rng([seed, 3])
-        if "channels" in glob:
-            vs = _channel_check(plant, rng, far=far)
-            if vs:
-                bad["channels"] = "the declared channels: " + vs[0].describe("declared")
-        sc = [k for k in glob if k != "channels"]
-        if sc:
-            x1, x2 = _random_pairs(rng, plant.n, 4000, None, far=far)
-            with np.errstate(all="ignore"):
-                ratios = dict(zip(("alpha", "rho", "beta"), _ratios(plant.f, x1, x2, c.gamma or 0.0)))
-            for k in sc:
-                r = np.where(np.isfinite(ratios[k]), ratios[k], -np.inf)
-                j = int(np.argmax(r))
-                if r[j] > scalars[k] + _REL_TOL * max(1.0, abs(scalars[k])):
-                    bad[k] = "analytic " + Violation(k, scalars[k], float(r[j]), tuple(x1[:, j]),
-                                                     tuple(x2[:, j])).describe("analytic")
+        bad.update(_sampled_far(plant, "channels" in glob, {k: scalars[k] for k in glob if k != "channels"},
+                                c.gamma, far, seed))
         checked += f" and sampled on ||x|| <= {far:.3g}"
     return bad, checked
+
+
+def _sampled_far(plant: Plant, channels: bool, scalars: dict[str, float], gamma: float | None, far: float,
+                 seed: int) -> dict[str, str]:
+    """Global declarations sampled again out to ``||x|| <= far``: the channels (when ``channels``) and the
+    stated scalar constants; declaration -> why, for those disproved."""
+    bad = {}
+    rng = np.random.default_rng([seed, 3])
+    if channels:
+        vs = _channel_check(plant, rng, far=far)
+        if vs:
+            bad["channels"] = "the declared channels: " + vs[0].describe("declared")
+    if scalars:
+        x1, x2 = _random_pairs(rng, plant.n, 4000, None, far=far)
+        for k, v in _scalar_violations(plant.f, x1, x2, gamma, scalars).items():
+            bad[k] = "analytic " + v.describe("analytic")
+    return bad
+
+
+def _jacobian_along(plant: Plant, X: np.ndarray, XH: np.ndarray) -> None:
+    """PlantError when the declared Jacobian is not the derivative of f at 8 simulated states and estimates."""
+    pts = np.concatenate([X, XH], axis=1)[:, np.linspace(0, 2 * X.shape[1] - 1, 8).astype(int)]
+    why = jacobian_mismatch(plant.f, plant.jacobian, pts)
+    if why:
+        raise PlantError(f"{why} (a state along the simulation)")
+
+
+def _finite_instants(n: int, X, XH, max_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """The instants of a trajectory where state and estimate are finite, thinned evenly to ``max_points``."""
+    X = np.asarray(X, dtype=float).reshape(n, -1)
+    XH = np.asarray(XH, dtype=float).reshape(n, -1)
+    keep = np.all(np.isfinite(X), axis=0) & np.all(np.isfinite(XH), axis=0)
+    X, XH = X[:, keep], XH[:, keep]
+    if X.shape[1] > max_points:
+        idx = np.unique(np.linspace(0, X.shape[1] - 1, max_points).astype(int))
+        X, XH = X[:, idx], XH[:, idx]
+    return X, XH
+
+
+def _channels_along(plant: Plant, ch, X: np.ndarray, XH: np.ndarray) -> dict[str, str]:
+    """The declared channels checked along a trajectory: the identity ``f(x) = G phi(H x)`` at the states
+    and estimates, then each channel's slope bounds between ``H x`` and ``H x_hat`` and between ``H x`` and 0.
+    ``{"channels": why}`` when disproved, else empty."""
+    fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
+    P = np.concatenate([X, XH], axis=1)
+    P = P[:, _inside(P, ch.radius)]
+    if P.shape[1]:
+        with np.errstate(all="ignore"):
+            err = np.abs(ch.apply(P) - _values(plant.f, P))
+        scale = np.maximum(1.0, np.abs(_values(plant.f, P)))
+        worst = np.max(err / scale, axis=0)
+        if worst.max() > 1e-9:
+            j = int(np.argmax(worst))
+            return {"channels": f"the declared channels: G phi(H x) differs from f by {err[:, j].max():.3g} at the "
+                                f"simulated state x = {fmt(P[:, j])}"}
+    for X2 in (XH, np.zeros_like(X)):
+        inside = _inside(X, ch.radius) & _inside(X2, ch.radius)
+        Z1, Z2 = ch.H @ X[:, inside], ch.H @ X2[:, inside]
+        with np.errstate(all="ignore"):
+            p1, p2 = np.asarray(ch.phi(Z1), dtype=float), np.asarray(ch.phi(Z2), dtype=float)
+        vs = [v for i in range(ch.q) for v in _slope_violations(ch, i, p1[i], p2[i], Z1, Z2)]
+        if vs:
+            return {"channels": "the declared channels: " + vs[0].describe("declared") + " (along the simulation)"}
+    return {}
+
+
+def _scalar_violations(f: Callable, a: np.ndarray, b: np.ndarray, gamma: float | None,
+                       stated: dict[str, float]) -> dict[str, Violation]:
+    """The stated scalar constants (``alpha``, ``rho``, ``beta`` at ``gamma``) that the pairs ``(a_j, b_j)``
+    exceed beyond the relative tolerance, each with its worst pair."""
+    if not a.shape[1]:
+        return {}
+    with np.errstate(all="ignore"):
+        ratios = dict(zip(("alpha", "rho", "beta"), _ratios(f, a, b, gamma or 0.0)))
+    out = {}
+    for k, value in stated.items():
+        r = np.where(np.isfinite(ratios[k]), ratios[k], -np.inf)
+        j = int(np.argmax(r))
+        if r[j] > value + _REL_TOL * max(1.0, abs(value)):
+            out[k] = Violation(k, value, float(r[j]), tuple(a[:, j]), tuple(b[:, j]))
+    return out
 
 
 #: Pairs of states (or channel inputs) closer than this, relative to their size, are not used along a
@@ -610,12 +636,7 @@ def compute_constants(
     n = plant.n
     analytic = plant.bounds
     radius = (analytic.radius if analytic is not None else None) or plant.claimed.radius
-    if analytic is not None and analytic.gamma is not None:
-        gamma = analytic.gamma
-    elif plant.claimed.gamma is not None:
-        gamma = plant.claimed.gamma
-    else:
-        gamma = 0.0
+    gamma = next((g.gamma for g in (analytic, plant.claimed) if g is not None and g.gamma is not None), 0.0)
 
     far = sampled_range(plant)
     x1, x2 = _random_pairs(rng, n, n_samples, radius, far)
@@ -624,15 +645,33 @@ def compute_constants(
         alpha=max(best["alpha"][0], 0.0), rho=best["rho"][0], beta=best["beta"][0], gamma=gamma, radius=radius
     )
     unbounded = _unbounded(plant.f, x1, x2, gamma, best) if radius is None else {}
+    disproved = _disproved(analytic, best)
+    violations = _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine)
+    valid, source = _trusted(analytic, sampled, {v.name for v in disproved}, unbounded, gamma, radius)
+    return ConstantsReport(
+        claimed=plant.claimed, analytic=analytic, sampled=sampled, valid=valid, source=source,
+        violations=violations, disproved=disproved,
+        channel_violations=_channel_check(plant, np.random.default_rng([seed, 2]), far=far), unbounded=unbounded,
+        prechecks=linear_prechecks(plant), seed=seed, n_samples=n_samples, checked_on=None if radius else far,
+    )
+
+
+def _disproved(analytic: Constants | None, best: dict) -> list[Violation]:
+    """The analytic constants a sampled pair exceeds (beyond the relative tolerance), with the pair."""
     disproved = []
     for name in ("alpha", "rho", "beta"):
         av = getattr(analytic, name) if analytic is not None else None
         val, a, b = best[name]
         if av is not None and val > av + _REL_TOL * max(1.0, abs(av)):
             disproved.append(Violation(name, av, val, tuple(a), tuple(b)))
-    violations = _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine)
+    return disproved
+
+
+def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded: dict, gamma: float,
+             radius) -> tuple[Constants, dict]:
+    """The constants certificates use and where each comes from: the analytic one unless a sample disproved
+    it, else the sampled one (None where the sampler found the constant unbounded)."""
     valid_kw, source = {}, {}
-    bad = {v.name for v in disproved}
     for name in ("alpha", "rho", "beta"):
         av = getattr(analytic, name) if analytic is not None else None
         if av is not None and name not in bad:
@@ -644,15 +683,8 @@ def compute_constants(
         else:
             valid_kw[name], source[name] = getattr(sampled, name), "sampled"
     if valid_kw["beta"] is None:
-        valid = Constants(**valid_kw, radius=radius)
-    else:
-        valid = Constants(**valid_kw, gamma=gamma, radius=radius)
-    return ConstantsReport(
-        claimed=plant.claimed, analytic=analytic, sampled=sampled, valid=valid, source=source,
-        violations=violations, disproved=disproved,
-        channel_violations=_channel_check(plant, np.random.default_rng([seed, 2]), far=far), unbounded=unbounded,
-        prechecks=linear_prechecks(plant), seed=seed, n_samples=n_samples, checked_on=None if radius else far,
-    )
+        return Constants(**valid_kw, radius=radius), source
+    return Constants(**valid_kw, gamma=gamma, radius=radius), source
 
 
 def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine) -> list[Violation]:

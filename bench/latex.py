@@ -302,15 +302,8 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     parts = [_preamble_comment(text_width_pt)]
     if "status" in frame.columns:
         parts.append(_feasibility_tables(frame, caption_prefix, f"{label_prefix}feasibility", text_width_pt))
-    decay = _DECAY_COLUMNS
-    if not any(c in frame.columns for c, _ in _DECAY_COLUMNS[:3]):
-        decay = (("decay_rate", "decay rate"),) + _DECAY_COLUMNS[3:]
-    caption = (r"Certified decay rate $\lambda$ ($\dot V \le -2\lambda V$) by certificate level; no: not certified, "
-               "marginal: margin within the verification tolerance of zero, n/a: the level does not apply; scope: "
-               "global, from x0 (the certified level set holds the initial condition) or local.")
-    table = _row_table(frame, decay, caption_prefix + caption, f"{label_prefix}decay",
-                       max_rows=int(max_rows), cell=_cert_cell)
-    if table and any(c in frame.columns for c, _ in decay if c not in ("cert_level", "cert_scope")):
+    table = _decay_tables(frame, caption_prefix, f"{label_prefix}decay", int(max_rows))
+    if table:
         parts.append(table)
     for columns, caption, key in (
         (_CONVERGENCE_COLUMNS, "Convergence of the closed loop (settling times of the state x and of the "
@@ -322,6 +315,21 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
         if table:
             parts.append(table)
     return "\n\n".join(parts) + "\n"
+
+
+def _decay_tables(frame, caption_prefix: str, label: str, max_rows: int) -> str:
+    """The certified decay rate per certificate level (``decay_rate`` when the frame has no level's column),
+    with the level and scope; empty when the frame has no rate column."""
+    decay = _DECAY_COLUMNS
+    if not any(c in frame.columns for c, _ in _DECAY_COLUMNS[:3]):
+        decay = (("decay_rate", "decay rate"),) + _DECAY_COLUMNS[3:]
+    caption = (r"Certified decay rate $\lambda$ ($\dot V \le -2\lambda V$) by certificate level; no: not certified, "
+               "marginal: margin within the verification tolerance of zero, n/a: the level does not apply; scope: "
+               "global, from x0 (the certified level set holds the initial condition) or local.")
+    table = _row_table(frame, decay, caption_prefix + caption, label, max_rows=max_rows, cell=_cert_cell)
+    if table and any(c in frame.columns for c, _ in decay if c not in ("cert_level", "cert_scope")):
+        return table
+    return ""
 
 
 def _preamble_comment(text_width_pt: float) -> str:

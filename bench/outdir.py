@@ -409,22 +409,28 @@ def publish(out_dir, stage_dir, files: Iterable[str], *, writer: str | None = No
         if writer is not None:
             stale = _update_manifest(out, stage, files, writer)
             files = [MANIFEST_NAME, *files]
-        backup = Path(tempfile.mkdtemp(prefix=_tmp_prefix("backup"), dir=out))
-        entries = ([{"path": rel, "old": True, "new": False} for rel in stale]
-                   + [{"path": rel, "old": os.path.lexists(out / rel), "new": True} for rel in files])
-        doc = {"format": JOURNAL_FORMAT, "pid": os.getpid(), "host": _HOST, "backup": backup.name,
-               "entries": entries}
-        try:
-            _write_journal(out, doc)
-        except BaseException:
-            shutil.rmtree(backup, ignore_errors=True)
-            raise
+        backup, doc = _journal(out, stale, files)
         _swap(out, stage, doc, backup)
         shutil.rmtree(backup, ignore_errors=True)
     if stale:
         _log.warning("%s: removed %d file(s) that an earlier run of this suite wrote and this one does not: %s",
                      out, len(stale), ", ".join(stale))
     return [out / rel for rel in files if rel != MANIFEST_NAME]
+
+
+def _journal(out: Path, stale: list[str], files: list[str]) -> tuple[Path, dict]:
+    """A fresh backup folder and the journal of the swap, written to ``out`` before anything moves: the
+    stale files (to delete) and the new ones (each noting whether an old version exists)."""
+    backup = Path(tempfile.mkdtemp(prefix=_tmp_prefix("backup"), dir=out))
+    entries = ([{"path": rel, "old": True, "new": False} for rel in stale]
+               + [{"path": rel, "old": os.path.lexists(out / rel), "new": True} for rel in files])
+    doc = {"format": JOURNAL_FORMAT, "pid": os.getpid(), "host": _HOST, "backup": backup.name, "entries": entries}
+    try:
+        _write_journal(out, doc)
+    except BaseException:
+        shutil.rmtree(backup, ignore_errors=True)
+        raise
+    return backup, doc
 
 
 def _staged_files(stage: Path, files: Iterable[str]) -> list[str]:

@@ -481,7 +481,6 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
     time_cols = ["plant", "design", "route", "solver", "n_solves", "lmi_size", "lmi_margin", "compile_s", "solve_s",
                  "design_s", "cert_s", "sim_s"]
     with_gains = df[df["max_re_eig_x"].notna()]
-    reasons = df[(df["reason"] != "") & df["reason"].notna()]
     parts = [
         "# oslbench report",
         "",
@@ -523,18 +522,33 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         "",
         "## Reasons, per plant",
         "",
+        *_reasons(df),
+        "## Figures",
+        "",
+        *_figure_lines(figures),
     ]
+    return "\n".join(parts).rstrip() + "\n"
+
+
+def _reasons(df) -> list[str]:
+    """Markdown lines: per plant, each pair that has a reason, with its status and the reason."""
+    reasons = df[(df["reason"] != "") & df["reason"].notna()]
+    parts = []
     for pid in dict.fromkeys(reasons["plant"]):
         parts += [f"### {pid}", ""]
         parts += [f"- **{r.design}** ({r.status}): {_fmt(r.reason)}" for r in reasons[reasons["plant"] == pid].itertuples()]
         parts.append("")
-    parts += ["## Figures", ""]
-    if figures:
-        for caption, path in figures:
-            parts += [f"![{caption}]({path})", "", f"*{caption}*", ""]
-    else:
-        parts.append("No converging pair to plot.")
-    return "\n".join(parts).rstrip() + "\n"
+    return parts
+
+
+def _figure_lines(figures: list[tuple[str, str]]) -> list[str]:
+    """Markdown lines: each figure with its caption below, or a line saying there is none."""
+    if not figures:
+        return ["No converging pair to plot."]
+    parts = []
+    for caption, path in figures:
+        parts += [f"![{caption}]({path})", "", f"*{caption}*", ""]
+    return parts
 
 
 def _gains(result: RunResult) -> list[dict]:

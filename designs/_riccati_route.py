@@ -180,7 +180,7 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
         ``"scipy"`` (balanced QZ on the extended pencil). Not when the Hamiltonian has eigenvalues
         on (or within rounding of) the imaginary axis: no method has a stabilizing solution then.
     fallback_max_n : int
-        No fallback above this n (scipy's solver takes ~100 s at n = 1024).
+        No fallback above this n.
     residual_tol : float
         Largest relative residual accepted.
 
@@ -202,41 +202,10 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
         raise ValueError(f"rr: weights must be finite and nonzero, got {rr.tolist()}")
     M = lmi.sym((b / rr) @ b.T)
     n = a.shape[0]
-    # definite: the Hamiltonian has eigenvalues on (or within rounding of) the imaginary axis, so
-    # no method has a stabilizing solution and a fallback would only waste time
-    X, max_re, reason, definite = None, math.inf, "", False
-    try:
-        if method == "schur":
-            X, max_re, definite, reason = _schur_are(a, M, q)
-        elif method == "sign":
-            X, definite, reason = _sign_are(a, M, q)
-            # the side's Lyapunov test (P > 0, side matrix < 0) proves the closed loop Hurwitz; the spectrum
-            # is computed only where it is cheap
-            if X is not None and n <= 128:
-                max_re = float(np.linalg.eigvals(a - M @ X).real.max())
-            else:
-                max_re = -math.inf
-        else:
-            X = sla.solve_continuous_are(a, b, q, np.diag(rr))
-            max_re = float(np.linalg.eigvals(a - M @ X).real.max())
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        X, reason = None, f"{method}: {str(exc).splitlines()[0]}"
+    X, max_re, definite, reason = _solve_by(method, a, b, rr, M, q)
     res = math.inf
     if X is not None:
-        if not np.all(np.isfinite(X)):
-            X, reason = None, "non-finite solution"
-        else:
-            asym = float(np.abs(X - X.T).max() / max(np.abs(X).max(), 1e-300))
-            X = lmi.sym(X)
-            res = _are_residual(a, M, q, X)
-            if asym > 1e-6:
-                reason = f"solution not symmetric (relative asymmetry {asym:.2g})"
-            elif not res <= residual_tol:
-                reason = f"ARE residual {res:.2g} above {residual_tol:g}"
-            elif not max_re < 0:
-                reason = f"a - M X is not Hurwitz (largest real part {max_re:.3g}): not the stabilizing solution"
-            if reason:
-                X = None
+        X, res, reason = _accurate(X, a, M, q, max_re, residual_tol)
     info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re,
                    seconds=time.perf_counter() - t0, reason=reason)
     if X is None and fallback and method != "scipy" and not definite and n <= fallback_max_n:
@@ -248,6 +217,48 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
                        reason=f"{reason}; scipy fallback: {info2.reason}")
     return X, info
 
+
+def _solve_by(method: str, a, b, rr, M, q) -> tuple[np.ndarray | None, float, bool, str]:
+    """One ARE solve by ``method``: ``X`` (None on failure), the largest real part of ``a - M X``, whether
+    the failure is definite (Hamiltonian eigenvalues on, or within rounding of, the imaginary axis: no
+    method has a stabilizing solution), and the reason of a failure."""
+    X, max_re, reason, definite = None, math.inf, "", False
+    try:
+        if method == "schur":
+            X, max_re, definite, reason = _schur_are(a, M, q)
+        elif method == "sign":
+            X, definite, reason = _sign_are(a, M, q)
+            # the side's Lyapunov test (P > 0, side matrix < 0) proves the closed loop Hurwitz; the spectrum
+            # is computed only where it is cheap
+            if X is not None and a.shape[0] <= 128:
+                max_re = float(np.linalg.eigvals(a - M @ X).real.max())
+            else:
+                max_re = -math.inf
+        else:
+            X = sla.solve_continuous_are(a, b, q, np.diag(rr))
+            max_re = float(np.linalg.eigvals(a - M @ X).real.max())
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        X, reason = None, f"{method}: {str(exc).splitlines()[0]}"
+    return X, max_re, definite, reason
+
+
+def _accurate(X: np.ndarray, a, M, q, max_re: float, residual_tol: float) -> tuple[np.ndarray | None, float, str]:
+    """The accuracy checks of a solution: finite, symmetric (relative asymmetry <= 1e-6), relative residual
+    within ``residual_tol``, ``a - M X`` Hurwitz. Returns the symmetrised X (None when a check fails), the
+    residual and the reason of a failure."""
+    if not np.all(np.isfinite(X)):
+        return None, math.inf, "non-finite solution"
+    asym = float(np.abs(X - X.T).max() / max(np.abs(X).max(), 1e-300))
+    X = lmi.sym(X)
+    res = _are_residual(a, M, q, X)
+    reason = ""
+    if asym > 1e-6:
+        reason = f"solution not symmetric (relative asymmetry {asym:.2g})"
+    elif not res <= residual_tol:
+        reason = f"ARE residual {res:.2g} above {residual_tol:g}"
+    elif not max_re < 0:
+        reason = f"a - M X is not Hurwitz (largest real part {max_re:.3g}): not the stabilizing solution"
+    return (None if reason else X), res, reason
 
 
 # -- the two sides ------------------------------------------------------------
@@ -534,22 +545,11 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     """
     t_start = time.perf_counter()
     A, B, C, G, H = (np.asarray(v, dtype=float) for v in (A, B, C, G, H))
-    n = A.shape[0]
-    q = G.shape[1] if G.ndim == 2 else -1
-    for name, X, shape in (("A", A, (n, n)), ("B", B, (n, B.shape[-1])), ("C", C, (C.shape[0], n)),
-                           ("G", G, (n, q)), ("H", H, (q, n))):
-        if X.ndim != 2 or X.shape != shape:
-            raise ValueError(f"{name}: expected shape {shape} (A is {A.shape}, G is {G.shape}), got {X.shape}")
-    if np.any(np.broadcast_to(lo, (q,)) > np.broadcast_to(hi, (q,))):
-        raise ValueError("lo/hi: every channel needs lo <= hi")
+    q = _check_shapes(A, B, C, G, H, lo, hi)
     lp = joint.loop(A, B, C, G, H, lo, hi)
     r = np.broadcast_to(np.asarray((np.asarray(hi, float) - np.asarray(lo, float)) / 2), (q,))
     A0 = lp.A0
-    nG, nDH = _norm2(lp.G), _norm2(lp.DH)
-    sigma, s0 = (nG * nDH, nDH / nG) if nG > 0 and nDH > 0 else (max(_norm2(A0), 1e-12), 1.0)
-    s = s0 if s is None else float(s)
-    t = 1 / s0 if t is None else float(t)
-    tau0_x, tau0_e = sigma / max(_norm2(B) ** 2, 1e-300), sigma / max(_norm2(C) ** 2, 1e-300)
+    sigma, s, t, tau0_x, tau0_e = _scales(lp, B, C, s, t)
     tries: list = []
     res = RiccatiRouteResult(status="infeasible", reason="", s=s, t=t, tries=tries)
     xs = _Side("x", lambda la, tau, e: solve_x_side(A0, B, G, H, r, la, s, tau * tau0_x, e * sigma, method=method),
@@ -560,14 +560,48 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     lam_e = _search(es, lam, max_decay, rtol)
     lam_x = _search(xs, lam, lam_e if lam is None and lam_e else max_decay, rtol, other=bool(lam is None and lam_e))
     if lam_x is None or lam_e is None:
-        res.reason = "; ".join(w for w in (
-            f"x-side infeasible on the grid (last: {xs.why})" if lam_x is None else "",
-            f"e-side infeasible on the grid (last: {es.why})" if lam_e is None else "") if w)
+        res.reason = "; ".join(f"{side.label}-side infeasible on the grid (last: {side.why})"
+                               for side, found in ((xs, lam_x), (es, lam_e)) if found is None)
         res.timings = {"search": time.perf_counter() - t_start, "total": time.perf_counter() - t_start}
         return res
+    t1 = time.perf_counter()
+    _certify_pair(res, lp, xs, es, lam_x, lam_e, s, t)
+    res.timings = {"search": t1 - t_start, "certificate": time.perf_counter() - t1,
+                   "total": time.perf_counter() - t_start}
+    return res
+
+
+def _scales(lp: joint.Loop, B: np.ndarray, C: np.ndarray, s: float | None,
+            t: float | None) -> tuple[float, float, float, float, float]:
+    """The natural scales (module docstring): ``sigma = ||Dr H|| ||G||`` (``||A0||`` without channels), the
+    multipliers ``s`` (default ``||Dr H|| / ||G||``) and ``t`` (default its inverse), and the gain scales
+    ``tau0 = sigma / ||B||^2`` (x-side) and ``sigma / ||C||^2`` (e-side)."""
+    nG, nDH = _norm2(lp.G), _norm2(lp.DH)
+    sigma, s0 = (nG * nDH, nDH / nG) if nG > 0 and nDH > 0 else (max(_norm2(lp.A0), 1e-12), 1.0)
+    s = s0 if s is None else float(s)
+    t = 1 / s0 if t is None else float(t)
+    return sigma, s, t, sigma / max(_norm2(B) ** 2, 1e-300), sigma / max(_norm2(C) ** 2, 1e-300)
+
+
+def _check_shapes(A, B, C, G, H, lo, hi) -> int:
+    """The number of channels q, or ValueError naming a matrix of the wrong shape or a channel with lo > hi."""
+    n = A.shape[0]
+    q = G.shape[1] if G.ndim == 2 else -1
+    for name, X, shape in (("A", A, (n, n)), ("B", B, (n, B.shape[-1])), ("C", C, (C.shape[0], n)),
+                           ("G", G, (n, q)), ("H", H, (q, n))):
+        if X.ndim != 2 or X.shape != shape:
+            raise ValueError(f"{name}: expected shape {shape} (A is {A.shape}, G is {G.shape}), got {X.shape}")
+    if np.any(np.broadcast_to(lo, (q,)) > np.broadcast_to(hi, (q,))):
+        raise ValueError("lo/hi: every channel needs lo <= hi")
+    return q
+
+
+def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, xs: _Side, es: _Side, lam_x: float, lam_e: float,
+                  s: float, t: float) -> None:
+    """Fill ``res`` (in place) with the sides' solutions at the slower side's target ``min(lam_x, lam_e)``
+    (a side without one there keeps its own) and the joint certificate of the pair."""
     res.lam = min(lam_x, lam_e)
     x, e = xs.at(res.lam) or xs.at(lam_x), es.at(res.lam) or es.at(lam_e)
-    t1 = time.perf_counter()
     # normalise P and R to a unit largest eigenvalue: (P, s) -> (P/a, s a), (R, t) -> (R/b, t/b) keep both sides
     a_x, a_e = _eig_at(x.P, -1), _eig_at(e.P, -1)
     res.P, res.R, res.s, res.t = x.P / a_x, e.P / a_e, s * a_x, t / a_e
@@ -580,9 +614,6 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     res.status = {"verified": "feasible", "marginal": "marginal"}.get(cert.status, "infeasible")
     res.reason = (f"joint certificate verified (equilibrated max eigenvalue {cert.margin:.3g}), rate {cert.rate:.4g}"
                   if cert.verified else f"joint certificate {cert.status} (equilibrated max eigenvalue {cert.margin:.3g})")
-    res.timings = {"search": t1 - t_start, "certificate": time.perf_counter() - t1,
-                   "total": time.perf_counter() - t_start}
-    return res
 
 
 def constants_riccati(A, B, C, *, alpha: float | None = None, rho: float | None = None,
@@ -625,8 +656,19 @@ def constants_riccati(A, B, C, *, alpha: float | None = None, rho: float | None 
         (``{"form": "lipschitz" | "osl_qib", "c0": ..., "r": ..., "theta": ...}``).
     """
     A = np.asarray(A, dtype=float)
-    n = A.shape[0]
-    I = np.eye(n)
+    I = np.eye(A.shape[0])
+    best, best_c = None, None
+    for cand in _balls(alpha, rho, beta, gamma, thetas):
+        res = structured_riccati(A, B, C, I, I, cand["c0"] - cand["r"], cand["c0"] + cand["r"], lam=lam, **kwargs)
+        key = (res.ok, -res.margin if np.isfinite(res.margin) else -math.inf)
+        if best is None or key > (best.ok, -best.margin if np.isfinite(best.margin) else -math.inf):
+            best, best_c = res, cand
+    return best, best_c
+
+
+def _balls(alpha, rho, beta, gamma, thetas) -> list[dict]:
+    """The incremental balls ``|df - c0 dx| <= r |dx|`` the constants give (:func:`constants_riccati`), or
+    ValueError when they give none."""
     cands = []
     if alpha is not None:
         cands.append({"form": "lipschitz", "c0": 0.0, "r": float(alpha), "theta": math.nan})
@@ -640,10 +682,4 @@ def constants_riccati(A, B, C, *, alpha: float | None = None, rho: float | None 
                 cands.append({"form": "osl_qib", "c0": c0, "r": math.sqrt(r2), "theta": float(th)})
     if not cands:
         raise ValueError("constants: give alpha, or beta and gamma (and rho for theta > 0)")
-    best, best_c = None, None
-    for cand in cands:
-        res = structured_riccati(A, B, C, I, I, cand["c0"] - cand["r"], cand["c0"] + cand["r"], lam=lam, **kwargs)
-        key = (res.ok, -res.margin if np.isfinite(res.margin) else -math.inf)
-        if best is None or key > (best.ok, -best.margin if np.isfinite(best.margin) else -math.inf):
-            best, best_c = res, cand
-    return best, best_c
+    return cands

@@ -273,27 +273,45 @@ def recombine(
     xv, ev = xprog.values(), eprog.values()
     lx, le = lmi.max_eig(X), lmi.max_eig(E)
     out.update(x_margin=lx, e_margin=le)
-    qmin = lmi.min_eig(xv["Q"])
+    failed = _failed_sides(xprog, eprog, X, E, lx, le, decide)
+    if failed is not None:
+        out.update(failed)
+        return out
+    out.update(_joint_verdict(B, xv, ev, e_keys, joint_blocks, lx, le))
+    return out
+
+
+def _failed_sides(xprog: lmi.Program, eprog: lmi.Program, X: np.ndarray, E: np.ndarray, lx: float, le: float,
+                  decide: Callable[[str], dict] | None) -> dict | None:
+    """``status`` and ``reason`` when a side does not verify (undecided when its solver claimed a positive
+    margin its point does not have, or when ``decide`` is None; else ``decide``'s verdict); None when both
+    verify and ``Q > 0``."""
     sides = {"x-side": (lmi.classify(lx, X), xprog), "e-side": (lmi.classify(le, E), eprog)}
-    if not lmi.is_positive_definite(xv["Q"]):
+    if not lmi.is_positive_definite(xprog.values()["Q"]):
         sides["x-side"] = ("violated", xprog)
     bad = [name for name, (verdict, _) in sides.items() if verdict != "verified"]
+    if not bad:
+        return None
     # a solver that claimed a positive margin its point does not have: undecided, not infeasible
     claimed = [name for name in bad if float(sides[name][1].values()["t"]) > lmi.verify_tol(X if name == "x-side" else E)]
     margins = f"max eig x-side {lx:.3g}, e-side {le:.3g}"
     if claimed:
-        out.update(status="undecided", reason=(
+        return dict(status="undecided", reason=(
             f"the solver reported a positive margin on the {' and '.join(claimed)} but the recomputed matrix "
             f"does not verify ({margins})"))
-        return out
-    if bad and decide is None:
-        out.update(status="undecided", reason=(
+    if decide is None:
+        return dict(status="undecided", reason=(
             f"the {' and '.join(bad)} {'is' if len(bad) == 1 else 'are'} not strictly feasible under the "
             f"normalisation ({margins}), not decided further"))
-        return out
-    if bad:
-        out.update(_side_verdict({name: decide(name) for name in bad}, margins))
-        return out
+    return _side_verdict({name: decide(name) for name in bad}, margins)
+
+
+def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, e_keys: tuple[str, ...], joint_blocks: Callable[[dict], list],
+                   lx: float, le: float) -> dict:
+    """The joint matrix rebuilt from both sides: ``phi = |lx| / (2 lambda_max(B F' Q^-1 F B'))`` (1 when that
+    is 0), the e-side scaled by ``s = 2 / (phi lambda_min(Q) |le|)``, its margin on the Jacobi-equilibrated
+    matrix (inf when a diagonal entry is not negative), and the verdict."""
+    qmin = lmi.min_eig(xv["Q"])
     Q, Fh = xv["Q"], xv["Fh"]
     BF = B @ np.linalg.solve(Q, Fh).T  # B Fh' Q^{-1}
     G = BF @ Q @ BF.T  # = B Fh' Q^{-1} Fh B'
@@ -315,7 +333,7 @@ def recombine(
     else:
         Meq, margin = M, float("inf")  # a nonnegative diagonal entry: not negative definite
     min_eig = {"Q": qmin, "R": lmi.min_eig(vals["R"])}
-    out.update(margin=margin, raw_margin=raw, lmi_size=int(M.shape[0]), min_eig=min_eig, phi=phi, scale=s,
+    out = dict(margin=margin, raw_margin=raw, lmi_size=int(M.shape[0]), min_eig=min_eig, phi=phi, scale=s,
                values=vals)
     if lmi.classify(margin, Meq) == "verified" and lmi.is_positive_definite(vals["R"]):
         out.update(status="feasible", reason="")

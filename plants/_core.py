@@ -327,18 +327,22 @@ def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> SineT
         J[acts, reads] = gain * np.cos(x[reads])
         return J
 
+    a = abs(coef) / scale if acts.size else 0.0
+    return SineTerms(f=f, jacobian=jacobian, channels=_sine_channels(n, acts, reads, coef, scale),
+                     bounds=Constants(alpha=a, rho=a / 2, beta=a**2, gamma=0.0))
+
+
+def _sine_channels(n: int, acts: np.ndarray, reads: np.ndarray, coef: float, scale: float) -> Channels | None:
+    """The channels of :func:`sine_terms`: ``G = E_acts / scale``, ``H = E_reads'``, ``phi_l(z) = coef sin(z)``
+    (None when there is no term)."""
     q = acts.size
-    a = abs(coef) / scale if q else 0.0
-    channels = None
-    if q:
-        G = np.zeros((n, q))
-        G[acts, np.arange(q)] = 1.0 / scale
-        H = np.zeros((q, n))
-        H[np.arange(q), reads] = 1.0
-        channels = Channels(G=G, H=H, phi=lambda z: coef * np.sin(z), lo=-abs(coef), hi=abs(coef),
-                            narrow=sine_slopes(coef))
-    return SineTerms(f=f, jacobian=jacobian, channels=channels, bounds=Constants(alpha=a, rho=a / 2, beta=a**2,
-                                                                                   gamma=0.0))
+    if not q:
+        return None
+    G = np.zeros((n, q))
+    G[acts, np.arange(q)] = 1.0 / scale
+    H = np.zeros((q, n))
+    H[np.arange(q), reads] = 1.0
+    return Channels(G=G, H=H, phi=lambda z: coef * np.sin(z), lo=-abs(coef), hi=abs(coef), narrow=sine_slopes(coef))
 
 
 def _short(value, limit: int = 80) -> str:

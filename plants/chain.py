@@ -273,8 +273,6 @@ def chain_plant(
         On a bad argument (the message names it), or if (A, B) fails the PBH stabilizability or
         (A, C) the detectability test.
     """
-    from plants.random_families import is_detectable, is_stabilizable, pbh_margin
-
     N = check_int("N", N, 1, MAX_N)
     m = check_real("m", m, lo=0.0, strict=True)
     k = check_real("k", k, lo=0.0, strict=True)
@@ -288,16 +286,7 @@ def chain_plant(
     ins = layout if inputs is None else _masses("inputs", inputs, N, allow_empty=False)
     outs = layout if outputs is None else _masses("outputs", outputs, N, allow_empty=False)
     n = 2 * N
-
-    As, Bs, Cs = chain_matrices(N=N, m=m, k=k, d=d, b=b, inputs=ins, outputs=outs)
-    A, B, C = As.toarray(), Bs.toarray(), Cs.toarray()
-    if not is_stabilizable(A, B):
-        raise PlantError(f"inputs: (A, B) is not stabilizable with inputs at masses {list(ins)} "
-                         f"(PBH margin {pbh_margin(A, B):.3g})")
-    if not is_detectable(A, C):
-        raise PlantError(f"outputs: (A, C) is not detectable with outputs at masses {list(outs)} "
-                         f"(PBH margin {pbh_margin(A.T, C.T):.3g})")
-
+    A, B, C = _linear_part(N, m, k, d, b, ins, outs)
     qi = np.array([2 * i for i in nl], dtype=np.intp)
     pendula = sine_terms(n, acts=qi + 1, reads=qi, coef=c, scale=m)
     q = len(nl)
@@ -315,6 +304,22 @@ def chain_plant(
                f"positions measured at {list(outs)}; alpha = |c|/m, rho = |c|/(2m), "
                "(beta, gamma) = (c^2/m^2, 0), global"),
     )
+
+
+def _linear_part(N: int, m: float, k: float, d: float, b: float, ins, outs) -> tuple[np.ndarray, ...]:
+    """Dense ``(A, B, C)`` of the chain (:func:`chain_matrices`), or PlantError when (A, B) is not
+    stabilizable or (A, C) not detectable (PBH)."""
+    from plants.random_families import is_detectable, is_stabilizable, pbh_margin
+
+    As, Bs, Cs = chain_matrices(N=N, m=m, k=k, d=d, b=b, inputs=ins, outputs=outs)
+    A, B, C = As.toarray(), Bs.toarray(), Cs.toarray()
+    if not is_stabilizable(A, B):
+        raise PlantError(f"inputs: (A, B) is not stabilizable with inputs at masses {list(ins)} "
+                         f"(PBH margin {pbh_margin(A, B):.3g})")
+    if not is_detectable(A, C):
+        raise PlantError(f"outputs: (A, C) is not detectable with outputs at masses {list(outs)} "
+                         f"(PBH margin {pbh_margin(A.T, C.T):.3g})")
+    return A, B, C
 
 
 @register_plant("chain_v1")

@@ -304,6 +304,16 @@ def evaluate(plant, design_id: str, options=None, *, overrides: dict | None = No
                          prior=prior, scenario=scenario)
 
 
+def selection(plant_ids, design_ids, default_plants=None, default_designs=None) -> tuple[list[str], list[str]]:
+    """The plant and design ids a study runs: those given, else the defaults (else every registered one)."""
+    from bench.registry import DESIGNS, PLANTS
+
+    def pick(ids, default, registry):
+        return list(ids) if ids else (list(default) if default is not None else registry.ids())
+
+    return pick(plant_ids, default_plants, PLANTS), pick(design_ids, default_designs, DESIGNS)
+
+
 def map_tasks(ex, fn: Callable, tasks: list[tuple[Any, tuple]], progress: Callable[[int, int, str], None] | None = None,
               describe: Callable[[Any, Any], str] | None = None) -> dict:
     """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks`` on the executor ``ex``.
@@ -335,6 +345,16 @@ def map_tasks(ex, fn: Callable, tasks: list[tuple[Any, tuple]], progress: Callab
         if progress:
             progress(i, len(futs), describe(key, out[key]))
     return out
+
+
+def run_tasks(jobs: int, fn: Callable, tasks: list[tuple[Any, tuple]],
+              progress: Callable[[int, int, str], None] | None = None,
+              describe: Callable[[Any, Any], str] | None = None) -> dict:
+    """:func:`map_tasks` on a fresh :func:`bench.executors.executor` of ``jobs`` workers."""
+    from bench.executors import executor
+
+    with executor(jobs) as ex:
+        return map_tasks(ex, fn, tasks, progress, describe)
 
 
 # -- rendering ---------------------------------------------------------------------------------

@@ -38,8 +38,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, bisect_largest, check_range, check_rtol, fmt, map_tasks,
-                                   md_table, pyplot, study_header, write_study)
+from bench.studies._common import (StudyError, StudyResult, bisect_largest, check_range, check_rtol, fmt, md_table,
+                                   pyplot, run_tasks, selection, study_header, write_study)
 from designs import GAIN_STATUSES
 
 __all__ = ["run_admissible", "write_admissible"]
@@ -283,20 +283,16 @@ def run_admissible(
     StudyError
         A plant without a scale knob, bounds in the wrong order, rtol not > 0, a cap not > 0.
     """
-    from bench.executors import executor
-
     t_start = time.perf_counter()
     bounds = check_range("bounds", bounds)
     check_rtol(rtol)
     for c in caps:
         if not (math.isfinite(c) and c > 0):
             raise StudyError("caps", f"each cap must be finite and > 0, got {c!r}")
-    plant_ids = list(plant_ids) if plant_ids else list(KNOBS)
-    design_ids = list(design_ids) if design_ids else list(DEFAULT_DESIGNS)
+    plant_ids, design_ids = selection(plant_ids, design_ids, KNOBS, DEFAULT_DESIGNS)
     tasks = _tasks(plant_ids, design_ids, caps)
-    with executor(jobs) as ex:
-        results = map_tasks(ex, _pair_task, [((pid, did, _label(ov)), (pid, k, did, ov, bounds, rtol))
-                                             for pid, k, did, ov in tasks], progress, _progress_label)
+    results = run_tasks(jobs, _pair_task, [((pid, did, _label(ov)), (pid, k, did, ov, bounds, rtol))
+                                           for pid, k, did, ov in tasks], progress, _progress_label)
     rows, variant_rows, evals = _gather(tasks, results)
     settings = {"rtol": rtol, "bounds": bounds or "automatic (doubling/halving from the plant's default)",
                 "cap": 1e3, "other caps": tuple(caps),
@@ -396,7 +392,6 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
 
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
-    osl = _osl_rows(rows, plants)
     lines = [
         study_header("Study: maximum admissible nonlinearity (conservatism)", command, result.settings, result.wall_s),
         _INTRO.format(percent=f"{100 * result.settings['rtol']:g}"),
@@ -418,26 +413,8 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
         "",
         _DETAILS_NOTE,
         "",
-        "## Theorem 1 (OSL/QIB) vs Corollary 1 (Lipschitz)",
-        "",
-        _OSL_INTRO,
-        "",
-        md_table(osl, ["plant", "pair", "thm", "cor", "ratio", "alpha_thm", "alpha_cor", "rho_thm"],
-                 ["plant", "pair", "Theorem 1 admissible", "Corollary 1 admissible", "ratio Thm/Cor",
-                  "alpha at Thm's value", "alpha at Cor's value", "rho at Thm's value"]) if osl else "(not run)",
-        "",
-        _osl_verdict(osl),
-        "",
-        "## Sensitivity to the normalisation and to the designs' searches",
-        "",
-        (md_table([{**r, "admissible": _interval(r)} for r in result.variant_rows],
-                  ["plant", "design", "variant", "admissible", "fails_by", "n_evals", "wall_s"],
-                  ["plant", "design", "variant (design hyperparameters)", "admissible value", "fails by", "evals",
-                   "wall s"])
-         if result.variant_rows else "(not run: no variant's plant and design selected, or `--caps ''`)"),
-        "",
-        _variant_notes(result),
-        "",
+        *_osl_section(_osl_rows(rows, plants)),
+        *_variant_section(result),
         "## Compile vs solve",
         "",
         _compile_note(rows),
@@ -454,6 +431,38 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
     if len(variants):
         tables["study_admissible_variants"] = variants
     return write_study(out_dir, "admissible", "\n".join(lines), tables, figs)
+
+
+def _osl_section(osl: list[dict]) -> list[str]:
+    """The markdown comparing Theorem 1's admissible value with Corollary 1's, per plant."""
+    return [
+        "## Theorem 1 (OSL/QIB) vs Corollary 1 (Lipschitz)",
+        "",
+        _OSL_INTRO,
+        "",
+        md_table(osl, ["plant", "pair", "thm", "cor", "ratio", "alpha_thm", "alpha_cor", "rho_thm"],
+                 ["plant", "pair", "Theorem 1 admissible", "Corollary 1 admissible", "ratio Thm/Cor",
+                  "alpha at Thm's value", "alpha at Cor's value", "rho at Thm's value"]) if osl else "(not run)",
+        "",
+        _osl_verdict(osl),
+        "",
+    ]
+
+
+def _variant_section(result: AdmissibleResult) -> list[str]:
+    """The markdown of the cap variants: the admissible value under each design hyperparameter."""
+    return [
+        "## Sensitivity to the normalisation and to the designs' searches",
+        "",
+        (md_table([{**r, "admissible": _interval(r)} for r in result.variant_rows],
+                  ["plant", "design", "variant", "admissible", "fails_by", "n_evals", "wall_s"],
+                  ["plant", "design", "variant (design hyperparameters)", "admissible value", "fails by", "evals",
+                   "wall s"])
+         if result.variant_rows else "(not run: no variant's plant and design selected, or `--caps ''`)"),
+        "",
+        _variant_notes(result),
+        "",
+    ]
 
 
 _INTRO = (

@@ -22,8 +22,8 @@ from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyResult, check_box, check_count, check_horizon, default_box, fmt, map_tasks,
-                                   md_table, pyplot, random_ics, skipped_lines, study_header, write_study)
+from bench.studies._common import (StudyResult, check_box, check_count, check_horizon, default_box, fmt, md_table,
+                                   pyplot, random_ics, run_tasks, selection, skipped_lines, study_header, write_study)
 
 __all__ = ["run_montecarlo", "write_montecarlo"]
 
@@ -84,6 +84,11 @@ def _inside_level_set(first, X: np.ndarray, XH: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->j", Z, P @ Z) <= first.record["level_set"]
 
 
+def _describe(key, r: dict) -> str:
+    """The progress label of a finished pair: its fraction converging."""
+    return f"{r['row']['plant']} x {r['row']['design']}: {fmt(r['row'].get('frac_converged', math.nan))}"
+
+
 @dataclass
 class MonteCarloResult(StudyResult):
     """What :func:`run_montecarlo` produced: the rows and the settling times per plant x design."""
@@ -135,22 +140,16 @@ def run_montecarlo(
     StudyError
         ``n < 1``, a box that is not finite and > 0, a horizon that is not finite and > 0.
     """
-    from bench.executors import executor
-    from bench.registry import DESIGNS, PLANTS
-
     t_start = time.perf_counter()
     n = check_count("n", n, 1)
     box = check_box("box", box)
     check_horizon(t_final)
-    plant_ids = list(plant_ids) if plant_ids else PLANTS.ids()
-    design_ids = list(design_ids) if design_ids else DESIGNS.ids()
-    tasks = [((pid, did), (pid, did, n, box, seed, t_final, method, rtol, atol))
-             for pid in plant_ids for did in design_ids]
-    with executor(jobs) as ex:
-        out = map_tasks(ex, _mc_task, tasks, progress, lambda key, r: f"{r['row']['plant']} x {r['row']['design']}: "
-                                                                    f"{fmt(r['row'].get('frac_converged', math.nan))}")
-    rows = [out[(p, d)]["row"] for p in plant_ids for d in design_ids]
-    settling = {(p, d): out[(p, d)]["settling"] for p in plant_ids for d in design_ids}
+    plant_ids, design_ids = selection(plant_ids, design_ids)
+    pairs = [(pid, did) for pid in plant_ids for did in design_ids]
+    out = run_tasks(jobs, _mc_task, [(key, (*key, n, box, seed, t_final, method, rtol, atol)) for key in pairs],
+                    progress, _describe)
+    rows = [out[key]["row"] for key in pairs]
+    settling = {key: out[key]["settling"] for key in pairs}
     settings = {"N": n, "box": box if box is not None else "plant's initial-condition scale", "seed": seed,
                 "t_final": t_final if t_final is not None else "plant's", "method": method, "rtol": rtol,
                 "atol": atol, "jobs": jobs}

@@ -25,8 +25,8 @@ from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, check_horizon, check_levels, fmt, map_tasks, md_table,
-                                   pyplot, skipped_lines, study_header, write_study)
+from bench.studies._common import (StudyError, StudyResult, check_horizon, check_levels, fmt, md_table, pyplot,
+                                   run_tasks, selection, skipped_lines, study_header, write_study)
 
 __all__ = ["run_noise", "write_noise"]
 
@@ -79,6 +79,11 @@ def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[
     return skipped, jobs_list
 
 
+def _describe(key, r: dict) -> str:
+    """The progress label of a finished pair at one level: its RMS estimation error."""
+    return f"{r['plant']} x {r['design']} sigma {r['noise']:g}: rms_e {fmt(r['rms_e'])}"
+
+
 @dataclass
 class NoiseResult(StudyResult):
     """What :func:`run_noise` produced: the rows and the pairs not simulated (with why)."""
@@ -127,22 +132,16 @@ def run_noise(
     StudyError
         A noise level that is negative, zero or not finite; a bad ``noise_dt`` or horizon.
     """
-    from bench.executors import executor
-    from bench.registry import DESIGNS
-
     t_start = time.perf_counter()
     levels = check_levels("levels", levels)
     if not (isinstance(noise_dt, (int, float)) and math.isfinite(noise_dt) and noise_dt > 0):
         raise StudyError("noise_dt", f"must be finite and > 0, got {noise_dt!r}")
     check_horizon(t_final)
-    plant_ids = list(plant_ids) if plant_ids else list(DEFAULT_PLANTS)
-    design_ids = list(design_ids) if design_ids else DESIGNS.ids()
+    plant_ids, design_ids = selection(plant_ids, design_ids, DEFAULT_PLANTS)
     skipped, jobs_list = _priors(plant_ids, design_ids, levels, matched_ekf, t_final)
     tasks = [((prior.record["plant"], label, s), (prior, label, s, seed, noise_dt, t_final))
              for prior, label, s in jobs_list]
-    with executor(jobs) as ex:
-        rows = map_tasks(ex, _noise_task, tasks, progress, lambda key, r: f"{r['plant']} x {r['design']} sigma "
-                                                                        f"{r['noise']:g}: rms_e {fmt(r['rms_e'])}")
+    rows = run_tasks(jobs, _noise_task, tasks, progress, _describe)
     ordered = [rows[(prior.record["plant"], label, s)] for prior, label, s in jobs_list]
     settings = {"levels": ", ".join(f"{v:.3g}" for v in levels), "seed": seed, "noise_dt": noise_dt,
                 "matched EKF": matched_ekf, "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
@@ -174,6 +173,69 @@ def _draw(pid: str, rows: list[dict]):
     return draw
 
 
+def _plant_section(pid: str, sub: list[dict], levels: list[float]) -> list[str]:
+    """The markdown of one plant: a table per metric (design x level), the best estimator per level, its
+    figure, and the designs whose error at the smallest level is still the transient, not the noise."""
+    designs = list(dict.fromkeys(r["design"] for r in sub))
+    by = {(r["design"], r["noise"]): r for r in sub}
+    lines = []
+    for metric, title in (("rms_e", "RMS estimation error"), ("final_x", "final ||x||")):
+        lines += [f"## {pid}: {title}", "",
+                  "| design | " + " | ".join(f"sigma {s:.3g}" for s in levels) + " |",
+                  "|---|" + "|".join("---" for _ in levels) + "|"]
+        for did in designs:
+            lines.append(f"| {did} | " + " | ".join(fmt(by[(did, s)][metric]) if (did, s) in by else ""
+                                                    for s in levels) + " |")
+        lines.append("")
+    lines += [f"## {pid}: best estimator per level", "",
+              md_table(_best_per_level(sub, levels), ["noise", "best", "best_rms_e", "best_luenberger",
+                                                      "luenberger_rms_e", "best_ekf", "ekf_rms_e"],
+                       ["sigma", "lowest RMS ||e||", "its RMS", "best Luenberger-type", "its RMS", "best EKF",
+                        "its RMS"]), "",
+              f"![{pid}](figures/study_noise_{pid}.png)", ""]
+    slow = _transient_dominated(by, designs, levels)
+    if slow:
+        lines += ["RMS not proportional to sigma at the smallest level (RMS / sigma more than 3 x its value at the "
+                  "largest level): the transient has not died out by mid-horizon, so the error there is the slow "
+                  "convergence, not the noise: " + ", ".join(slow) + ".", ""]
+    nc = [r for r in sub if not r["converged"]]
+    if nc:
+        lines += ["Not settled (2 % settling of `||x||` or `||e||` not reached within the horizon): "
+                  + ", ".join(f"{r['design']} at sigma {r['noise']:.3g}" for r in nc) + ".", ""]
+    return lines
+
+
+def _best_per_level(sub: list[dict], levels: list[float]) -> list[dict]:
+    """Per level: the design of lowest RMS error overall, among fixed-gain observers and among EKFs."""
+    best = []
+    for s in levels:
+        cand = [r for r in sub if r["noise"] == s and math.isfinite(r["rms_e"])]
+        if cand:
+            b = min(cand, key=lambda r: r["rms_e"])
+            luen = [r for r in cand if r["estimator"] == "fixed K"]
+            ekf = [r for r in cand if r["estimator"] == "EKF"]
+            best.append({"noise": s, "best": b["design"], "best_rms_e": b["rms_e"],
+                         "best_luenberger": min(luen, key=lambda r: r["rms_e"])["design"] if luen else "",
+                         "luenberger_rms_e": min(r["rms_e"] for r in luen) if luen else math.nan,
+                         "best_ekf": min(ekf, key=lambda r: r["rms_e"])["design"] if ekf else "",
+                         "ekf_rms_e": min(r["rms_e"] for r in ekf) if ekf else math.nan})
+    return best
+
+
+def _transient_dominated(by: dict, designs: list[str], levels: list[float]) -> list[str]:
+    """Designs whose RMS / sigma at the smallest level exceeds 3 x its value at the largest level."""
+    slow = []
+    if len(levels) >= 2:
+        for did in designs:
+            if did == MATCHED_EKF:  # its tuning r = sigma^2 changes with the level: not comparable
+                continue
+            lo, hi = by.get((did, levels[0])), by.get((did, levels[-1]))
+            if lo and hi and all(math.isfinite(v) for v in (lo["rms_e"], hi["rms_e"])) and hi["rms_e"] > 0 and \
+                    lo["rms_e"] / levels[0] > 3 * hi["rms_e"] / levels[-1]:
+                slow.append(did)
+    return slow
+
+
 def write_noise(result: NoiseResult, out_dir: str, command: str):
     """Write ``STUDY_noise.md``, ``study_noise.csv`` and ``figures/study_noise_<plant>.png`` atomically."""
     import pandas as pd
@@ -193,53 +255,7 @@ def write_noise(result: NoiseResult, out_dir: str, command: str):
         "",
     ]
     for pid in plants:
-        sub = [r for r in rows if r["plant"] == pid]
-        designs = list(dict.fromkeys(r["design"] for r in sub))
-        by = {(r["design"], r["noise"]): r for r in sub}
-        for metric, title in (("rms_e", "RMS estimation error"), ("final_x", "final ||x||")):
-            lines += [f"## {pid}: {title}", "",
-                      "| design | " + " | ".join(f"sigma {s:.3g}" for s in levels) + " |",
-                      "|---|" + "|".join("---" for _ in levels) + "|"]
-            for did in designs:
-                lines.append(f"| {did} | " + " | ".join(fmt(by[(did, s)][metric]) if (did, s) in by else ""
-                                                        for s in levels) + " |")
-            lines.append("")
-        # best at each level
-        best = []
-        for s in levels:
-            cand = [r for r in sub if r["noise"] == s and math.isfinite(r["rms_e"])]
-            if cand:
-                b = min(cand, key=lambda r: r["rms_e"])
-                luen = [r for r in cand if r["estimator"] == "fixed K"]
-                ekf = [r for r in cand if r["estimator"] == "EKF"]
-                best.append({"noise": s, "best": b["design"], "best_rms_e": b["rms_e"],
-                             "best_luenberger": min(luen, key=lambda r: r["rms_e"])["design"] if luen else "",
-                             "luenberger_rms_e": min(r["rms_e"] for r in luen) if luen else math.nan,
-                             "best_ekf": min(ekf, key=lambda r: r["rms_e"])["design"] if ekf else "",
-                             "ekf_rms_e": min(r["rms_e"] for r in ekf) if ekf else math.nan})
-        lines += [f"## {pid}: best estimator per level", "",
-                  md_table(best, ["noise", "best", "best_rms_e", "best_luenberger", "luenberger_rms_e", "best_ekf",
-                                  "ekf_rms_e"],
-                           ["sigma", "lowest RMS ||e||", "its RMS", "best Luenberger-type", "its RMS", "best EKF",
-                            "its RMS"]), "",
-                  f"![{pid}](figures/study_noise_{pid}.png)", ""]
-        slow = []
-        if len(levels) >= 2:
-            for did in designs:
-                if did == MATCHED_EKF:  # its tuning r = sigma^2 changes with the level: not comparable
-                    continue
-                lo, hi = by.get((did, levels[0])), by.get((did, levels[-1]))
-                if lo and hi and all(math.isfinite(v) for v in (lo["rms_e"], hi["rms_e"])) and hi["rms_e"] > 0 and \
-                        lo["rms_e"] / levels[0] > 3 * hi["rms_e"] / levels[-1]:
-                    slow.append(did)
-        if slow:
-            lines += ["RMS not proportional to sigma at the smallest level (RMS / sigma more than 3 x its value at the "
-                      "largest level): the transient has not died out by mid-horizon, so the error there is the slow "
-                      "convergence, not the noise: " + ", ".join(slow) + ".", ""]
-        nc = [r for r in sub if not r["converged"]]
-        if nc:
-            lines += ["Not settled (2 % settling of `||x||` or `||e||` not reached within the horizon): "
-                      + ", ".join(f"{r['design']} at sigma {r['noise']:.3g}" for r in nc) + ".", ""]
+        lines += _plant_section(pid, [r for r in rows if r["plant"] == pid], levels)
     lines += skipped_lines(result.skipped, heading="## Not simulated", width=250)
     figs = {f"study_noise_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid]) for pid in plants}
     return write_study(out_dir, "noise", "\n".join(lines), {"study_noise": pd.DataFrame(rows)}, figs)

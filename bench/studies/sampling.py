@@ -36,7 +36,7 @@ import numpy as np
 
 from bench.studies._common import (StudyError, StudyResult, bisect_largest, check_box, check_count, check_horizon,
                                    check_range, check_rtol, default_box, fmt, map_tasks, md_table, pyplot, random_ics,
-                                   skipped_lines, study_header, write_study)
+                                   selection, skipped_lines, study_header, write_study)
 
 __all__ = ["run_sampling", "write_sampling"]
 
@@ -236,33 +236,40 @@ def run_sampling(
     StudyError
         Bad box, count, bounds, discretisation, or a required design without fixed gains.
     """
-    from bench.executors import executor
-    from bench.registry import DESIGNS
-
     t_start = time.perf_counter()
     n_ics, box, h_range = _check_args(n_ics, box, h_range, discretisation, rtol, t_final)
-    plant_ids = list(plant_ids) if plant_ids else list(DEFAULT_PLANTS)
-    design_ids = list(design_ids) if design_ids else DESIGNS.ids()
+    plant_ids, design_ids = selection(plant_ids, design_ids, DEFAULT_PLANTS)
+    args = (n_ics, box, seed, discretisation, h_range, rtol, t_final)
+    ordered, evals = _bisect_pairs(plant_ids, design_ids, required, args, jobs, progress)
+    settings = {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
+                "seed": seed, "discretisation": discretisation,
+                "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
+                "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
+    return SamplingResult(ordered, settings, time.perf_counter() - t_start, evals=evals)
+
+
+def _bisect_pairs(plant_ids: list[str], design_ids: list[str], required, args: tuple, jobs: int,
+                  progress) -> tuple[list[dict], list[dict]]:
+    """Design every pair, then bisect h for those with fixed gains: the rows in plant x design order and every
+    evaluation, sorted by pair and h. ``args``: :func:`_sampling_task`'s arguments after the prior (the last
+    is the horizon, also the designs')."""
+    from bench.executors import executor
+
+    t_final = args[-1]
     pairs = [(pid, did) for pid in plant_ids for did in design_ids]
     with executor(jobs) as ex:
         designed = map_tasks(ex, _design_task, [((pid, did), (pid, did, t_final)) for pid, did in pairs])
         _check_required(designed, required)
         rows = {key: row for key in pairs if (row := _unsimulated_row(*key, designed[key])) is not None}
-        tasks = [(key, (designed[key], n_ics, box, seed, discretisation, h_range, rtol, t_final))
-                 for key in pairs if key not in rows]
+        tasks = [(key, (designed[key], *args)) for key in pairs if key not in rows]
         done = map_tasks(ex, _sampling_task, tasks, progress,
                          lambda key, r: f"{key[0]} x {key[1]}: h_max {fmt(r['row']['h_max'])}")
     evals: list[dict] = []
     for key, r in done.items():
         rows[key] = r["row"]
         evals.extend(r["evals"])
-    ordered = [rows[key] for key in pairs]
     evals.sort(key=lambda e: (plant_ids.index(e["plant"]), design_ids.index(e["design"]), e["h"]))
-    settings = {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
-                "seed": seed, "discretisation": discretisation,
-                "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
-                "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
-    return SamplingResult(ordered, settings, time.perf_counter() - t_start, evals=evals)
+    return [rows[key] for key in pairs], evals
 
 
 def _check_args(n_ics, box, h_range, discretisation, rtol, t_final) -> tuple[int, float | None, tuple | None]:
