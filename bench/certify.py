@@ -683,7 +683,8 @@ FROM_X0_MORE = 2
 
 
 def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *, rate_rtol: float = RATE_RTOL,
-                    r_max: float | None = None, loop: checks.ClosedLoop | None = None) -> tuple[LevelResult | None, str]:
+                    r_max: float | None = None,
+                    loop: checks.ClosedLoop | None = None) -> tuple[LevelResult | None, str]:
     """A certificate from the initial condition where the channel slopes narrow on a region.
 
     On ``|(H x)_i|, |(H x_hat)_i| <= r`` the channels' slopes lie in the declared narrowing
