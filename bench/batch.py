@@ -42,9 +42,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench import checks
 from bench.errors import SimulationStopped as _BatchStop
 from bench.metrics import batch_metrics as _batch_metrics
-from bench.simulate import SimOptions, check_gains, choose_method
+from bench.simulate import SimOptions, choose_method
 
 __all__ = ["simulate_batch", "simulate_digital_batch"]
 
@@ -108,19 +109,11 @@ def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
     return X, XH
 
 
-def _horizon(plant, t_final) -> float:
-    """The horizon (default the plant's), or ValueError unless finite and > 0."""
-    T = float(plant.t_final if t_final is None else t_final)
-    if not (math.isfinite(T) and T > 0):
-        raise ValueError(f"t_final: must be finite and > 0, got {t_final!r}")
-    return T
-
-
 def _check_inputs(plant, K, F, x0, x_hat0, t_final):
     """Gains, initial conditions and horizon of a batch, checked: ``K, F, X, XH, T``."""
-    K, F = check_gains(plant, K, F)
+    K, F = checks.gains(plant, K, F)
     X, XH = _check_ics(plant, x0, x_hat0)
-    return K, F, X, XH, _horizon(plant, t_final)
+    return K, F, X, XH, checks.horizon(t_final, default=plant.t_final)
 
 
 def _norms(x: np.ndarray, xh: np.ndarray) -> np.ndarray:
@@ -360,13 +353,10 @@ def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, re
 
 def _periods(A: np.ndarray, T: float, h, discretisation: str, dt_max) -> tuple[int, int]:
     """The periods covering the horizon and the RK4 sub-steps per period, or ValueError naming the bad argument."""
-    if not (isinstance(h, (int, float, np.floating)) and math.isfinite(h) and h > 0):
-        raise ValueError(f"h: the sample period must be finite and > 0, got {h!r}")
+    h = checks.real("h", h, lo=0.0, strict=True)
     if discretisation not in DISCRETISATIONS:
         raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
-    dtm = _dt_max(A) if dt_max is None else float(dt_max)
-    if not (math.isfinite(dtm) and dtm > 0):
-        raise ValueError(f"dt_max: must be finite and > 0, got {dt_max!r}")
+    dtm = checks.real("dt_max", _dt_max(A) if dt_max is None else dt_max, lo=0.0, strict=True)
     return max(1, math.ceil(T / h - 1e-9)), max(1, math.ceil(h / dtm - 1e-9))
 
 

@@ -53,7 +53,7 @@ from functools import partial
 
 import numpy as np
 
-from bench import lmi, witness
+from bench import checks, lmi, witness
 from bench.constants import Knowledge
 from bench.search import RATE_RTOL, grid_floor, largest_passing
 from plants import Plant
@@ -388,6 +388,9 @@ def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
     """Decay rate of the closed loop (6) linearised at the origin, ``-max Re eig`` of
     ``A + Df(0) + B F`` and ``A + Df(0) - K C`` (no certificate can beat it).
 
+    A pair's pipeline computes it once (:func:`bench.checks.closed_loop`) and carries it; this is
+    the same number for a caller without it.
+
     Parameters
     ----------
     plant : Plant
@@ -399,10 +402,7 @@ def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
     float
         Negative when the linearisation is unstable.
     """
-    J = plant.jacobian(np.zeros(plant.n)) if plant.jacobian is not None else _fd_jacobian(plant.f, plant.n)
-    A = plant.A + np.asarray(J, dtype=float)
-    eig = np.concatenate([np.linalg.eigvals(A + plant.B @ F), np.linalg.eigvals(A - K @ plant.C)])
-    return float(-eig.real.max())
+    return checks.closed_loop(plant, K, F).linearised_rate
 
 
 def _unstable_admissible(spec: _Spec, know: Knowledge, plant: Plant, K: np.ndarray,
@@ -415,11 +415,6 @@ def _unstable_admissible(spec: _Spec, know: Knowledge, plant: Plant, K: np.ndarr
     settles the level as not certified without a solve.
     """
     return witness.linear_witness(plant, K, F, know, channels=spec.channels, scalars=spec.scalars)
-
-
-def _fd_jacobian(f, n: int, h: float = 1e-6) -> np.ndarray:
-    E = np.eye(n) * h
-    return (np.asarray(f(E), dtype=float) - np.asarray(f(-E), dtype=float)) / (2 * h)
 
 
 def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: float, hi: float, rates: bool,
@@ -501,6 +496,7 @@ def certify(
     rates: bool = True,
     rate_rtol: float = RATE_RTOL,
     inherit: bool = True,
+    loop: checks.ClosedLoop | None = None,
 ) -> Certificate:
     """Certify the observer-based closed loop with gains K, F at each level of the ladder.
 
@@ -521,6 +517,9 @@ def certify(
         A level whose own LMI certifies less than the level below (numerical trouble, or a
         different P found) keeps the lower certificate, which holds at every higher level
         (:func:`_inherit`); False reports each level's own LMI only.
+    loop : ClosedLoop, optional
+        The checked gains K, F and their spectra (:func:`bench.checks.closed_loop`), when the
+        caller has them; the rate search stops at its linearised rate.
 
     Returns
     -------
@@ -534,37 +533,39 @@ def certify(
     for lv in levels:
         if lv not in LEVELS:
             raise ValueError(f"levels: unknown certificate level {lv!r} (known: {', '.join(LEVELS)})")
-    K = np.asarray(K, dtype=float)
-    F = np.asarray(F, dtype=float)
-    if K.shape != (plant.n, plant.p) or F.shape != (plant.m, plant.n):
-        raise ValueError(f"K, F: expected shapes ({plant.n}, {plant.p}) and ({plant.m}, {plant.n}), "
-                         f"got {K.shape} and {F.shape}")
-    hi = linearised_rate(plant, K, F)
+    loop = loop if loop is not None else checks.closed_loop(plant, K, F)
     out: dict[str, LevelResult] = {}
     prev: LevelResult | None = None
     found: list = []
     for lv in (lv for lv in LEVELS if lv in levels):
-        spec, why = _spec(lv, plant.n, knowledge)
-        if spec is not None and plant.n > LADDER_MAX_N:
-            spec, why = None, f"n = {plant.n} is beyond the SDP certificate's reach (LADDER_MAX_N = {LADDER_MAX_N})"
-        if spec is None:
-            out[lv] = LevelResult(lv, "inapplicable", reason=why)
-            continue
-        unstable = _unstable_admissible(spec, knowledge, plant, K, F)
-        if unstable is not None:
-            found[:] = [unstable]  # the strongest level's witness (its class is the smallest)
-            out[lv] = prev = LevelResult(lv, "not certified", reason=(
-                f"{RULED_OUT}: {unstable.text}, and that linear f meets every constraint of the level"))
-            continue
-        start = prev.decay_rate if prev is not None and prev.certified else 0.0
-        res = _level(spec, plant, K, F, knowledge, start=start, hi=hi, rates=rates, rtol=rate_rtol)
-        out[lv] = _inherit(res, prev) if inherit else res
-        prev = out[lv]
+        out[lv] = _ladder_level(lv, plant, loop, knowledge, prev, found, rates=rates, rtol=rate_rtol, inherit=inherit)
+        if out[lv].status != "inapplicable":
+            prev = out[lv]
     return Certificate(out, witnesses=found)
 
 
+def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge, prev: LevelResult | None,
+                  found: list, *, rates: bool, rtol: float, inherit: bool) -> LevelResult:
+    """One level of :func:`certify` above ``prev``: inapplicable, ruled out by a linear member of its
+    class (whose witness replaces ``found``), or its program solved from the rate ``prev`` certified."""
+    spec, why = _spec(lv, plant.n, knowledge)
+    if spec is not None and plant.n > LADDER_MAX_N:
+        spec, why = None, f"n = {plant.n} is beyond the SDP certificate's reach (LADDER_MAX_N = {LADDER_MAX_N})"
+    if spec is None:
+        return LevelResult(lv, "inapplicable", reason=why)
+    K, F = loop.K, loop.F
+    unstable = _unstable_admissible(spec, knowledge, plant, K, F)
+    if unstable is not None:
+        found[:] = [unstable]  # the strongest level's witness (its class is the smallest)
+        return LevelResult(lv, "not certified", reason=(
+            f"{RULED_OUT}: {unstable.text}, and that linear f meets every constraint of the level"))
+    start = prev.decay_rate if prev is not None and prev.certified else 0.0
+    res = _level(spec, plant, K, F, knowledge, start=start, hi=loop.linearised_rate, rates=rates, rtol=rtol)
+    return _inherit(res, prev) if inherit else res
+
+
 def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *,
-            rate_rtol: float = RATE_RTOL, local: bool = True) -> Certificate:
+            rate_rtol: float = RATE_RTOL, local: bool = True, loop: checks.ClosedLoop | None = None) -> Certificate:
     """Complete a ladder's outcome with why it is what it is: witnesses, and a certificate from x0.
 
     Where no level certified globally and a linear member already rules the ladder out, or no level
@@ -581,12 +582,15 @@ def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
     rate_rtol : float
     local : bool
         Also search a certificate from x0.
+    loop : ClosedLoop, optional
+        The checked gains and their spectra (:func:`bench.checks.closed_loop`), when the caller has them.
 
     Returns
     -------
     Certificate
     """
-    K, F = np.asarray(K, dtype=float), np.asarray(F, dtype=float)
+    loop = loop if loop is not None else checks.closed_loop(plant, K, F)
+    K, F = loop.K, loop.F
     ladder = [r for r in cert.levels.values() if r.certified]
     if any(r.radius is None and r.region_H is None for r in ladder):
         return cert
@@ -599,7 +603,8 @@ def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
         r_eq = None
         if eq is not None and knowledge.channels is not None:
             r_eq = float(np.abs(_region_rows(knowledge.channels.H) @ eq.z).max())
-        cert.local, cert.local_note = certify_from_x0(plant, K, F, knowledge, rate_rtol=rate_rtol, r_max=r_eq)
+        cert.local, cert.local_note = certify_from_x0(plant, K, F, knowledge, rate_rtol=rate_rtol, r_max=r_eq,
+                                                      loop=loop)
         if r_eq is not None and cert.local is None:
             cert.local_note += f" (regions stop below r = {r_eq:.4g}, where the loop has an equilibrium)"
     return cert
@@ -677,7 +682,8 @@ FROM_X0_MORE = 2
 
 
 def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *, rate_rtol: float = RATE_RTOL,
-                    r_max: float | None = None) -> tuple[LevelResult | None, str]:
+                    r_max: float | None = None,
+                    loop: checks.ClosedLoop | None = None) -> tuple[LevelResult | None, str]:
     """A certificate from the initial condition where the channel slopes narrow on a region.
 
     On ``|(H x)_i|, |(H x_hat)_i| <= r`` the channels' slopes lie in the declared narrowing
@@ -699,6 +705,8 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     r_max : float, optional
         Regions are kept below this r (e.g. the size of an equilibrium of the loop, which no
         region with a certificate can hold).
+    loop : ClosedLoop, optional
+        The checked gains and their spectra (:func:`bench.checks.closed_loop`), when the caller has them.
 
     Returns
     -------
@@ -712,7 +720,8 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     n, q = plant.n, ch.q
     if n > LADDER_MAX_N:
         return None, f"no certificate from x0 searched: n = {n} is beyond LADDER_MAX_N = {LADDER_MAX_N}"
-    K, F = np.asarray(K, dtype=float), np.asarray(F, dtype=float)
+    loop = loop if loop is not None else checks.closed_loop(plant, K, F)
+    K, F = loop.K, loop.F
     z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0])
     rows = _region_rows(ch.H)
     r0 = max(float(np.abs(rows @ z0).max()), 1e-3)
@@ -721,7 +730,7 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     key = ("certify-from-x0", spec, mats.key, lmi.digest(ch.G), lmi.digest(ch.H))
     prog = lmi.cached_program(key, lambda: _build(spec, mats, partial(_blocks, spec, ch.G, ch.H), rows=rows))
     prog.set(**mats.settable(), Z0=np.outer(z0, z0), rho=0.0, beta=0.0, gamma=0.0, a2=0.0)  # no scalar constants
-    lin = linearised_rate(plant, K, F)
+    lin = loop.linearised_rate
     best: LevelResult | None = None
     tried, r, more = [], r0, FROM_X0_MORE
     for _ in range(FROM_X0_STEPS):

@@ -22,6 +22,8 @@ import time
 from contextlib import contextmanager
 from typing import Iterator
 
+from bench import checks
+from bench.checks import argtype
 from bench.registry import DESIGNS, PLANTS
 from bench.selection import check_selection
 
@@ -35,27 +37,10 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _number(kind: type, lo: float, *, strict: bool):
-    """An argparse type: a finite ``kind`` (int or float) above ``lo`` (``> lo`` if strict, else ``>=``)."""
-    word = "an integer" if kind is int else "a number"
-    bound = f"> {lo:g}" if strict else f">= {lo:g}"
-
-    def parse(text: str):
-        try:
-            v = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {word}, got {text!r}") from None
-        if not (v < float("inf") and (v > lo if strict else v >= lo)):
-            raise argparse.ArgumentTypeError(f"must be {word} {bound}, finite, got {text!r}")
-        return v
-
-    return parse
-
-
-_positive_float = _number(float, 0, strict=True)
-_nonneg_float = _number(float, 0, strict=False)
-_positive_int = _number(int, 1, strict=False)
-_nonneg_int = _number(int, 0, strict=False)
+_positive_float = argtype(checks.real, lo=0.0, strict=True)
+_nonneg_float = argtype(checks.real, lo=0.0)
+_positive_int = argtype(checks.integer, lo=1)
+_nonneg_int = argtype(checks.integer, lo=0)
 
 
 def _scheduler_address(text: str) -> str:

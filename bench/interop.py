@@ -19,6 +19,7 @@ import textwrap
 
 import numpy as np
 
+from bench import checks
 from plants import Plant
 
 __all__ = ["closed_loop_nlsys", "controller_ss", "observer_nlsys", "plant_nlsys"]
@@ -72,25 +73,12 @@ def _check_plant(plant) -> Plant:
 
 
 def _check_gains(plant, K, F) -> tuple[Plant, np.ndarray, np.ndarray]:
-    """The plant (TypeError unless a Plant), K (n x p) and F (m x n) as read-only float arrays (ValueError
-    naming the bad one and the expected shape)."""
-    plant = _check_plant(plant)
-    n, m, p = plant.n, plant.m, plant.p
-    out = []
-    for name, value, shape, what in (("K", K, (n, p), "n x p"), ("F", F, (m, n), "m x n")):
-        try:
-            arr = np.array(value, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{name}: expected a real array of shape {shape} ({what}), "
-                             f"could not convert ({exc})") from None
-        if arr.shape != shape:
-            raise ValueError(f"{name}: expected shape {shape} ({what} for plant {plant.id!r} with "
-                             f"n={n}, m={m}, p={p}), got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name}: entries must be finite, got {arr.tolist()}")
-        arr.setflags(write=False)
-        out.append(arr)
-    return plant, out[0], out[1]
+    """The plant (TypeError unless a Plant), K (n x p) and F (m x n) as read-only float arrays
+    (:func:`bench.checks.gains`: ValueError naming the bad one and the expected shape)."""
+    K, F = checks.gains(_check_plant(plant), K, F)
+    K.setflags(write=False)
+    F.setflags(write=False)
+    return plant, K, F
 
 
 @_doc

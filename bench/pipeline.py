@@ -22,7 +22,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bench.certify import LEVELS, Certificate, LevelResult, adopt, ceiling, certify, explain, linearised_rate
+from bench import checks
+from bench.certify import LEVELS, Certificate, LevelResult, adopt, ceiling, certify, explain
 from bench.constants import ConstantsReport, Knowledge, check_trajectory, resolve_constants
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
 from bench.metrics import trajectory_metrics
@@ -99,19 +100,12 @@ class RunOptions:
     simulate: bool = True
 
     def __post_init__(self) -> None:
-        if self.timeout is not None and not (isinstance(self.timeout, (int, float)) and math.isfinite(self.timeout)
-                                             and self.timeout > 0):
-            raise ValueError(f"timeout: must be None or a finite number of seconds > 0, got {self.timeout!r}")
-        for name, lo in (("noise", 0.0), ("noise_dt", None), ("horizon_cap", None)):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and (v >= 0 if lo == 0.0 else v > 0)):
-                raise ValueError(f"{name}: must be finite and {'>= 0' if lo == 0.0 else '> 0'}, got {v!r}")
-        if self.horizon_cap < 1:
-            raise ValueError(f"horizon_cap: must be >= 1 (a multiple of the plant's horizon), got {self.horizon_cap!r}")
-        if self.t_final is not None and not (math.isfinite(self.t_final) and self.t_final > 0):
-            raise ValueError(f"t_final: must be finite and > 0, got {self.t_final!r}")
-        if self.n_samples < 1:
-            raise ValueError(f"n_samples: must be >= 1, got {self.n_samples!r}")
+        checks.horizon(self.timeout, name="timeout")
+        checks.horizon(self.t_final)
+        checks.real("noise", self.noise, lo=0.0)
+        checks.real("noise_dt", self.noise_dt, lo=0.0, strict=True)
+        checks.real("horizon_cap", self.horizon_cap, lo=1.0)  # a multiple of the plant's horizon
+        checks.integer("n_samples", self.n_samples, lo=1)
         if self.certificate not in CERTIFICATE_MODES:
             raise ValueError(f"certificate: must be one of {CERTIFICATE_MODES}, got {self.certificate!r}")
 
@@ -164,6 +158,9 @@ class PairOutcome:
     disproved : dict
         Declarations the pair's own or another pair's simulation disproved (name -> why): the
         certificate uses ``report.knowledge(plant).without(disproved)``.
+    loop : ClosedLoop or None
+        The design's gains, checked, and the spectra of their linear closed loop
+        (:func:`bench.checks.closed_loop`): computed once, carried to the certificate and the simulation.
     """
 
     record: dict
@@ -173,6 +170,7 @@ class PairOutcome:
     certificate: Certificate | None = None
     metrics: dict | None = None
     disproved: dict = field(default_factory=dict)
+    loop: checks.ClosedLoop | None = None
 
 
 def blank_record(plant_id: str, design_id: str) -> dict:
@@ -234,26 +232,21 @@ def _record_design(rec: dict, res: DesignResult) -> None:
                solve_s=res.solve_s, params=_jsonable(res.params))
 
 
-def _verify(rec: dict, plant: Plant, res: DesignResult) -> None:
-    """Shapes and the eigenvalues of the gains' linear closed loop."""
-    F = np.asarray(res.F, dtype=float)
-    if F.shape != (plant.m, plant.n):
-        raise ValueError(f"the design returned F of shape {F.shape}; expected ({plant.m}, {plant.n})")
-    ex = float(np.linalg.eigvals(plant.A + plant.B @ F).real.max())
-    rec.update(max_re_eig_x=ex, norm_F=float(np.linalg.norm(F, 2)))
-    if res.K is None:  # a run-time estimator: no fixed observer matrix to check
-        return
-    K = np.asarray(res.K, dtype=float)
-    if K.shape != (plant.n, plant.p):
-        raise ValueError(f"the design returned K of shape {K.shape}; expected ({plant.n}, {plant.p})")
-    ee = float(np.linalg.eigvals(plant.A - K @ plant.C).real.max())
-    rec.update(max_re_eig_e=ee, stabilizing=bool(ex < 0 and ee < 0), norm_K=float(np.linalg.norm(K, 2)))
+def _verify(rec: dict, plant: Plant, res: DesignResult) -> checks.ClosedLoop:
+    """The gains' shapes (:func:`bench.checks.closed_loop`) and the eigenvalues of their linear closed loop."""
+    loop = checks.closed_loop(plant, res.K, res.F, optional_K=True)
+    ex = float(loop.eig_x.real.max())
+    rec.update(max_re_eig_x=ex, norm_F=float(np.linalg.norm(loop.F, 2)))
+    if loop.K is not None:  # else a run-time estimator: no fixed observer matrix to check
+        ee = float(loop.eig_e.real.max())
+        rec.update(max_re_eig_e=ee, stabilizing=bool(ex < 0 and ee < 0), norm_K=float(np.linalg.norm(loop.K, 2)))
+    return loop
 
 
-def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport,
-             options: RunOptions, know: Knowledge | None = None) -> Certificate | None:
-    """The certificate ladder (or its verdict only) on the trusted knowledge (default
-    ``report.knowledge(plant)``), recorded level by level."""
+def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport, options: RunOptions,
+             loop: checks.ClosedLoop, know: Knowledge | None = None) -> Certificate | None:
+    """The certificate ladder (or its verdict only) of the checked gains ``loop`` on the trusted
+    knowledge (default ``report.knowledge(plant)``), recorded level by level."""
     if options.certificate == "none":
         return None
     if res.K is None:
@@ -265,21 +258,21 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     know = know if know is not None else report.knowledge(plant)
     t0 = time.perf_counter()
     if options.certificate == "ladder":
-        cert = certify(plant, res.K, res.F, know)
+        cert = certify(plant, loop.K, loop.F, know, loop=loop)
     elif options.certificate == "own":  # no SDP: only the design's own verified certificate, if any
         cert = Certificate({lv: LevelResult(lv, "inapplicable", reason="the ladder was not run (certificate='own')")
                             for lv in LEVELS})
     else:  # strongest level first, at rate 0, until one certifies
         cert = Certificate({})
         for lv in reversed(LEVELS):
-            cert.levels.update(certify(plant, res.K, res.F, know, levels=(lv,), rates=False).levels)
+            cert.levels.update(certify(plant, loop.K, loop.F, know, levels=(lv,), rates=False, loop=loop).levels)
             if cert.levels[lv].certified:
                 break
         cert.levels = {lv: cert.levels[lv] for lv in LEVELS if lv in cert.levels}
     adopt(cert, res.certificate, know)
     if options.certificate == "ladder":
-        explain(cert, plant, res.K, res.F, know)
-        rec["rate_ceiling"], rec["ceiling_how"] = ceiling(cert, plant, res.K, res.F, know)
+        explain(cert, plant, loop.K, loop.F, know, loop=loop)
+        rec["rate_ceiling"], rec["ceiling_how"] = ceiling(cert, plant, loop.K, loop.F, know)
     rec["cert_s"] = time.perf_counter() - t0
     for lv, r in cert.levels.items():
         rec[f"cert_{lv}"], rec[f"decay_{lv}"] = r.status, r.decay_rate
@@ -307,7 +300,8 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     return cert
 
 
-def _horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions) -> float:
+def _horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
+             loop: checks.ClosedLoop) -> float:
     if res.estimator is not None:  # sampled-time estimator: the plant's horizon (a multiple of its dt)
         T, rule = (options.t_final or plant.t_final), ("fixed" if options.t_final else "plant")
     else:
@@ -315,7 +309,7 @@ def _horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificate | Non
         cond = float(np.linalg.cond(best.P)) if best is not None and best.P is not None else math.nan
         T, rule = horizon(plant.t_final, fixed=options.t_final, cap_factor=options.horizon_cap,
                           cert_rate=best.decay_rate if best is not None else math.nan, cond_p=cond,
-                          linear_rate=linearised_rate(plant, res.K, res.F))
+                          linear_rate=loop.linearised_rate)
     rec.update(horizon_s=T, horizon_rule=rule)
     return T
 
@@ -339,15 +333,16 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
     the certificate used along the simulation (re-certifying without any it disproved), and record
     what the certificate predicts for this simulation."""
     rec = out.record
-    T = _horizon(rec, plant, res, cert, options)
+    T = _horizon(rec, plant, res, cert, options, out.loop)
     sim = _sim_options(options, T, plant.t_final)
     rec["noise"] = options.noise
     batch = scenario is not None and scenario.batch
     if batch:
         m = _simulate_batch(out, plant, res, T, scenario, sim.max_wall_s)
     else:
-        traj = simulate_controller(plant, res.F, K=res.K, estimator=res.estimator, t_final=T, noise=options.noise,
-                                   noise_dt=options.noise_dt, seed=options.seed, options=sim)
+        traj = simulate_controller(plant, out.loop.F, K=out.loop.K, estimator=res.estimator, t_final=T,
+                                   noise=options.noise, noise_dt=options.noise_dt, seed=options.seed, options=sim,
+                                   loop=out.loop)
         out.trajectory = traj
         rec.update(sim_s=traj.wall_s, sim_status=traj.status)
         if traj.status == "timeout" and options.timeout is not None:
@@ -394,7 +389,7 @@ def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, repor
     _note(rec, "DECLARATION DISPROVED by the simulation: " + "; ".join(bad.values())
           + ": the pair is re-certified without it")
     out.disproved = {**out.disproved, **bad}
-    out.certificate = _certify(rec, plant, res, report, options, know=know.without(bad))
+    out.certificate = _certify(rec, plant, res, report, options, out.loop, know=know.without(bad))
 
 
 def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float, H: np.ndarray | None = None) -> str:
@@ -496,7 +491,8 @@ def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> 
         _note(rec, "DECLARATION DISPROVED by another pair's simulation: " + "; ".join(extra.values())
               + ": the pair is re-certified without it")
         o.disproved = {**o.disproved, **extra}
-        o.certificate = _certify(rec, plant, res, reports[pid], options, know=know.without(extra))
+        loop = o.loop if o.loop is not None else checks.closed_loop(plant, res.K, res.F)  # a cached outcome
+        o.certificate = _certify(rec, plant, res, reports[pid], options, loop, know=know.without(extra))
         best = o.certificate.best if o.certificate is not None else None
         if math.isfinite(rec["cert_horizon_s"]):
             rec["cert_horizon_s"] = certified_horizon(best.decay_rate, float(np.linalg.cond(best.P))) \
@@ -587,15 +583,16 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
             out.result, out.certificate, out.disproved = prior.result, prior.certificate, dict(prior.disproved)
             if out.result is None or not out.result.has_controller:
                 return out
+            out.loop = checks.closed_loop(plant, out.result.K, out.result.F, optional_K=True)  # of this plant
         else:
             obj = DESIGNS.create(design) if isinstance(design, str) else design
             out.result = _design(rec, plant, obj, report, options)
             if out.result is None or not out.result.has_controller:
                 return out
             phase = "verification"
-            _verify(rec, plant, out.result)
+            out.loop = _verify(rec, plant, out.result)
             phase = "certificate"
-            out.certificate = _certify(rec, plant, out.result, report, options)
+            out.certificate = _certify(rec, plant, out.result, report, options, out.loop)
         result = out.result
         if options.simulate:
             phase = "simulation"

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bench import checks
 from bench.errors import SimulationStopped as _Stop
 from plants import Plant
 
@@ -57,17 +58,11 @@ class SimOptions:
     max_wall_s: float | None = None
 
     def __post_init__(self) -> None:
-        if self.max_wall_s is not None and not (isinstance(self.max_wall_s, (int, float))
-                                                and np.isfinite(self.max_wall_s) and self.max_wall_s > 0):
-            raise ValueError(f"max_wall_s: must be None or a finite number > 0, got {self.max_wall_s!r}")
+        checks.horizon(self.max_wall_s, name="max_wall_s")
         for name in ("rtol", "atol", "blowup"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
-        if int(self.n_points) < 2:
-            raise ValueError(f"n_points: must be >= 2, got {self.n_points!r}")
-        if int(self.max_nfev) < 1:
-            raise ValueError(f"max_nfev: must be >= 1, got {self.max_nfev!r}")
+            checks.real(name, getattr(self, name), lo=0.0, strict=True)
+        checks.integer("n_points", self.n_points, lo=2)
+        checks.integer("max_nfev", self.max_nfev, lo=1)
 
 
 @dataclass
@@ -105,18 +100,8 @@ class Trajectory:
         return self.x - self.x_hat
 
 
-def check_gains(plant: Plant, K, F) -> tuple[np.ndarray, np.ndarray]:
-    """K (n x p) and F (m x n) as float arrays, or ValueError naming the one with a wrong shape."""
-    n = plant.n
-    K = np.asarray(K, dtype=float)
-    F = np.asarray(F, dtype=float)
-    if K.shape != (n, plant.p):
-        raise ValueError(f"K: expected shape ({n}, {plant.p}), got {K.shape}")
-    if F.shape != (plant.m, n):
-        raise ValueError(f"F: expected shape ({plant.m}, {n}), got {F.shape}")
-    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(F))):
-        raise ValueError("K, F: entries must be finite")
-    return K, F
+#: K (n x p) and F (m x n) as float arrays, or ValueError naming the bad one (:func:`bench.checks.gains`).
+check_gains = checks.gains
 
 
 #: ``method="auto"`` switches to BDF when ``max(-Re lambda) * t_final`` of the linear closed loop exceeds this.
@@ -130,7 +115,8 @@ def _loop_matrix(plant, K: np.ndarray, F: np.ndarray) -> np.ndarray:
     return np.block([[A, BF], [KC, A + BF - KC]])
 
 
-def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: str = "BDF") -> str:
+def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: str = "BDF",
+                  loop: checks.ClosedLoop | None = None) -> str:
     """``stiff`` if the linear part of the closed loop (6) is stiff over the horizon, else ``"DOP853"``.
 
     DOP853 (8th order, as the harness's single-trajectory simulator) rather than RK45: on the
@@ -141,14 +127,16 @@ def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: st
     Stiff means ``max(-Re lambda) * t_final > STIFF`` for the eigenvalues lambda of
     ``[[A, BF], [KC, A + BF - KC]]``: an explicit method would then need more than ~STIFF/3
     steps for stability alone (measured: a Theorem 1 observer with an eigenvalue at -1121 took
-    47 000 RK45 right-hand sides for 20 s and 690 with BDF).
+    47 000 RK45 right-hand sides for 20 s and 690 with BDF). ``loop`` carries those eigenvalues
+    (:func:`bench.checks.closed_loop`) when the caller has them.
     """
     A, BF, KC = plant.A, plant.B @ F, K @ plant.C
     # the loop is block triangular in (x, e): its eigenvalues are those of A + BF and A - KC; a norm
     # bounds every |lambda|, so when it is small enough no eigenvalue is computed (O(n^2), not O(n^3))
     if max(np.linalg.norm(A + BF, 1), np.linalg.norm(A - KC, 1)) * t_final <= STIFF:
         return "DOP853"
-    fast = max(float(np.max(-np.linalg.eigvals(M).real)) for M in (A + BF, A - KC))
+    spectra = (loop.eig_x, loop.eig_e) if loop is not None else (np.linalg.eigvals(M) for M in (A + BF, A - KC))
+    fast = max(float(np.max(-eig.real)) for eig in spectra)
     return stiff if fast * t_final > STIFF else "DOP853"
 
 
@@ -237,6 +225,7 @@ def simulate(
     x0: np.ndarray | None = None,
     x_hat0: np.ndarray | None = None,
     options: SimOptions = SimOptions(),
+    loop: checks.ClosedLoop | None = None,
 ) -> Trajectory:
     """Simulate the nonlinear closed loop plant + observer (6) from the plant's initial conditions.
 
@@ -250,29 +239,39 @@ def simulate(
     x0, x_hat0 : ndarray, optional
         Initial conditions (default the plant's).
     options : SimOptions
+    loop : ClosedLoop, optional
+        The checked gains K, F and their spectra (:func:`bench.checks.closed_loop`), when the
+        caller has them.
 
     Returns
     -------
     Trajectory
         Truncated at the stopping time when the run diverged or ran out of budget.
     """
-    from scipy.integrate import solve_ivp
-
     n = plant.n
-    K, F = check_gains(plant, K, F)
-    T = float(plant.t_final if t_final is None else t_final)
-    if not np.isfinite(T) or T <= 0:
-        raise ValueError(f"t_final: must be finite and > 0, got {t_final!r}")
+    K, F = (loop.K, loop.F) if loop is not None else checks.gains(plant, K, F)
+    T = checks.horizon(t_final, default=plant.t_final)
     x0 = np.asarray(plant.x0 if x0 is None else x0, dtype=float)
     xh0 = np.asarray(plant.x_hat0 if x_hat0 is None else x_hat0, dtype=float)
     z0 = np.concatenate([x0, xh0])
-    limit = options.blowup * max(1.0, float(np.linalg.norm(z0)))
     rhs = _LoopRHS(_loop_operator(plant, K, F), plant.f, n, options)
-    t_eval = np.linspace(0.0, T, int(options.n_points))
     t0 = time.perf_counter()
+    method = choose_method(plant, K, F, T, stiff="Radau", loop=loop) if options.method == "auto" else options.method
+    t_out, z, dense, status, message = _integrate(rhs, z0, T, method, options)
+    wall = time.perf_counter() - t0
+    x, xh = z[:n], z[n:]
+    return Trajectory(t_out, x, xh, F @ xh, status, message, wall, rhs.count, dense)
+
+
+def _integrate(rhs: _LoopRHS, z0: np.ndarray, T: float, method: str, options: SimOptions):
+    """``solve_ivp`` of ``rhs`` over ``[0, T]`` from ``z0`` on the output grid, stopped where ``||z||``
+    passes ``options.blowup * max(1, ||z0||)``; ``t, z, dense, status, message``."""
+    from scipy.integrate import solve_ivp
+
+    limit = options.blowup * max(1.0, float(np.linalg.norm(z0)))
+    t_eval = np.linspace(0.0, T, int(options.n_points))
     status, message, dense = "ok", "", None
     try:
-        method = choose_method(plant, K, F, T, stiff="Radau") if options.method == "auto" else options.method
         sol = solve_ivp(rhs, (0.0, T), z0, method=method, t_eval=t_eval, rtol=options.rtol,
                         atol=options.atol, events=_blowup_event(limit), dense_output=True)
         t_out, z, dense = sol.t, sol.y, sol.sol
@@ -283,11 +282,9 @@ def simulate(
     except _Stop as stop:
         status, message = stop.status, str(stop)
         t_out, z = np.array([0.0]), z0[:, None]
-    wall = time.perf_counter() - t0
     if status == "ok" and not np.all(np.isfinite(z)):
         status, message = "diverged", "non-finite state"
-    x, xh = z[:n], z[n:]
-    return Trajectory(t_out, x, xh, F @ xh, status, message, wall, rhs.count, dense)
+    return t_out, z, dense, status, message
 
 
 def simulate_controller(
@@ -301,6 +298,7 @@ def simulate_controller(
     noise_dt: float = 0.01,
     seed: int = 0,
     options: SimOptions = SimOptions(),
+    loop: checks.ClosedLoop | None = None,
 ) -> Trajectory:
     """Simulate an observer-based controller, whatever its estimator: the one entry point for a pair.
 
@@ -328,6 +326,8 @@ def simulate_controller(
         Measurement noise (standard deviation, >= 0; 0: none), its hold period for a fixed gain,
         and the seed of the noise.
     options : SimOptions
+    loop : ClosedLoop, optional
+        Checked K, F and their spectra (:func:`bench.checks.closed_loop`), when the caller has them.
 
     Returns
     -------
@@ -341,24 +341,29 @@ def simulate_controller(
     """
     if (K is None) == (estimator is None):
         raise ValueError("simulate_controller: give exactly one of K and estimator")
-    if not (np.isfinite(noise) and noise >= 0):
-        raise ValueError(f"noise: must be finite and >= 0, got {noise!r}")
+    checks.real("noise", noise, lo=0.0)
     if estimator is not None:
-        if not hasattr(estimator, "update"):  # a specification: build the filter
-            from bench.estimators import runtime_estimator
-
-            estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final, options=options)
-        return _sampled(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options)
+        return _simulate_estimator(plant, F, estimator, t_final, noise, seed, options)
     if noise > 0:
         return _sampled(plant, F, K, None, noise_dt, t_final, noise, seed, options)
-    return simulate(plant, K, F, t_final=t_final, options=options)
+    return simulate(plant, K, F, t_final=t_final, options=options, loop=loop)
+
+
+def _simulate_estimator(plant: Plant, F, estimator, t_final: float, noise: float, seed: int,
+                        options: SimOptions) -> Trajectory:
+    """The run-time estimator path of :func:`simulate_controller`: the filter built from its
+    specification (unless already built), run at its own sample period."""
+    if not hasattr(estimator, "update"):  # a specification: build the filter
+        from bench.estimators import runtime_estimator
+
+        estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final, options=options)
+    return _sampled(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options)
 
 
 def _sampled(plant: Plant, F, K, estimator, dt: float, t_final: float, noise: float, seed: int,
              options: SimOptions) -> Trajectory:
     """The sampled paths of :func:`simulate_controller`: ``N = t_final / dt`` intervals, noise drawn once."""
-    if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt: must be finite and > 0, got {dt!r}")
+    checks.real("dt", dt, lo=0.0, strict=True)
     T = float(t_final)
     steps = T / dt
     if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:

@@ -6,13 +6,12 @@ Nothing here simulates. Infeasibility is a result (a status with a reason), not 
 from __future__ import annotations
 
 import difflib
-import math
-import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from bench import checks
 from bench.errors import DesignError
 from plants import Constants, Plant
 
@@ -35,18 +34,14 @@ STATUSES = ("feasible", "computed", "given", "infeasible", "marginal", "inapplic
 GAIN_STATUSES = ("feasible", "computed", "given")
 
 
+def _design_error(name: str, message: str) -> DesignError:
+    return DesignError(f"{name}: {message}")
+
+
 def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
-    """Return ``value`` as a float, or raise :class:`DesignError` naming ``name``."""
-    if isinstance(value, (str, bytes)):  # float("1e-3") would accept a string silently
-        raise DesignError(f"{name}: expected a real number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError, OverflowError):
-        raise DesignError(f"{name}: expected a finite real number, got {_short(value)}") from None
-    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise DesignError(f"{name}: must be finite and {bound}, got {_short(value)}")
-    return v
+    """Return ``value`` as a finite float ``> 0`` (``>= 0`` with ``allow_zero``), or raise
+    :class:`DesignError` naming ``name`` (:func:`bench.checks.real`)."""
+    return checks.real(name, value, lo=0.0, strict=not allow_zero, error=_design_error)
 
 
 def _short(value: Any, limit: int = 80) -> str:
@@ -55,16 +50,9 @@ def _short(value: Any, limit: int = 80) -> str:
 
 
 def check_int(name: str, value: Any, *, minimum: int) -> int:
-    """Return ``value`` as an int ``>= minimum``, or raise :class:`DesignError` naming ``name``.
-
-    Integers (Python or numpy, not bool) only: ``2.5`` or ``"7"`` are rejected rather than
-    truncated or parsed.
-    """
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise DesignError(f"{name}: expected an integer, got {_short(value)}")
-    if int(value) < minimum:
-        raise DesignError(f"{name}: must be >= {minimum}, got {value!r}")
-    return int(value)
+    """Return ``value`` as an int ``>= minimum``, or raise :class:`DesignError` naming ``name``
+    (:func:`bench.checks.integer`: ``2.5`` or ``"7"`` are rejected rather than truncated or parsed)."""
+    return checks.integer(name, value, lo=minimum, error=_design_error)
 
 
 def _is_sequence(value: Any) -> bool:

@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from bench import checks
 from bench.errors import StudyError
 from bench.search import largest_passing
 from bench.report import format_cell as fmt  # one cell formatter for every report
@@ -43,18 +44,7 @@ class StudyResult:
     wall_s: float
 
 
-# -- argument checks ---------------------------------------------------------------------------
-def _finite(name: str, value: Any) -> float:
-    """``float(value)``, or StudyError naming ``name`` unless it is a finite real number."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise StudyError(name, f"expected a real number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise StudyError(name, f"must be finite, got {value!r}")
-    return v
-
-
+# -- argument checks (bench.checks, raising StudyError) --------------------------------------
 def check_box(name: str, value: Any) -> float | None:
     """A half-width of an initial-condition box: finite and > 0 (None = the plant's default).
 
@@ -63,12 +53,7 @@ def check_box(name: str, value: Any) -> float | None:
     StudyError
         Naming ``name`` when the value is negative, zero or not finite.
     """
-    if value is None:
-        return None
-    v = _finite(name, value)
-    if v <= 0:
-        raise StudyError(name, f"the box half-width must be > 0, got {value!r}")
-    return v
+    return None if value is None else checks.real(name, value, lo=0.0, strict=True, error=StudyError)
 
 
 def check_count(name: str, value: Any, lo: int = 1) -> int:
@@ -79,11 +64,7 @@ def check_count(name: str, value: Any, lo: int = 1) -> int:
     StudyError
         Naming ``name``.
     """
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise StudyError(name, f"expected an integer, got {value!r}")
-    if int(value) < lo:
-        raise StudyError(name, f"must be >= {lo}, got {value!r}")
-    return int(value)
+    return checks.integer(name, value, lo=lo, error=StudyError)
 
 
 def check_levels(name: str, values: Any) -> list[float]:
@@ -99,10 +80,7 @@ def check_levels(name: str, values: Any) -> list[float]:
         raise StudyError(name, "at least one level is needed")
     out = []
     for v in vals:
-        x = _finite(name, v)
-        if x <= 0:
-            raise StudyError(name, f"each noise level must be > 0 (a standard deviation on a log grid), got {v!r}")
-        out.append(x)
+        out.append(checks.real(name, v, lo=0.0, strict=True, error=StudyError))
     return sorted(set(out))
 
 
@@ -120,9 +98,8 @@ def check_range(name: str, value: Any, *, positive: bool = True) -> tuple[float,
         lo, hi = value
     except (TypeError, ValueError):
         raise StudyError(name, f"expected two numbers LO HI, got {value!r}") from None
-    lo, hi = _finite(name, lo), _finite(name, hi)
-    if positive and lo <= 0:
-        raise StudyError(name, f"the lower bound must be > 0, got {lo!r}")
+    lo = checks.real(name, lo, lo=0.0 if positive else None, strict=True, error=StudyError)
+    hi = checks.real(name, hi, error=StudyError)
     if not lo < hi:
         raise StudyError(name, f"bounds in the wrong order: LO = {lo:g} must be < HI = {hi:g}")
     return lo, hi
@@ -136,8 +113,7 @@ def check_rtol(rtol: Any) -> float:
     StudyError
         Naming ``rtol``.
     """
-    if not (isinstance(rtol, (int, float)) and math.isfinite(rtol) and 0 < rtol < 1):
-        raise StudyError("rtol", f"must be a number in (0, 1), got {rtol!r}")
+    checks.real("rtol", rtol, lo=0.0, strict=True, hi=1.0, error=StudyError)
     return rtol
 
 
@@ -149,9 +125,7 @@ def check_horizon(t_final: Any) -> float | None:
     StudyError
         Naming ``t_final``.
     """
-    if t_final is not None and not (math.isfinite(t_final) and t_final > 0):
-        raise StudyError("t_final", f"must be finite and > 0, got {t_final!r}")
-    return t_final
+    return checks.horizon(t_final, error=StudyError)
 
 
 # -- bisection --------------------------------------------------------------------------------

@@ -9,10 +9,12 @@ option value: the message names the option).
 from __future__ import annotations
 
 import argparse
-import math
 import shlex
 import sys
 import time
+
+from bench import checks
+from bench.checks import argtype
 
 __all__ = ["add_study_parser", "run_study"]
 
@@ -24,55 +26,30 @@ OPTIONS = {
 }
 
 
-def _finite_float(text: str, expected: str, finite: str) -> float:
-    """``float(text)``, or ArgumentTypeError ``"<expected>, got ..."`` (not a number) or ``"<finite>, got ..."``."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{expected}, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"{finite}, got {text!r}")
-    return v
-
-
-def _float(*, lo: float | None = None, strict: bool = True):
-    """An argparse type: a finite number, above ``lo`` when given (``> lo`` if strict, else ``>=``)."""
-    def parse(text: str) -> float:
-        v = _finite_float(text, "expected a number", "must be finite")
-        if lo is not None and (v < lo or (strict and v == lo)):
-            raise argparse.ArgumentTypeError(f"must be {'>' if strict else '>='} {lo:g}, got {text!r}")
-        return v
-
-    return parse
+def _float(*, lo: float | None = None):
+    """An argparse type: a finite number, ``> lo`` when given (:func:`bench.checks.real`)."""
+    return argtype(checks.real, lo=lo, strict=True)
 
 
 def _int(lo: int):
-    """An argparse type: an integer ``>= lo``."""
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if v < lo:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {text!r}")
-        return v
-
-    return parse
+    """An argparse type: an integer ``>= lo`` (:func:`bench.checks.integer`)."""
+    return argtype(checks.integer, lo=lo)
 
 
 def _float_list(*, positive: bool, allow_empty: bool):
     """An argparse type: comma-separated finite numbers (each > 0 if ``positive``; none if ``allow_empty``)."""
+    def fail(name: str, message: str) -> Exception:
+        return argparse.ArgumentTypeError(f"each value {message}")
+
     def parse(text: str) -> list[float]:
         parts = [p.strip() for p in text.split(",") if p.strip()]
         if not parts and not allow_empty:
             raise argparse.ArgumentTypeError("expected a comma-separated list of numbers, got nothing")
-        out = []
-        for p in parts:
-            v = _finite_float(p, "expected numbers like 1e-3,1e-2", "each value must be finite")
-            if positive and v <= 0:
-                raise argparse.ArgumentTypeError(f"each value must be > 0, got {p!r}")
-            out.append(v)
-        return out
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected numbers like 1e-3,1e-2, got {text!r}") from None
+        return [checks.real("value", v, lo=0.0 if positive else None, strict=True, error=fail) for v in values]
 
     return parse
 

@@ -1,4 +1,4 @@
-"""Ids and output paths are checked before any computing (issue "Nothing wrong reported as valid", item 4).
+"""Ids and output paths are checked before anything is computed:
 
 - a plant or design id that is unsafe in a file name ("a/b") is refused where it is registered or
   built, with a message naming the id and the allowed characters (not after the run, on the figure);

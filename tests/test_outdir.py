@@ -1,4 +1,4 @@
-"""Reports are whole or nothing (issue "Nothing wrong reported as valid", item 3).
+"""Report folders are written whole or not at all (bench.outdir):
 
 - an I/O error on the last move leaves the previous report byte-identical, and says so truly;
 - two writers into one folder both succeed (no writer deletes another's temporary folder);

@@ -1,9 +1,11 @@
-"""Issue "Nothing wrong reported as valid": one test per item the source now handles.
+"""A record claims no more than its evidence: disproved or sampled constants never certify, an f that
+breaks the plant contract is a PlantError naming it, a plant no controller stabilizes is inapplicable,
+a margin within the tolerance is marginal, an infeasible reason states the normalisation, the solver
+column names the solver of the point, given and computed gains are not "feasible".
 
-Each test reproduces the situation of the issue (a wrong declaration, a broken f, a plant no
-controller can stabilize, a label that claimed too much) and checks the record the pipeline
-(:func:`bench.pipeline.evaluate_pair`) writes for it. Where the old behaviour is reachable (a
-declaration trusted as it is), the test shows it first, so the test would have failed before.
+Each test builds the situation (a wrong declaration, a broken f, an unstabilizable plant) and checks
+the record :func:`bench.pipeline.evaluate_pair` writes for it; where trusting the declaration as it
+is can be shown, the test shows it first.
 """
 
 import math
