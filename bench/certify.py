@@ -725,14 +725,53 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0])
     rows = _region_rows(ch.H)
     r0 = max(float(np.abs(rows @ z0).max()), 1e-3)
-    spec = _Spec("structured", n, q, True, (), True)
+    prog, spec = _from_x0_program(plant, K, F, ch, z0, rows)
+    best: LevelResult | None = None
+    tried, more = [], FROM_X0_MORE
+    for r, lo, hi in _regions(ch, r0, r_max):
+        tried.append(r)
+        prog.set(lohi=lo * hi, losum=lo + hi, r2=(r * (1 - FROM_X0_SHRINK)) ** 2)
+        verdict, margin = _check(prog, 0.0)
+        if verdict == "verified" and _contains(_full_p(prog, spec), z0, rows, r):
+            found = _rate_in_region(prog, spec, plant, loop, knowledge, z0, rows, r, (lo, hi), margin, rate_rtol)
+            if best is None or found.decay_rate > best.decay_rate:
+                best = found
+            more -= 1
+            if more < 0 or found.decay_rate < best.decay_rate:
+                break
+        elif best is not None:
+            break
+    if best is not None:
+        best.solve_s, best.n_solves = prog.compile_s + prog.solve_s, prog.n_solves
+        return best, ""
+    return None, _none_from_x0(tried)
+
+
+def _from_x0_program(plant: Plant, K: np.ndarray, F: np.ndarray, ch, z0: np.ndarray,
+                     rows: np.ndarray) -> tuple[lmi.Program, _Spec]:
+    """The structured level's program with the containment rows of the region, set for these gains
+    and ``z0`` (no scalar constants: only the channels' narrowed slopes enter)."""
+    spec = _Spec("structured", plant.n, ch.q, True, (), True)
     mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
     key = ("certify-from-x0", spec, mats.key, lmi.digest(ch.G), lmi.digest(ch.H))
     prog = lmi.cached_program(key, lambda: _build(spec, mats, partial(_blocks, spec, ch.G, ch.H), rows=rows))
-    prog.set(**mats.settable(), Z0=np.outer(z0, z0), rho=0.0, beta=0.0, gamma=0.0, a2=0.0)  # no scalar constants
-    lin = loop.linearised_rate
-    best: LevelResult | None = None
-    tried, r, more = [], r0, FROM_X0_MORE
+    prog.set(**mats.settable(), Z0=np.outer(z0, z0), rho=0.0, beta=0.0, gamma=0.0, a2=0.0)
+    return prog, spec
+
+
+def _none_from_x0(tried: list) -> str:
+    """The sentence for a from-x0 search that found nothing, naming the regions it tried."""
+    if not tried:
+        return "no local quadratic certificate from x0 searched: no region holds z0 short of the equilibrium"
+    span = f"r = {tried[0]:.4g}" if len(tried) == 1 else f"r from {tried[0]:.4g} up to r = {tried[-1]:.4g}"
+    return f"no local quadratic certificate containing z0 was found on |Hx|, |Hx_hat| <= r for {span}"
+
+
+def _regions(ch, r0: float, r_max: float | None):
+    """The regions ``|Hx|, |Hx_hat| <= r`` the from-x0 search tries, in order, with the slopes on each:
+    r grows by :data:`FROM_X0_GROWTH` from ``r0``, stops where the slopes no longer narrow (that
+    region is the last one), and stays below ``r_max`` (one region between z0 and it at most)."""
+    last, r = None, r0
     for _ in range(FROM_X0_STEPS):
         r *= FROM_X0_GROWTH
         lo, hi = ch.slopes_on(r)
@@ -740,42 +779,35 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
         if wide:  # no narrowing left: the largest region worth trying is where it ends
             r = max(r / FROM_X0_GROWTH, r0)
         if r_max is not None and r >= r_max:
-            if tried or math.sqrt(r / FROM_X0_GROWTH * r_max) >= r_max:
-                break
+            if last is not None or math.sqrt(r / FROM_X0_GROWTH * r_max) >= r_max:
+                return
             r = math.sqrt(r / FROM_X0_GROWTH * r_max)  # one region between z0 and the equilibrium
-        if tried and r <= tried[-1]:
-            break
-        tried.append(r)
-        prog.set(lohi=lo * hi, losum=lo + hi, r2=(r * (1 - FROM_X0_SHRINK)) ** 2)
-        verdict, margin = _check(prog, 0.0)
-        if verdict == "verified" and _contains(_full_p(prog, spec), z0, rows, r):
-            ceiling, _ = witness.rate_ceiling(plant, K, F, knowledge, channels=True, scalars=(), box=(lo, hi))
-            top = min(lin, ceiling)
-            P0, lam, P = _full_p(prog, spec), 0.0, None
-            if top > 0:
-                lam, P = _rate(prog, spec, 0.0, top, rate_rtol)
-            if P is None or not _contains(P, z0, rows, r):
-                lam, P = 0.0, P0
-            if best is None or lam > best.decay_rate:
-                best = LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
-                                   region_H=ch.H, reason=(
-                                       f"certified from x0 on |Hx|, |Hx_hat| <= {r:.4g}, where the slopes narrow to "
-                                       f"[{_vec(lo)}, {_vec(hi)}]: the level set through z0 stays in that region"))
-            more -= 1
-            if more < 0 or (best is not None and lam < best.decay_rate):
-                break
-        elif best is not None:
-            break
+        if last is not None and r <= last:
+            return
+        last = r
+        yield r, lo, hi
         if wide:
-            break
-    best_solves = (prog.compile_s + prog.solve_s, prog.n_solves)
-    if best is not None:
-        best.solve_s, best.n_solves = best_solves
-        return best, ""
-    if not tried:
-        return None, "no local quadratic certificate from x0 searched: no region holds z0 short of the equilibrium"
-    span = f"r = {tried[0]:.4g}" if len(tried) == 1 else f"r from {tried[0]:.4g} up to r = {tried[-1]:.4g}"
-    return None, f"no local quadratic certificate containing z0 was found on |Hx|, |Hx_hat| <= r for {span}"
+            return
+
+
+def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge,
+                    z0: np.ndarray, rows: np.ndarray, r: float, box: tuple, margin: float,
+                    rate_rtol: float) -> LevelResult:
+    """The certificate from x0 on a region where ``lam = 0`` verified: its rate, searched up to the
+    smaller of the linearised rate and the rate ceiling of the narrowed class, kept only while the
+    level set through z0 stays in the region."""
+    lo, hi = box
+    ceiling, _ = witness.rate_ceiling(plant, loop.K, loop.F, knowledge, channels=True, scalars=(), box=(lo, hi))
+    top = min(loop.linearised_rate, ceiling)
+    P0, lam, P = _full_p(prog, spec), 0.0, None
+    if top > 0:
+        lam, P = _rate(prog, spec, 0.0, top, rate_rtol)
+    if P is None or not _contains(P, z0, rows, r):
+        lam, P = 0.0, P0
+    return LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
+                       region_H=knowledge.channels.H, reason=(
+                           f"certified from x0 on |Hx|, |Hx_hat| <= {r:.4g}, where the slopes narrow to "
+                           f"[{_vec(lo)}, {_vec(hi)}]: the level set through z0 stays in that region"))
 
 
 def _contains(P: np.ndarray, z0: np.ndarray, rows: np.ndarray, r: float) -> bool:
