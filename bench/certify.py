@@ -28,7 +28,7 @@ level is certified above it, with a rate no smaller):
 - ``structured``: full P with every constraint the plant declares: its channels
   ``f = G phi(H x)`` (``Gw = G``, ``w`` the channel outputs) with one multiplier per channel and
   pair on the slope (sector) constraint ``(w_i - lo_i z_i)(hi_i z_i - w_i) >= 0``,
-  ``z = H dx`` (Acikmese & Corless, Automatica 2011; STRUCTURE.md), plus the scalar constants
+  ``z = H dx`` (Acikmese & Corless, Automatica 2011; ``docs/structured.md``), plus the scalar constants
   written in channel coordinates.
 
 Only *trusted* knowledge enters (:meth:`bench.constants.ConstantsReport.knowledge`): analytic
@@ -71,10 +71,9 @@ LEVEL_TITLES = {
     "structured": "full P, the declared channel slopes and the scalar constants",
 }
 
-#: Beyond this many states the ladder's SDPs (size 4n or 2n + 2q) are not attempted (a design's
-#: own certificate, verified by eigenvalues, is kept: :func:`adopt`). Measured on the chain family
-#: (structured Riccati gains, one solve at lam = 0, Clarabel): the full level took 6.4 s at n = 16
-#: and 36 s at n = 24, and a level with its rate bisection ten times that.
+#: Beyond this many states the ladder's SDPs (size 4n or 2n + 2q, interior-point cost growing like
+#: n^6) are not attempted; a design's own certificate, verified by eigenvalues, is kept
+#: (:func:`adopt`, ``docs/certificates.md``).
 LADDER_MAX_N = 16
 
 #: :func:`adopt` replaces a certified level only when its rate is below this fraction of the
