@@ -206,7 +206,7 @@ def test_threads_never_share_a_program():
 def test_certificates_reuse_the_analysis_program_and_agree_with_a_fresh_one(flex, flex_constants, flex_knowledge):
     """Certifying two gain pairs of the same size: the second reuses the program and both agree
     with fresh builds, level by level (certified or not, decay rate to the bisection tolerance)."""
-    c = flex_constants.valid
+    c = flex_constants.used
     pairs = []
     for did in ("paper_gains", "thm1_sep"):
         r = DESIGNS.create(did).design(flex, c)
