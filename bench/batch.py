@@ -42,13 +42,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.metrics import batch_metrics as _batch_metrics
+from bench.metrics import batch_metrics
 from bench.simulate import SimOptions, check_gains, choose_method
 
 __all__ = [
     "BATCH_OPTIONS",
     "BatchTrajectory",
-    "batch_metrics",
     "digital_matrix",
     "simulate_batch",
     "simulate_digital_batch",
@@ -95,6 +94,12 @@ class BatchTrajectory:
         """Estimation errors ``x - x_hat``, (n, N, T)."""
         return self.x - self.x_hat
 
+    def metrics(self, *, noisy: bool = False) -> dict[str, np.ndarray]:
+        """Per-member metrics: :func:`bench.metrics.batch_metrics` of this batch (a member that
+        diverged, or every member of a failed run, is not converged)."""
+        return batch_metrics(self.t, self.x, self.x_hat, self.u, finished=self.status == "ok",
+                             diverged=self.diverged, noisy=noisy)
+
 
 def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
     """The initial states and estimates as (n, N) float arrays, or ValueError naming the bad one."""
@@ -114,7 +119,7 @@ def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
     return X, XH
 
 
-def _horizon(plant, t_final) -> float:
+def _checked_t_final(plant, t_final) -> float:
     """The horizon (default the plant's), or ValueError unless finite and > 0."""
     T = float(plant.t_final if t_final is None else t_final)
     if not (math.isfinite(T) and T > 0):
@@ -126,7 +131,7 @@ def _check_inputs(plant, K, F, x0, x_hat0, t_final):
     """Gains, initial conditions and horizon of a batch, checked: ``K, F, X, XH, T``."""
     K, F = check_gains(plant, K, F)
     X, XH = _check_ics(plant, x0, x_hat0)
-    return K, F, X, XH, _horizon(plant, t_final)
+    return K, F, X, XH, _checked_t_final(plant, t_final)
 
 
 def _norms(x: np.ndarray, xh: np.ndarray) -> np.ndarray:
@@ -264,13 +269,6 @@ class _BatchRHS:
                 dY[:, :N][:, frozen] = 0.0
                 dY[:, N:][:, frozen] = 0.0
         return dY.ravel()
-
-
-def batch_metrics(traj: BatchTrajectory, *, noisy: bool = False) -> dict[str, np.ndarray]:
-    """Per-member metrics of a batch trajectory: :func:`bench.metrics.batch_metrics` (one
-    implementation for single trajectories and batches)."""
-    return _batch_metrics(traj.t, traj.x, traj.x_hat, traj.u, finished=traj.status == "ok",
-                          diverged=traj.diverged, noisy=noisy)
 
 
 # -- digital implementation -------------------------------------------------------------------

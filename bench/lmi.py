@@ -509,14 +509,22 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
 DENSE_FRACTION = 0.75
 
 
-def digest(M: np.ndarray | None) -> str:
-    """A digest of a matrix's shape and values (for the key of a program that bakes it in; "" for None)."""
+def digest(raw) -> str:
+    """SHA-256 of an array's shape and values, exact (every NaN alike); a non-numeric value (None,
+    an object array) by its type. Keys of compiled programs that bake a matrix in, and of the
+    result cache (:mod:`bench.cache`)."""
     import hashlib
+    import json
 
-    if M is None:
-        return ""
-    A = np.ascontiguousarray(M, dtype=float)
-    return hashlib.sha1(repr(A.shape).encode() + A.tobytes()).hexdigest()
+    try:
+        a = np.asarray(raw)
+    except Exception as exc:  # noqa: BLE001 - an array-like that fails to convert
+        return f"not an array: {type(exc).__name__}"
+    if a.dtype.kind not in "biufc":
+        return f"not numeric: {type(raw).__name__} {a.dtype}"
+    a = a.astype(np.complex128 if a.dtype.kind == "c" else np.float64)
+    a = np.where(np.isnan(a), np.nan, a)
+    return hashlib.sha256(json.dumps([list(a.shape), str(a.dtype)]).encode() + np.ascontiguousarray(a).tobytes()).hexdigest()
 
 
 class Pattern:

@@ -11,19 +11,19 @@ from bench.constants import compute_constants
 from bench.harness import run
 from bench.pipeline import RunOptions, evaluate_pair
 from bench.registry import PLANTS
-from bench.verdicts import LINEAR_FACTOR, horizon
+from bench.verdicts import LINEAR_FACTOR, simulation_horizon
 
 
 def test_horizon_rule_closed_forms():
     d = math.log(1000.0)
-    assert horizon(20.0, fixed=None, cap_factor=10, cert_rate=0.1, cond_p=100.0, linear_rate=5.0) == \
+    assert simulation_horizon(20.0, fixed=None, cap_factor=10, cert_rate=0.1, cond_p=100.0, linear_rate=5.0) == \
         (math.ceil((d + 0.5 * math.log(100.0)) / 0.1), "certified rate")
-    assert horizon(20.0, fixed=None, cap_factor=10, cert_rate=2.0, cond_p=1.0, linear_rate=5.0) == (20.0, "plant")
-    T, rule = horizon(20.0, fixed=None, cap_factor=10, cert_rate=1e-3, cond_p=1.0, linear_rate=5.0)
+    assert simulation_horizon(20.0, fixed=None, cap_factor=10, cert_rate=2.0, cond_p=1.0, linear_rate=5.0) == (20.0, "plant")
+    T, rule = simulation_horizon(20.0, fixed=None, cap_factor=10, cert_rate=1e-3, cond_p=1.0, linear_rate=5.0)
     assert T == 200.0 and rule.startswith("cut at cap")
-    assert horizon(20.0, fixed=None, cap_factor=10, cert_rate=math.nan, cond_p=math.nan, linear_rate=0.1) == \
+    assert simulation_horizon(20.0, fixed=None, cap_factor=10, cert_rate=math.nan, cond_p=math.nan, linear_rate=0.1) == \
         (math.ceil(LINEAR_FACTOR * d / 0.1), "linearised rate")
-    assert horizon(20.0, fixed=7.0, cap_factor=10, cert_rate=0.01, cond_p=1.0, linear_rate=0.1) == (7.0, "fixed")
+    assert simulation_horizon(20.0, fixed=7.0, cap_factor=10, cert_rate=0.01, cond_p=1.0, linear_rate=0.1) == (7.0, "fixed")
 
 
 @pytest.fixture(scope="module")
