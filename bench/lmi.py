@@ -5,8 +5,8 @@ Conventions (see ``docs/paper.md``):
 - every LMI is solved by an explicit solver (Clarabel by default; cvxpy would send SDPs to
   SCS), and a solve cut short by the runner's time limit raises
   :class:`bench.limits.DeadlineExceeded`, never a status;
-- strict inequalities are written with a *margin* ``t``: ``M << -t I``, ``Q >> t I``, ...,
-  and ``t`` is maximised under a normalisation;
+- strict inequalities are written with a margin, the variable ``slack``: ``M << -slack I``,
+  ``Q >> slack I``, ..., and ``slack`` is maximised under a normalisation;
 - a status is never trusted alone: the numeric LMI matrix is rebuilt at the solution and
   classified by :func:`classify` with **one** tolerance, :data:`VERIFY_TOL` (relative to the
   matrix's largest entry): *verified* (max eigenvalue below ``-tol``), *marginal* (within
@@ -400,7 +400,7 @@ class Program:
             p.value = None
 
     def solve(self, *, solver: str = "CLARABEL", solver_opts: dict | None = None, **params: float) -> float:
-        """Solve at the given parameter values; return the margin t (NaN if not solved)."""
+        """Solve at the given parameter values; return the objective, the margin ``slack`` (NaN if not solved)."""
         self.set(**params)
         try:
             out = solve_timed(self._problem_for(solver), solver, **(solver_opts or {}))
@@ -467,17 +467,17 @@ class Program:
 
 def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple[str, ...],
                    extra: Callable[[dict], list] | None = None, *, cap: float = 1e3) -> Program:
-    """Build ``max t s.t. M(v) << -t I, X >> t I (X in positive), X << cap I, t <= 1``.
+    """Build ``max slack s.t. M(v) << -slack I, X >> slack I (X in positive), X << cap I, slack <= 1``.
 
     Parameters
     ----------
     blocks_fn : callable
         Builds the blocks of M from a dict of values (cvxpy or numpy).
     variables, parameters : dict
-        cvxpy variables (must include scalar ``t``) and parameters; an array among the
+        cvxpy variables (must include the scalar ``slack``) and parameters; an array among the
         parameters is a constant (kept in ``Program.constants`` for the numeric rebuild).
     positive : tuple of str
-        Decision matrices constrained ``>> t I`` and ``<< cap I``.
+        Decision matrices constrained ``>> slack I`` and ``<< cap I``.
     extra : callable, optional
         ``extra(vars_and_params) -> list of constraints``.
     cap : float
@@ -489,15 +489,15 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
     allv = {**variables, **{k: (v.expr if isinstance(v, Pattern) else v) for k, v in parameters.items()}}
     M = sym(assemble(blocks_fn, allv, numeric=False))
     N = M.shape[0]
-    t = variables["t"]
-    cons = [M << -t * np.eye(N), t <= 1]
+    slack = variables["slack"]
+    cons = [M << -slack * np.eye(N), slack <= 1]
     for name in positive:
         X = variables[name]
         k = X.shape[0]
-        cons += [X >> t * np.eye(k), X << cap * np.eye(k)]
+        cons += [X >> slack * np.eye(k), X << cap * np.eye(k)]
     if extra is not None:
         cons += extra(allv)
-    problem = cp.Problem(cp.Maximize(t), cons)
+    problem = cp.Problem(cp.Maximize(slack), cons)
     return Program(problem, variables, parameters, blocks_fn, positive, build_s=time.perf_counter() - t_build)
 
 
@@ -718,7 +718,8 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
     Returns
     -------
     dict
-        Keys ``status``, ``reason``, ``margin``, ``min_eig``, ``lmi_size``, ``solver_status``, ``t``.
+        Keys ``status``, ``reason``, ``margin``, ``min_eig``, ``lmi_size``, ``solver_status``, ``slack`` (the solver's
+        margin, which ``margin`` checks).
     """
     out: dict = {"solver_status": prog.last_status, "min_eig": {}, "margin": float("nan"), "lmi_size": 0}
     if prog.last_status not in ("optimal", "optimal_inaccurate"):
@@ -727,8 +728,8 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
         return out
     M = prog.numeric_matrix()
     vals = prog.values()
-    t = float(vals["t"])
-    out["t"] = t
+    slack = float(vals["slack"])
+    out["slack"] = slack
     out["lmi_size"] = int(M.shape[0])
     out["margin"] = max_eig(M)
     out["min_eig"] = {k: min_eig(vals[k]) for k in prog.positive}
@@ -736,16 +737,16 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
     verdict = classify(out["margin"], M)
     if verdict == "verified" and ok_pos:
         out.update(status="feasible", reason="")
-    elif verdict == "marginal" and t <= verify_tol(M):
+    elif verdict == "marginal" and slack <= verify_tol(M):
         out.update(status="marginal", reason=(
             f"{what}: the best margin is within the verification tolerance of zero (max eig of the LMI "
             f"{out['margin']:.3g}, tolerance {verify_tol(M):.2g}) {searched}, under {normalisation}: "
             "not strictly feasible there, and not proven infeasible"))
-    elif t <= 0:
+    elif slack <= 0:
         out.update(
             status="infeasible",
             reason=(
-                f"{what}: infeasible under {normalisation}: no strictly feasible point; best margin t = {t:.3g} "
+                f"{what}: infeasible under {normalisation}: no strictly feasible point; best slack = {slack:.3g} "
                 f"(max eig of the LMI = {out['margin']:.3g}) {searched}"
             ),
         )
@@ -753,7 +754,7 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
         out.update(
             status="undecided",
             reason=(
-                f"{what}: solver reported margin t = {t:.3g} > 0 but the recomputed LMI has max eig "
+                f"{what}: solver reported slack = {slack:.3g} > 0 but the recomputed LMI has max eig "
                 f"{out['margin']:.3g} and min eig of decision matrices {out['min_eig']}"
             ),
         )
