@@ -161,7 +161,7 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
         Design with the constants the sources claim (certificates still use the trusted ones).
     t_final : float, optional
         A fixed horizon for every pair (default: each pair's horizon follows its certified rate,
-        or its linearised rate when uncertified: :func:`bench.verdicts.horizon`).
+        or its linearised rate when uncertified: :func:`bench.verdicts.simulation_horizon`).
     noise : float
         Standard deviation of a seeded measurement noise.
     timeout : float, optional

@@ -44,7 +44,7 @@ import numpy as np
 
 from bench import checks
 from bench.errors import SimulationStopped as _BatchStop
-from bench.metrics import batch_metrics as _batch_metrics
+from bench.metrics import batch_metrics
 from bench.simulate import SimOptions, choose_method
 
 __all__ = ["simulate_batch", "simulate_digital_batch"]
@@ -89,6 +89,12 @@ class BatchTrajectory:
     def e(self) -> np.ndarray:
         """Estimation errors ``x - x_hat``, (n, N, T)."""
         return self.x - self.x_hat
+
+    def metrics(self, *, noisy: bool = False) -> dict[str, np.ndarray]:
+        """Per-member metrics: :func:`bench.metrics.batch_metrics` of this batch (a member that
+        diverged, or every member of a failed run, is not converged)."""
+        return batch_metrics(self.t, self.x, self.x_hat, self.u, finished=self.status == "ok",
+                             diverged=self.diverged, noisy=noisy)
 
 
 def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
@@ -250,13 +256,6 @@ class _BatchRHS:
                 dY[:, :N][:, frozen] = 0.0
                 dY[:, N:][:, frozen] = 0.0
         return dY.ravel()
-
-
-def batch_metrics(traj: BatchTrajectory, *, noisy: bool = False) -> dict[str, np.ndarray]:
-    """Per-member metrics of a batch trajectory: :func:`bench.metrics.batch_metrics` (one
-    implementation for single trajectories and batches)."""
-    return _batch_metrics(traj.t, traj.x, traj.x_hat, traj.u, finished=traj.status == "ok",
-                          diverged=traj.diverged, noisy=noisy)
 
 
 # -- digital implementation -------------------------------------------------------------------

@@ -61,6 +61,8 @@ from typing import IO, Any, Callable
 
 import numpy as np
 
+from bench.lmi import digest
+
 __all__ = ["Cache"]
 
 #: Bumped when the layout or the meaning of an entry changes.
@@ -139,19 +141,6 @@ def _canon(v: Any, modules: set[str]) -> Any:
         modules.add(getattr(v, "__module__", None) or "")
         return {"__callable__": f"{getattr(v, '__module__', None)}.{getattr(v, '__qualname__', type(v).__name__)}"}
     return {"__repr__": repr(v)}
-
-
-def _digest(raw: Any) -> str:
-    """Hash of a numeric result, exact (every NaN alike); a non-numeric one by its type."""
-    try:
-        a = np.asarray(raw)
-    except Exception as exc:  # noqa: BLE001 - an array-like that fails to convert
-        return f"not an array: {type(exc).__name__}"
-    if a.dtype.kind not in "biufc":
-        return f"not numeric: {type(raw).__name__} {a.dtype}"
-    a = a.astype(np.complex128 if a.dtype.kind == "c" else np.float64)
-    a = np.where(np.isnan(a), np.nan, a)
-    return _sha(json.dumps([list(a.shape), str(a.dtype)]).encode() + np.ascontiguousarray(a).tobytes())
 
 
 # -- entries: dataclasses as JSON plus arrays, with a checksum ------------------------------------
@@ -315,7 +304,7 @@ class Cache:
 
         def call(fn, x) -> str:
             try:
-                return _digest(fn(x.copy()))
+                return digest(fn(x.copy()))
             except Exception as exc:  # noqa: BLE001 - the harness reports a broken f; the key only notes it
                 return f"raised {type(exc).__name__}"
 

@@ -28,7 +28,7 @@ level is certified above it, with a rate no smaller):
 - ``structured``: full P with every constraint the plant declares: its channels
   ``f = G phi(H x)`` (``Gw = G``, ``w`` the channel outputs) with one multiplier per channel and
   pair on the slope (sector) constraint ``(w_i - lo_i z_i)(hi_i z_i - w_i) >= 0``,
-  ``z = H dx`` (Acikmese & Corless, Automatica 2011; STRUCTURE.md), plus the scalar constants
+  ``z = H dx`` (Acikmese & Corless, Automatica 2011; ``docs/structured.md``), plus the scalar constants
   written in channel coordinates.
 
 Only *trusted* knowledge enters (:meth:`bench.constants.ConstantsReport.knowledge`): analytic
@@ -70,10 +70,9 @@ LEVEL_TITLES = {
     "structured": "full P, the declared channel slopes and the scalar constants",
 }
 
-#: Beyond this many states the ladder's SDPs (size 4n or 2n + 2q) are not attempted (a design's
-#: own certificate, verified by eigenvalues, is kept: :func:`adopt`). Measured on the chain family
-#: (structured Riccati gains, one solve at lam = 0, Clarabel): the full level took 6.4 s at n = 16
-#: and 36 s at n = 24, and a level with its rate bisection ten times that.
+#: Beyond this many states the ladder's SDPs (size 4n or 2n + 2q, interior-point cost growing like
+#: n^6) are not attempted; a design's own certificate, verified by eigenvalues, is kept
+#: (:func:`adopt`, ``docs/certificates.md``).
 LADDER_MAX_N = 16
 
 #: :func:`adopt` replaces a certified level only when its rate is below this fraction of the
@@ -237,17 +236,17 @@ def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge) -> lmi.Program:
 
 
 def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = None) -> lmi.Program:
-    """Variables, parameters and constraints of a level: maximise ``t`` with ``M << -t I``,
-    ``P >> t I``, ``trace(P) = 1`` and nonnegative multipliers.
+    """Variables, parameters and constraints of a level: maximise ``slack`` with ``M << -slack I``,
+    ``P >> slack I``, ``trace(P) = 1`` and nonnegative multipliers.
 
     With ``rows`` (vectors ``a_k`` on ``z``), the normalisation is instead the containment of a
     certificate from x0: ``z0' P z0 <= 1`` (parameter ``Z0 = z0 z0'``) and
     ``[[P, a_k], [a_k', r2]] >= 0`` for each row, so that ``{V <= V(z0)}`` lies in
-    ``|a_k' z| <= sqrt(r2)`` (Schur complement of ``a_k' P^-1 a_k <= r2``), and ``t <= 1``."""
+    ``|a_k' z| <= sqrt(r2)`` (Schur complement of ``a_k' P^-1 a_k <= r2``), and ``slack <= 1``."""
     import cvxpy as cp
 
     n, nw = spec.n, spec.nw
-    v = {"t": cp.Variable(name="t")}
+    v = {"slack": cp.Variable(name="slack")}
     if spec.full_p:
         v["P"] = cp.Variable((2 * n, 2 * n), symmetric=True, name="P")
     else:
@@ -265,20 +264,20 @@ def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = No
         prm["losum"] = cp.Parameter(nw, name="lo_plus_hi")
     t_build = time.perf_counter()
     M = lmi.sym(lmi.assemble(blocks, {**v, **prm}, numeric=False))
-    t = v["t"]
+    slack = v["slack"]
     pos = ("P",) if spec.full_p else ("P1", "P2")
-    cons = [M << -t * np.eye(M.shape[0])]
-    cons += [v[k] >> t * np.eye(v[k].shape[0]) for k in pos]
+    cons = [M << -slack * np.eye(M.shape[0])]
+    cons += [v[k] >> slack * np.eye(v[k].shape[0]) for k in pos]
     if rows is None:
         cons.append(sum(cp.trace(v[k]) for k in pos) == 1)
     else:
         prm["Z0"] = cp.Parameter((2 * n, 2 * n), PSD=True, name="Z0")
         prm["r2"] = cp.Parameter(nonneg=True, name="r2")
         P, r2 = v["P"], cp.reshape(prm["r2"], (1, 1), order="F")
-        cons += [cp.trace(prm["Z0"] @ P) <= 1, t <= 1]
+        cons += [cp.trace(prm["Z0"] @ P) <= 1, slack <= 1]
         cons += [lmi.sym(cp.bmat([[P, a[:, None]], [a[None, :], r2]])) >> 0 for a in rows]
-    cons += [v[k] >= 0 for k in v if k not in pos and k != "t"]
-    prob = cp.Problem(cp.Maximize(t), cons)
+    cons += [v[k] >= 0 for k in v if k not in pos and k != "slack"]
+    prob = cp.Problem(cp.Maximize(slack), cons)
     return lmi.Program(prob, v, prm, blocks, pos, build_s=time.perf_counter() - t_build)
 
 

@@ -20,6 +20,7 @@ import shlex
 import sys
 import time
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Iterator
 
 from bench import checks
@@ -255,15 +256,26 @@ def _sizes(text: str, option: str, *, allow_empty: bool) -> list[int]:
     return sizes
 
 
+#: Where ``python -m bench perf`` finds its report code: the ``benchmarks/`` folder of the checkout
+#: this package was imported from (a developer command; an installed package has no such folder).
+_BENCHMARKS_DIR = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
 def _cmd_perf(args) -> int:
-    """``python -m bench perf``: :func:`bench.perf.perf_main` with the checked sizes."""
+    """``python -m bench perf``: ``perf_main`` of ``benchmarks/perf_report.py`` with the checked sizes."""
+    if not (_BENCHMARKS_DIR / "perf_report.py").is_file():
+        print("python -m bench perf: error: perf is a developer command, run from a checkout of oslbench "
+              f"(no {_BENCHMARKS_DIR / 'perf_report.py'} beside this bench package)", file=sys.stderr)
+        return 2
     try:
         sizes = _sizes(args.sizes, "--sizes", allow_empty=False)
         route_sizes = _sizes(args.route_sizes, "--route-sizes", allow_empty=True)
     except ValueError as exc:
         print(f"python -m bench perf: error: {exc}", file=sys.stderr)
         return 2
-    from bench.perf import perf_main
+    if str(_BENCHMARKS_DIR) not in sys.path:
+        sys.path.insert(0, str(_BENCHMARKS_DIR))
+    from perf_report import perf_main
 
     path = perf_main(args.out, sizes, args.max_joint_n, not args.no_run,
                      echo=lambda line: print(line, file=sys.stderr, flush=True), with_sweeps=not args.no_sweeps,

@@ -119,11 +119,11 @@ class ConstantsReport:
     analytic : Constants or None
         Valid bounds supplied by the plant.
     sampled : Constants
-        Sampled lower bounds (beta at ``gamma = valid.gamma``).
-    valid : Constants
+        Sampled lower bounds (beta at ``gamma = used.gamma``).
+    used : Constants
         What designs use by default: analytic where available and not disproved, else the
-        sampled value (a lower bound: designs using it carry no guarantee); a constant whose
-        estimate grows without bound is None.
+        sampled value (a lower bound, not a valid bound: designs using it carry no guarantee); a
+        constant whose estimate grows without bound is None.
     source : dict
         For each of alpha, rho, beta: ``"analytic"``, ``"sampled"``, ``"sampled (analytic
         disproved)"`` or ``"unbounded"``.
@@ -141,13 +141,13 @@ class ConstantsReport:
         Sampler settings, for reproducibility.
     checked_on : float, optional
         The ``||x||`` out to which global declarations were sampled (None: everything holds on
-        a region, ``valid.radius``, which was sampled whole).
+        a region, ``used.radius``, which was sampled whole).
     """
 
     claimed: Constants
     analytic: Constants | None
     sampled: Constants
-    valid: Constants
+    used: Constants
     source: dict[str, str]
     violations: list[Violation] = field(default_factory=list)
     disproved: list[Violation] = field(default_factory=list)
@@ -161,8 +161,8 @@ class ConstantsReport:
     @property
     def region(self) -> str:
         """Where the declarations hold and how far they were checked, in words."""
-        if self.valid.radius is not None:
-            return f"||x|| <= {self.valid.radius:g} (sampled whole)"
+        if self.used.radius is not None:
+            return f"||x|| <= {self.used.radius:g} (sampled whole)"
         far = f" (sampled on ||x|| <= {self.checked_on:.3g})" if self.checked_on is not None else ""
         return "everywhere" + far
 
@@ -177,7 +177,7 @@ class ConstantsReport:
                      "x1": [float(a) for a in v.x1], "x2": [float(a) for a in v.x2]} for v in vs]
 
         return {**{k: (None if getattr(self, k) is None else getattr(self, k).as_dict())
-                   for k in ("claimed", "analytic", "sampled", "valid")},
+                   for k in ("claimed", "analytic", "sampled", "used")},
                 "source": dict(self.source), "violations": viol(self.violations), "disproved": viol(self.disproved),
                 "channel_violations": viol(self.channel_violations), "unbounded": dict(self.unbounded),
                 "prechecks": list(self.prechecks), "seed": self.seed, "n_samples": self.n_samples,
@@ -189,7 +189,8 @@ class ConstantsReport:
         def viol(vs):
             return [Violation(v["name"], v["claimed"], v["sampled"], tuple(v["x1"]), tuple(v["x2"])) for v in vs]
 
-        cs = {k: None if doc[k] is None else Constants(**doc[k]) for k in ("claimed", "analytic", "sampled", "valid")}
+        doc = {"used": doc.get("valid"), **doc}  # "valid": the field's former name
+        cs = {k: None if doc[k] is None else Constants(**doc[k]) for k in ("claimed", "analytic", "sampled", "used")}
         return cls(**cs, source=doc["source"], violations=viol(doc["violations"]), disproved=viol(doc["disproved"]),
                    channel_violations=viol(doc["channel_violations"]), unbounded=doc["unbounded"],
                    prechecks=doc["prechecks"], seed=doc["seed"], n_samples=doc["n_samples"],
@@ -231,8 +232,8 @@ class ConstantsReport:
                 parts.append(f"{'/'.join(by[src])} {label}")
         if self.channel_violations:
             parts.append("channels DISPROVED by a sample (not certifying)")
-        if self.valid.radius is not None:
-            parts.append(f"on ||x|| <= {self.valid.radius:g}")
+        if self.used.radius is not None:
+            parts.append(f"on ||x|| <= {self.used.radius:g}")
         return "; ".join(parts)
 
 
@@ -612,7 +613,7 @@ def compute_constants(
     plant : Plant
         The plant; ``plant.bounds`` supplies analytic constants if known, and
         ``plant.bounds.radius`` (or, without it, ``plant.claimed.radius``) the region where the
-        sampled and valid constants hold. Claimed constants are checked on the claimed region
+        sampled and used constants hold. Claimed constants are checked on the claimed region
         ``plant.claimed.radius`` (None = everywhere), sampled separately when it differs.
     seed : int
         Seed of the sampler (results are reproducible for a given seed).
@@ -649,7 +650,7 @@ def compute_constants(
     violations = _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine)
     valid, source = _trusted(analytic, sampled, {v.name for v in disproved}, unbounded, gamma, radius)
     return ConstantsReport(
-        claimed=plant.claimed, analytic=analytic, sampled=sampled, valid=valid, source=source,
+        claimed=plant.claimed, analytic=analytic, sampled=sampled, used=valid, source=source,
         violations=violations, disproved=disproved,
         channel_violations=_channel_check(plant, np.random.default_rng([seed, 2]), far=far), unbounded=unbounded,
         prechecks=linear_prechecks(plant), seed=seed, n_samples=n_samples, checked_on=None if radius else far,
@@ -718,14 +719,14 @@ def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_r
 
 
 def resolve_constants(report: ConstantsReport, *, use_claimed: bool = False) -> Constants:
-    """The constants a design should use: ``report.valid``, or the claimed ones on request.
+    """The constants a design should use: ``report.used``, or the claimed ones on request.
 
-    With ``use_claimed=True`` a claimed constant replaces the valid one where the source gives
-    it (missing claimed constants fall back to the valid ones).
+    With ``use_claimed=True`` a claimed constant replaces the used one where the source gives
+    it (missing claimed constants fall back to the used ones).
     """
     if not use_claimed:
-        return report.valid
-    c, v = report.claimed, report.valid
+        return report.used
+    c, v = report.claimed, report.used
     pick = lambda a, b: a if a is not None else b  # noqa: E731
     if c.beta is not None:
         beta, gamma = c.beta, c.gamma

@@ -110,7 +110,7 @@ def constants_rows(constants: dict, errors: dict) -> list[dict]:
             rows.append({
                 "plant": pid, "constant": name, "claimed": getattr(rep.claimed, name),
                 "analytic": getattr(rep.analytic, name) if rep.analytic is not None else None,
-                "sampled": getattr(rep.sampled, name), "used": getattr(rep.valid, name),
+                "sampled": getattr(rep.sampled, name), "used": getattr(rep.used, name),
                 "source": rep.source.get(name, "fixed" if name == "gamma" else ""),
                 "region": rep.region,
                 "flag": "; ".join(flags),

@@ -1,6 +1,6 @@
 """The joint certificate of the channel-structured loop: its matrix, its verdict and the rate it proves.
 
-Setting (docs/structured.md): ``x' = A x + B u + G phi(H x)``, ``y = C x``,
+Setting (``docs/structured.md``): ``x' = A x + B u + G phi(H x)``, ``y = C x``,
 ``u = F x_hat``, the observer copies f, each channel slope-restricted, ``lo_i <= phi_i' <= hi_i``.
 The loop transformation ``c0 = (lo + hi) / 2``, ``r = (hi - lo) / 2``, ``A0 = A + G diag(c0) H``,
 ``psi(z) = phi(z) - c0 z`` gives ``|psi_i(a) - psi_i(b)| <= r_i |a - b|`` and, with ``e = x - x_hat``, ::

@@ -5,8 +5,8 @@ Conventions (see ``docs/paper.md``):
 - every LMI is solved by an explicit solver (Clarabel by default; cvxpy would send SDPs to
   SCS), and a solve cut short by the runner's time limit raises
   :class:`bench.limits.DeadlineExceeded`, never a status;
-- strict inequalities are written with a *margin* ``t``: ``M << -t I``, ``Q >> t I``, ...,
-  and ``t`` is maximised under a normalisation;
+- strict inequalities are written with a margin, the variable ``slack``: ``M << -slack I``,
+  ``Q >> slack I``, ..., and ``slack`` is maximised under a normalisation;
 - a status is never trusted alone: the numeric LMI matrix is rebuilt at the solution and
   classified by :func:`classify` with **one** tolerance, :data:`VERIFY_TOL` (relative to the
   matrix's largest entry): *verified* (max eigenvalue below ``-tol``), *marginal* (within
@@ -23,7 +23,7 @@ import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -40,7 +40,7 @@ VERIFY_TOL = 1e-7
 
 def sym(M):
     """Symmetric part of a cvxpy expression or array (so ``<<`` sees a symmetric matrix)."""
-    return 0.5 * (M + M.T)  # a product, not a division: cvxpy 1.9.3's COO backend fails on "/ 2" of parameter-affine terms (n = 32)
+    return 0.5 * (M + M.T)  # a product: cvxpy's COO backend rejects "/ 2" of some parameter-affine terms
 
 
 def diag(v):
@@ -146,18 +146,16 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     try:
         with warnings.catch_warnings():  # the status carries "inaccurate"; no stray warnings
             warnings.simplefilter("ignore", UserWarning)
-            # warm_start=False: a program reused from the cache must not hand the solver's cached
-            # state the new data (cvxpy's default warm start made a certificate depend on what the
-            # process had solved before: 1.2165 cold vs 1.1977 after another pair, same gains)
+            # warm_start=False: a program reused from the cache starts cold, so its answer does not
+            # depend on what the process solved before
             problem.solve(solver=solver, warm_start=False, **{k: v for k, v in opts.items() if k != "warm_start"})
         status = str(problem.status)
         err = ""
     except cp.error.SolverError as exc:
         status, err = "solver_error", str(exc).splitlines()[0] if str(exc) else "solver failed"
     wall = time.perf_counter() - t0
-    # a solver stopped by its time limit returns early (Clarabel: "user_limit") or with the point it
-    # had (SCS: "optimal_inaccurate"), by its own clock: a solve that used (nearly) all the time
-    # it was granted is a timeout, whatever its status
+    # a solver stopped by its own time limit returns a status ("user_limit", or "optimal_inaccurate"
+    # with the point it had): a solve that used (nearly) all the time it was granted is a timeout
     if granted is not None and wall >= 0.9 * granted:
         raise DeadlineExceeded(f"an SDP solve ({solver}, {wall:.3g} s of the {granted:.3g} s left)")
     check_deadline(f"an SDP solve ({solver}, {wall:.3g} s)")
@@ -174,8 +172,7 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     return out
 
 
-#: This process's solves since :func:`reset_solve_tally` (see :func:`solve_tally`). Lower case: an
-#: upper-case module name is a setting that enters the cache's keys (bench.cache), and this one changes.
+#: This process's solves since :func:`reset_solve_tally` (see :func:`solve_tally`).
 _tally = {"n": 0, "compile_s": 0.0, "solve_s": 0.0, "solver_s": 0.0}
 
 
@@ -252,6 +249,18 @@ def assemble(blocks_fn: Callable[[dict], list], values: dict, *, numeric: bool):
     return cp.bmat(rows)
 
 
+class BestPoint(NamedTuple):
+    """The best solution a :class:`Program` has seen (largest objective value)."""
+
+    value: float
+    #: Variable values by name at that point.
+    variables: dict
+    #: Parameter values by name at that point.
+    parameters: dict
+    #: The solver's status there.
+    status: str
+
+
 @dataclass
 class Program:
     """A margin-maximisation LMI program with parameters (compiled once, solved many times).
@@ -260,14 +269,37 @@ class Program:
     ----------
     problem : cvxpy.Problem
     variables : dict
-        cvxpy variables by name (``t`` is the margin).
+        cvxpy variables by name (``slack`` is the margin of the strict inequalities).
     parameters : dict
         cvxpy parameters by name; an ndarray given here is moved to ``constants`` (a matrix
-        baked into the problem, see :func:`matrices`).
+        baked into the problem, see :func:`matrices`), a :class:`Pattern` to ``patterns``.
     blocks : callable
         ``blocks(values) -> list of lists`` building the LMI matrix from a dict of values.
     positive : tuple of str
         Names of decision matrices that must be positive definite.
+    compile_s, solve_s : float
+        Seconds of cvxpy's compile (with building the expression tree on the first solve) and of
+        the rest of the solves since :meth:`reset`.
+    n_solves : int
+        Solves since :meth:`reset`.
+    last_status, last_error : str
+        The last solve's status and error message.
+    best : BestPoint or None
+        The best solution since :meth:`reset` (:meth:`restore_best` puts it back).
+    solver : str
+        The solver of the last solve.
+    build_s : float
+        Seconds spent building the cvxpy expression tree.
+    reused : bool
+        Whether :func:`cached_program` returned this program from its cache.
+    constants : dict
+        Matrices baked into the problem, by name (for the numeric rebuild).
+    cache_key : tuple or None
+        The program's key in :func:`cached_program`'s cache.
+    problems : dict
+        One cvxpy problem per solver name (they share variables and parameters).
+    patterns : dict
+        The :class:`Pattern` matrices by name.
     """
 
     problem: object
@@ -280,7 +312,7 @@ class Program:
     n_solves: int = 0
     last_status: str = ""
     last_error: str = ""
-    best: tuple | None = None
+    best: BestPoint | None = None
     solver: str = "CLARABEL"
     build_s: float = 0.0
     reused: bool = False
@@ -339,7 +371,7 @@ class Program:
             p.value = None
 
     def solve(self, *, solver: str = "CLARABEL", solver_opts: dict | None = None, **params: float) -> float:
-        """Solve at the given parameter values; return the margin t (NaN if not solved)."""
+        """Solve at the given parameter values; return the objective, the margin ``slack`` (NaN if not solved)."""
         self.set(**params)
         try:
             out = solve_timed(self._problem_for(solver), solver, **(solver_opts or {}))
@@ -355,10 +387,10 @@ class Program:
         self.solve_s += out.solve_s
         self.n_solves += 1
         self.last_status, self.last_error = out.status, out.error
-        if out.solved and (self.best is None or out.value > self.best[0]):
+        if out.solved and (self.best is None or out.value > self.best.value):
             snap = {k: (None if v.value is None else np.array(v.value)) for k, v in self.variables.items()}
             pars = {k: (None if p.value is None else np.array(p.value)) for k, p in self.parameters.items()}
-            self.best = (out.value, snap, pars, out.status)
+            self.best = BestPoint(out.value, snap, pars, out.status)
         return out.value if out.solved else float("nan")
 
     def restore_best(self) -> bool:
@@ -368,12 +400,11 @@ class Program:
         """
         if self.best is None:
             return False
-        _, snap, pars, status = self.best
-        for k, v in snap.items():
+        for k, v in self.best.variables.items():
             self.variables[k].value = v
-        for k, v in pars.items():
+        for k, v in self.best.parameters.items():
             self.parameters[k].value = v
-        self.last_status, self.last_error = status, ""
+        self.last_status, self.last_error = self.best.status, ""
         return True
 
     def values(self) -> dict:
@@ -407,17 +438,17 @@ class Program:
 
 def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple[str, ...],
                    extra: Callable[[dict], list] | None = None, *, cap: float = 1e3) -> Program:
-    """Build ``max t s.t. M(v) << -t I, X >> t I (X in positive), X << cap I, t <= 1``.
+    """Build ``max slack s.t. M(v) << -slack I, X >> slack I (X in positive), X << cap I, slack <= 1``.
 
     Parameters
     ----------
     blocks_fn : callable
         Builds the blocks of M from a dict of values (cvxpy or numpy).
     variables, parameters : dict
-        cvxpy variables (must include scalar ``t``) and parameters; an array among the
+        cvxpy variables (must include the scalar ``slack``) and parameters; an array among the
         parameters is a constant (kept in ``Program.constants`` for the numeric rebuild).
     positive : tuple of str
-        Decision matrices constrained ``>> t I`` and ``<< cap I``.
+        Decision matrices constrained ``>> slack I`` and ``<< cap I``.
     extra : callable, optional
         ``extra(vars_and_params) -> list of constraints``.
     cap : float
@@ -429,37 +460,42 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
     allv = {**variables, **{k: (v.expr if isinstance(v, Pattern) else v) for k, v in parameters.items()}}
     M = sym(assemble(blocks_fn, allv, numeric=False))
     N = M.shape[0]
-    t = variables["t"]
-    cons = [M << -t * np.eye(N), t <= 1]
+    slack = variables["slack"]
+    cons = [M << -slack * np.eye(N), slack <= 1]
     for name in positive:
         X = variables[name]
         k = X.shape[0]
-        cons += [X >> t * np.eye(k), X << cap * np.eye(k)]
+        cons += [X >> slack * np.eye(k), X << cap * np.eye(k)]
     if extra is not None:
         cons += extra(allv)
-    problem = cp.Problem(cp.Maximize(t), cons)
+    problem = cp.Problem(cp.Maximize(slack), cons)
     return Program(problem, variables, parameters, blocks_fn, positive, build_s=time.perf_counter() - t_build)
 
 
 #: A matrix with at least this fraction of nonzero entries enters a cached program as a cvxpy
 #: Parameter; a sparser one enters as a :class:`Pattern` (a Parameter holding only its nonzeros,
-#: placed in a fixed sparsity pattern). Measured on the flexible link (A, B, C mostly zero): with
-#: A, B, C as dense Parameters cvxpy hands Clarabel explicit zeros in the pattern of a dense A, and
-#: Theorem 1's solves took 1.29 s instead of 0.79 s over 96 solves. A pattern hands the solver the
-#: same nonzeros as a baked-in constant, and keys the program by the pattern, not the values: a
-#: rescaled plant (the scaled designs' coordinate search) or another plant of the same structure
-#: reuses the compiled program (the default run in one process: 330 compiles before, 129 after).
+#: placed in a fixed sparsity pattern). A pattern hands the solver the same nonzeros as a baked-in
+#: constant (a dense Parameter hands it explicit zeros), and keys the program by the pattern, not
+#: the values, so plants of the same structure share one compiled program.
 DENSE_FRACTION = 0.75
 
 
-def digest(M: np.ndarray | None) -> str:
-    """A digest of a matrix's shape and values (for the key of a program that bakes it in; "" for None)."""
+def digest(raw) -> str:
+    """SHA-256 of an array's shape and values, exact (every NaN alike); a non-numeric value (None,
+    an object array) by its type. Keys of compiled programs that bake a matrix in, and of the
+    result cache (:mod:`bench.cache`)."""
     import hashlib
+    import json
 
-    if M is None:
-        return ""
-    A = np.ascontiguousarray(M, dtype=float)
-    return hashlib.sha1(repr(A.shape).encode() + A.tobytes()).hexdigest()
+    try:
+        a = np.asarray(raw)
+    except Exception as exc:  # noqa: BLE001 - an array-like that fails to convert
+        return f"not an array: {type(exc).__name__}"
+    if a.dtype.kind not in "biufc":
+        return f"not numeric: {type(raw).__name__} {a.dtype}"
+    a = a.astype(np.complex128 if a.dtype.kind == "c" else np.float64)
+    a = np.where(np.isnan(a), np.nan, a)
+    return hashlib.sha256(json.dumps([list(a.shape), str(a.dtype)]).encode() + np.ascontiguousarray(a).tobytes()).hexdigest()
 
 
 class Pattern:
@@ -653,7 +689,8 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
     Returns
     -------
     dict
-        Keys ``status``, ``reason``, ``margin``, ``min_eig``, ``lmi_size``, ``solver_status``, ``t``.
+        Keys ``status``, ``reason``, ``margin``, ``min_eig``, ``lmi_size``, ``solver_status``, ``slack`` (the solver's
+        margin, which ``margin`` checks).
     """
     out: dict = {"solver_status": prog.last_status, "min_eig": {}, "margin": float("nan"), "lmi_size": 0}
     if prog.last_status not in ("optimal", "optimal_inaccurate"):
@@ -662,8 +699,8 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
         return out
     M = prog.numeric_matrix()
     vals = prog.values()
-    t = float(vals["t"])
-    out["t"] = t
+    slack = float(vals["slack"])
+    out["slack"] = slack
     out["lmi_size"] = int(M.shape[0])
     out["margin"] = max_eig(M)
     out["min_eig"] = {k: min_eig(vals[k]) for k in prog.positive}
@@ -671,16 +708,16 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
     verdict = classify(out["margin"], M)
     if verdict == "verified" and ok_pos:
         out.update(status="feasible", reason="")
-    elif verdict == "marginal" and t <= verify_tol(M):
+    elif verdict == "marginal" and slack <= verify_tol(M):
         out.update(status="marginal", reason=(
             f"{what}: the best margin is within the verification tolerance of zero (max eig of the LMI "
             f"{out['margin']:.3g}, tolerance {verify_tol(M):.2g}) {searched}, under {normalisation}: "
             "not strictly feasible there, and not proven infeasible"))
-    elif t <= 0:
+    elif slack <= 0:
         out.update(
             status="infeasible",
             reason=(
-                f"{what}: infeasible under {normalisation}: no strictly feasible point; best margin t = {t:.3g} "
+                f"{what}: infeasible under {normalisation}: no strictly feasible point; best slack = {slack:.3g} "
                 f"(max eig of the LMI = {out['margin']:.3g}) {searched}"
             ),
         )
@@ -688,7 +725,7 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
         out.update(
             status="undecided",
             reason=(
-                f"{what}: solver reported margin t = {t:.3g} > 0 but the recomputed LMI has max eig "
+                f"{what}: solver reported slack = {slack:.3g} > 0 but the recomputed LMI has max eig "
                 f"{out['margin']:.3g} and min eig of decision matrices {out['min_eig']}"
             ),
         )
@@ -699,9 +736,8 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
 #: verified with numpy; a point that fails falls back to Clarabel).
 SCS_OPTS = {"eps_abs": 1e-6, "eps_rel": 1e-6, "max_iters": 100_000}
 
-#: From this n on, ``solver="auto"`` tries SCS first. Measured (thm1_sep, both sides, best of 3,
-#: 2 cores): n = 4: Clarabel 0.024 s, SCS 0.026 s; n = 8: 0.062 vs 0.049; n = 12: 0.115 vs 0.042;
-#: n = 16: 0.317 vs 0.059; n = 24: 1.57 vs 0.107; flexible link (n = 4): 0.025 vs 0.067.
+#: From this n on, ``solver="auto"`` tries SCS first (a first-order method, cheaper per solve
+#: than Clarabel's interior point on larger sides; its point is verified, see :func:`solve_side`).
 SCS_FROM_N = 8
 
 

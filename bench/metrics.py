@@ -8,7 +8,7 @@ grid (arrays ``(n, N, T)``); :func:`trajectory_metrics` is the same for one traj
   ``||e||`` are at most ``CONVERGED_RATIO`` (1e-3) times the peak of ``||z||`` over the run.
   This is what a certificate guarantees: ``||z(t)|| <= sqrt(cond P) e^{-lam t} ||z(0)||``, so
   a certified pair converges by ``t = (ln(1/CONVERGED_RATIO) + ln(cond P)/2) / lam``
-  (:func:`bench.verdicts.horizon` simulates that long);
+  (:func:`bench.verdicts.simulation_horizon` simulates that long);
 - with measurement noise (``noisy=True``) the norms cannot shrink by 1e-3, so ``converged``
   means the run finished and both norms settled (finite 2 % settling times);
 - ``settling_x_s``, ``settling_e_s``: 2 % settling time of ``||x||`` and ``||e||``, the first

@@ -28,7 +28,7 @@ from bench.constants import ConstantsReport, Knowledge, check_trajectory, resolv
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
 from bench.metrics import trajectory_metrics
 from bench.simulate import SimOptions, simulate_controller
-from bench.verdicts import certificate_scope, certified_horizon, convergence_note, horizon
+from bench.verdicts import certificate_scope, certified_horizon, convergence_note, simulation_horizon
 from designs import GAIN_STATUSES, Design, DesignResult
 from plants import Plant
 
@@ -71,7 +71,7 @@ class RunOptions:
         Re-raise the first exception instead of recording an ``error`` row.
     t_final : float, optional
         A fixed simulation horizon for every plant (default: the rule of
-        :func:`bench.verdicts.horizon`, from the certified or linearised rate).
+        :func:`bench.verdicts.simulation_horizon`, from the certified or linearised rate).
     horizon_cap : float
         The rule's horizon is at most this many times the plant's ``t_final``.
     noise : float
@@ -300,14 +300,15 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     return cert
 
 
-def _horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
-             loop: checks.ClosedLoop) -> float:
+def _record_horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
+                    loop: checks.ClosedLoop) -> float:
+    """The pair's simulation horizon (:func:`bench.verdicts.simulation_horizon`), stored in ``rec`` with its rule."""
     if res.estimator is not None:  # sampled-time estimator: the plant's horizon (a multiple of its dt)
         T, rule = (options.t_final or plant.t_final), ("fixed" if options.t_final else "plant")
     else:
         best = cert.best if cert is not None else None
         cond = float(np.linalg.cond(best.P)) if best is not None and best.P is not None else math.nan
-        T, rule = horizon(plant.t_final, fixed=options.t_final, cap_factor=options.horizon_cap,
+        T, rule = simulation_horizon(plant.t_final, fixed=options.t_final, cap_factor=options.horizon_cap,
                           cert_rate=best.decay_rate if best is not None else math.nan, cond_p=cond,
                           linear_rate=loop.linearised_rate)
     rec.update(horizon_s=T, horizon_rule=rule)
@@ -333,7 +334,7 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
     the certificate used along the simulation (re-certifying without any it disproved), and record
     what the certificate predicts for this simulation."""
     rec = out.record
-    T = _horizon(rec, plant, res, cert, options, out.loop)
+    T = _record_horizon(rec, plant, res, cert, options, out.loop)
     sim = _sim_options(options, T, plant.t_final)
     rec["noise"] = options.noise
     batch = scenario is not None and scenario.batch
@@ -418,7 +419,6 @@ def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float,
                     max_wall_s: float | None) -> dict:
     """A batch scenario: per-member metrics in ``out.metrics``; the record holds the worst member."""
     from bench.batch import BATCH_OPTIONS, simulate_batch, simulate_digital_batch
-    from bench.batch import batch_metrics as traj_metrics
 
     if res.K is None:
         raise ValueError("a batch scenario needs fixed gains K, F (the estimator is not a fixed gain)")
@@ -431,7 +431,7 @@ def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float,
         opts = replace(scenario.options or BATCH_OPTIONS, max_wall_s=max_wall_s)
         tr = simulate_batch(plant, res.K, res.F, X, XH, t_final=T, options=opts)
     out.trajectory = tr
-    m = traj_metrics(tr)
+    m = tr.metrics()
     out.metrics = m
     out.record.update(sim_s=tr.wall_s, sim_status=tr.status if not tr.diverged.any() else "diverged")
     worst = {k: float(np.max(v)) for k, v in m.items() if k != "converged"}

@@ -33,9 +33,8 @@ class SimOptions:
     Parameters
     ----------
     method : str
-        ``solve_ivp`` method, or ``"auto"``: DOP853, or Radau when the loop is stiff over the
-        horizon (:func:`choose_method`; measured: a Theorem 1 observer with an eigenvalue at
-        -1121 over 70 s took 5 s with DOP853).
+        ``solve_ivp`` method, or ``"auto"``: DOP853, or Radau when the linear closed loop is
+        stiff over the horizon (:func:`choose_method`).
     rtol, atol : float
         Tolerances (tight enough that ``||x(T)|| ~ 1e-9`` is resolved).
     n_points : int
@@ -104,7 +103,8 @@ class Trajectory:
 check_gains = checks.gains
 
 
-#: ``method="auto"`` switches to BDF when ``max(-Re lambda) * t_final`` of the linear closed loop exceeds this.
+#: ``method="auto"`` switches to an implicit method (Radau in :func:`simulate`, BDF in
+#: :func:`bench.batch.simulate_batch`) when ``max(-Re lambda) * t_final`` of the linear closed loop exceeds this.
 STIFF = 5000.0
 
 
@@ -117,18 +117,30 @@ def _loop_matrix(plant, K: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: str = "BDF",
                   loop: checks.ClosedLoop | None = None) -> str:
-    """``stiff`` if the linear part of the closed loop (6) is stiff over the horizon, else ``"DOP853"``.
+    """The ``solve_ivp`` method for the closed loop (6): ``stiff`` if its linear part is stiff, else DOP853.
 
-    DOP853 (8th order, as the harness's single-trajectory simulator) rather than RK45: on the
-    flexible link's 1000-member batch at rtol 1e-6 it took 8852 right-hand sides and 0.56-0.60 s
-    with the paper's gains against 13 574 and 0.83-0.94 s with RK45 (thm1: 5897 vs 6920, lqr+lqe:
-    1424 vs 1934; trajectories agree to 1.3e-6 relative; ``python benchmarks/montecarlo_speed.py``).
+    Stiff means ``max(-Re lambda) * t_final > STIFF`` over the eigenvalues lambda of the linear
+    part ``[[A, BF], [KC, A + BF - KC]]``, which are those of ``A + BF`` and ``A - KC`` (the loop
+    is block triangular in ``(x, e)``): an explicit method would then need more than about
+    ``STIFF / 3`` steps for stability alone (Hairer & Wanner, *Solving ODEs II*, IV.2).
 
-    Stiff means ``max(-Re lambda) * t_final > STIFF`` for the eigenvalues lambda of
-    ``[[A, BF], [KC, A + BF - KC]]``: an explicit method would then need more than ~STIFF/3
-    steps for stability alone (measured: a Theorem 1 observer with an eigenvalue at -1121 took
-    47 000 RK45 right-hand sides for 20 s and 690 with BDF). ``loop`` carries those eigenvalues
-    (:func:`bench.checks.closed_loop`) when the caller has them.
+    Parameters
+    ----------
+    plant : Plant
+    K, F : ndarray
+        Observer gain (n x p) and feedback (m x n).
+    t_final : float
+        Horizon.
+    stiff : str
+        The implicit method returned for a stiff loop (:func:`simulate` passes ``"Radau"``, the
+        batch simulator keeps ``"BDF"``).
+    loop : ClosedLoop, optional
+        The gains' closed-loop spectra (:func:`bench.checks.closed_loop`) when the caller has them.
+
+    Returns
+    -------
+    str
+        ``stiff`` or ``"DOP853"``.
     """
     A, BF, KC = plant.A, plant.B @ F, K @ plant.C
     # the loop is block triangular in (x, e): its eigenvalues are those of A + BF and A - KC; a norm

@@ -4,7 +4,7 @@ and why a pair did or did not converge.
 Every rule here is a pure function of numbers the pipeline already has (:mod:`bench.pipeline`
 calls them and stores what they return in the record); the report only renders the record.
 
-- :func:`horizon`: a pair is simulated long enough to decay by the convergence threshold
+- :func:`simulation_horizon`: a pair is simulated long enough to decay by the convergence threshold
   (:data:`bench.metrics.CONVERGED_RATIO`) at its certified rate
   (``||z(t)|| <= sqrt(cond P) e^{-lam t} ||z(0)||``), or, uncertified, at the rate of its
   linearisation, never shorter than the plant's horizon and at most ``horizon_cap`` times it;
@@ -25,14 +25,14 @@ import numpy as np
 
 from bench.metrics import CONVERGED_RATIO
 
-__all__ = ["certificate_scope", "certified_horizon", "convergence_note", "horizon"]
+__all__ = ["certificate_scope", "certified_horizon", "convergence_note", "simulation_horizon"]
 
 #: An uncertified pair is simulated ``LINEAR_FACTOR * ln(1 / CONVERGED_RATIO) / rate`` seconds
 #: (its linearisation's rate: no bound on the transient, so a margin of 2).
 LINEAR_FACTOR = 2.0
 
 
-def horizon(t_plant: float, *, fixed: float | None, cap_factor: float, cert_rate: float, cond_p: float,
+def simulation_horizon(t_plant: float, *, fixed: float | None, cap_factor: float, cert_rate: float, cond_p: float,
             linear_rate: float) -> tuple[float, str]:
     """The simulation horizon of a pair and the rule that set it.
 
@@ -60,12 +60,12 @@ def horizon(t_plant: float, *, fixed: float | None, cap_factor: float, cert_rate
     """
     if fixed is not None:
         return float(fixed), "fixed"
-    decades = math.log(1.0 / CONVERGED_RATIO)
+    e_folds = math.log(1.0 / CONVERGED_RATIO)  # e-foldings to decay by CONVERGED_RATIO
     need, rule = None, "plant"
     if math.isfinite(cert_rate) and cert_rate > 0:
         need, rule = certified_horizon(cert_rate, cond_p), "certified rate"
     elif math.isfinite(linear_rate) and linear_rate > 0:
-        need, rule = LINEAR_FACTOR * decades / linear_rate, "linearised rate"
+        need, rule = LINEAR_FACTOR * e_folds / linear_rate, "linearised rate"
     if need is None or need <= t_plant:
         return float(t_plant), "plant"
     cap = cap_factor * t_plant

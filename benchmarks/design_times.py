@@ -22,7 +22,7 @@ def main() -> None:
     pid = sys.argv[1] if len(sys.argv) > 1 else "flexible_link"
     reps = int(sys.argv[2]) if len(sys.argv) > 2 else 5
     plant = PLANTS.create(pid)
-    consts = compute_constants(plant).valid
+    consts = compute_constants(plant).used
     import cvxpy  # noqa: F401  (warm imports)
 
     print(f"{'design':<16} {'status':<12} {'solves':>6} | cold: {'wall_s':>8} {'compile_s':>10} {'solve_s':>8} "

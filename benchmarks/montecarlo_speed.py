@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 
 from bench.registry import DESIGNS, PLANTS  # noqa: E402
 from bench.studies._common import default_box, random_ics  # noqa: E402
-from bench.batch import BATCH_OPTIONS, BatchTrajectory, batch_metrics, simulate_batch  # noqa: E402
+from bench.batch import BATCH_OPTIONS, BatchTrajectory, simulate_batch  # noqa: E402
 from bench.simulate import SimOptions, simulate  # noqa: E402
 
 
@@ -81,8 +81,8 @@ def main() -> None:
         loop_full = loop_s * a.n / m
         diff = float(np.nanmax(np.abs(best.x[:, :m] - xs)) / np.nanmax(np.abs(xs)))
         ref = BatchTrajectory(t, xs, xhs, np.zeros(m, dtype=bool), "ok", "", loop_s, 0)
-        same = bool(np.array_equal(batch_metrics(ref)["converged"], batch_metrics(best)["converged"][:m]))
-        conv = float(batch_metrics(best)["converged"].mean())
+        same = bool(np.array_equal(ref.metrics()["converged"], best.metrics()["converged"][:m]))
+        conv = float(best.metrics()["converged"].mean())
         label = f"{loop_full:8.2f}" + ("*" if m < a.n else " ")
         print(f"{did:<14} {best.wall_s:8.3f} {best.nfev:6d} {label} {loop_full / best.wall_s:8.0f}x {diff:12.2e} "
               f"{str(same):>13} {conv:9.3f}")

@@ -644,9 +644,9 @@ def constants_riccati(A, B, C, *, alpha: float | None = None, rho: float | None 
     **kwargs
         Passed to :func:`structured_riccati`.
 
-    This is a Riccati analogue of the corrected Theorem 1 / Corollary 1 of MATH.md, not the same
-    condition: one ball ``(c0, r)`` serves both sides and the joint certificate has the cross
-    term handled by mu, while MATH.md's LMIs use the QIB pair (``beta_eff = beta + gamma rho``) on
+    This is a Riccati analogue of the corrected Theorem 1 / Corollary 1 (``docs/paper.md``), not the
+    same condition: one ball ``(c0, r)`` serves both sides and the joint certificate has the cross
+    term handled by mu, while those LMIs use the QIB pair (``beta_eff = beta + gamma rho``) on
     the x-side and OSL + QIB with separate multipliers on the e-side. Both are only sufficient.
 
     Returns

@@ -23,13 +23,13 @@ cheaper than one 6n cone.
 
 Verdict on a side that is not strictly feasible. Each side is homogeneous in its variables
 (scaling (Q, Fh, kappa), or (R, Kh, multipliers), by s > 0 scales its matrix by s). Under the
-solve's normalisation ``t I << Q << cap I`` the best margin t of an infeasible side is therefore
+solve's normalisation ``slack I << Q << cap I`` the best slack of an infeasible side is therefore
 0, reached as every variable tends to 0 (the margin shrinks with them), so "within the
 verification tolerance of zero" cannot tell an infeasible side from one on the boundary. Such a
 side is decided again under the scale-free normalisation ``I << Q << cap I`` (R for the e-side):
 every strictly feasible point of a homogeneous side scales into it unless cond(Q) > cap, and the
 margin no longer shrinks with the variables, so a clearly negative best margin proves the side
-infeasible (t = -0.32 for an uncontrollable mode at -0.3 with sqrt(beta) = 0.5), while a side on
+infeasible (slack = -0.32 for an uncontrollable mode at -0.3 with sqrt(beta) = 0.5), while a side on
 the boundary keeps a best margin of 0 and stays marginal. Both sides are principal submatrices of
 the joint matrix, so a side proven infeasible proves the joint LMI infeasible (:func:`settle_joint`).
 The gains always come from the solve's own normalisation: the scale-free solve only labels.
@@ -182,10 +182,10 @@ class YoungForm:
         def build():
             if side == "x-side":
                 v = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
-                     "t": cp.Variable()}
+                     "slack": cp.Variable()}
                 scalars, blocks = ("kappa",), self.blocks[1]
             else:
-                v = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "t": cp.Variable()}
+                v = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "slack": cp.Variable()}
                 v.update({k: cp.Variable() for k in self.e_scalars})
                 scalars, blocks = self.e_scalars, self.blocks[2]
 
@@ -206,7 +206,7 @@ class YoungForm:
         -------
         dict
             :func:`bench.lmi.conclude` of the scale-free solve (``status`` ``infeasible``,
-            ``marginal``, ``feasible`` or ``undecided``, ``t``, ``margin``), plus ``normalisation``
+            ``marginal``, ``feasible`` or ``undecided``, ``slack``, ``margin``), plus ``normalisation``
             ``cap`` and ``cost`` (compile seconds, solve seconds, solves).
         """
         prog = self.side_program(plant, side, cap=cap, scale_free=True)
@@ -222,10 +222,10 @@ class YoungForm:
 def _scale_free_clause(decided: dict[str, dict]) -> str:
     """``"not strictly feasible under the normalisation I << Q << cap I (...)"`` for the sides in ``decided``."""
     norms = " and ".join(d["normalisation"] for d in decided.values())
-    ts = ", ".join(f"{d.get('t', float('nan')):.3g}" for d in decided.values())
+    ts = ", ".join(f"{d.get('slack', float('nan')):.3g}" for d in decided.values())
     mats = ", ".join(f"cond({SIDE_MATRIX[side]})" for side in decided)
     cap = max(d["cap"] for d in decided.values())
-    return (f"not strictly feasible under the normalisation {norms} (best margin t = {ts} there; "
+    return (f"not strictly feasible under the normalisation {norms} (best slack = {ts} there; "
             f"{'the side is' if len(decided) == 1 else 'each side is'} homogeneous in its variables, so this loses "
             f"only points with {mats} > {cap:g})")
 
@@ -293,7 +293,7 @@ def _failed_sides(xprog: lmi.Program, eprog: lmi.Program, X: np.ndarray, E: np.n
     if not bad:
         return None
     # a solver that claimed a positive margin its point does not have: undecided, not infeasible
-    claimed = [name for name in bad if float(sides[name][1].values()["t"]) > lmi.verify_tol(X if name == "x-side" else E)]
+    claimed = [name for name in bad if float(sides[name][1].values()["slack"]) > lmi.verify_tol(X if name == "x-side" else E)]
     margins = f"max eig x-side {lx:.3g}, e-side {le:.3g}"
     if claimed:
         return dict(status="undecided", reason=(
@@ -451,7 +451,7 @@ def settle_joint(plant, form: YoungForm, concl: dict, *, cap: float, solver: str
 
 # -- helpers shared by the corrected Theorem 1 and Corollary 1 ---------------------------------
 def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...]) -> dict:
-    """cvxpy variables Q, R (n x n symmetric), Fh (n x m), Kh (p x n), the margin t and ``scalars``."""
+    """cvxpy variables Q, R (n x n symmetric), Fh (n x m), Kh (p x n), the margin ``slack`` and ``scalars``."""
     import cvxpy as cp
 
     v = {
@@ -459,7 +459,7 @@ def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...]) -> dic
         "R": cp.Variable((n, n), symmetric=True, name="R"),
         "Fh": cp.Variable((n, m), name="Fhat"),
         "Kh": cp.Variable((p, n), name="Khat"),
-        "t": cp.Variable(name="t"),
+        "slack": cp.Variable(name="slack"),
     }
     for s in scalars:
         v[s] = cp.Variable(name=s)
@@ -492,7 +492,7 @@ def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.
         status=concl["status"], reason=concl["reason"], route="sdp", K=K, F=F, solver=prog.solver,
         solver_status=concl["solver_status"], compile_s=prog.compile_s + cost[0], solve_s=prog.solve_s + cost[1],
         n_solves=prog.n_solves + cost[2], margin=concl["margin"], lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
-        params={**params, "margin_t": concl.get("t", float("nan"))},
+        params={**params, "slack": concl.get("slack", float("nan"))},
     )
 
 

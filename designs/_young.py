@@ -26,9 +26,9 @@ class YoungDesign(Design):
     ----------
     n_grid, n_refine : int
         Search effort for the Young weight: a log grid of ``n_grid`` points, then ``n_refine``
-        golden steps on its log10 around the best grid point, maximising the normalised margin t.
+        golden steps on its log10 around the best grid point, maximising the normalised margin ``slack``.
     cap : float
-        Normalisation ``Q, R << cap I``; the margin t (<= 1) is maximised under it.
+        Normalisation ``Q, R << cap I``; the margin ``slack`` (<= 1) is maximised under it.
     method : {"joint", "separated"}
         ``"joint"`` solves the 6n x 6n LMI; ``"separated"`` solves the x-side and e-side 2n x 2n
         LMIs apart and rebuilds a verified joint certificate (:mod:`designs._separated`); the
@@ -75,7 +75,7 @@ class YoungDesign(Design):
 
     @property
     def _normalisation(self) -> str:
-        return f"the normalisation Q, R << {self.cap:g} I, t <= 1"
+        return f"the normalisation Q, R << {self.cap:g} I, slack <= 1"
 
     # -- what a subclass provides ---------------------------------------------------------------
     def form(self, plant: Plant, constants: Constants) -> YoungForm:  # pragma: no cover

@@ -148,10 +148,10 @@ class Cor1Printed(Design):
                    **mats.parameters(), **lmi.scalar_parameters("a2")}
 
             def extra(d):
-                t = d["t"]
-                return [d["Q"] >> d["alpha2"] * I, d["alpha2"] >= t, d["beta2"] >= t,
-                        2 * d["alpha2"] - d["beta2"] >= t, d["mu1"] >= t, d["mu1"] <= d["mu1_max"] - t,
-                        d["mu2"] >= t]
+                slack = d["slack"]
+                return [d["Q"] >> d["alpha2"] * I, d["alpha2"] >= slack, d["beta2"] >= slack,
+                        2 * d["alpha2"] - d["beta2"] >= slack, d["mu1"] >= slack, d["mu1"] <= d["mu1_max"] - slack,
+                        d["mu2"] >= slack]
 
             return lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
 
@@ -165,7 +165,7 @@ class Cor1Printed(Design):
         best_xi = max(vals, key=lambda vx: np.nan_to_num(vx[0], nan=-np.inf))[1]
         prog.restore_best()
         concl = lmi.conclude(prog, what="Corollary 1 as printed (Remarks 2-3)",
-                              normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1",
+                              normalisation=f"the normalisation Q, R << {self.cap:g} I, slack <= 1",
                               searched=f"over xi in {tuple(self.xis)}")
         sv = prog.values()
         params = {"xi": best_xi, "alpha": constants.alpha, "cap": self.cap,

@@ -1,6 +1,6 @@
 """LMI observers for Lipschitz (Rajamani-style) and OSL/QIB (Zhang et al. 2012) systems.
 
-Both solve a 2n x 2n LMI with cvxpy + Clarabel, maximising a margin t under the normalisation
+Both solve a 2n x 2n LMI with cvxpy + Clarabel, maximising a margin ``slack`` under the normalisation
 ``P << cap I`` (these LMIs are homogeneous in their variables, so the cap only fixes the scale),
 and are verified like every LMI of the suite: the matrix is rebuilt with numpy at the solution
 and its largest eigenvalue must be negative. ``solver="auto"`` tries SCS first (much faster
@@ -37,8 +37,8 @@ def _solve_observer(part: "Part", key: tuple, build, settable: dict, *, what: st
                     searched: str) -> tuple[lmi.Program, dict, str]:
     """Solve an observer LMI under ``P << cap I``; a marginal verdict is decided again scale-free.
 
-    The LMI is homogeneous in its variables, so under ``t I << P << cap I`` an infeasible one has
-    best margin 0 (every variable shrinking with ``t``): "marginal" cannot tell it from a boundary
+    The LMI is homogeneous in its variables, so under ``slack I << P << cap I`` an infeasible one has
+    best margin 0 (every variable shrinking with ``slack``): "marginal" cannot tell it from a boundary
     case. The scale-free solve adds ``I << P``, which loses only points with ``cond(P) > cap``;
     there an infeasible LMI has a clearly negative margin and is labelled infeasible (the gains,
     when there are any, always come from the first solve). ``build(scale_free)`` builds the program.
@@ -46,7 +46,7 @@ def _solve_observer(part: "Part", key: tuple, build, settable: dict, *, what: st
     prog = lmi.cached_program((*key, "capped"), lambda: build(False))
     prog.set(**settable)
     log = lmi.solve_side(prog, part.solver, n)
-    concl = lmi.conclude(prog, what=what, normalisation=f"P << {part.cap:g} I, t <= 1", searched=searched)
+    concl = lmi.conclude(prog, what=what, normalisation=f"P << {part.cap:g} I, slack <= 1", searched=searched)
     if concl["status"] != "marginal":
         return prog, concl, log
     sf = lmi.cached_program((*key, "scale-free"), lambda: build(True))
@@ -69,7 +69,7 @@ def _part_from(prog: lmi.Program, concl: dict, K, params: dict, log: str = "") -
                         solver=prog.solver, solver_status=log or concl["solver_status"], compile_s=prog.compile_s,
                         solve_s=prog.solve_s, n_solves=prog.n_solves, margin=concl["margin"],
                         lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
-                        params={**params, "margin_t": concl.get("t", float("nan"))})
+                        params={**params, "slack": concl.get("slack", float("nan"))})
 
 
 @register_estimator("rajamani")
@@ -107,7 +107,7 @@ class RajamaniLMI(Part):
 
         def build(scale_free: bool):
             v = {"P": cp.Variable((n, n), symmetric=True), "W": cp.Variable((n, p)), "eps": cp.Variable(),
-                 "t": cp.Variable()}
+                 "slack": cp.Variable()}
             prm = {**mats.parameters(), **lmi.scalar_parameters("a2")}
             return lmi.margin_program(blocks, v, prm, ("P",),
                                       lambda d: [d["eps"] >= 0] + ([d["P"] >> I] if scale_free else []), cap=self.cap)
@@ -167,7 +167,7 @@ class ZhangOSL(Part):
 
         def build(scale_free: bool):
             v = {"P": cp.Variable((n, n), symmetric=True), "sigma": cp.Variable(), "eps1": cp.Variable(),
-                 "eps2": cp.Variable(), "t": cp.Variable()}
+                 "eps2": cp.Variable(), "slack": cp.Variable()}
             # C'C is one parameter: sigma * (C' C) with C a parameter would not be DPP
             prm = {**mats.parameters(), **lmi.scalar_parameters("rho", "beta", "gamma")}
             return lmi.margin_program(

@@ -8,7 +8,7 @@ and the closed loop (6) with ``u = F x_hat``, ``e = x - x_hat`` ::
     x' = (A0 + B F) x - B F e + G psi(H x)
     e' = (A0 - K C) e + G (psi(H x) - psi(H x_hat))
 
-Each side is an S-procedure LMI with one multiplier per channel (``../shared/design/STRUCTURE.md``);
+Each side is an S-procedure LMI with one multiplier per channel (``docs/structured.md``);
 with ``Dr = diag(r)`` and a decay target ``lam``:
 
 - x-side, in ``Q > 0``, ``Y`` (m x n), ``S = diag(s) >= 0``; ``F = Y Q^-1`` ::
@@ -59,8 +59,8 @@ from plants import Constants, Plant
 
 __all__ = ["Structured"]
 
-#: ``route="auto"`` solves the sides by Riccati equations from this n on (the SDP sides'
-#: interior-point cost grows like n^4 - n^6; measured by ``python -m bench perf``).
+#: ``route="auto"`` solves the sides by Riccati equations (O(n^3)) from this n on, the SDP sides by
+#: an interior-point method below it (cost growing like n^4 to n^6; see ``docs/structured.md``).
 RICCATI_FROM_N = 64
 
 
@@ -87,9 +87,8 @@ class Structured(Design):
     rtol : float
         Relative tolerance of the decay search.
     solver : {"auto", "CLARABEL", "SCS"}
-        SDP solver of the sides (:func:`bench.lmi.solve_side`). Default Clarabel: on these
-        min-gain programs SCS was much slower (chain, n = 16: 51.5 s with SCS or "auto", 2.3 s
-        with Clarabel, same decay target and gains within tolerance).
+        SDP solver of the sides (:func:`bench.lmi.solve_side`); default Clarabel (interior point,
+        which suits these min-gain programs better than SCS).
     route : {"auto", "sdp", "riccati"}
         How the sides are solved (see the module docstring).
     """

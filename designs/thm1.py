@@ -289,9 +289,9 @@ class Thm1Printed(Design):
                    **mats.parameters(), **lmi.scalar_parameters("rho", "beta", "gamma")}
 
             def extra(d):
-                t = d["t"]
-                return [d["Q"] >> d["alpha1"] * I, d["alpha1"] >= t, d["beta1"] >= t,
-                        2 * d["alpha1"] - d["beta1"] >= t, d["eps3"] >= 0, d["eps4"] >= 0]
+                slack = d["slack"]
+                return [d["Q"] >> d["alpha1"] * I, d["alpha1"] >= slack, d["beta1"] >= slack,
+                        2 * d["alpha1"] - d["beta1"] >= slack, d["eps3"] >= 0, d["eps4"] >= 0]
 
             return lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
 
@@ -331,7 +331,7 @@ class Thm1Printed(Design):
         eps1, eps2, psi, zeta = best
         prog.restore_best()
         concl = lmi.conclude(prog, what="Theorem 1 as printed (Remark 1)",
-                              normalisation=f"the normalisation Q, R << {self.cap:g} I, t <= 1",
+                              normalisation=f"the normalisation Q, R << {self.cap:g} I, slack <= 1",
                               searched=f"over {len(combos)} (eps1, eps2) pairs")
         vals = prog.values()
         params.update(eps1=eps1, eps2=eps2, psi=psi, zeta=zeta, cap=self.cap,

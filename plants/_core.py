@@ -119,7 +119,7 @@ class Channels:
     ``||x|| <= radius``), and ``phi(0) = 0``. This is what most plants know beyond the scalar
     constants: *which* states f acts on (the columns of G) and *which* it depends on (the
     rows of H). The certificate ladder and the structured design use it
-    (docs/structured.md).
+    (``docs/structured.md``).
 
     Parameters
     ----------

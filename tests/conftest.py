@@ -27,7 +27,7 @@ def designed(flex, flex_constants):
     """Results of the LMI designs on the flexible link, computed once."""
     from bench.registry import DESIGNS
 
-    return {d: DESIGNS.create(d).design(flex, flex_constants.valid) for d in ("thm1", "cor1", "thm1_printed",
+    return {d: DESIGNS.create(d).design(flex, flex_constants.used) for d in ("thm1", "cor1", "thm1_printed",
                                                                                "cor1_printed")}
 
 

@@ -94,7 +94,7 @@ def test_sampled_constants_never_certify():
     rep = compute_constants(plant, seed=0, n_samples=2000)
     assert set(rep.source.values()) == {"sampled"}
     # the sampled values are close to the truth (0.01, 0.005, 1e-4) and would certify if trusted...
-    assert certify(plant, K2, F2, Knowledge(constants=rep.valid), rates=False).certified
+    assert certify(plant, K2, F2, Knowledge(constants=rep.used), rates=False).certified
     # ...but a sample is a lower bound: nothing is trusted
     for design in (FixedGains(), "lqr+lqe"):
         out = evaluate_pair(plant, design, rep, FAST)
@@ -196,7 +196,7 @@ def test_global_cubic_without_bounds_is_not_lipschitz():
         assert ratios(_cubic, [a + 1e-6, 0], [a, 0])["alpha"] == pytest.approx(3 * a**2, rel=1e-4)
     plant = Plant(id="cubic", A=[[0.0, 1.0], [-1.0, -1.0]], B=B2, C=C2, f=_cubic, x0=[0.5, 0.0], x_hat0=[0.0, 0.0])
     rep = compute_constants(plant, seed=0, n_samples=2000)
-    assert "alpha" in rep.unbounded and rep.source["alpha"] == "unbounded" and rep.valid.alpha is None
+    assert "alpha" in rep.unbounded and rep.source["alpha"] == "unbounded" and rep.used.alpha is None
     assert re.search(r"not globally Lipschitz .*declare bounds with a radius", rep.unbounded["alpha"])
     rec = evaluate_pair(plant, "cor1", rep, FAST).record
     assert rec["status"] == "inapplicable"
@@ -206,7 +206,7 @@ def test_global_cubic_without_bounds_is_not_lipschitz():
     local = Plant(id="cubic_local", A=[[0.0, 1.0], [-1.0, -1.0]], B=B2, C=C2, f=_cubic, x0=[0.5, 0.0],
                   x_hat0=[0.0, 0.0], bounds=Constants(alpha=3.0, radius=1.0))
     rep_local = compute_constants(local, seed=0, n_samples=2000)
-    assert rep_local.unbounded == {} and rep_local.disproved == [] and rep_local.valid.alpha == 3.0
+    assert rep_local.unbounded == {} and rep_local.disproved == [] and rep_local.used.alpha == 3.0
 
 
 def test_pairing_needing_alpha_explains_the_unbounded_constant():

@@ -22,7 +22,7 @@ from tests.conftest import hurwitz
 
 def test_lqr_gain_solves_scipys_riccati_equation(flex, flex_constants):
     Q, R = np.diag([1.0, 2.0, 3.0, 4.0]), np.array([[0.5]])
-    part = FEEDBACKS.create("lqr", Q=Q, R=R).compute(flex, flex_constants.valid)
+    part = FEEDBACKS.create("lqr", Q=Q, R=R).compute(flex, flex_constants.used)
     assert part.status == "computed" and part.route == "formula" and part.K is None
     # independently: scipy's CARE A'S + SA - S B R^-1 B'S + Q = 0 and u = -R^-1 B'S x = F x
     S = solve_continuous_are(flex.A, flex.B, Q, R)
@@ -32,7 +32,7 @@ def test_lqr_gain_solves_scipys_riccati_equation(flex, flex_constants):
 
 def test_lqe_gain_is_the_dual_riccati_solution(flex, flex_constants):
     QN, RN = np.diag([2.0, 1.0, 0.5, 3.0]), np.diag([0.5, 2.0])
-    part = ESTIMATORS.create("lqe", QN=QN, RN=RN).compute(flex, flex_constants.valid)
+    part = ESTIMATORS.create("lqe", QN=QN, RN=RN).compute(flex, flex_constants.used)
     assert part.status == "computed" and part.F is None
     # the Kalman gain from the dual CARE (A', C'): A P + P A' - P C' RN^-1 C P + QN = 0, L = P C' RN^-1
     P = solve_continuous_are(flex.A.T, flex.C.T, QN, RN)
@@ -42,7 +42,7 @@ def test_lqe_gain_is_the_dual_riccati_solution(flex, flex_constants):
     assert np.abs(res).max() < 1e-8 * max(1.0, np.abs(P).max())
     assert hurwitz(flex.A - part.K @ flex.C)
     # the default weights are identities: the same construction with QN = I, RN = I
-    default = ESTIMATORS.create("lqe").compute(flex, flex_constants.valid)
+    default = ESTIMATORS.create("lqe").compute(flex, flex_constants.used)
     P1 = solve_continuous_are(flex.A.T, flex.C.T, np.eye(4), np.eye(2))
     np.testing.assert_allclose(default.K, P1 @ flex.C.T, rtol=1e-8, atol=1e-10)
 
@@ -62,8 +62,8 @@ def stabilizing_care(At, G, Qw):
 
 
 def test_rh_gain_satisfies_the_riccati_condition_it_claims(flex, flex_constants):
-    alpha = flex_constants.valid.alpha
-    part = ESTIMATORS.create("rh_riccati").compute(flex, flex_constants.valid)
+    alpha = flex_constants.used.alpha
+    part = ESTIMATORS.create("rh_riccati").compute(flex, flex_constants.used)
     assert part.status == "feasible" and part.route == "riccati", part.reason
     eps, A, C, K, n = part.params["eps"], flex.A, flex.C, part.K, 4
     # Raghavan-Hedrick: A P + P A' + P (alpha^2 I - C'C/eps) P + (1 + eps) I = 0, K = P C' / (2 eps);
@@ -95,7 +95,7 @@ def test_rh_riccati_reports_no_solution_for_large_alpha(flex):
 
 @pytest.mark.parametrize("est", ["rajamani", "zhang_osl"])
 def test_lmi_observers_verified(flex, flex_constants, est):
-    part = ESTIMATORS.create(est).compute(flex, flex_constants.valid)
+    part = ESTIMATORS.create(est).compute(flex, flex_constants.used)
     assert part.status == "feasible", part.reason
     assert part.margin < 0 and part.min_eig["P"] > 0
     # the LMI implies (A-KC)'P + P(A-KC) < 0, hence A - KC Hurwitz
@@ -103,7 +103,7 @@ def test_lmi_observers_verified(flex, flex_constants, est):
 
 
 def test_lmi_observer_decay_is_honoured(flex, flex_constants):
-    part = ESTIMATORS.create("rajamani", decay=0.5).compute(flex, flex_constants.valid)
+    part = ESTIMATORS.create("rajamani", decay=0.5).compute(flex, flex_constants.used)
     assert part.status == "feasible"
     # V' <= -2 lam V for the linear part gives every eigenvalue of A - KC real part <= -lam
     assert np.linalg.eigvals(flex.A - part.K @ flex.C).real.max() <= -0.5 + 1e-9
@@ -139,7 +139,7 @@ def test_noisy_high_gain_observer_stays_within_a_budget_an_explicit_rk45_would_e
     from bench.simulate import SimOptions
 
     plant = PLANTS.create("random_osl_v1")
-    res = DESIGNS.create("thm1").design(plant, compute_constants(plant, n_samples=2000).valid)
+    res = DESIGNS.create("thm1").design(plant, compute_constants(plant, n_samples=2000).used)
     assert res.status == "feasible"
     tr = simulate_controller(plant, res.F, K=res.K, t_final=10.0, noise=0.01, seed=0,
                              options=SimOptions(max_nfev=200_000))
@@ -186,7 +186,7 @@ def test_bad_parameters_named(kind, pid, kw, name):
 
 def test_weight_of_wrong_size_named(flex, flex_constants):
     with pytest.raises(DesignError, match="^Q:"):
-        FEEDBACKS.create("lqr", Q=np.eye(3)).compute(flex, flex_constants.valid)
+        FEEDBACKS.create("lqr", Q=np.eye(3)).compute(flex, flex_constants.used)
 
 
 def test_sample_time_not_dividing_horizon_is_an_error_row():

@@ -8,7 +8,7 @@ def test_tight_rho_within_one_percent(flex_constants):
     # analytic: <df, dx> = -c (sin a - sin b) d4 <= c |da| |d4| <= (c/2)(da^2 + d4^2), tight as dx -> 0
     tight = 0.333 / 2
     assert abs(flex_constants.sampled.rho - tight) <= 0.01 * tight
-    assert flex_constants.valid.rho == tight
+    assert flex_constants.used.rho == tight
 
 
 def test_claimed_rho_flagged_with_a_violating_pair(flex, flex_constants):
@@ -40,3 +40,14 @@ def test_claimed_option(flex_constants):
     c = resolve_constants(flex_constants, use_claimed=True)
     assert c.rho == 0.1109 and c.beta == 0.1109 and c.gamma == 0.0
     assert resolve_constants(flex_constants).rho == 0.333 / 2
+
+
+def test_report_round_trips_through_json_and_reads_the_former_field_name(flex_constants):
+    import json
+
+    from bench.constants import ConstantsReport
+
+    doc = json.loads(json.dumps(flex_constants.to_dict()))
+    assert ConstantsReport.from_dict(doc) == flex_constants
+    doc["valid"] = doc.pop("used")  # written before the field was renamed
+    assert ConstantsReport.from_dict(doc).used == flex_constants.used

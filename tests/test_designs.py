@@ -29,7 +29,7 @@ def test_corrected_designs_feasible_verified_and_hurwitz(flex, designed, did):
 def test_corrected_gains_satisfy_math_md_and_the_ladder(flex, flex_constants, flex_knowledge, designed, did):
     r = designed[did]
     # docs/paper.md's joint matrix, rebuilt in the test, is negative definite for these gains
-    assert gains_satisfy_joint_lmi(did, flex, r.K, r.F, flex_constants.valid)
+    assert gains_satisfy_joint_lmi(did, flex, r.K, r.F, flex_constants.used)
     cert = certify(flex, r.K, r.F, flex_knowledge, rates=False)
     assert cert.certified and cert.best.margin < 0
 
@@ -37,7 +37,7 @@ def test_corrected_gains_satisfy_math_md_and_the_ladder(flex, flex_constants, fl
 def test_thm1_printed_infeasible_on_flexible_link(flex_constants, designed):
     """As printed, S3 holds -zeta I with zeta = 1/(eps2 gamma - eps1); the flexible link has gamma = 0, so
     zeta = -1/eps1 < 0 for every eps1 > 0 and S < 0 is impossible (docs/paper.md): decided without a solve."""
-    assert flex_constants.valid.gamma == 0.0
+    assert flex_constants.used.gamma == 0.0
     r = designed["thm1_printed"]
     assert r.status == "infeasible" and r.K is None and r.n_solves == 0
     assert "zeta" in r.reason and "gamma = 0" in r.reason
@@ -53,7 +53,7 @@ def test_cor1_printed_infeasible_on_flexible_link(designed):
 def test_thm1_feasibility_in_phi1_matches_the_tests_own_solve(flex, flex_constants):
     """docs/paper.md: feasible for phi1 in [1e-4, 0.06], infeasible from 0.07 on. The test's own solve of the
     6n LMI (written from docs/paper.md) agrees with the design at a feasible and an infeasible phi1."""
-    c = flex_constants.valid
+    c = flex_constants.used
     assert thm1_synthesis_margin(flex, c, 0.01) > 0
     ok = DESIGNS.create("thm1", phi1=0.01).design(flex, c)
     assert ok.status == "feasible" and ok.params["phi1"] == 0.01
@@ -88,10 +88,10 @@ def test_paper_gains_only_for_flexible_link(flex, flex_constants):
     from dataclasses import replace
 
     d = DESIGNS.create("paper_gains")
-    assert d.applicable(flex, flex_constants.valid) is None
+    assert d.applicable(flex, flex_constants.used) is None
     other = replace(flex, id="other", family="other")
-    assert "flexible link" in d.applicable(other, flex_constants.valid)
-    r = d.design(flex, flex_constants.valid)
+    assert "flexible link" in d.applicable(other, flex_constants.used)
+    r = d.design(flex, flex_constants.used)
     assert r.status == "given" and r.route == "given"
     # docs/paper.md's printed gains (37)-(38)
     np.testing.assert_array_equal(r.F, [[-11.7561, -1.8562, 6.4643, -14.2175]])

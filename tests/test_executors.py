@@ -107,8 +107,8 @@ def test_a_certificate_does_not_depend_on_what_the_process_solved_before(flex, f
     from bench import lmi
     from bench.certify import certify
 
-    given = DESIGNS.create("paper_gains").design(flex, flex_constants.valid)
-    other = DESIGNS.create("lqr+lqe").design(flex, flex_constants.valid)
+    given = DESIGNS.create("paper_gains").design(flex, flex_constants.used)
+    other = DESIGNS.create("lqr+lqe").design(flex, flex_constants.used)
     lmi.clear_program_cache()
     cold = certify(flex, given.K, given.F, flex_knowledge)
     certify(flex, other.K, other.F, flex_knowledge)
@@ -128,7 +128,7 @@ _DEADLOCK = """
     def certified():
         p = PLANTS.create("flexible_link")
         rep = compute_constants(p, seed=0, n_samples=500)
-        g = DESIGNS.create("paper_gains").design(p, rep.valid)
+        g = DESIGNS.create("paper_gains").design(p, rep.used)
         return certify(p, g.K, g.F, rep.knowledge(p)).certified
 
     first = certified()  # the parent solves the certificate's SDPs (Clarabel runs multi-threaded)

@@ -1,6 +1,11 @@
 """``python -m bench perf`` writes its report; the figures themselves are measurements, not asserted."""
 
+import sys
+
+from bench import cli
 from bench.cli import main
+
+sys.path.insert(0, str(cli._BENCHMARKS_DIR))  # the report code is a script of the checkout
 
 
 def test_perf_small_writes_report(tmp_path):
@@ -24,7 +29,7 @@ def test_breakdown_parts_account_for_the_work_and_the_floor_is_a_lower_bound():
     # one plant, two designs: the parts are timed, not asserted; what must hold whatever the machine:
     # the SDP parts come from a real tally (thm1 solves, LQR + LQE solves none in its design), the
     # solver's own time is part of the solves, and the floor is at most the serial total's share
-    from bench.perf import default_run_breakdown
+    from perf_report import default_run_breakdown
 
     b = default_run_breakdown(["flexible_link"], ["thm1", "lqr+lqe"], cores=2, timeout=300)
     assert b["status"] == "ok" and b["pairs"] == 2 and b["n_solves"] > 0
@@ -33,3 +38,11 @@ def test_breakdown_parts_account_for_the_work_and_the_floor_is_a_lower_bound():
     assert sdp <= b["design_s"] + b["cert_s"] + 1e-6  # every solve happens inside a design or a certificate
     serial = b["imports_s"] + b["constants_s"] + b["design_s"] + b["cert_s"] + b["sim_s"] + b["figures_s"]
     assert b["imports_s"] < b["floor_s"] <= serial
+
+
+def test_perf_outside_a_checkout_exits_2_and_says_why(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(cli, "_BENCHMARKS_DIR", tmp_path / "benchmarks")  # an installed package: no benchmarks/
+    assert main(["perf", "--sizes", "4", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "developer command" in err and "checkout" in err
+    assert not (tmp_path / "PERF.md").exists()

@@ -124,7 +124,7 @@ def test_moving_object_shows_the_point_of_osl(reports):
     assert -1e-3 <= rep.sampled.rho <= 1e-9
     # Lipschitz on the ball: 3 r^2 = 300, attained at the boundary
     assert 0.99 * 3 * r**2 <= rep.sampled.alpha <= 3 * r**2 * (1 + 1e-9)
-    assert rep.valid.rho == 0.0 and rep.valid.alpha == 300.0
+    assert rep.used.rho == 0.0 and rep.used.alpha == 300.0
     # QIB with beta = 0 at gamma = -3 r^2: no sample above 0
     assert rep.sampled.gamma == -3 * r**2 and rep.sampled.beta <= 1e-9
     assert rep.violations == []  # the sources' gamma = -4 r^2 is valid (looser)

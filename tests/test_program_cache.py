@@ -126,7 +126,7 @@ def _lyapunov_program(mats):
     import cvxpy as cp
 
     def build():
-        v = {"P": cp.Variable((3, 3), symmetric=True), "t": cp.Variable()}
+        v = {"P": cp.Variable((3, 3), symmetric=True), "slack": cp.Variable()}
 
         def blocks(d):
             return [[d["A"].T @ d["P"] + d["P"] @ d["A"]]]
@@ -168,7 +168,7 @@ def test_a_parameter_left_unset_fails_loudly_instead_of_reusing_a_stale_value():
     import cvxpy as cp
 
     def build():
-        v = {"P": cp.Variable((2, 2), symmetric=True), "t": cp.Variable()}
+        v = {"P": cp.Variable((2, 2), symmetric=True), "slack": cp.Variable()}
         prm = {"a": cp.Parameter(name="a")}
 
         def blocks(d):
@@ -193,7 +193,7 @@ def test_threads_never_share_a_program():
         import cvxpy as cp
 
         return _lmi.margin_program(lambda d: [[-d["P"]]], {"P": cp.Variable((2, 2), symmetric=True),
-                                                           "t": cp.Variable()}, {}, ("P",))
+                                                           "slack": cp.Variable()}, {}, ("P",))
 
     mine = _lmi.cached_program(("test.thread",), build)
     other = []
@@ -206,7 +206,7 @@ def test_threads_never_share_a_program():
 def test_certificates_reuse_the_analysis_program_and_agree_with_a_fresh_one(flex, flex_constants, flex_knowledge):
     """Certifying two gain pairs of the same size: the second reuses the program and both agree
     with fresh builds, level by level (certified or not, decay rate to the bisection tolerance)."""
-    c = flex_constants.valid
+    c = flex_constants.used
     pairs = []
     for did in ("paper_gains", "thm1_sep"):
         r = DESIGNS.create(did).design(flex, c)
@@ -235,7 +235,7 @@ def test_a_program_cut_short_by_a_timeout_is_dropped_from_the_cache(monkeypatch)
 
     def build():
         return _lmi.margin_program(lambda d: [[-d["P"]]], {"P": cp.Variable((2, 2), symmetric=True),
-                                                           "t": cp.Variable()}, {}, ("P",))
+                                                           "slack": cp.Variable()}, {}, ("P",))
 
     prog = _lmi.cached_program(("test.timeout",), build)
 

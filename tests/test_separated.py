@@ -56,14 +56,14 @@ def unobservable_right_vector(A, C):
 
 @pytest.mark.parametrize("did, kind", [("thm1_sep", "thm1"), ("cor1_sep", "cor1")])
 def test_separated_feasible_certified_on_flexible_link(flex, flex_constants, flex_knowledge, did, kind):
-    r = DESIGNS.create(did).design(flex, flex_constants.valid)
+    r = DESIGNS.create(did).design(flex, flex_constants.used)
     assert r.status == "feasible", r.reason
     assert r.margin < 0 and r.lmi_size == 24
     assert r.params["raw_joint_margin"] < 0
     assert hurwitz(flex.A + flex.B @ r.F) and hurwitz(flex.A - r.K @ flex.C)
     # the joint matrix of docs/paper.md, rebuilt here, holds for these gains
-    assert gains_satisfy_joint_lmi(kind, flex, r.K, r.F, flex_constants.valid)
-    assert not gains_satisfy_joint_lmi(kind, flex, r.K, -r.F, flex_constants.valid)  # the check can fail
+    assert gains_satisfy_joint_lmi(kind, flex, r.K, r.F, flex_constants.used)
+    assert not gains_satisfy_joint_lmi(kind, flex, r.K, -r.F, flex_constants.used)  # the check can fail
     assert certify(flex, r.K, r.F, flex_knowledge, rates=False).certified
 
 
@@ -141,7 +141,7 @@ def test_separated_infeasible_when_a_side_is(flex, flex_constants):
     from dataclasses import replace
 
     # an enormous nonlinearity: Lipschitz 1e3 on a plant whose A is O(50); the joint design fails clearly
-    big = replace(flex_constants.valid, rho=1e3, beta=1e6, alpha=1e3)
+    big = replace(flex_constants.used, rho=1e3, beta=1e6, alpha=1e3)
     joint = DESIGNS.create("thm1").design(flex, big)
     assert joint.status == "infeasible" and joint.margin > 0 and "under the normalisation" in joint.reason
     r = DESIGNS.create("thm1_sep").design(flex, big)

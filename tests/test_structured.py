@@ -88,7 +88,7 @@ def test_a_sweep_over_the_scale_of_f_designs_what_a_cold_process_designs(did):
 
     def design(c):
         p = PLANTS.create("flexible_link", c=c)
-        return DESIGNS.create(did).design(p, compute_constants(p, seed=0, n_samples=2000).valid)
+        return DESIGNS.create(did).design(p, compute_constants(p, seed=0, n_samples=2000).used)
 
     lmi.clear_program_cache()
     cold = design(0.34)

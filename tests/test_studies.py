@@ -19,7 +19,7 @@ from bench.metrics import batch_settling_time, settling_time, trajectory_metrics
 from bench.registry import DESIGNS, PLANTS
 from bench.simulate import SimOptions, simulate
 from bench.studies._common import StudyError, bisect_largest, check_box, check_levels, check_range, write_study
-from bench.batch import BATCH_OPTIONS, batch_metrics, digital_matrix, simulate_batch, simulate_digital_batch
+from bench.batch import BATCH_OPTIONS, digital_matrix, simulate_batch, simulate_digital_batch
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +52,7 @@ def test_batch_matches_solve_ivp_per_initial_condition(pid, paper_gains):
     tr = simulate_batch(plant, K, F, X, XH, t_final=T,
                         options=SimOptions(method="RK45", rtol=1e-9, atol=1e-12, n_points=801))
     assert tr.status == "ok" and not tr.diverged.any()
-    bm = batch_metrics(tr)
+    bm = tr.metrics()
     opts = SimOptions(n_points=801)  # DOP853, rtol 1e-8, atol 1e-12: a different method and layout
     for j in range(X.shape[1]):
         ref = simulate(plant, K, F, t_final=T, x0=X[:, j], x_hat0=XH[:, j], options=opts)
@@ -90,7 +90,7 @@ def test_a_diverging_member_is_frozen_and_does_not_stop_the_others():
     tr = simulate_batch(plant, K, F, X, X.copy(), t_final=20.0, options=replace(BATCH_OPTIONS, blowup=1e3))
     assert tr.status == "ok"
     assert tr.diverged.tolist() == [False, True]
-    m = batch_metrics(tr)
+    m = tr.metrics()
     assert m["converged"].tolist() == [True, False]  # the zero state stays at the equilibrium
 
 
@@ -152,7 +152,7 @@ def test_linear_sampled_loop_converges_iff_spectral_radius_below_one(disc, lqr_g
         if abs(rho - 1) < 0.02 or (rho < 1 and rho ** (T / h) > 1e-6):
             continue  # too close to the boundary to decide within the horizon
         tr = simulate_digital_batch(plant, K, F, plant.x0, plant.x_hat0, h=h, t_final=T, discretisation=disc)
-        conv = bool(batch_metrics(tr)["converged"][0])
+        conv = bool(tr.metrics()["converged"][0])
         assert conv == (rho < 1), (h, rho)
         checked[rho < 1] += 1
     assert checked[True] >= 2 and checked[False] >= 2
@@ -170,7 +170,7 @@ def test_small_h_approaches_the_continuous_loop(lqr_gains):
         k = np.searchsorted(cont.t, tr.t)
         assert np.allclose(cont.t[k], tr.t)
         errs.append(np.abs(tr.x[:, 0, :] - cont.x[:, k]).max())
-        m = batch_metrics(tr)
+        m = tr.metrics()
         ref = trajectory_metrics(cont.t, cont.x, cont.x_hat, cont.u)
         assert m["converged"][0] and abs(m["settling_x_s"][0] - ref["settling_x_s"]) <= 0.02 * ref["settling_x_s"]
     assert errs[0] < 0.05 * np.abs(cont.x).max()
@@ -191,7 +191,7 @@ def test_sampling_study_bound_is_consistent_with_linearisation(tmp_path):
     assert row["h_max"] <= h_lin  # no convergence without local exponential stability
     # just above h_lin the origin of the sampled loop is unstable: the plant's initial conditions cannot converge
     tr = simulate_digital_batch(plant, d.K, d.F, plant.x0, plant.x_hat0, h=1.05 * h_lin, t_final=10.0)
-    assert not batch_metrics(tr)["converged"][0]
+    assert not tr.metrics()["converged"][0]
     evals = {e["h"]: e for e in res.evals}
     assert evals[row["h_max"]]["ok"] and not evals[row["h_fail"]]["ok"]
 

@@ -19,7 +19,7 @@ LN1000 = math.log(1000.0)  # the convergence threshold: decayed by a factor 1000
 
 
 def _horizon(t_plant=20.0, *, fixed=None, cap_factor=10.0, cert_rate=math.nan, cond_p=1.0, linear_rate=math.nan):
-    return verdicts.horizon(t_plant, fixed=fixed, cap_factor=cap_factor, cert_rate=cert_rate, cond_p=cond_p,
+    return verdicts.simulation_horizon(t_plant, fixed=fixed, cap_factor=cap_factor, cert_rate=cert_rate, cond_p=cond_p,
                             linear_rate=linear_rate)
 
 

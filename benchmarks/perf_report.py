@@ -1,5 +1,8 @@
 """``python -m bench perf``: how the designs scale with n, and how long the default run takes.
 
+A developer script of the checkout, not part of the installed package: ``python -m bench perf``
+(from a checkout) loads it from ``benchmarks/``.
+
 Writes ``PERF.md``, ``perf.csv`` and ``figures/perf_scaling.png`` into the output folder
 (default ``reports/``), whole or not at all. Every figure is a measurement on this machine,
 printed as it is taken:
@@ -345,7 +348,7 @@ def _breakdown_child(plant_ids, design_ids, queue) -> None:
     from bench.lmi import clear_program_cache, reset_solve_tally, solve_tally
     from bench.pipeline import RunOptions, evaluate_pair
     from bench.registry import DESIGNS, PLANTS
-    from bench.report import draw_figures as _figures
+    from bench.report import draw_figures
 
     clear_program_cache()  # cold, like a fresh run: every program compiled here
     reset_solve_tally()
@@ -369,7 +372,7 @@ def _breakdown_child(plant_ids, design_ids, queue) -> None:
     t2 = time.perf_counter()
     tally = solve_tally()
     with tempfile.TemporaryDirectory(prefix="oslbench-perf-") as tmp:
-        figs = _figures(RunResult(outcomes, reports, {}, options, t2 - t0), Path(tmp), ("png",), jobs=1)
+        figs = draw_figures(RunResult(outcomes, reports, {}, options, t2 - t0), Path(tmp), ("png",), jobs=1)
     t3 = time.perf_counter()
     queue.put({"pairs": len(outcomes), "figures": len(figs), "constants_s": t1 - t0, "pairs_s": t2 - t1,
                "figures_s": t3 - t2, **parts, "n_solves": tally["n"], "compile_s": tally["compile_s"],
@@ -427,7 +430,7 @@ def _breakdown_md(b: dict | None) -> str:
             (f"figures ({b['figures']}, matplotlib)", b["figures_s"])]
     total = sum(v for _, v in rows)
     out = [f"The default run's work ({b['pairs']} pairs) done serially in one process, each part timed "
-           "(`bench.perf.default_run_breakdown`), CPU seconds:", "", "| part | s |", "|---|---|"]
+           "(`benchmarks/perf_report.py`, `default_run_breakdown`), CPU seconds:", "", "| part | s |", "|---|---|"]
     out += [f"| {what} | {v:.1f} |" for what, v in rows]
     out += [f"| total | {total:.1f} |", "",
             f"Floor on {b['cores']} cores: the imports plus (constants + solver + simulations + figures) / "
