@@ -18,7 +18,7 @@ global one out to 10 times the largest state it reached).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -210,11 +210,17 @@ class ConstantsReport:
             notes.append(f"{', '.join(sampled_only)} only sampled (lower bounds): never used by certificates")
         consts = Constants(**kept, beta=an.beta if qib_ok else None, gamma=an.gamma if qib_ok else None,
                            radius=an.radius)
-        ch = plant.channels if not self.channel_violations else None
-        notes += [v.describe("declared") + ": channels not used by certificates" for v in self.channel_violations]
-        if self.channel_violations:
-            untrusted["channels"] = "the declared channels: " + "; ".join(v.describe("declared")
-                                                                         for v in self.channel_violations)
+        narrowing = [v for v in self.channel_violations if NARROWED in v.name]
+        slopes = [v for v in self.channel_violations if NARROWED not in v.name]
+        ch = plant.channels if not slopes else None
+        if ch is not None and narrowing:  # the global slopes hold: only the narrowing goes
+            ch = replace(ch, narrow=None)
+            notes += [v.describe("declared") + ": the narrowing not used by certificates" for v in narrowing]
+            untrusted["channels.narrow"] = "the declared narrowing: " + "; ".join(v.describe("declared")
+                                                                                for v in narrowing)
+        notes += [v.describe("declared") + ": channels not used by certificates" for v in slopes]
+        if slopes:
+            untrusted["channels"] = "the declared channels: " + "; ".join(v.describe("declared") for v in slopes)
         return Knowledge(consts, ch, tuple(notes), untrusted)
 
     @property
@@ -386,6 +392,35 @@ def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000,
         with np.errstate(invalid="ignore", divide="ignore"):
             phi = np.asarray(ch.phi(Z), dtype=float)[i]
         out += _slope_violations(ch, i, phi[:n_pairs], phi[n_pairs:], Z[:, :n_pairs], Z[:, n_pairs:])
+    return out + _narrowing_check(ch, rng, n_pairs, far)
+
+
+#: How a violated narrowing of the channels' slopes (``Channels.narrow``) is named: such a
+#: violation takes the narrowing, not the channels' global slope bounds, out of what certificates use.
+NARROWED = "narrowed"
+
+
+def _narrowing_check(ch: Channels, rng: np.random.Generator, n_pairs: int, far: float) -> list[Violation]:
+    """Sampled slopes of each channel on ``|z_i| <= r`` against its declared narrowing
+    ``Channels.slopes_on(r)``, for r on a geometric grid from ``1e-2`` to the channel's range
+    (its region's, or ``far`` for global channels: where the certificates from x0 search)."""
+    if ch.narrow is None:
+        return []
+    out = []
+    for i in range(ch.q):
+        h = float(np.linalg.norm(ch.H[i]))
+        zmax = ch.radius * h if ch.radius is not None else max(far * h, far)
+        for r in np.geomspace(min(1e-2, zmax), zmax, 9):
+            lo, hi = ch.slopes_on(float(r))
+            narrowed = replace(ch, lo=lo, hi=hi, narrow=None)
+            a = rng.uniform(-r, r, n_pairs // 4)
+            b = np.clip(a + rng.normal(0, 1, a.size) * r * 10.0 ** rng.uniform(-4, 0, a.size), -r, r)
+            Z = np.zeros((ch.q, 2 * a.size))
+            Z[i, :a.size], Z[i, a.size:] = a, b
+            with np.errstate(invalid="ignore", divide="ignore"):
+                phi = np.asarray(ch.phi(Z), dtype=float)[i]
+            out += [replace(v, name=f"{v.name} {NARROWED} on |z| <= {r:.3g}")
+                    for v in _slope_violations(narrowed, i, phi[:a.size], phi[a.size:], Z[:, :a.size], Z[:, a.size:])]
     return out
 
 

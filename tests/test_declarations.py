@@ -228,3 +228,27 @@ def test_a_declaration_disproved_by_one_pair_is_dropped_for_every_pair_of_the_pl
     rec = outs[0].record
     assert rec["cert_structured"] != "certified" or "inherits" in rec["reason"]
     assert rec["cert_level"] != "structured" and "another pair's simulation" in rec["reason"]
+
+
+def test_a_narrowing_a_sample_disproves_is_not_used_by_certificates():
+    # -sin(z) on |z| <= r has secant slopes in [-1, -cos(r)]; a declared narrowing of [-1, -0.9] is
+    # false for r > acos(0.9) = 0.451 (the secant from 0 to r = 1 is -sin(1)/1 = -0.841 > -0.9)
+    def f(x):
+        return _sine_f(1.0)(x)
+
+    wrong = Channels(G=G2, H=H2, phi=lambda z: -np.sin(z), lo=-1, hi=1, narrow=lambda r: (-1.0, -0.9))
+    plant = Plant(id="narrow_liar", **DOUBLE_INTEGRATOR, f=f, x0=[1.0, 0.0], x_hat0=[0.0, 0.0], channels=wrong)
+    rep = compute_constants(plant)
+    assert any("narrowed" in v.name for v in rep.channel_violations)
+    know = rep.knowledge(plant)
+    assert know.channels is not None and know.channels.narrow is None  # the global slopes [-1, 1] still hold
+    assert "channels.narrow" in know.untrusted and "channels" not in know.untrusted
+
+    # the true narrowing (-cos(min(r, pi)), ..) passes, and the channels keep it
+    from plants._core import sine_slopes
+
+    right = Channels(G=G2, H=H2, phi=lambda z: -np.sin(z), lo=-1, hi=1, narrow=sine_slopes(-1.0))
+    plant = Plant(id="narrow_true", **DOUBLE_INTEGRATOR, f=f, x0=[1.0, 0.0], x_hat0=[0.0, 0.0], channels=right)
+    rep = compute_constants(plant)
+    assert rep.channel_violations == []
+    assert rep.knowledge(plant).channels.narrow is not None

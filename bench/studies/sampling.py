@@ -241,11 +241,15 @@ def run_sampling(
     plant_ids, design_ids = selection(plant_ids, design_ids, DEFAULT_PLANTS)
     args = (n_ics, box, seed, discretisation, h_range, rtol, t_final)
     ordered, evals = _bisect_pairs(plant_ids, design_ids, required, args, jobs, progress)
-    settings = {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
-                "seed": seed, "discretisation": discretisation,
-                "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
-                "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
-    return SamplingResult(ordered, settings, time.perf_counter() - t_start, evals=evals)
+    return SamplingResult(ordered, _settings(*args, jobs), time.perf_counter() - t_start, evals=evals)
+
+
+def _settings(n_ics, box, seed, discretisation, h_range, rtol, t_final, jobs) -> dict:
+    """The study's settings as its report states them (defaults named, not left blank)."""
+    return {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
+            "seed": seed, "discretisation": discretisation,
+            "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
+            "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
 
 
 def _bisect_pairs(plant_ids: list[str], design_ids: list[str], required, args: tuple, jobs: int,
