@@ -14,13 +14,16 @@ import sys
 
 #: Columns that must be equal (the verdicts a reader acts on).
 VERDICTS = ("status", "feasible", "stabilizing", "certified", "cert_level", "cert_scope", "converged", "cert_paper",
-            "cert_full", "cert_structured", "in_region", "sim_status", "route", "solver_status", "horizon_rule")
+            "cert_full", "cert_structured", "in_region", "sim_status", "route", "solver_status", "horizon_rule",
+            "witness")
 
-#: Column -> (rtol, atol). Rates: the certificate's rate search (a relative bracket of 3 %); solver-made
+#: Column -> (rtol, atol). Rates: the rate search's 1 % grid (a probe that flips on the tolerance moves a
+#: rate by one grid step; two steps allowed); the rate ceiling: a seeded search, refined; solver-made
 #: numbers (gains, margins): the solvers' own tolerances; simulated metrics: the integrator's tolerance
 #: (rtol 1e-8) after the gains' differences; final norms are round-off (about 1e-11): absolute.
 TOLERANCES = {
-    **{c: (0.03, 1e-9) for c in ("decay_rate", "decay_paper", "decay_full", "decay_structured")},
+    **{c: (0.021, 1e-9) for c in ("decay_rate", "decay_paper", "decay_full", "decay_structured", "rate_ratio")},
+    "rate_ceiling": (1e-3, 1e-9),
     **{c: (1e-3, 1e-6) for c in ("norm_K", "norm_F", "peak_u", "iae_e", "max_norm", "level_x0")},
     **{c: (1e-3, 1e-6) for c in ("settling_x_s", "settling_e_s", "max_re_eig_x", "max_re_eig_e")},
     **{c: (0.05, 1e-6) for c in ("horizon_s", "cert_horizon_s", "level_set", "cert_radius")},
