@@ -99,10 +99,6 @@ class Trajectory:
         return self.x - self.x_hat
 
 
-#: K (n x p) and F (m x n) as float arrays, or ValueError naming the bad one (:func:`bench.checks.gains`).
-check_gains = checks.gains
-
-
 #: ``method="auto"`` switches to an implicit method (Radau in :func:`simulate`, BDF in
 #: :func:`bench.batch.simulate_batch`) when ``max(-Re lambda) * t_final`` of the linear closed loop exceeds this.
 STIFF = 5000.0
