@@ -146,12 +146,16 @@ class Certificate:
         Why no certificate from x0 was found (when it was searched).
     witnesses : list of bench.witness.Witness
         Members of the class that rule out a global certificate (:mod:`bench.witness`).
+    equilibria_searched : bool
+        The true loop was searched for an equilibrium besides the origin (or the channel class
+        proved there is none, :func:`bench.witness.no_equilibrium`).
     """
 
     levels: dict[str, LevelResult]
     local: LevelResult | None = None
     local_note: str = ""
     witnesses: list = field(default_factory=list)
+    equilibria_searched: bool = False
 
     @property
     def best(self) -> LevelResult | None:
@@ -176,18 +180,19 @@ class Certificate:
         return sum(r.solve_s for r in self.levels.values())
 
     def reason(self, witnessed: bool = False) -> str:
-        """One line on the levels that did not certify (``witnessed``: the levels a linear member rules
-        out are only named, the witness being stated elsewhere)."""
-        out, ruled = [], []
+        """One line on the levels that did not certify (``witnessed``: the levels a witness rules out
+        are only named, the witness being stated elsewhere)."""
+        out, ruled = [], {}
         for r in self.levels.values():
             if r.certified or not r.reason:
                 continue
-            if witnessed and r.reason.startswith(RULED_OUT):
-                ruled.append(r.level)
+            by = next((k for k in ("linear member", "equilibrium") if r.reason.startswith(f"{RULED_OUT} ({k})")), None)
+            if witnessed and by:
+                ruled.setdefault(by, []).append(r.level)
             else:
                 out.append(f"{r.level}: {r.reason}")
-        if ruled:
-            out.insert(0, f"{', '.join(ruled)}: ruled out without a solve by the linear member")
+        for k, lvs in reversed(ruled.items()):
+            out.insert(0, f"{', '.join(lvs)}: ruled out without a solve by the {k}")
         return "; ".join(out)
 
 
@@ -416,6 +421,14 @@ def _unstable_admissible(spec: _Spec, know: Knowledge, plant: Plant, K: np.ndarr
     return witness.linear_witness(plant, K, F, know, channels=spec.channels, scalars=spec.scalars)
 
 
+def _radius(spec: _Spec, know: Knowledge) -> float | None:
+    """The radius on which a level's constraints hold (None: globally)."""
+    if not spec.channels:
+        return know.constants.radius
+    held = (know.constants.radius if spec.scalars else None, know.channels.radius)
+    return min((r for r in held if r is not None), default=None)
+
+
 def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: float, hi: float, rates: bool,
                  rtol: float) -> LevelResult:
     """One level's program: certified at ``start`` (else at 0), then its rate."""
@@ -424,11 +437,10 @@ def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: flo
     c = know.constants
     values = {**mats.settable(), "rho": c.rho or 0.0, "beta": c.beta or 0.0, "gamma": c.gamma or 0.0,
               "a2": (c.alpha or 0.0) ** 2}
-    radius = c.radius
     if spec.channels:
         ch = know.channels
         values.update(lohi=ch.lo * ch.hi, losum=ch.lo + ch.hi)
-        radius = min((r for r in (radius if spec.scalars else None, ch.radius) if r is not None), default=None)
+    radius = _radius(spec, know)
     prog.set(**values)
     lam0 = start if 0 < start < hi else 0.0
     verdict, margin = _check(prog, lam0)
@@ -533,20 +545,34 @@ def certify(
         if lv not in LEVELS:
             raise ValueError(f"levels: unknown certificate level {lv!r} (known: {', '.join(LEVELS)})")
     loop = loop if loop is not None else checks.closed_loop(plant, K, F)
-    out: dict[str, LevelResult] = {}
+    cert = Certificate({})
     prev: LevelResult | None = None
-    found: list = []
     for lv in (lv for lv in LEVELS if lv in levels):
-        out[lv] = _ladder_level(lv, plant, loop, knowledge, prev, found, rates=rates, rtol=rate_rtol, inherit=inherit)
-        if out[lv].status != "inapplicable":
-            prev = out[lv]
-    return Certificate(out, witnesses=found)
+        cert.levels[lv] = _ladder_level(lv, plant, loop, knowledge, prev, cert, rates=rates, rtol=rate_rtol,
+                                        inherit=inherit)
+        if cert.levels[lv].status != "inapplicable":
+            prev = cert.levels[lv]
+    return cert
+
+
+def _search_equilibria(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, know: Knowledge):
+    """The equilibrium witness of the true loop (searched once per certificate), or None.
+
+    Skipped when the channel class proves the origin is the only equilibrium
+    (:func:`bench.witness.no_equilibrium`)."""
+    if not cert.equilibria_searched:
+        cert.equilibria_searched = True
+        eq = None if witness.no_equilibrium(plant, K, F, know) else witness.equilibrium_witness(plant, K, F, know)
+        if eq is not None:
+            cert.witnesses = [eq, *[w for w in cert.witnesses if w.kind != eq.kind]]
+    return next((w for w in cert.witnesses if w.kind == "equilibrium"), None)
 
 
 def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge, prev: LevelResult | None,
-                  found: list, *, rates: bool, rtol: float, inherit: bool) -> LevelResult:
-    """One level of :func:`certify` above ``prev``: inapplicable, ruled out by a linear member of its
-    class (whose witness replaces ``found``), or its program solved from the rate ``prev`` certified."""
+                  cert: Certificate, *, rates: bool, rtol: float, inherit: bool) -> LevelResult:
+    """One level of :func:`certify` above ``prev``: inapplicable; ruled out by a linear member of its
+    class (whose witness replaces the linear one in ``cert.witnesses``) or, for a global level, by an
+    equilibrium of the true loop; else its program solved from the rate ``prev`` certified."""
     spec, why = _spec(lv, plant.n, knowledge)
     if spec is not None and plant.n > LADDER_MAX_N:
         spec, why = None, f"n = {plant.n} is beyond the SDP certificate's reach (LADDER_MAX_N = {LADDER_MAX_N})"
@@ -554,10 +580,14 @@ def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Kno
         return LevelResult(lv, "inapplicable", reason=why)
     K, F = loop.K, loop.F
     unstable = _unstable_admissible(spec, knowledge, plant, K, F)
-    if unstable is not None:
-        found[:] = [unstable]  # the strongest level's witness (its class is the smallest)
+    if unstable is not None:  # the strongest level's witness (its class is the smallest)
+        cert.witnesses = [*[w for w in cert.witnesses if w.kind != unstable.kind], unstable]
         return LevelResult(lv, "not certified", reason=(
-            f"{RULED_OUT}: {unstable.text}, and that linear f meets every constraint of the level"))
+            f"{RULED_OUT} (linear member): {unstable.text}, and that linear f meets every constraint of the level"))
+    if _radius(spec, knowledge) is None:
+        eq = _search_equilibria(cert, plant, K, F, knowledge)
+        if eq is not None:
+            return LevelResult(lv, "not certified", reason=f"{RULED_OUT} (equilibrium): {eq.text}")
     start = prev.decay_rate if prev is not None and prev.certified else 0.0
     res = _level(spec, plant, K, F, knowledge, start=start, hi=loop.linearised_rate, rates=rates, rtol=rtol)
     return _inherit(res, prev) if inherit else res
@@ -569,7 +599,8 @@ def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
 
     Where no level certified globally and a linear member already rules the ladder out, or no level
     certified at all, the true closed loop is searched for an equilibrium besides the origin
-    (:func:`bench.witness.equilibrium_witness`; it rules out every global certificate). Where no
+    (:func:`bench.witness.equilibrium_witness`; it rules out every global certificate), unless
+    :func:`certify` already searched it before a global level's LMI. Where no
     level certified, a certificate from x0 is searched on regions where the channel slopes narrow
     (:func:`certify_from_x0`), on regions smaller than the equilibrium found.
 
@@ -593,12 +624,8 @@ def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
     ladder = [r for r in cert.levels.values() if r.certified]
     if any(r.radius is None and r.region_H is None for r in ladder):
         return cert
-    if cert.witnesses or not ladder:
-        eq = witness.equilibrium_witness(plant, K, F, knowledge)
-        if eq is not None:
-            cert.witnesses = [eq, *[w for w in cert.witnesses if w.kind != eq.kind]]
+    eq = _search_equilibria(cert, plant, K, F, knowledge) if cert.witnesses or not ladder else None
     if not ladder and local:
-        eq = next((w for w in cert.witnesses if w.kind == "equilibrium"), None)
         r_eq = None
         if eq is not None and knowledge.channels is not None:
             r_eq = float(np.abs(_region_rows(knowledge.channels.H) @ eq.z).max())

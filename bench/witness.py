@@ -277,6 +277,43 @@ def _starts(plant, K, F, know, seed: int, n_random: int) -> list[np.ndarray]:
     return out
 
 
+#: Most channels for which :func:`no_equilibrium` checks the ``4 ** q`` vertices.
+VERTEX_MAX_Q = 6
+
+
+def no_equilibrium(plant, K: np.ndarray, F: np.ndarray, know) -> bool:
+    """True when the channel class proves the closed loop has no equilibrium besides the origin.
+
+    At an equilibrium ``z = (x, e)`` of the loop with ``f = G phi(H x)``, each channel's secant
+    ``phi_i(s) = d_i s`` has ``d_i`` in ``[lo_i, hi_i]`` (mean value theorem, ``phi(0) = 0``), at
+    ``H x`` and at ``H x_hat`` separately (``D1``, ``D2``). So ``z`` is a null vector of
+
+        M(D1, D2) = [[A + B F + G D1 H, -B F], [G (D1 - D2) H, A - K C + G D2 H]],
+
+    whose determinant is affine in each of the ``2 q`` slopes (each enters a rank-one term), so it
+    takes its extremes over the box at the vertices. If ``det M`` has one strict sign at every
+    vertex (each vertex matrix well conditioned), no ``M`` in the box is singular and the origin is
+    the only equilibrium. False means undecided (also for local channels, many channels, or a class
+    without channels).
+    """
+    ch = know.channels
+    if ch is None or ch.radius is not None:
+        return False
+    lo, hi = (np.broadcast_to(np.asarray(b, float), (ch.H.shape[0],)) for b in (ch.lo, ch.hi))
+    q, n = lo.size, plant.n
+    if q > VERTEX_MAX_Q:
+        return False
+    BF, AK = plant.B @ F, plant.A - K @ plant.C
+    scale, signs = _scale(plant, K, F) + float(np.abs(ch.G).max() * np.abs(ch.H).max() * np.abs([lo, hi]).max()), set()
+    for d in itertools.product(*[(a, b) for a, b in zip(lo, hi)] * 2):
+        D1, D2 = np.diag(d[:q]), np.diag(d[q:])
+        M = np.block([[plant.A + BF + ch.G @ D1 @ ch.H, -BF], [ch.G @ (D1 - D2) @ ch.H, AK + ch.G @ D2 @ ch.H]])
+        if np.linalg.svd(M, compute_uv=False)[-1] <= 1e-8 * scale:
+            return False
+        signs.add(np.linalg.slogdet(M)[0])
+    return len(signs) == 1
+
+
 def equilibrium_witness(plant, K: np.ndarray, F: np.ndarray, know, *, seed: int = 0, n_random: int = 16,
                         tol: float = 1e-9) -> Witness | None:
     """An equilibrium of the true closed loop other than the origin (None if the search finds none).

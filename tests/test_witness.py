@@ -193,3 +193,45 @@ def test_pipeline_rows_say_why():
     assert "no global certificate exists" in pend["reason"] and "up to r = " in pend["reason"]
     assert joint["certified"] and joint["cert_scope"] == "from x0" and joint["converged"] and joint["in_region"]
     assert 0 < joint["rate_ratio"] <= 1 + 0.03 and "equilibrium" in joint["witness"]
+
+
+def _scalar(c: float):
+    """x' = -x + u + c sin x, y = x: with F = K = 0 the equilibria are the roots of x = c sin x (x_hat = x)."""
+    from plants import Plant
+    return Plant(id=f"scalar_sine_{c}", A=[[-1.0]], B=[[1.0]], C=[[1.0]], f=lambda x: c * np.sin(x),
+                 x0=[0.5], x_hat0=[0.0], jacobian=lambda x: np.array([[c * np.cos(x[0])]]),
+                 channels=Channels(G=[[1.0]], H=[[1.0]], phi=lambda s: c * np.sin(s), lo=-abs(c), hi=abs(c)))
+
+
+@pytest.mark.parametrize("c, root", [(0.9, None), (2.0, 1.895494267)])
+def test_no_equilibrium_proof_agrees_with_the_closed_form(c, root):
+    from bench.witness import equilibrium_witness, no_equilibrium
+    plant = _scalar(c)
+    K, F = np.zeros((1, 1)), np.zeros((1, 1))
+    know = Knowledge.trusting(plant)
+    # |c sin x| <= |c| |x| < |x| for |c| < 1: the origin is the only root of x = c sin x; for c = 2 there is 1.8955
+    assert no_equilibrium(plant, K, F, know) is (root is None)
+    eq = equilibrium_witness(plant, K, F, know)
+    if root is None:
+        assert eq is None
+    else:
+        # x and x_hat = x - e are each a root of s = c sin s (the loops decouple with F = K = 0)
+        x, xh = eq.z[0], eq.z[0] - eq.z[1]
+        assert all(min(abs(v), abs(abs(v) - root)) < 1e-6 for v in (x, xh)) and max(abs(x), abs(xh)) > 1
+
+
+def test_pendulum_equilibrium_is_not_disproved_by_the_vertex_test(pendulum):
+    from bench.witness import no_equilibrium
+    plant, K, F, _ = pendulum
+    assert not no_equilibrium(plant, K, F, Knowledge.trusting(plant))  # it has one at x1 = 3.5072
+
+
+def test_an_equilibrium_rules_out_global_levels_without_a_solve(pendulum, monkeypatch):
+    import bench.witness as W
+    plant, K, F, _ = pendulum
+    monkeypatch.setattr(W, "linear_witness", lambda *a, **k: None)  # as if every straight line were stable
+    cert = certify(plant, K, F, Knowledge.trusting(plant))
+    assert cert.equilibria_searched and [w.kind for w in cert.witnesses] == ["equilibrium"]
+    ruled = [r for r in cert.levels.values() if r.status != "inapplicable"]
+    assert ruled and all(r.status == "not certified" and r.n_solves == 0 and "equilibrium" in r.reason for r in ruled)
+    assert "ruled out without a solve by the equilibrium" in cert.reason(witnessed=True)
