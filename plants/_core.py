@@ -1,8 +1,4 @@
-"""The plant type: x' = A x + B u + f(x), y = C x, validated when built.
-
-A plant is data plus the nonlinearity ``f`` (and optionally its Jacobian). Nothing in this
-package solves LMIs or simulates: that is the job of ``designs`` and ``bench``.
-"""
+"""The plant type: x' = A x + B u + f(x), y = C x, validated when built; the constants and channels of f."""
 
 from __future__ import annotations
 
@@ -14,32 +10,24 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from bench import checks
 from bench.errors import PlantError
 
 
+def _plant_error(name: str, message: str) -> PlantError:
+    return PlantError(f"{name}: {message}")
+
+
 def _finite_scalar(name: str, value, *, allow_none: bool = True, positive: bool = False):
-    if value is None:
-        if allow_none:
-            return None
-        raise PlantError(f"{name}: a number is required, got None")
-    try:
-        v = float(value)
-    except (TypeError, ValueError, OverflowError):
-        raise PlantError(f"{name}: expected a finite real number, got {_short(value)}") from None
-    if not math.isfinite(v):
-        raise PlantError(f"{name}: must be finite, got {v}")
-    if positive and v <= 0:
-        raise PlantError(f"{name}: must be > 0, got {v}")
-    return v
+    """``value`` as a finite float (> 0 if ``positive``), None passed through when ``allow_none``."""
+    if value is None and allow_none:
+        return None
+    return check_real(name, value, lo=0.0 if positive else None, strict=positive)
 
 
-# -- argument checks of the plant factories (each error names the parameter) -------------------
 def check_int(name: str, value, lo: int, hi: int | None = None, *, what: str = "") -> int:
-    """``value`` as an int in ``[lo, hi]`` (no upper bound when ``hi`` is None), else :class:`PlantError`.
-
-    Integers only (Python or numpy, or a float with an integer value; not bool): ``2.5`` or ``"7"``
-    are rejected. ``what`` describes the parameter in the message (``"the number of states "``).
-    """
+    """``value`` as an int in ``[lo, hi]`` (a float with an integer value too; not bool), else
+    :class:`PlantError`; ``what`` describes the parameter in the message."""
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)):
         raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
     if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
@@ -52,18 +40,8 @@ def check_int(name: str, value, lo: int, hi: int | None = None, *, what: str = "
 
 
 def check_real(name: str, value, *, lo: float | None = None, strict: bool = False) -> float:
-    """``value`` as a finite float (not bool), ``>= lo`` (``> lo`` if ``strict``), else :class:`PlantError`."""
-    if isinstance(value, bool):
-        raise PlantError(f"{name}: expected a real number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise PlantError(f"{name}: expected a real number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise PlantError(f"{name}: must be finite, got {value!r}")
-    if lo is not None and (v < lo or (strict and v == lo)):
-        raise PlantError(f"{name}: must be {'>' if strict else '>='} {lo:g}, got {value!r}")
-    return v
+    """:func:`bench.checks.real` raising :class:`PlantError`."""
+    return checks.real(name, value, lo=lo, strict=strict, error=_plant_error)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -114,12 +92,9 @@ class Constants:
 class Channels:
     """The nonlinearity as slope-restricted channels: ``f(x) = G phi(H x)``, phi acting channel-wise.
 
-    Channel i maps ``z_i = (H x)_i`` to ``phi_i(z_i)`` with
+    Channel i maps ``z_i = (H x)_i`` to ``phi_i(z_i)`` with ``phi(0) = 0`` and
     ``lo_i <= (phi_i(a) - phi_i(b)) / (a - b) <= hi_i`` for all ``a != b`` (globally, or while
-    ``||x|| <= radius``), and ``phi(0) = 0``. This is what most plants know beyond the scalar
-    constants: *which* states f acts on (the columns of G) and *which* it depends on (the
-    rows of H). The certificate ladder and the structured design use it
-    (``docs/structured.md``).
+    ``||x|| <= radius``); see ``docs/structured.md``.
 
     Parameters
     ----------
@@ -134,15 +109,8 @@ class Channels:
     radius : float, optional
         The slopes hold on the ball ``||x|| <= radius``; None means globally.
     narrow : callable, optional
-        ``narrow(r) -> (lo_r, hi_r)`` (scalars or shape (q,)): the slopes of each channel between
-        two points with ``|z_i| <= r`` (analytic, e.g. :func:`sine_slopes`), for certificates that hold
-        on the region ``|(H x)_i| <= r`` only. :meth:`slopes_on` intersects them with ``[lo, hi]``.
-        None: the slopes are not known to narrow.
-
-    Examples
-    --------
-    The flexible link's ``f4 = -c sin(x3)`` is one channel: ``G = e4``, ``H = e3'``,
-    ``phi(z) = -c sin(z)``, slopes in ``[-c, c]``.
+        ``narrow(r) -> (lo_r, hi_r)`` (scalars or shape (q,)): analytic slopes of each channel on
+        ``|z_i| <= r`` (e.g. :func:`sine_slopes`), for certificates on that region.
     """
 
     G: np.ndarray
@@ -202,14 +170,8 @@ class Channels:
         return (self.hi - self.lo) / 2
 
     def slopes_on(self, r: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """Slope bounds of each channel on ``|z_i| <= r``: the declared narrowing intersected with
-        ``[lo, hi]`` (None when the channels declare no narrowing).
-
-        Raises
-        ------
-        PlantError
-            When ``narrow(r)`` is not a pair of real scalars or (q,) arrays with ``lo_r <= hi_r``.
-        """
+        """Slope bounds of each channel on ``|z_i| <= r``: ``narrow(r)`` intersected with ``[lo, hi]``
+        (None without a narrowing); PlantError when ``narrow(r)`` is not a valid pair."""
         if self.narrow is None:
             return None
         try:
@@ -229,11 +191,8 @@ class Channels:
 
 
 def sine_slopes(coef: float) -> Callable[[float], tuple[float, float]]:
-    """Slopes of ``phi(z) = coef sin(z)`` on ``|z| <= r``: ``coef`` times ``[cos(min(r, pi)), 1]``.
-
-    Between ``a, b`` in ``[-r, r]`` the secant of sin is ``cos(xi)`` for some ``xi`` in ``[-r, r]``,
-    and ``cos`` ranges over ``[cos r, 1]`` there for ``r <= pi`` (over ``[-1, 1]`` beyond).
-    """
+    """Slopes of ``phi(z) = coef sin(z)`` on ``|z| <= r``: ``coef`` times ``[cos(min(r, pi)), 1]``
+    (the secant of sin is ``cos(xi)`` for some ``|xi| <= r``)."""
     def narrow(r: float) -> tuple[float, float]:
         ends = (coef, coef * math.cos(min(r, math.pi)))
         return min(ends), max(ends)
@@ -259,11 +218,7 @@ def cubic_slopes(c: float) -> Callable[[float], tuple[float, float]]:
 
 @dataclass(frozen=True)
 class SineTerms:
-    """A nonlinearity of sine terms, ``f_{acts[l]}(x) = (coef / scale) sin(x_{reads[l]})``, as plant fields.
-
-    Build with :func:`sine_terms`; :meth:`fields` gives ``f``, ``jacobian``, ``channels`` and
-    ``bounds`` for :class:`Plant`.
-    """
+    """The plant fields of :func:`sine_terms`."""
 
     f: Callable[[np.ndarray], np.ndarray]
     jacobian: Callable[[np.ndarray], np.ndarray]
@@ -277,9 +232,6 @@ class SineTerms:
 
 def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> SineTerms:
     """Sine terms ``f_{acts[l]}(x) = (coef / scale) sin(x_{reads[l]})``: a pendulum (gravity) per channel.
-
-    The flexible link and joint (``f4 = -c sin x3``), the pendulum (``f2 = -(g/l) sin x1``) and the
-    chain of masses (``(c/m) sin q_i`` on each pendulum mass's velocity) are all of this form.
 
     Parameters
     ----------
@@ -333,8 +285,7 @@ def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> SineT
 
 
 def _sine_channels(n: int, acts: np.ndarray, reads: np.ndarray, coef: float, scale: float) -> Channels | None:
-    """The channels of :func:`sine_terms`: ``G = E_acts / scale``, ``H = E_reads'``, ``phi_l(z) = coef sin(z)``
-    (None when there is no term)."""
+    """The channels of :func:`sine_terms` (None when there is no term)."""
     q = acts.size
     if not q:
         return None
@@ -412,10 +363,9 @@ class Plant:
     Raises
     ------
     PlantError
-        On inconsistent shapes, non-finite entries, ``f(0) != 0``, an f returning a wrong
-        shape, an f that is not deterministic, writes into its argument or whose batch form mixes
-        columns, a Jacobian that is not the derivative of f (finite differences, the entry
-        named), or channels that do not reproduce f; the message names the field.
+        Naming the field: bad shapes or entries, ``f(0) != 0``, an f that is not deterministic,
+        writes into its argument or mixes a batch's columns, a Jacobian that is not f's
+        derivative, channels that do not reproduce f.
     """
 
     id: str
@@ -608,11 +558,9 @@ class Plant:
         Parameters
         ----------
         sys : control.StateSpace
-            Continuous-time system ``x' = A x + B u``, ``y = C x``; D must be zero (the
-            observer-based controller of the paper has no feedthrough).
+            Continuous-time system ``x' = A x + B u``, ``y = C x``; D must be zero.
         f : callable, optional
-            The nonlinearity (default: ``f = 0``, a linear plant). Same contract as the
-            ``f`` field.
+            The nonlinearity (default 0).
         x0 : array_like, optional
             Initial state (default: all ones).
         x_hat0 : array_like, optional
@@ -620,8 +568,7 @@ class Plant:
         id : str, optional
             Plant id (default: the system's name).
         **fields
-            Any other :class:`Plant` field (``bounds``, ``channels``, ``claimed``, ``t_final``,
-            ``source``, ...).
+            Any other :class:`Plant` field.
 
         Returns
         -------
@@ -681,10 +628,9 @@ class Plant:
 def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: float = 1e-4) -> str | None:
     """Where a declared Jacobian disagrees with central differences of ``f`` (None: nowhere).
 
-    At each state ``x`` (a column of ``X``, (n, N)) the finite difference
-    ``(f(x + h e_j) - f(x - h e_j)) / 2h``, ``h = 1e-6 max(1, ||x||)`` (error ``O(h^2)`` for a smooth f
-    plus round-off ``O(eps ||f|| / h)``), is compared with ``jacobian(x)``; an entry off by more than
-    ``rtol (1 + max |J_fd|)`` is named with the state and both values.
+    At each column ``x`` of ``X`` the difference ``(f(x + h e_j) - f(x - h e_j)) / 2h``,
+    ``h = 1e-6 max(1, ||x||)``, is compared with ``jacobian(x)``; an entry off by more than
+    ``rtol (1 + max |J_fd|)`` is named.
 
     Parameters
     ----------
@@ -721,5 +667,5 @@ def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: f
 
 
 def _zero_f(x: np.ndarray) -> np.ndarray:
-    """The nonlinearity of a linear plant: ``f(x) = 0`` (any batch shape)."""
+    """``f(x) = 0``, a linear plant's nonlinearity."""
     return np.zeros_like(np.asarray(x, dtype=float))

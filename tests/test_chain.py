@@ -12,7 +12,7 @@ import pytest
 
 from bench.registry import PLANTS
 from plants import PlantError
-from plants.chain import chain_matrices, chain_plant, chain_sparsity, default_masses
+from plants.chain import chain_matrices, chain_plant, default_masses
 from plants.random_families import is_detectable, is_stabilizable
 
 
@@ -186,20 +186,6 @@ def test_no_pendulum_is_linear():
     p = chain_plant(N=4, nonlinear=(), inputs=(0,), outputs=(3,))
     assert p.channels is None and p.bounds.alpha == 0.0
     np.testing.assert_array_equal(p.f(np.ones(p.n)), np.zeros(p.n))
-
-
-def test_sparsity_pattern_covers_a_plus_jacobian():
-    for N in (1, 2, 9):
-        S = chain_sparsity(N)
-        assert S.shape == (2 * N, 2 * N) and S.dtype == bool
-        p = chain_plant(N=N, nonlinear=tuple(range(N)), inputs=(0,), outputs=(0,), b=0.3)
-        rng = np.random.default_rng(4)
-        for _ in range(3):
-            J = p.A + p.jacobian(rng.standard_normal(p.n))
-            assert not np.any((J != 0) & ~S.toarray())
-        # the band: |row - col| <= 3 and nothing else
-        r, c = S.nonzero()
-        assert np.abs(r - c).max() <= 3
 
 
 def test_initial_conditions_are_deterministic():
