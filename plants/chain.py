@@ -218,7 +218,7 @@ def chain_plant(
     x0[0::2] = amplitude * np.sin(np.pi * np.arange(1, N + 1) / (N + 1))
     return Plant(
         id=id or f"chain_v1_N{N}",
-        A=A, B=B, C=C, x0=x0, x_hat0=np.zeros(n), **pendula.fields(), claimed=pendula.bounds, t_final=t_final,
+        A=A, B=B, C=C, x0=x0, x_hat0=np.zeros(n), **pendula, claimed=pendula["bounds"], t_final=t_final,
         family="chain",
         params={"N": N, "n": n, "m": m, "k": k, "d": d, "b": b, "c": c, "amplitude": amplitude,
                 "n_inputs": len(ins), "n_outputs": len(outs), "n_channels": q, "version": 1},

@@ -42,7 +42,7 @@ PAPER_CLAIMED = Constants(rho=0.1109, beta=0.1109, gamma=0.0, alpha=0.333)
 def _make(pid: str, c: float, index: int, t_final: float, notes: str) -> Plant:
     c = check_real("c", c)
     gravity = sine_terms(4, acts=[3], reads=[index], coef=-c)
-    return Plant(id=pid, A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity.fields(), claimed=PAPER_CLAIMED,
+    return Plant(id=pid, A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity, claimed=PAPER_CLAIMED,
                  t_final=t_final, family="flexible_link", params={"c": c}, source=SOURCE, notes=notes)
 
 

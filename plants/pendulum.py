@@ -55,7 +55,7 @@ def pendulum(*, g_over_l: float = G_OVER_L, b: float = DAMPING, t_final: float =
     b = check_real("b", b, lo=0.0)
     gravity = sine_terms(2, acts=[1], reads=[0], coef=-k)
     return Plant(id="pendulum_v1", A=np.array([[0.0, 1.0], [0.0, -b]]), B=np.array([[0.0], [1.0]]),
-                 C=np.array([[1.0, 0.0]]), x0=X0, x_hat0=X_HAT0, **gravity.fields(),
+                 C=np.array([[1.0, 0.0]]), x0=X0, x_hat0=X_HAT0, **gravity,
                  claimed=Constants(alpha=k, rho=k / 2), t_final=t_final, family="pendulum",
                  params={"g_over_l": k, "b": b, "version": 1}, source=SOURCE,
                  notes="theta measured; the whole sine is in f (A has eigenvalues 0 and -b)")
