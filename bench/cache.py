@@ -25,18 +25,17 @@ import functools
 import hashlib
 import importlib
 import json
-import math
 import os
 import sys
 import sysconfig
-import tempfile
 import warnings
 from pathlib import Path
-from typing import IO, Any, Callable
+from typing import Any, Callable
 
 import numpy as np
 
 from bench.lmi import digest
+from bench.outdir import atomic_write as _atomic_write, sha_file as _sha_file
 
 __all__ = ["Cache"]
 
@@ -64,14 +63,6 @@ def default_cache_dir(out_dir: str | os.PathLike) -> Path:
 
 def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
-
-
-def _sha_file(path: str) -> str:
-    """SHA-256 of a file's bytes ("unreadable" when it cannot be read)."""
-    try:
-        return _sha(Path(path).read_bytes())
-    except OSError:
-        return "unreadable"
 
 
 @functools.lru_cache(maxsize=None)
@@ -169,22 +160,6 @@ def _checksum(meta: str, arrays: dict[str, np.ndarray]) -> str:
         h.update(f"{name} {a.dtype.str} {a.shape}".encode())
         h.update(a.tobytes())
     return h.hexdigest()
-
-
-def _atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
-    """Write a file whole or not at all: ``write(fh)`` into a temporary file, then rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=path.suffix, dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-        os.replace(tmp, path)
-    except BaseException:  # KeyboardInterrupt included: leave no temporary file behind
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 def _check_record(rec: Any) -> None:

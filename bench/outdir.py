@@ -28,7 +28,7 @@ import socket
 import tempfile
 import time
 from pathlib import Path, PurePosixPath
-from typing import Iterable, Iterator
+from typing import IO, Callable, Iterable, Iterator
 
 from bench.errors import OutDirError
 
@@ -222,20 +222,22 @@ def locked(out_dir, timeout: float = LOCK_TIMEOUT) -> Iterator[None]:
         os.close(fd)  # releases the lock
 
 
-def _write_journal(out: Path, doc: dict) -> None:
-    """Write the journal of a swap atomically (a temporary file, fsync, rename)."""
-    fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix("journal"), dir=out)
+def atomic_write(path, write: Callable[[IO[bytes]], None], *, prefix: str = TMP_PREFIX, sync: bool = False) -> None:
+    """Write ``path`` whole or not at all: ``write(fh)`` into a temporary file beside it (fsync'ed when
+    ``sync``), then rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=prefix, dir=path.parent)
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(doc, fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, out / JOURNAL_NAME)
-    except BaseException:
-        try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+            if sync:
+                fh.flush()
+                os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:  # KeyboardInterrupt included: leave no temporary file behind
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
-        except OSError:
-            pass
         raise
 
 
@@ -364,7 +366,8 @@ def _journal(out: Path, stale: list[str], files: list[str]) -> tuple[Path, dict]
                + [{"path": rel, "old": os.path.lexists(out / rel), "new": True} for rel in files])
     doc = {"format": JOURNAL_FORMAT, "pid": os.getpid(), "host": _HOST, "backup": backup.name, "entries": entries}
     try:
-        _write_journal(out, doc)
+        atomic_write(out / JOURNAL_NAME, lambda fh: fh.write(json.dumps(doc).encode()), prefix=_tmp_prefix("journal"),
+                     sync=True)
     except BaseException:
         shutil.rmtree(backup, ignore_errors=True)
         raise
@@ -382,9 +385,10 @@ def _staged_files(stage: Path, files: Iterable[str]) -> list[str]:
     return files
 
 
-def _sha_file(path: Path) -> str | None:
+def sha_file(path) -> str | None:
+    """SHA-256 of a file's bytes (None when it cannot be read)."""
     try:
-        return hashlib.sha256(path.read_bytes()).hexdigest()
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
     except OSError:
         return None
 
@@ -405,10 +409,10 @@ def _update_manifest(out: Path, stage: Path, files: list[str], writer: str) -> l
     for rel, sha in sorted(previous.items()):
         path = out / rel
         if rel not in new and path.is_file() and not path.is_symlink():
-            (stale if _sha_file(path) == sha else kept).append(rel)
+            (stale if sha_file(path) == sha else kept).append(rel)
     if kept:
         _log.warning("%s: kept %s: written by an earlier run of this suite, changed since", out, ", ".join(kept))
-    writers[writer] = {rel: _sha_file(stage / rel) for rel in files}
+    writers[writer] = {rel: sha_file(stage / rel) for rel in files}
     (stage / MANIFEST_NAME).write_text(json.dumps({"format": 1, "writers": writers}, indent=1, sort_keys=True),
                                        encoding="utf-8")
     return stale
