@@ -55,7 +55,6 @@ SOURCE = (
 )
 
 
-# -- argument checks (each error names the parameter) -------------------------------------------
 def _masses(name: str, value, N: int, *, allow_empty: bool) -> tuple[int, ...]:
     if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
         raise PlantError(f"{name}: expected a sequence of mass indices (0 .. {N - 1}), got {value!r}")
@@ -93,56 +92,6 @@ def default_masses(N: int, stride: int = 5) -> tuple[int, ...]:
     return tuple(range(min(stride // 2, (N - 1) // 2), N, stride))
 
 
-# -- the matrices -------------------------------------------------------------------------------
-def chain_matrices(*, N: int, m: float = 1.0, k: float = 1.0, d: float = 0.02, b: float = 0.0,
-                   inputs: Iterable[int] = (0,), outputs: Iterable[int] = (0,)):
-    """A, B, C of the chain in ``scipy.sparse`` CSR form (no dense n x n matrix is formed).
-
-    Parameters
-    ----------
-    N : int
-        Number of masses (n = 2 N).
-    m, k, d, b : float
-        Mass (> 0), spring stiffness (> 0), damper coefficient (>= 0, in parallel with each spring)
-        and viscous friction to ground (>= 0).
-    inputs, outputs : sequence of int
-        Masses (0-based) driven by a force / whose position is measured.
-
-    Returns
-    -------
-    A, B, C : scipy.sparse.csr_matrix
-        Shapes (n, n), (n, len(inputs)), (len(outputs), n); A has at most 7 N - 4 nonzeros.
-    """
-    import scipy.sparse as sp
-
-    N = check_int("N", N, 1, MAX_N)
-    m = check_real("m", m, lo=0.0, strict=True)
-    k = check_real("k", k, lo=0.0, strict=True)
-    d = check_real("d", d, lo=0.0)
-    b = check_real("b", b, lo=0.0)
-    ins = _masses("inputs", inputs, N, allow_empty=False)
-    outs = _masses("outputs", outputs, N, allow_empty=False)
-    n = 2 * N
-    i = np.arange(N)
-    rows, cols, vals = [2 * i], [2 * i + 1], [np.ones(N)]
-    # K = tridiag(-1, 2, -1): diagonal 2, off-diagonals -1
-    rows += [2 * i + 1, 2 * i + 1]
-    cols += [2 * i, 2 * i + 1]
-    vals += [np.full(N, -2 * k / m), np.full(N, -(2 * d + b) / m)]
-    for off in (-1, 1):
-        j = i[(i + off >= 0) & (i + off < N)]
-        rows += [2 * j + 1, 2 * j + 1]
-        cols += [2 * (j + off), 2 * (j + off) + 1]
-        vals += [np.full(j.size, k / m), np.full(j.size, d / m)]
-    A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
-    A.eliminate_zeros()
-    B = sp.csr_matrix((np.full(len(ins), 1.0 / m), ([2 * v + 1 for v in ins], range(len(ins)))),
-                      shape=(n, len(ins)))
-    C = sp.csr_matrix((np.ones(len(outs)), (range(len(outs)), [2 * v for v in outs])), shape=(len(outs), n))
-    return A, B, C
-
-
-# -- the plant ----------------------------------------------------------------------------------
 def chain_plant(
     *,
     N: int = 3,
@@ -230,12 +179,20 @@ def chain_plant(
 
 
 def _linear_part(N: int, m: float, k: float, d: float, b: float, ins, outs) -> tuple[np.ndarray, ...]:
-    """Dense ``(A, B, C)`` of the chain (:func:`chain_matrices`), or PlantError when (A, B) is not
-    stabilizable or (A, C) not detectable (PBH)."""
+    """``(A, B, C)`` of the chain (module docstring), or PlantError when (A, B) is not stabilizable or
+    (A, C) not detectable (PBH)."""
     from plants.random_families import is_detectable, is_stabilizable, pbh_margin
 
-    As, Bs, Cs = chain_matrices(N=N, m=m, k=k, d=d, b=b, inputs=ins, outputs=outs)
-    A, B, C = As.toarray(), Bs.toarray(), Cs.toarray()
+    n, i, j = 2 * N, np.arange(N), np.arange(N - 1)
+    A = np.zeros((n, n))
+    A[2 * i, 2 * i + 1] = 1.0
+    A[2 * i + 1, 2 * i], A[2 * i + 1, 2 * i + 1] = -2 * k / m, -(2 * d + b) / m
+    for v, w in ((j, j + 1), (j + 1, j)):  # the spring and the damper between neighbours v, w
+        A[2 * v + 1, 2 * w], A[2 * v + 1, 2 * w + 1] = k / m, d / m
+    B = np.zeros((n, len(ins)))
+    B[[2 * v + 1 for v in ins], range(len(ins))] = 1.0 / m
+    C = np.zeros((len(outs), n))
+    C[range(len(outs)), [2 * v for v in outs]] = 1.0
     if not is_stabilizable(A, B):
         raise PlantError(f"inputs: (A, B) is not stabilizable with inputs at masses {list(ins)} "
                          f"(PBH margin {pbh_margin(A, B):.3g})")

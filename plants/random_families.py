@@ -48,7 +48,6 @@ def _shapes(n, m, p, n_unstable) -> tuple[int, int, int, int]:
     return n, m, p, nu
 
 
-# -- PBH tests ----------------------------------------------------------------------------------
 def pbh_margin(A, B) -> float:
     """PBH margin of stabilizability of ``(A, B)``.
 
@@ -86,7 +85,6 @@ def is_detectable(A, C, tol: float = PBH_TOL) -> bool:
     return pbh_margin(np.asarray(A).T, np.asarray(C).T) > tol
 
 
-# -- the linear part ----------------------------------------------------------------------------
 def _orthogonal(rng: np.random.Generator, n: int) -> np.ndarray:
     Q, R = np.linalg.qr(rng.standard_normal((n, n)))
     return Q * np.where(np.diag(R) < 0, -1.0, 1.0)  # Haar distributed
@@ -158,7 +156,6 @@ def _unit(rng: np.random.Generator, n: int) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-# -- the families -------------------------------------------------------------------------------
 def random_lipschitz_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.5, seed: int = 0,
                            n_unstable: int | None = None, max_re: float = 0.5, t_final: float = 20.0,
                            id: str | None = None) -> Plant:
