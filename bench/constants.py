@@ -54,11 +54,17 @@ class Violation:
 
     def describe(self, what: str = "claimed") -> str:
         """One line for reports, e.g. ``"claimed rho = 0.1109 is violated: the pair ... gives 0.1665"``."""
-        fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
-        return (
-            f"{what} {self.name} = {self.claimed:.4g} is violated: the pair x1 = {fmt(self.x1)}, "
-            f"x2 = {fmt(self.x2)} gives {self.sampled:.4g}"
-        )
+        return (f"{what} {self.name} = {self.claimed:.4g} is violated: the pair x1 = {_fmt(self.x1)}, "
+                f"x2 = {_fmt(self.x2)} gives {self.sampled:.4g}")
+
+
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{a:.4g}" for a in v) + ")"
+
+
+def _exceeds(value: float, stated: float) -> bool:
+    """Whether a sampled ``value`` exceeds a ``stated`` constant beyond the relative tolerance."""
+    return value > stated + _REL_TOL * max(1.0, abs(stated))
 
 
 @dataclass(frozen=True)
@@ -369,17 +375,26 @@ def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000,
         return []
     out = []
     for i in range(ch.q):
-        h = float(np.linalg.norm(ch.H[i]))
-        zmax = ch.radius * h if ch.radius is not None else max(far * h, far)
+        zmax = _zmax(ch, i, far)
         a = rng.uniform(-zmax, zmax, n_pairs)
         b = a + rng.normal(0, 1, n_pairs) * np.maximum(0.05 * zmax, 1e-3) * 10.0 ** rng.uniform(-4, 0, n_pairs)
-        b = np.clip(b, -zmax, zmax)
-        Z = np.zeros((ch.q, 2 * n_pairs))
-        Z[i, :n_pairs], Z[i, n_pairs:] = a, b
-        with np.errstate(invalid="ignore", divide="ignore"):
-            phi = np.asarray(ch.phi(Z), dtype=float)[i]
-        out += _slope_violations(ch, i, phi[:n_pairs], phi[n_pairs:], Z[:, :n_pairs], Z[:, n_pairs:])
+        out += _pair_violations(ch, i, a, np.clip(b, -zmax, zmax))
     return out + _narrowing_check(ch, rng, n_pairs, far)
+
+
+def _zmax(ch: Channels, i: int, far: float) -> float:
+    """The range of channel ``i``'s input: on its region, or out to ``||H_i|| far`` (at least ``far``)."""
+    h = float(np.linalg.norm(ch.H[i]))
+    return ch.radius * h if ch.radius is not None else max(far * h, far)
+
+
+def _pair_violations(ch: Channels, i: int, a: np.ndarray, b: np.ndarray) -> list[Violation]:
+    """Channel ``i``'s slope violations over the input pairs ``(a_j, b_j)``, the other channels at 0."""
+    Z = np.zeros((ch.q, 2 * a.size))
+    Z[i, :a.size], Z[i, a.size:] = a, b
+    with np.errstate(invalid="ignore", divide="ignore"):
+        phi = np.asarray(ch.phi(Z), dtype=float)[i]
+    return _slope_violations(ch, i, phi[:a.size], phi[a.size:], Z[:, :a.size], Z[:, a.size:])
 
 
 #: Marks a violated narrowing (``Channels.narrow``): certificates then drop the narrowing only.
@@ -393,19 +408,13 @@ def _narrowing_check(ch: Channels, rng: np.random.Generator, n_pairs: int, far: 
         return []
     out = []
     for i in range(ch.q):
-        h = float(np.linalg.norm(ch.H[i]))
-        zmax = ch.radius * h if ch.radius is not None else max(far * h, far)
+        zmax = _zmax(ch, i, far)
         for r in np.geomspace(min(1e-2, zmax), zmax, 9):
             lo, hi = ch.slopes_on(float(r))
-            narrowed = replace(ch, lo=lo, hi=hi, narrow=None)
             a = rng.uniform(-r, r, n_pairs // 4)
             b = np.clip(a + rng.normal(0, 1, a.size) * r * 10.0 ** rng.uniform(-4, 0, a.size), -r, r)
-            Z = np.zeros((ch.q, 2 * a.size))
-            Z[i, :a.size], Z[i, a.size:] = a, b
-            with np.errstate(invalid="ignore", divide="ignore"):
-                phi = np.asarray(ch.phi(Z), dtype=float)[i]
             out += [replace(v, name=f"{v.name} {NARROWED} on |z| <= {r:.3g}")
-                    for v in _slope_violations(narrowed, i, phi[:a.size], phi[a.size:], Z[:, :a.size], Z[:, a.size:])]
+                    for v in _pair_violations(replace(ch, lo=lo, hi=hi, narrow=None), i, a, b)]
     return out
 
 
@@ -529,7 +538,6 @@ def _finite_instants(n: int, X, XH, max_points: int) -> tuple[np.ndarray, np.nda
 def _channels_along(plant: Plant, ch, X: np.ndarray, XH: np.ndarray) -> dict[str, str]:
     """The channels along a trajectory: ``f = G phi(H x)`` at the states and estimates, then the slopes
     between ``H x`` and ``H x_hat`` and 0; ``{"channels": why}`` when disproved."""
-    fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
     P = np.concatenate([X, XH], axis=1)
     P = P[:, _inside(P, ch.radius)]
     if P.shape[1]:
@@ -540,7 +548,7 @@ def _channels_along(plant: Plant, ch, X: np.ndarray, XH: np.ndarray) -> dict[str
         if worst.max() > 1e-9:
             j = int(np.argmax(worst))
             return {"channels": f"the declared channels: G phi(H x) differs from f by {err[:, j].max():.3g} at the "
-                                f"simulated state x = {fmt(P[:, j])}"}
+                                f"simulated state x = {_fmt(P[:, j])}"}
     for X2 in (XH, np.zeros_like(X)):
         inside = _inside(X, ch.radius) & _inside(X2, ch.radius)
         Z1, Z2 = ch.H @ X[:, inside], ch.H @ X2[:, inside]
@@ -563,7 +571,7 @@ def _scalar_violations(f: Callable, a: np.ndarray, b: np.ndarray, gamma: float |
     for k, value in stated.items():
         r = np.where(np.isfinite(ratios[k]), ratios[k], -np.inf)
         j = int(np.argmax(r))
-        if r[j] > value + _REL_TOL * max(1.0, abs(value)):
+        if _exceeds(r[j], value):
             out[k] = Violation(k, value, float(r[j]), tuple(a[:, j]), tuple(b[:, j]))
     return out
 
@@ -599,13 +607,7 @@ def linear_prechecks(plant: Plant) -> list[str]:
     return out
 
 
-def compute_constants(
-    plant: Plant,
-    *,
-    seed: int = 0,
-    n_samples: int = 20000,
-    n_refine: int = 5,
-) -> ConstantsReport:
+def compute_constants(plant: Plant, *, seed: int = 0, n_samples: int = 20000, n_refine: int = 5) -> ConstantsReport:
     """Compute the constants of ``plant.f``: analytic, sampled, flags, and what is trusted.
 
     Parameters
@@ -660,7 +662,7 @@ def _disproved(analytic: Constants | None, best: dict) -> list[Violation]:
     for name in ("alpha", "rho", "beta"):
         av = getattr(analytic, name) if analytic is not None else None
         val, a, b = best[name]
-        if av is not None and val > av + _REL_TOL * max(1.0, abs(av)):
+        if av is not None and _exceeds(val, av):
             disproved.append(Violation(name, av, val, tuple(a), tuple(b)))
     return disproved
 
@@ -698,7 +700,7 @@ def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_r
         cval = getattr(claimed, name)
         if cval is not None:
             val, a, b = best[name]
-            if val > cval + _REL_TOL * max(1.0, abs(cval)):
+            if _exceeds(val, cval):
                 violations.append(Violation(name, cval, val, tuple(a), tuple(b)))
     if claimed.beta is not None:  # checked at the claimed gamma
         if claimed.gamma == gamma:
@@ -708,7 +710,7 @@ def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_r
             r = np.where(np.isfinite(r), r, -np.inf)
             k = int(np.argmax(r))
             a, b, val = _local_max(plant.f, 2, claimed.gamma, x1[:, k], x2[:, k], c_radius, n)
-        if val > claimed.beta + _REL_TOL * max(1.0, abs(claimed.beta)):
+        if _exceeds(val, claimed.beta):
             violations.append(Violation("beta", claimed.beta, val, tuple(a), tuple(b)))
     return violations
 
@@ -718,15 +720,6 @@ def resolve_constants(report: ConstantsReport, *, use_claimed: bool = False) -> 
     if not use_claimed:
         return report.used
     c, v = report.claimed, report.used
-    pick = lambda a, b: a if a is not None else b  # noqa: E731
-    if c.beta is not None:
-        beta, gamma = c.beta, c.gamma
-    else:
-        beta, gamma = v.beta, v.gamma
-    return Constants(
-        alpha=pick(c.alpha, v.alpha),
-        rho=pick(c.rho, v.rho),
-        beta=beta,
-        gamma=gamma,
-        radius=pick(c.radius, v.radius),
-    )
+    pick = lambda k: getattr(c, k) if getattr(c, k) is not None else getattr(v, k)  # noqa: E731
+    qib = c if c.beta is not None else v
+    return Constants(alpha=pick("alpha"), rho=pick("rho"), beta=qib.beta, gamma=qib.gamma, radius=pick("radius"))

@@ -42,20 +42,19 @@ def diag(v):
     return cp.diag(v)
 
 
+def _sym_eig(M: np.ndarray, k: int) -> float:
+    M = np.asarray(M, dtype=float)
+    return float(np.linalg.eigvalsh((M + M.T) / 2)[k]) if np.all(np.isfinite(M)) else float("nan")
+
+
 def max_eig(M: np.ndarray) -> float:
     """Largest eigenvalue of the symmetric part of ``M`` (NaN if ``M`` is not finite)."""
-    M = np.asarray(M, dtype=float)
-    if not np.all(np.isfinite(M)):
-        return float("nan")
-    return float(np.linalg.eigvalsh((M + M.T) / 2)[-1])
+    return _sym_eig(M, -1)
 
 
 def min_eig(M: np.ndarray) -> float:
     """Smallest eigenvalue of the symmetric part of ``M`` (NaN if ``M`` is not finite)."""
-    M = np.asarray(M, dtype=float)
-    if not np.all(np.isfinite(M)):
-        return float("nan")
-    return float(np.linalg.eigvalsh((M + M.T) / 2)[0])
+    return _sym_eig(M, 0)
 
 
 def verify_tol(M: np.ndarray) -> float:

@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import numbers
+from bench import checks
 
 __all__ = ["Progress"]
 
 
 def _count(name: str, value, *, allow_none: bool = False) -> int | None:
-    if value is None and allow_none:
-        return None
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 0:
-        raise ValueError(f"{name}: expected an integer >= 0{' or None' if allow_none else ''}, got {value!r}")
-    return int(value)
+    return None if value is None and allow_none else checks.integer(name, value, lo=0)
 
 
 class Progress:

@@ -322,20 +322,14 @@ def simulate_controller(
         raise ValueError("simulate_controller: give exactly one of K and estimator")
     checks.real("noise", noise, lo=0.0)
     if estimator is not None:
-        return _simulate_estimator(plant, F, estimator, t_final, noise, seed, options)
+        if not hasattr(estimator, "update"):  # a specification: build the filter
+            from bench.estimators import runtime_estimator
+
+            estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final, options=options)
+        return _sampled(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options)
     if noise > 0:
         return _sampled(plant, F, K, None, noise_dt, t_final, noise, seed, options)
     return simulate(plant, K, F, t_final=t_final, options=options, loop=loop)
-
-
-def _simulate_estimator(plant: Plant, F, estimator, t_final: float, noise: float, seed: int,
-                        options: SimOptions) -> Trajectory:
-    """The run-time estimator path of :func:`simulate_controller`."""
-    if not hasattr(estimator, "update"):  # a specification: build the filter
-        from bench.estimators import runtime_estimator
-
-        estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final, options=options)
-    return _sampled(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options)
 
 
 def _sampled(plant: Plant, F, K, estimator, dt: float, t_final: float, noise: float, seed: int,
