@@ -143,7 +143,9 @@ def observer_nlsys(plant: Plant, K, F):
     Parameters
     ----------
     plant : Plant
-    K, F : array_like, shapes (n, p), (m, n)
+        Supplies A, B, C and f.
+    K, F : array_like
+        As for :func:`controller_ss`.
 
     Returns
     -------
@@ -161,11 +163,12 @@ def closed_loop_nlsys(plant: Plant, K, F):
     Parameters
     ----------
     plant : Plant
-    K, F : array_like, shapes (n, p), (m, n)
+    K, F : array_like
+        As for :func:`controller_ss`.
 
     Returns
     -------
-    control.NonlinearIOSystem
+    control.InterconnectedSystem
         No inputs; states ``(x, xhat)``; outputs ``(x, xhat, u)``.
 
     Examples

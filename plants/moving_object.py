@@ -88,11 +88,7 @@ def moving_object(*, r: float = R_SOURCE, t_final: float = 20.0) -> Plant:
     Returns
     -------
     Plant
-
-    Raises
-    ------
-    PlantError
-        If the region ``||x|| <= r`` does not contain the initial conditions.
+        PlantError when the region ``||x|| <= r`` does not contain the initial conditions.
     """
     bounds = moving_object_bounds(r)
     r = bounds.radius
