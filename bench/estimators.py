@@ -12,24 +12,8 @@ __all__ = ["ContinuousDiscreteEKF"]
 
 
 def runtime_estimator(spec, plant: Plant, x_hat0: np.ndarray, *, t_final: float, options=None):
-    """Build the run-time estimator a design specified.
-
-    Parameters
-    ----------
-    spec : object
-        The design's estimator specification (:class:`designs.ekf.EKFSpec`).
-    plant : Plant
-    x_hat0 : ndarray (n,)
-    t_final : float
-        The horizon (the sample time must divide it).
-    options : bench.simulate.SimOptions, optional
-        Integration tolerances of the filter's prediction.
-
-    Returns
-    -------
-    object
-        With ``dt``, ``x``, ``update(y)`` and ``predict(u)``.
-    """
+    """The run-time estimator (``dt``, ``x``, ``update(y)``, ``predict(u)``) a design specified (an
+    :class:`designs.ekf.EKFSpec`), its prediction integrated with ``options``' tolerances."""
     if isinstance(spec, EKFSpec):
         spec.check_horizon(t_final)
         kw = {} if options is None else {"rtol": options.rtol, "atol": options.atol}

@@ -502,19 +502,8 @@ class Matrices:
 
 
 def matrices(*, all_parameters: bool = False, **mats: np.ndarray) -> Matrices:
-    """Classify matrices for a cached program (see :data:`DENSE_FRACTION`).
-
-    Parameters
-    ----------
-    all_parameters : bool
-        Every matrix a dense Parameter (for programs solved for matrices of any pattern).
-    **mats : ndarray
-        Matrices by the names the block functions read (``A=plant.A``, ...).
-
-    Returns
-    -------
-    Matrices
-    """
+    """Classify matrices (by the names the block functions read) for a cached program
+    (:data:`DENSE_FRACTION`; every one a dense Parameter with ``all_parameters``)."""
     vals = {k: np.asarray(M, dtype=float) for k, M in mats.items()}
     dense = frozenset(k for k, M in vals.items()
                       if all_parameters or (M.size and np.count_nonzero(M) >= DENSE_FRACTION * M.size))
@@ -647,19 +636,8 @@ SCS_FROM_N = 8
 def solve_side(prog: Program, solver: str = "auto", n: int | None = None) -> str:
     """Solve a program with the suite's solver policy; return a log of the solvers tried.
 
-    Parameters
-    ----------
-    prog : Program
-    solver : {"auto", "CLARABEL", "SCS"}
-        ``"auto"``: Clarabel when ``n < SCS_FROM_N``, else SCS, then Clarabel when SCS's point
-        does not verify (:meth:`Program.verified`).
-    n : int, optional
-        The state dimension.
-
-    Returns
-    -------
-    str
-        E.g. ``"SCS:optimal (not verified) -> CLARABEL:optimal"``.
+    ``"auto"``: Clarabel when ``n < SCS_FROM_N``, else SCS, then Clarabel when SCS's point does not
+    verify (:meth:`Program.verified`); the log reads e.g. ``"SCS:optimal (not verified) -> CLARABEL:optimal"``.
     """
     if solver == "auto" and n is not None and n < SCS_FROM_N:
         solver = "CLARABEL"

@@ -66,19 +66,8 @@ def _tail_rate(t: np.ndarray, nz: np.ndarray) -> np.ndarray:
 
 
 def batch_metrics(t, x, x_hat, u=None, *, finished=True, diverged=None, noisy: bool = False) -> dict[str, np.ndarray]:
-    """Per-member metrics of a batch of trajectories (see the module docstring).
-
-    Parameters
-    ----------
-    t : ndarray (T,)
-    x, x_hat : ndarray (n, N, T)
-    u : ndarray (m, N, T), optional
-    finished : bool or ndarray of bool (N,)
-        False where the simulation stopped early (then not converged).
-    diverged : ndarray of bool (N,), optional
-        Members that blew up.
-    noisy : bool
-        The run had measurement noise (``converged`` means settled).
+    """Per-member metrics of a batch (module docstring): ``t`` (T,), ``x``, ``x_hat`` (n, N, T), ``u`` (m, N, T);
+    not converged where not ``finished`` or ``diverged``; ``noisy``: converged means settled.
 
     Returns
     -------
@@ -146,23 +135,11 @@ _GL_NODES, _GL_WEIGHTS = (lambda p: ((p[0] + 1) / 2, p[1] / 2))(np.polynomial.le
 
 
 def dense_metrics(dense, n: int, t0: float, t1: float, fraction: float = SETTLING_FRACTION) -> dict[str, float]:
-    """Settling times and IAE from an integrator's dense output, independent of any output grid.
+    """Settling times and IAE (``settling_x_s``, ``settling_e_s``, ``iae_e``) over ``[t0, t1]`` from an
+    integrator's dense output ``(x, x_hat)`` (2n,), independent of any output grid.
 
     The IAE is the 5-point Gauss-Legendre quadrature of ``||e||`` on each integrator step; a settling
     time is the root of ``||.|| - fraction * peak`` (Brent) in the last interval above the level.
-
-    Parameters
-    ----------
-    dense : scipy.integrate.OdeSolution
-    n : int
-    t0, t1 : float
-        The span to measure (within the solution's).
-    fraction : float
-
-    Returns
-    -------
-    dict
-        ``settling_x_s``, ``settling_e_s`` (NaN if never settled), ``iae_e``.
     """
     from scipy.optimize import brentq
 

@@ -179,20 +179,8 @@ def staged(out_dir, label: str = "write") -> Iterator[Path]:
 
 @contextlib.contextmanager
 def locked(out_dir, timeout: float = LOCK_TIMEOUT) -> Iterator[None]:
-    """Hold the exclusive lock of ``out_dir`` (``fcntl.flock`` on ``<out>/.oslbench.lock``).
-
-    Parameters
-    ----------
-    out_dir : path
-        The output folder (must exist).
-    timeout : float
-        Seconds to wait for another writer.
-
-    Raises
-    ------
-    OutDirError
-        The lock file cannot be opened, or another writer held the lock for ``timeout`` s.
-    """
+    """Hold the exclusive lock of ``out_dir`` (``fcntl.flock`` on ``<out>/.oslbench.lock``); OutDirError when
+    the lock file cannot be opened or another writer holds it for ``timeout`` seconds."""
     out = Path(out_dir)
     lock = out / LOCK_NAME
     try:

@@ -110,25 +110,8 @@ def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: st
     """The ``solve_ivp`` method for the closed loop (6): ``stiff`` if its linear part is stiff, else DOP853.
 
     Stiff: ``max(-Re lambda) * t_final > STIFF`` over the eigenvalues of ``A + BF`` and ``A - KC``
-    (those of the loop, block triangular in ``(x, e)``); an explicit method would need about
-    ``STIFF / 3`` steps for stability alone (Hairer & Wanner, *Solving ODEs II*, IV.2).
-
-    Parameters
-    ----------
-    plant : Plant
-    K, F : ndarray
-        Observer gain (n x p) and feedback (m x n).
-    t_final : float
-        Horizon.
-    stiff : str
-        The method for a stiff loop.
-    loop : ClosedLoop, optional
-        The gains' spectra (:func:`bench.checks.closed_loop`), when the caller has them.
-
-    Returns
-    -------
-    str
-        ``stiff`` or ``"DOP853"``.
+    (those of the loop, block triangular in ``(x, e)``, or ``loop``'s spectra); an explicit method would
+    need about ``STIFF / 3`` steps for stability alone (Hairer & Wanner, *Solving ODEs II*, IV.2).
     """
     A, BF, KC = plant.A, plant.B @ F, K @ plant.C
     # a norm bounds every |lambda|: no eigenvalue computed when it is small enough

@@ -598,22 +598,11 @@ class Plant:
 
 
 def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: float = 1e-4) -> str | None:
-    """Where a declared Jacobian disagrees with central differences of ``f`` (None: nowhere).
+    """Where a declared Jacobian disagrees with central differences of ``f`` at the columns of ``X``
+    (a message naming the entry and the state; None: nowhere).
 
-    At each column ``x`` of ``X`` the difference ``(f(x + h e_j) - f(x - h e_j)) / 2h``,
-    ``h = 1e-6 max(1, ||x||)``, is compared with ``jacobian(x)``; an entry off by more than
-    ``rtol (1 + max |J_fd|)`` is named.
-
-    Parameters
-    ----------
-    f, jacobian : callable
-    X : ndarray (n, N)
-    rtol : float
-
-    Returns
-    -------
-    str or None
-        The message (for a :class:`PlantError`).
+    At each column ``x`` the difference ``(f(x + h e_j) - f(x - h e_j)) / 2h``, ``h = 1e-6 max(1, ||x||)``,
+    must match ``jacobian(x)`` within ``rtol (1 + max |J_fd|)``.
     """
     X = np.asarray(X, dtype=float)
     n = X.shape[0]

@@ -49,20 +49,9 @@ def _shapes(n, m, p, n_unstable) -> tuple[int, int, int, int]:
 
 
 def pbh_margin(A, B) -> float:
-    """PBH margin of stabilizability of ``(A, B)``.
-
-    Parameters
-    ----------
-    A : array_like, shape (n, n)
-    B : array_like, shape (n, m)
-
-    Returns
-    -------
-    float
-        ``min sigma_min([lambda I - A, B]) / max(1, ||[A, B]||_2)`` over the eigenvalues
-        lambda of A with ``Re lambda >= 0`` (``inf`` when A is Hurwitz); (A, B) is stabilizable
-        iff it is positive (numerically, above :data:`PBH_TOL`).
-    """
+    """PBH margin of stabilizability of ``(A, B)``: ``min sigma_min([lambda I - A, B]) / max(1, ||[A, B]||_2)``
+    over the eigenvalues of A with ``Re lambda >= 0`` (``inf`` when A is Hurwitz); (A, B) is stabilizable iff it
+    is positive (numerically, above :data:`PBH_TOL`)."""
     A = np.asarray(A, dtype=float)
     B = np.asarray(B, dtype=float)
     n = A.shape[0]
