@@ -37,27 +37,10 @@ __all__ = ["simulate_batch", "simulate_digital_batch"]
 
 @dataclass
 class BatchTrajectory:
-    """A batch of closed-loop trajectories on a common time grid.
-
-    Attributes
-    ----------
-    t : ndarray (T,)
-    x, x_hat : ndarray (n, N, T)
-        States and estimates; column j is initial condition j.
-    diverged : ndarray of bool (N,)
-        Members frozen after blowing up (or non-finite).
-    status : str
-        ``"ok"`` or ``"failed"`` (the integrator stopped; ``message`` says why).
-    message : str
-    wall_s : float
-        Seconds spent integrating.
-    nfev : int
-        Right-hand-side evaluations (each on the whole batch).
-    method : str
-        The ``solve_ivp`` method used (continuous batches).
-    u : ndarray (m, N, T), optional
-        The inputs ``F x_hat``.
-    """
+    """A batch of closed-loop trajectories on a common time grid: ``t`` (T,), ``x``, ``x_hat`` (n, N, T)
+    (column j from initial condition j), ``diverged`` (N,) (members frozen after blowing up), ``status``
+    (``"ok"``, or why the integrator stopped, with ``message``), ``wall_s``, ``nfev`` (right-hand sides on
+    the whole batch), ``method`` (continuous batches) and ``u = F x_hat`` (m, N, T)."""
 
     t: np.ndarray
     x: np.ndarray

@@ -188,11 +188,8 @@ class Cache:
 
     Attributes
     ----------
-    hits, misses : int
-        Pairs found / not found by :meth:`load_pair` (constants: ``constants_hits`` /
-        ``constants_misses``).
-    stored : int
-        Entries written.
+    hits, misses, constants_hits, constants_misses, stored : int
+        Pairs and constants found and not found, entries written.
     errors : list of str
         Problems met (a key not computed, an unwritable folder, a damaged entry by its path).
     """

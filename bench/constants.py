@@ -69,19 +69,9 @@ def _exceeds(value: float, stated: float) -> bool:
 
 @dataclass(frozen=True)
 class Knowledge:
-    """What is trusted about f: the constants and channels a certificate may use.
-
-    Attributes
-    ----------
-    constants : Constants
-        Trusted scalar constants (analytic, not disproved); unknown or untrusted ones are None.
-    channels : Channels or None
-        Trusted channel structure, or None.
-    notes : tuple of str
-        Why something known was not trusted (for the certificate levels' reasons).
-    untrusted : dict
-        Declaration (``"alpha"``, ..., ``"channels"``) -> why a certificate must not use it.
-    """
+    """What is trusted about f, the ``constants`` (analytic, not disproved; others None) and ``channels``
+    a certificate may use, with ``notes`` on what was not trusted and ``untrusted``: declaration
+    (``"alpha"``, ..., ``"channels"``) -> why a certificate must not use it."""
 
     constants: Constants = field(default_factory=Constants)
     channels: Channels | None = None

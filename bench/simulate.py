@@ -62,21 +62,9 @@ class SimOptions:
 
 @dataclass
 class Trajectory:
-    """A simulated closed loop.
-
-    Attributes
-    ----------
-    t : ndarray (N,)
-    x, x_hat : ndarray (n, N)
-    u : ndarray (m, N)
-    status : str
-        ``"ok"``, ``"diverged"``, ``"budget"``, ``"timeout"`` or ``"failed"``.
-    message : str
-    wall_s : float
-    nfev : int
-    dense : scipy.integrate.OdeSolution, optional
-        The integrator's dense output ``z(t) = (x, x_hat)`` (continuous loops only).
-    """
+    """A simulated closed loop: ``t`` (N,), ``x``, ``x_hat`` (n, N), ``u`` (m, N), ``status`` (``"ok"``,
+    ``"diverged"``, ``"budget"``, ``"timeout"`` or ``"failed"``), ``message``, ``wall_s``, ``nfev``, and the
+    integrator's ``dense`` output ``z(t) = (x, x_hat)`` (a scipy ``OdeSolution``; continuous loops only)."""
 
     t: np.ndarray
     x: np.ndarray
@@ -276,11 +264,10 @@ def simulate_controller(
 ) -> Trajectory:
     """Simulate an observer-based controller, whatever its estimator.
 
-    A gain ``K`` without noise: :func:`simulate`. With noise: the loop (6) stays continuous, the
-    Gaussian noise ``v_k`` held over each ``noise_dt`` (``y = C x + v_k``). A run-time ``estimator``
-    (a specification, built by :func:`bench.estimators.runtime_estimator`, or a filter with ``dt``,
-    ``x``, ``update(y)``, ``predict(u)``) runs at its own period, ``u_k = F x_hat_k`` held. Sampled
-    paths return the samples (``x_hat`` the estimate used at ``t_k``).
+    A gain ``K`` without noise: :func:`simulate`; with noise ``v_k`` held over each ``noise_dt``
+    (``y = C x + v_k``) the loop (6) stays continuous. A run-time ``estimator`` (a specification, or a
+    filter with ``dt``, ``x``, ``update(y)``, ``predict(u)``) runs at its own period, ``u_k`` held.
+    Sampled paths return the samples (``x_hat`` the estimate used at ``t_k``).
 
     Parameters
     ----------
