@@ -11,7 +11,8 @@ from typing import Callable, Mapping
 import numpy as np
 
 from bench import checks
-from bench.errors import PlantError
+from bench.errors import PlantError, RegistryError
+from bench.registry import check_id
 
 
 def _plant_error(name: str, message: str) -> PlantError:
@@ -372,16 +373,10 @@ class Plant:
     notes: str = ""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.id, str) or not self.id:
-            raise PlantError(f"id: a non-empty string is required, got {self.id!r}")
-        allowed = "letters A-Z a-z, digits 0-9, '_', '-', '.', '+'"  # the id names files: bench.registry.check_id
-        bad = next((ch for ch in self.id if not (ch.isascii() and (ch.isalnum() or ch in "_-.+"))), None)
-        if bad is not None:
-            raise PlantError(f"id: {self.id!r} holds the character {bad!r}, which is not allowed (the id names "
-                             f"files); use only {allowed}")
-        if self.id[0] in ".-":
-            raise PlantError(f"id: {self.id!r} must not start with {self.id[0]!r}; use only {allowed}, starting "
-                             "with a letter, a digit or '_'")
+        try:
+            check_id(self.id, "plant")
+        except RegistryError as exc:
+            raise PlantError(f"id: {exc}") from None
         A = _matrix("A", self.A)
         B = _matrix("B", self.B)
         C = _matrix("C", self.C)
