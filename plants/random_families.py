@@ -40,14 +40,6 @@ _SOURCE = "oslbench random family (plants/random_families.py), constants in clos
 MAX_N = 4096
 
 
-def _shapes(n, m, p, n_unstable) -> tuple[int, int, int, int]:
-    n = check_int("n", n, 1, MAX_N, what="the number of states ")
-    m = check_int("m", m, 1, n, what=f"the number of inputs (B is n x m, n = {n}) ")
-    p = check_int("p", p, 1, n, what=f"the number of outputs (C is p x n, n = {n}) ")
-    nu = check_int("n_unstable", n_unstable, 0, n, what=f"the size of the unstable block (n = {n}) ")
-    return n, m, p, nu
-
-
 def pbh_margin(A, B) -> float:
     """PBH margin of stabilizability of ``(A, B)``: ``min sigma_min([lambda I - A, B]) / max(1, ||[A, B]||_2)``
     over the eigenvalues of A with ``Re lambda >= 0`` (``inf`` when A is Hurwitz); (A, B) is stabilizable iff it
@@ -106,8 +98,11 @@ def random_lti(
     PlantError
         On a bad argument, or if the PBH check fails.
     """
-    n = check_int("n", n, 1, MAX_N, what="the number of states ")  # before n bounds n_unstable's default
-    n, m, p, nu = _shapes(n, m, p, min(n, 2) if n_unstable is None else n_unstable)
+    n = check_int("n", n, 1, MAX_N, what="the number of states ")
+    m = check_int("m", m, 1, n, what=f"the number of inputs (B is n x m, n = {n}) ")
+    p = check_int("p", p, 1, n, what=f"the number of outputs (C is p x n, n = {n}) ")
+    nu = check_int("n_unstable", min(n, 2) if n_unstable is None else n_unstable, 0, n,
+                   what=f"the size of the unstable block (n = {n}) ")
     seed = check_int("seed", seed, 0)
     max_re = check_real("max_re", max_re)
     rng = np.random.default_rng([seed, 0])
