@@ -90,15 +90,11 @@ def _affine_system(M: np.ndarray, G: np.ndarray, H: np.ndarray, f, *, signals: t
         s = np.asarray(s, dtype=float)
         return M @ s + G @ np.asarray(w, dtype=float).reshape(k) + np.asarray(f(s), dtype=float)
 
-    if state_outputs:
-        def output(t, s, w, params):
-            s = np.asarray(s, dtype=float)
-            return np.concatenate([H @ s, s])
-        outputs = _names(out, H.shape[0]) + _names(st, M.shape[0])
-    else:
-        def output(t, s, w, params):
-            return H @ np.asarray(s, dtype=float)
-        outputs = _names(out, H.shape[0])
+    def output(t, s, w, params):
+        s = np.asarray(s, dtype=float)
+        return np.concatenate([H @ s, s]) if state_outputs else H @ s
+
+    outputs = _names(out, H.shape[0]) + (_names(st, M.shape[0]) if state_outputs else [])
     return control.nlsys(update, output, inputs=_names(inp, k), outputs=outputs, states=_names(st, M.shape[0]),
                          name=name)
 

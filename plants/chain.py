@@ -142,8 +142,7 @@ def chain_plant(
     Raises
     ------
     PlantError
-        On a bad argument (the message names it), or if (A, B) fails the PBH stabilizability or
-        (A, C) the detectability test.
+        On a bad argument, or when (A, B) or (A, C) fails the PBH test.
     """
     N = check_int("N", N, 1, MAX_N)
     m = check_real("m", m, lo=0.0, strict=True)
