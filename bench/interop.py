@@ -59,14 +59,6 @@ def controller_ss(plant: Plant, K, F):
     Returns
     -------
     control.StateSpace
-
-    Examples
-    --------
-    >>> from bench.registry import PLANTS
-    >>> from plants.flexible_link import PAPER_K, PAPER_F
-    >>> ctrl = controller_ss(PLANTS.create("flexible_link"), PAPER_K, PAPER_F)
-    >>> ctrl.ninputs, ctrl.noutputs, ctrl.nstates
-    (2, 1, 4)
     """
     import control
 
@@ -121,13 +113,6 @@ def plant_nlsys(plant: Plant):
     Returns
     -------
     control.NonlinearIOSystem
-
-    Examples
-    --------
-    >>> from bench.registry import PLANTS
-    >>> sys = plant_nlsys(PLANTS.create("flexible_link"))
-    >>> sys.ninputs, sys.noutputs, sys.nstates
-    (1, 2, 4)
     """
     plant = _check_plant(plant)
     return _plant_system(plant, state_outputs=False, name=_sysname(plant, ""))

@@ -91,12 +91,7 @@ def random_lti(
     Returns
     -------
     A, B, C : ndarray
-        Shapes (n, n), (n, m), (p, n).
-
-    Raises
-    ------
-    PlantError
-        On a bad argument, or if the PBH check fails.
+        Shapes (n, n), (n, m), (p, n); PlantError on a bad argument or a failed PBH check.
     """
     n = check_int("n", n, 1, MAX_N, what="the number of states ")
     m = check_int("m", m, 1, n, what=f"the number of inputs (B is n x m, n = {n}) ")
