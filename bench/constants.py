@@ -597,7 +597,13 @@ def linear_prechecks(plant: Plant) -> list[str]:
     return out
 
 
-def compute_constants(plant: Plant, *, seed: int = 0, n_samples: int = 20000, n_refine: int = 5) -> ConstantsReport:
+def compute_constants(
+    plant: Plant,
+    *,
+    seed: int = 0,
+    n_samples: int = 20000,
+    n_refine: int = 5,
+) -> ConstantsReport:
     """Compute the constants of ``plant.f``: analytic, sampled, flags, and what is trusted.
 
     Parameters
