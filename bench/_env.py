@@ -1,16 +1,9 @@
 """Process-wide thread defaults for BLAS and Clarabel, whatever was imported first.
 
-Every matrix the suite factors in its default work is small, and its workers run side by side
-on a few cores: multi-threaded BLAS only adds overhead there, and busy-waiting BLAS threads slow
-the other workers. ``RAYON_NUM_THREADS``: Clarabel (through faer and Rayon) starts a thread pool
-at its first solve, and a worker forked from a process whose pool had started waits forever in
-its first solve (the pool's threads do not exist in the child); one Rayon thread keeps every
-solve on the calling thread.
-
-The environment variables are set (when not set already) for libraries loaded later; BLAS
-libraries already loaded (numpy imported before :mod:`bench`) are limited at once by
-threadpoolctl, to ``OPENBLAS_NUM_THREADS`` (1 unless the user set it). Forked workers inherit
-the limit.
+One BLAS thread (the suite's matrices are small and its workers share the cores) and one Rayon
+thread (a worker forked after Clarabel's thread pool started would wait forever in its first
+solve): set in the environment unless already set, and applied by threadpoolctl to a BLAS that
+numpy loaded before :mod:`bench`.
 """
 
 import os

@@ -1,37 +1,22 @@
 """Vectorised closed-loop simulation of a batch of initial conditions (continuous and digital).
 
-Continuous (:func:`simulate_batch`): the closed loop plant + observer (6) for N initial
-conditions is **one** ODE of size ``2 n N`` integrated by one ``solve_ivp`` call; the state is
-stored as an ``(n, 2N)`` array ``[x_1 .. x_N, x_hat_1 .. x_hat_N]`` and ``f`` is evaluated once
-per right-hand side on that whole batch. The step size is shared by the batch and chosen from
-the RMS of the scaled local errors over all components, so one member's local error may exceed
-what the same tolerances would allow it alone (by up to sqrt(N) in the worst case); the tests
-compare a batch with per-member solves (they agree to ~1e-5 relative at rtol = 1e-6). A member that blows up (``||z_j||`` above ``blowup``
-times ``max(1, ||z_j(0)||)``, or non-finite) is **frozen**: its derivative is set to zero from
-then on, so it cannot stall the others, and it is reported ``diverged``.
+Continuous (:func:`simulate_batch`): the loop (6) for N initial conditions is one ODE of size
+``2 n N`` (layout ``(n, 2N) = [x_1 .. x_N, x_hat_1 .. x_hat_N]``, f evaluated once on the whole
+batch) and one ``solve_ivp`` call; the step size is shared, chosen from the RMS of the scaled
+errors of all members. A member that blows up (``||z_j||`` above ``blowup * max(1, ||z_j(0)||)``,
+or non-finite) is frozen (derivative zero) and reported ``diverged``.
 
-Digital (:func:`simulate_digital_batch`): the controller and the observer run at the sample
-period h, the plant stays continuous. At ``t_k = k h`` the output ``y_k = C x(t_k)`` is read,
-``u_k = F x_hat_k`` is applied and held (zero-order hold) until ``t_{k+1}``, and the observer
-advances by one of two discretisations of (6):
+Digital (:func:`simulate_digital_batch`): controller and observer at the sample period h, the
+plant continuous. At ``t_k = k h``, ``y_k = C x(t_k)`` is read, ``u_k = F x_hat_k`` held, and the
+observer advances by
 
-- ``"zoh"`` (default): the observer's model is integrated over the period with the input
-  ``B u_k`` and the output injection ``K (y_k - C x_hat_k)`` held,
-  ``x_hat' = A x_hat + f(x_hat) + B u_k + K (y_k - C x_hat_k)``. For a linear plant this is
-  the exact zero-order-hold discretisation ``x_hat_{k+1} = e^{Ah} x_hat_k + Gamma (B u_k +
-  K (y_k - C x_hat_k))``, ``Gamma = int_0^h e^{As} ds``; f is integrated with the plant.
-- ``"euler"``: forward Euler, ``x_hat_{k+1} = x_hat_k + h (A x_hat_k + B u_k + f(x_hat_k) +
-  K (y_k - C x_hat_k))``.
+- ``"zoh"``: ``x_hat' = A x_hat + f(x_hat) + B u_k + K (y_k - C x_hat_k)`` integrated over the
+  period (for a linear plant the exact discretisation ``x_hat_{k+1} = e^{Ah} x_hat_k + Gamma (B u_k
+  + K (y_k - C x_hat_k))``, ``Gamma = int_0^h e^{As} ds``);
+- ``"euler"``: ``x_hat_{k+1} = x_hat_k + h (A x_hat_k + B u_k + f(x_hat_k) + K (y_k - C x_hat_k))``.
 
-Between samples the plant (and, for ``"zoh"``, the observer) is integrated with the classical
-fixed-step Runge-Kutta method (RK4) on the whole batch, with ``ceil(h / dt_max)`` sub-steps per
-period; ``dt_max`` defaults to ``min(5e-3, 0.1 / rho(A))`` (rho the spectral radius), which
-keeps ``|lambda| dt <= 0.1`` where RK4's local error is ~1e-7 relative per step. The tests
-compare it with ``solve_ivp`` over each period.
-
-``benchmarks/montecarlo_speed.py`` times a batch against the loop it replaces (one
-:func:`bench.simulate.simulate` per initial condition, with the same method, tolerances and
-output grid).
+Between samples the plant (and the ``"zoh"`` observer) is integrated by RK4 with ``ceil(h / dt_max)``
+sub-steps, ``dt_max = min(5e-3, 0.1 / rho(A))`` by default.
 """
 
 from __future__ import annotations
@@ -45,34 +30,17 @@ import numpy as np
 from bench import checks
 from bench.errors import SimulationStopped as _BatchStop
 from bench.metrics import batch_metrics
-from bench.simulate import SimOptions, choose_method
+from bench.simulate import SimOptions, choose_method, loop_matrix
 
 __all__ = ["simulate_batch", "simulate_digital_batch"]
 
 
 @dataclass
 class BatchTrajectory:
-    """A batch of closed-loop trajectories on a common time grid.
-
-    Attributes
-    ----------
-    t : ndarray (T,)
-    x, x_hat : ndarray (n, N, T)
-        States and estimates; column j is initial condition j.
-    diverged : ndarray of bool (N,)
-        Members frozen after blowing up (or non-finite).
-    status : str
-        ``"ok"`` or ``"failed"`` (the integrator stopped; ``message`` says why).
-    message : str
-    wall_s : float
-        Seconds spent integrating.
-    nfev : int
-        Right-hand-side evaluations (each on the whole batch).
-    method : str
-        The ``solve_ivp`` method used (continuous batches).
-    u : ndarray (m, N, T), optional
-        The inputs ``F x_hat``.
-    """
+    """A batch of closed-loop trajectories on a common time grid: ``t`` (T,), ``x``, ``x_hat`` (n, N, T)
+    (column j from initial condition j), ``diverged`` (N,) (members frozen after blowing up), ``status``
+    (``"ok"``, or why the integrator stopped, with ``message``), ``wall_s``, ``nfev`` (right-hand sides on
+    the whole batch), ``method`` (continuous batches) and ``u = F x_hat`` (m, N, T)."""
 
     t: np.ndarray
     x: np.ndarray
@@ -91,8 +59,7 @@ class BatchTrajectory:
         return self.x - self.x_hat
 
     def metrics(self, *, noisy: bool = False) -> dict[str, np.ndarray]:
-        """Per-member metrics: :func:`bench.metrics.batch_metrics` of this batch (a member that
-        diverged, or every member of a failed run, is not converged)."""
+        """Per-member metrics (:func:`bench.metrics.batch_metrics`)."""
         return batch_metrics(self.t, self.x, self.x_hat, self.u, finished=self.status == "ok",
                              diverged=self.diverged, noisy=noisy)
 
@@ -128,8 +95,7 @@ def _norms(x: np.ndarray, xh: np.ndarray) -> np.ndarray:
 
 
 def _batch_sparsity(n: int, N: int):
-    """Sparsity of the batch Jacobian in the (n, 2N) row-major layout: member j couples
-    ``x[:, j]`` and ``x_hat[:, j]`` only."""
+    """Sparsity of the batch Jacobian: member j couples ``x[:, j]`` and ``x_hat[:, j]`` only."""
     import scipy.sparse as sp
 
     j = np.arange(N)[:, None]
@@ -140,9 +106,7 @@ def _batch_sparsity(n: int, N: int):
     return sp.csc_matrix((np.ones(rows.size), (rows, cols)), shape=(2 * n * N, 2 * n * N))
 
 
-#: The batch's default integration settings: a batch of hundreds of members at the single
-#: trajectory's tolerances (:class:`bench.simulate.SimOptions`' defaults, rtol 1e-8) costs several
-#: times more for differences far below what a Monte Carlo verdict reads.
+#: The batch's default integration settings (looser than a single trajectory's).
 BATCH_OPTIONS = SimOptions(rtol=1e-6, atol=1e-9, n_points=401)
 
 
@@ -169,19 +133,12 @@ def simulate_batch(
     t_final : float, optional
         Horizon (default ``plant.t_final``).
     options : SimOptions
-        The settings of :func:`bench.simulate.simulate`, for the whole batch (default
-        :data:`BATCH_OPTIONS`). ``method="auto"``: DOP853, unless the linear closed loop is stiff
-        (largest ``-Re lambda`` times the horizon above :data:`bench.simulate.STIFF`), then BDF;
-        implicit methods get the block-diagonal ``jac_sparsity`` of the batch (each member's 2n
-        states couple only among themselves), so a finite-difference Jacobian costs 2n
-        right-hand sides, not 2nN. A member above ``blowup * max(1, ||z_j(0)||)`` is frozen and
-        reported diverged; past ``max_nfev`` right-hand sides or ``max_wall_s`` the run stops
-        with status ``"budget"`` or ``"timeout"``.
+        As for :func:`bench.simulate.simulate`; ``method="auto"`` gives BDF for a stiff loop, and
+        implicit methods get the batch's block-diagonal ``jac_sparsity``.
 
     Returns
     -------
     BatchTrajectory
-        ``method`` records the method actually used.
     """
     K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
     n, N = X.shape
@@ -191,7 +148,6 @@ def simulate_batch(
     extra = {}
     if method in ("BDF", "Radau"):
         extra["jac_sparsity"] = _batch_sparsity(n, N)
-    # state layout: y.reshape(n, 2N) = [x_1 .. x_N, x_hat_1 .. x_hat_N], so f takes it as it is
     Y0 = np.concatenate([X, XH], axis=1)
     t0 = time.perf_counter()
     t_out, y, status, message, nfev = _integrate(rhs, Y0.ravel(), T, method, options, extra)
@@ -205,8 +161,8 @@ def simulate_batch(
 
 def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options: SimOptions,
                extra: dict) -> tuple[np.ndarray, np.ndarray, str, str, int]:
-    """One ``solve_ivp`` call over ``[0, T]`` on ``options.n_points`` instants: ``t, y, status, message, nfev``;
-    a run stopped by its right-hand side returns the initial state alone with the stop's status."""
+    """One ``solve_ivp`` call over ``[0, T]``: ``t, y, status, message, nfev`` (the initial state alone
+    when the right-hand side stopped the run)."""
     from scipy.integrate import solve_ivp
 
     t_eval = np.linspace(0.0, T, int(options.n_points))
@@ -220,17 +176,12 @@ def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options:
 
 
 class _BatchRHS:
-    """Right-hand side of the batch closed loop (6) on the (n, 2N) layout ``[x_1 .. x_N, x_hat_1 .. x_hat_N]``.
-
-    A member above its limit (or non-finite) is frozen: its derivative is zero. It counts its
-    calls and stops the run past the options' budget of calls or wall time.
-    """
+    """Right-hand side of the batch loop (6), freezing the members above their limit and stopping the
+    run past the budgets."""
 
     def __init__(self, plant, K: np.ndarray, F: np.ndarray, N: int, limit: np.ndarray, options: SimOptions):
-        A, B, C = plant.A, plant.B, plant.C
-        BF, KC = B @ F, K @ C
-        self.Px = np.vstack([A, KC])  # linear part: [x'; x_hat'] = Px x + Ph x_hat
-        self.Ph = np.vstack([BF, A + BF - KC])
+        L = loop_matrix(plant, K, F)  # [x'; x_hat'] = Px x + Ph x_hat
+        self.Px, self.Ph = np.ascontiguousarray(L[:, :plant.n]), np.ascontiguousarray(L[:, plant.n:])
         self.f, self.n, self.N, self.limit = plant.f, plant.n, N, limit
         self.fast2 = float(limit.min()) ** 2  # while ||y||^2 <= fast2, no member can exceed its limit
         self.count, self.max_nfev = 0, options.max_nfev
@@ -258,7 +209,6 @@ class _BatchRHS:
         return dY.ravel()
 
 
-# -- digital implementation -------------------------------------------------------------------
 DISCRETISATIONS = ("zoh", "euler")
 
 
@@ -288,17 +238,16 @@ def simulate_digital_batch(
     ----------
     plant : Plant
     K, F : ndarray
-        Continuous-time gains (n x p, m x n), used as described in the module docstring.
+        Continuous-time gains (n x p, m x n).
     x0, x_hat0 : ndarray (n, N)
     h : float
-        Sample period (> 0). The run covers ``ceil(t_final / h)`` periods (the last sample is
-        at or just after ``t_final``).
+        Sample period (> 0); the run covers ``ceil(t_final / h)`` periods.
     t_final : float, optional
         Horizon (default ``plant.t_final``).
     discretisation : {"zoh", "euler"}
         Observer discretisation.
     dt_max : float, optional
-        Largest RK4 sub-step (default ``min(5e-3, 0.1 / rho(A))``).
+        Largest RK4 sub-step.
     blowup : float
         Members above ``blowup * max(1, ||z_j(0)||)`` are frozen and reported diverged.
     max_records : int
@@ -307,7 +256,7 @@ def simulate_digital_batch(
     Returns
     -------
     BatchTrajectory
-        States at the recorded sample instants; ``x_hat`` is the estimate used at that sample.
+        At the recorded samples (``x_hat`` the estimate used there).
     """
     K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
     n_steps, n_sub = _periods(plant.A, T, h, discretisation, dt_max)
@@ -323,9 +272,8 @@ def simulate_digital_batch(
 
 def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, rec_idx: list[int],
            limit: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Advance the batch by ``n_steps`` periods, recording the samples ``rec_idx``; a member above its
-    ``limit`` (or non-finite) is frozen. Returns the recorded states and estimates, the diverged members
-    and the right-hand sides spent."""
+    """Advance the batch by ``n_steps`` periods, freezing members above ``limit``: the recorded states and
+    estimates, the diverged members, the right-hand sides spent."""
     rec_pos = {k: i for i, k in enumerate(rec_idx)}
     n, N = X.shape
     xs = np.empty((n, N, len(rec_idx)))
@@ -351,7 +299,7 @@ def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, re
 
 
 def _periods(A: np.ndarray, T: float, h, discretisation: str, dt_max) -> tuple[int, int]:
-    """The periods covering the horizon and the RK4 sub-steps per period, or ValueError naming the bad argument."""
+    """The periods covering the horizon and the RK4 sub-steps per period (checked)."""
     h = checks.real("h", h, lo=0.0, strict=True)
     if discretisation not in DISCRETISATIONS:
         raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
@@ -369,8 +317,7 @@ def _record_indices(n_steps: int, max_records: int) -> list[int]:
 
 
 class _DigitalLoop:
-    """One period of the sampled-data loop for a batch: plant (and, for ``"zoh"``, the observer's model)
-    by RK4 sub-steps, the observer by its discretisation (module docstring)."""
+    """One period of the sampled-data loop for a batch (module docstring)."""
 
     def __init__(self, plant, K: np.ndarray, F: np.ndarray, h: float, n_sub: int, *, zoh: bool):
         self.A, self.B, self.C, self.f = plant.A, plant.B, plant.C, plant.f
@@ -408,11 +355,10 @@ def digital_matrix(A: np.ndarray, B: np.ndarray, C: np.ndarray, K: np.ndarray, F
                    discretisation: str = "zoh") -> np.ndarray:
     """The one-period matrix of the sampled loop for a linear plant, ``(x, x_hat)_{k+1} = Phi (x, x_hat)_k``.
 
-    ``"zoh"``: ``Phi = [[Ad, G B F], [G K C, Ad + G B F - G K C]]`` with ``Ad = e^{Ah}`` and
-    ``G = int_0^h e^{As} ds`` (both read off ``expm([[A, I], [0, 0]] h)``); ``"euler"``: the plant
-    row is the same, the observer row is ``[h K C, I + h (A + B F - K C)]``. For a nonlinear plant
-    pass ``A + df/dx(0)``: the spectral radius of Phi then decides local exponential stability
-    of the origin of the sampled loop.
+    ``"zoh"``: ``Phi = [[Ad, G B F], [G K C, Ad + G B F - G K C]]``, ``Ad = e^{Ah}``,
+    ``G = int_0^h e^{As} ds`` (from ``expm([[A, I], [0, 0]] h)``); ``"euler"``: the observer row is
+    ``[h K C, I + h (A + B F - K C)]``. With ``A + df/dx(0)`` the spectral radius of Phi decides local
+    exponential stability of the sampled loop's origin.
     """
     from scipy.linalg import expm
 

@@ -1,46 +1,21 @@
 """On-disk cache of finished pairs and plant constants, so that an interrupted run resumes.
 
-``python -m bench run`` stores every finished pair (and every plant's constants) in
-``.bench-cache/`` next to the report folder as soon as it finishes; a re-run takes what it
-finds there instead of recomputing it, and ``--no-cache`` neither reads nor writes it.
-Delete the folder to reclaim the space.
+``python -m bench run`` stores every finished pair and every plant's constants in ``.bench-cache/``
+beside the report folder; a re-run reuses them (``--no-cache``: neither read nor written).
 
-Keys
-----
-An entry is found under the SHA-256 of a JSON document of what its result depends on; a change
-to any part is a miss:
+An entry's key is the SHA-256 of a JSON document of what its result depends on:
+``kind`` (``"pair"`` or ``"constants"``), ``format`` (:data:`CACHE_FORMAT`), ``versions`` (Python and
+packages), ``code`` (the SHA-256 of every source file of bench/, designs/, plants/, of the registered
+plugin files, of the other non-installed files defining what the pair refers to, and of the loaded
+modules beside them), ``plant`` (its ``id``, every field in ``plant``, and a ``probe``: the SHA-256
+of f and its Jacobian at :data:`PROBE_POINTS` seeded states, x0 and x_hat0), ``design`` (``id`` and
+every hyperparameter in ``design``), ``options`` (pairs: the run options but the wall-clock limits)
+or ``seed`` and ``n_samples`` (constants).
 
-- ``kind``: ``"pair"`` or ``"constants"``; ``format``: :data:`CACHE_FORMAT`;
-- ``versions``: the versions of Python and of the packages (:func:`bench.report.package_versions`);
-- ``code``: the SHA-256 of every source file of the project (``*.py`` under ``bench/``,
-  ``designs/``, ``plants/``); of every plugin file whose plants or designs are registered (in
-  every key of the run: a plugin may change what any pair computes); of every other file outside
-  the project and the installed packages that registered the pair's plant or design or defines
-  a type or a function they refer to; and of every loaded module whose file lies in the folder
-  of one of those files (what a plugin imports from beside it: ``import mylib``);
-- ``plant``: ``id``, every field of the :class:`plants.Plant` (``plant``: arrays by exact bytes,
-  floats by ``repr``, functions by module and name, recursively) and a ``probe``: the SHA-256 of
-  f evaluated at :data:`PROBE_POINTS` seeded states plus x0 and x_hat0 (one batch, point by point
-  if the batch raises; inside the constants' radius when they hold only on a ball) and of the
-  Jacobian at each of them, so that a change hidden in a closure is seen;
-- ``design``: ``id`` and every hyperparameter (``design``: the design object's fields, recursively);
-- ``options`` (pairs): every field of the :class:`bench.pipeline.RunOptions` and of its
-  simulation settings but the wall-clock limits and ``fail_fast`` (``timeout``, ``max_wall_s``);
-  ``seed`` and ``n_samples`` (constants).
-
-Entries
--------
-``pairs/<key>.npz`` (a :class:`bench.pipeline.PairOutcome` without its plant) and
-``constants/<key>.npz`` (a :class:`bench.constants.ConstantsReport`): one JSON document of the
-object's dataclass fields (arrays by name) plus the numpy arrays, read with
-``allow_pickle=False``, and the SHA-256 of both. Each file is written to a temporary name and
-moved into place with ``os.replace``, so an interrupted write leaves no partial entry. Rows
-with status ``error`` or ``timeout`` are not stored (they may be transient).
-
-A cache problem never fails a run. An entry that does not read back as what it should hold
-(a checksum that does not match, a type or a record column of the wrong kind) is a miss, noted
-in :attr:`Cache.errors` with the file's path, and is replaced by the recomputed result; so is a
-key that cannot be computed or a folder that cannot be written.
+Entries are ``pairs/<key>.npz`` and ``constants/<key>.npz``: the object's dataclass fields as JSON,
+its arrays, and a SHA-256 of both, read with ``allow_pickle=False`` and written atomically. Rows with
+status ``error`` or ``timeout`` are not stored. A cache problem never fails a run: a damaged entry
+or an unwritable folder is a miss, noted in :attr:`Cache.errors`.
 """
 
 from __future__ import annotations
@@ -50,18 +25,17 @@ import functools
 import hashlib
 import importlib
 import json
-import math
 import os
 import sys
 import sysconfig
-import tempfile
 import warnings
 from pathlib import Path
-from typing import IO, Any, Callable
+from typing import Any, Callable
 
 import numpy as np
 
 from bench.lmi import digest
+from bench.outdir import atomic_write as _atomic_write, sha_file as _sha_file
 
 __all__ = ["Cache"]
 
@@ -89,14 +63,6 @@ def default_cache_dir(out_dir: str | os.PathLike) -> Path:
 
 def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
-
-
-def _sha_file(path: str) -> str:
-    """SHA-256 of a file's bytes ("unreadable" when it cannot be read)."""
-    try:
-        return _sha(Path(path).read_bytes())
-    except OSError:
-        return "unreadable"
 
 
 @functools.lru_cache(maxsize=None)
@@ -143,7 +109,6 @@ def _canon(v: Any, modules: set[str]) -> Any:
     return {"__repr__": repr(v)}
 
 
-# -- entries: dataclasses as JSON plus arrays, with a checksum ------------------------------------
 def _encode(v: Any, arrays: dict[str, np.ndarray]) -> Any:
     """JSON for ``v``: dataclasses by type and init fields, arrays by name in ``arrays``; TypeError
     for anything else than None, bool, int, float, str, list, tuple and string-keyed dict."""
@@ -197,22 +162,6 @@ def _checksum(meta: str, arrays: dict[str, np.ndarray]) -> str:
     return h.hexdigest()
 
 
-def _atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
-    """Write a file whole or not at all: ``write(fh)`` into a temporary file, then rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=path.suffix, dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-        os.replace(tmp, path)
-    except BaseException:  # KeyboardInterrupt included: leave no temporary file behind
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
 def _check_record(rec: Any) -> None:
     """ValueError unless ``rec`` has the columns of a record, each of the kind its blank value has
     (text for text, a flag or None for flags, a real number or None for numbers)."""
@@ -239,14 +188,10 @@ class Cache:
 
     Attributes
     ----------
-    hits, misses : int
-        Pairs found / not found by :meth:`load_pair` (constants: ``constants_hits`` /
-        ``constants_misses``).
-    stored : int
-        Entries written.
+    hits, misses, constants_hits, constants_misses, stored : int
+        Pairs and constants found and not found, entries written.
     errors : list of str
-        Problems met (a key that could not be computed, an unwritable folder, a damaged entry,
-        named by its path); a cache problem never fails a run, it only costs a recomputation.
+        Problems met (a key not computed, an unwritable folder, a damaged entry by its path).
     """
 
     def __init__(self, root: str | os.PathLike):
@@ -258,10 +203,8 @@ class Cache:
         self._versions: dict[str, str] | None = None
         self._writable = True
 
-    # -- keys ---------------------------------------------------------------------------------------
     def _code(self, modules: set[str]) -> dict[str, str]:
-        """Digests of the project's sources, of the registered plugins' files and of the files defining
-        ``modules`` outside the project, and of the loaded modules beside them (see the module docstring)."""
+        """The ``code`` part of a key (module docstring)."""
         if self._project is None:
             self._project = {}
             for pkg in _PROJECT:
@@ -353,7 +296,6 @@ class Cache:
         return self._build_key(f"the constants of {plant_id}", "constants", plant, plant_id, seed=options.seed,
                                n_samples=options.n_samples)
 
-    # -- entries ------------------------------------------------------------------------------------
     def _store(self, folder: str, key: str | None, obj) -> bool:
         """Write ``obj`` as the entry ``folder/<key>.npz``; False (noted) when it cannot be stored."""
         if not key or not self._writable:
@@ -376,8 +318,7 @@ class Cache:
         return True
 
     def _load(self, folder: str, key: str | None, expected: type, check: Callable[[Any], None] | None = None):
-        """The object of the entry ``folder/<key>.npz``, or None: no key, no entry, or an entry that does not
-        read back as an ``expected`` (noted with its path: a damaged entry is a miss)."""
+        """The object of the entry ``folder/<key>.npz``, or None (a damaged entry noted by its path)."""
         if not key:
             return None
         path = self.root / folder / f"{key}.npz"

@@ -6,14 +6,11 @@ For difference pairs ``dx = x1 - x2``, ``df = f(x1) - f(x2)`` the sampled quanti
 - one-sided Lipschitz: ``rho >= <df, dx> / ||dx||^2``;
 - quadratic inner-boundedness for a given gamma: ``beta >= (||df||^2 - gamma <dx, df>) / ||dx||^2``.
 
-Each supremum is estimated from seeded random pairs (points at several scales, differences
-from 1e-4 to 10 times the point scale; inside the ball ``||x|| <= radius`` when the constants
-are local, else out to :func:`sampled_range`: 31.6, or 10 times the initial state) followed by a local optimisation (L-BFGS-B) from the best pairs. A sampled value is
-a *lower bound* on the true constant: it can prove a claimed constant wrong, never right.
-Claimed constants are checked on the region they are claimed for (``claimed.radius``; None =
-everywhere), with pairs of their own when that region differs from the analytic one. After a
-simulation, :func:`check_trajectory` checks the trusted declarations along it (and samples a
-global one out to 10 times the largest state it reached).
+Each supremum is estimated from seeded random pairs (inside ``||x|| <= radius`` for local
+constants, else out to :func:`sampled_range`), refined by L-BFGS-B from the best pairs. A sampled
+value is a *lower bound*: it can prove a stated constant wrong, never right. Claimed constants are
+checked on the region they are claimed for; :func:`check_trajectory` checks the trusted
+declarations along a simulation.
 """
 
 from __future__ import annotations
@@ -30,21 +27,18 @@ __all__ = ["ConstantsReport", "Knowledge", "check_trajectory", "compute_constant
 
 _REL_TOL = 1e-7  # a constant is flagged when a sample exceeds it by more than this (relative)
 
-#: Globally sampled constants with no analytic value: an estimate at ``||x|| ~ 30`` more than this
-#: many times the estimate at ``||x|| <= 1`` is taken as growing without bound (f is not globally
-#: Lipschitz / OSL / QIB with any constant): the constant is not provided.
+#: A global estimate at ``||x|| >= 10`` more than this many times the one at ``||x|| <= 1`` is taken
+#: as unbounded (the constant is not provided).
 GROWTH_FACTOR = 4.0
 
-#: A global declaration (constants, channel slopes) is sampled out to ``||x|| <= GLOBAL_RANGE``, and at
-#: least ``REACH_FACTOR`` times the largest initial state; after a simulation, out to at least
-#: ``REACH_FACTOR`` times the largest state it reached (:func:`check_trajectory`).
+#: Global declarations are sampled out to ``||x|| <= GLOBAL_RANGE`` and ``REACH_FACTOR`` times the
+#: largest initial state (after a simulation, the largest state reached).
 GLOBAL_RANGE = 10.0 ** 1.5
 REACH_FACTOR = 10.0
 
 
 def sampled_range(plant: Plant) -> float:
-    """How far (``||x||``) the samplers check a global declaration before any simulation:
-    :data:`GLOBAL_RANGE`, or :data:`REACH_FACTOR` times the larger of ``||x0||``, ``||x_hat0||``."""
+    """How far (``||x||``) the samplers check a global declaration before any simulation."""
     return max(GLOBAL_RANGE, REACH_FACTOR * float(max(np.linalg.norm(plant.x0), np.linalg.norm(plant.x_hat0))))
 
 
@@ -60,29 +54,24 @@ class Violation:
 
     def describe(self, what: str = "claimed") -> str:
         """One line for reports, e.g. ``"claimed rho = 0.1109 is violated: the pair ... gives 0.1665"``."""
-        fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
-        return (
-            f"{what} {self.name} = {self.claimed:.4g} is violated: the pair x1 = {fmt(self.x1)}, "
-            f"x2 = {fmt(self.x2)} gives {self.sampled:.4g}"
-        )
+        return (f"{what} {self.name} = {self.claimed:.4g} is violated: the pair x1 = {_fmt(self.x1)}, "
+                f"x2 = {_fmt(self.x2)} gives {self.sampled:.4g}")
+
+
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{a:.4g}" for a in v) + ")"
+
+
+def _exceeds(value: float, stated: float) -> bool:
+    """Whether a sampled ``value`` exceeds a ``stated`` constant beyond the relative tolerance."""
+    return value > stated + _REL_TOL * max(1.0, abs(stated))
 
 
 @dataclass(frozen=True)
 class Knowledge:
-    """What is trusted about f: the constants and channels a certificate may use.
-
-    Attributes
-    ----------
-    constants : Constants
-        Trusted scalar constants (analytic, not disproved); unknown or untrusted ones are None.
-    channels : Channels or None
-        Trusted channel structure, or None.
-    notes : tuple of str
-        Why something known was not trusted (for the certificate levels' reasons).
-    untrusted : dict
-        Declaration (``"alpha"``, ``"rho"``, ``"beta"``, ``"gamma"``, ``"channels"``) -> why a
-        certificate must not use it (a sample disproved it, or it was only sampled).
-    """
+    """What is trusted about f, the ``constants`` (analytic, not disproved; others None) and ``channels``
+    a certificate may use, with ``notes`` on what was not trusted and ``untrusted``: declaration
+    (``"alpha"``, ..., ``"channels"``) -> why a certificate must not use it."""
 
     constants: Constants = field(default_factory=Constants)
     channels: Channels | None = None
@@ -103,8 +92,7 @@ class Knowledge:
 
     @staticmethod
     def trusting(plant: Plant) -> "Knowledge":
-        """The plant's own declarations, trusted as they are (tests and scripts; the pipeline uses
-        :attr:`ConstantsReport.knowledge`, which checks them by sampling first)."""
+        """The plant's own declarations, trusted unchecked (the pipeline uses :meth:`ConstantsReport.knowledge`)."""
         return Knowledge(plant.bounds or Constants(), plant.channels)
 
 
@@ -121,12 +109,11 @@ class ConstantsReport:
     sampled : Constants
         Sampled lower bounds (beta at ``gamma = used.gamma``).
     used : Constants
-        What designs use by default: analytic where available and not disproved, else the
-        sampled value (a lower bound, not a valid bound: designs using it carry no guarantee); a
-        constant whose estimate grows without bound is None.
+        What designs use: analytic unless disproved, else sampled (no guarantee), None where
+        unbounded.
     source : dict
-        For each of alpha, rho, beta: ``"analytic"``, ``"sampled"``, ``"sampled (analytic
-        disproved)"`` or ``"unbounded"``.
+        alpha, rho, beta -> ``"analytic"``, ``"sampled"``, ``"sampled (analytic disproved)"`` or
+        ``"unbounded"``.
     violations : list of Violation
         Claimed constants a sample violates.
     disproved : list of Violation
@@ -140,8 +127,7 @@ class ConstantsReport:
     seed, n_samples : int
         Sampler settings, for reproducibility.
     checked_on : float, optional
-        The ``||x||`` out to which global declarations were sampled (None: everything holds on
-        a region, ``used.radius``, which was sampled whole).
+        How far global declarations were sampled (None: on the region ``used.radius``, whole).
     """
 
     claimed: Constants
@@ -189,7 +175,7 @@ class ConstantsReport:
         def viol(vs):
             return [Violation(v["name"], v["claimed"], v["sampled"], tuple(v["x1"]), tuple(v["x2"])) for v in vs]
 
-        doc = {"used": doc.get("valid"), **doc}  # "valid": the field's former name
+        doc = {"used": doc.get("valid"), **doc}  # "valid": the field's former name in run.json
         cs = {k: None if doc[k] is None else Constants(**doc[k]) for k in ("claimed", "analytic", "sampled", "used")}
         return cls(**cs, source=doc["source"], violations=viol(doc["violations"]), disproved=viol(doc["disproved"]),
                    channel_violations=viol(doc["channel_violations"]), unbounded=doc["unbounded"],
@@ -244,8 +230,7 @@ class ConstantsReport:
 
 
 def _values(f: Callable, X: np.ndarray) -> np.ndarray:
-    """``f(X)`` for a batch, as real numbers; a complex or non-finite value raises :class:`PlantError`
-    naming the state (the sampler never skips a broken value silently)."""
+    """``f(X)`` for a batch as real numbers; PlantError naming the state at a complex or non-finite value."""
     import warnings
 
     raw = np.asarray(f(X.copy()))
@@ -322,8 +307,7 @@ def _local_max(f, which: int, gamma: float, x1, x2, radius, n):
         return -val if np.isfinite(val) else 0.0
 
     z0 = np.concatenate([x1, x2 - x1])
-    # globally, keep the search in a (generous) box: an unbounded ratio (e.g. the Lipschitz
-    # ratio of a cubic f) would otherwise run to overflow; the claim is violated long before
+    # globally a box keeps an unbounded ratio (a cubic f's) from running to overflow
     box = None if radius is not None else [(-b, b) for b in [1e3 * max(1.0, float(np.abs(z0).max()))] * (2 * n)]
     try:
         res = minimize(neg, z0, method="L-BFGS-B", bounds=box, options={"maxiter": 200})
@@ -375,59 +359,59 @@ def _unbounded(f, x1, x2, gamma, sampled: dict) -> dict[str, str]:
 
 def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000,
                    far: float = GLOBAL_RANGE) -> list[Violation]:
-    """Sampled slopes of each declared channel against its bounds: inside the channels' region, or
-    (global) for ``|z_i| <= ||H_i|| far``."""
+    """Sampled slopes of each channel against its bounds (on its region, or ``|z_i| <= ||H_i|| far``)."""
     ch = plant.channels
     if ch is None:
         return []
     out = []
     for i in range(ch.q):
-        h = float(np.linalg.norm(ch.H[i]))
-        zmax = ch.radius * h if ch.radius is not None else max(far * h, far)
+        zmax = _zmax(ch, i, far)
         a = rng.uniform(-zmax, zmax, n_pairs)
         b = a + rng.normal(0, 1, n_pairs) * np.maximum(0.05 * zmax, 1e-3) * 10.0 ** rng.uniform(-4, 0, n_pairs)
-        b = np.clip(b, -zmax, zmax)
-        Z = np.zeros((ch.q, 2 * n_pairs))
-        Z[i, :n_pairs], Z[i, n_pairs:] = a, b
-        with np.errstate(invalid="ignore", divide="ignore"):
-            phi = np.asarray(ch.phi(Z), dtype=float)[i]
-        out += _slope_violations(ch, i, phi[:n_pairs], phi[n_pairs:], Z[:, :n_pairs], Z[:, n_pairs:])
+        out += _pair_violations(ch, i, a, np.clip(b, -zmax, zmax))
     return out + _narrowing_check(ch, rng, n_pairs, far)
 
 
-#: How a violated narrowing of the channels' slopes (``Channels.narrow``) is named: such a
-#: violation takes the narrowing, not the channels' global slope bounds, out of what certificates use.
+def _zmax(ch: Channels, i: int, far: float) -> float:
+    """The range of channel ``i``'s input: on its region, or out to ``||H_i|| far`` (at least ``far``)."""
+    h = float(np.linalg.norm(ch.H[i]))
+    return ch.radius * h if ch.radius is not None else max(far * h, far)
+
+
+def _pair_violations(ch: Channels, i: int, a: np.ndarray, b: np.ndarray) -> list[Violation]:
+    """Channel ``i``'s slope violations over the input pairs ``(a_j, b_j)``, the other channels at 0."""
+    Z = np.zeros((ch.q, 2 * a.size))
+    Z[i, :a.size], Z[i, a.size:] = a, b
+    with np.errstate(invalid="ignore", divide="ignore"):
+        phi = np.asarray(ch.phi(Z), dtype=float)[i]
+    return _slope_violations(ch, i, phi[:a.size], phi[a.size:], Z[:, :a.size], Z[:, a.size:])
+
+
+#: Marks a violated narrowing (``Channels.narrow``): certificates then drop the narrowing only.
 NARROWED = "narrowed"
 
 
 def _narrowing_check(ch: Channels, rng: np.random.Generator, n_pairs: int, far: float) -> list[Violation]:
-    """Sampled slopes of each channel on ``|z_i| <= r`` against its declared narrowing
-    ``Channels.slopes_on(r)``, for r on a geometric grid from ``1e-2`` to the channel's range
-    (its region's, or ``far`` for global channels: where the certificates from x0 search)."""
+    """Sampled slopes of each channel on ``|z_i| <= r`` against ``Channels.slopes_on(r)``, r on a
+    geometric grid up to the channel's range."""
     if ch.narrow is None:
         return []
     out = []
     for i in range(ch.q):
-        h = float(np.linalg.norm(ch.H[i]))
-        zmax = ch.radius * h if ch.radius is not None else max(far * h, far)
+        zmax = _zmax(ch, i, far)
         for r in np.geomspace(min(1e-2, zmax), zmax, 9):
             lo, hi = ch.slopes_on(float(r))
-            narrowed = replace(ch, lo=lo, hi=hi, narrow=None)
             a = rng.uniform(-r, r, n_pairs // 4)
             b = np.clip(a + rng.normal(0, 1, a.size) * r * 10.0 ** rng.uniform(-4, 0, a.size), -r, r)
-            Z = np.zeros((ch.q, 2 * a.size))
-            Z[i, :a.size], Z[i, a.size:] = a, b
-            with np.errstate(invalid="ignore", divide="ignore"):
-                phi = np.asarray(ch.phi(Z), dtype=float)[i]
             out += [replace(v, name=f"{v.name} {NARROWED} on |z| <= {r:.3g}")
-                    for v in _slope_violations(narrowed, i, phi[:a.size], phi[a.size:], Z[:, :a.size], Z[:, a.size:])]
+                    for v in _pair_violations(replace(ch, lo=lo, hi=hi, narrow=None), i, a, b)]
     return out
 
 
 def _slope_violations(ch: Channels, i: int, p1: np.ndarray, p2: np.ndarray, Z1: np.ndarray,
                       Z2: np.ndarray) -> list[Violation]:
-    """Channel ``i``'s slopes ``(p1 - p2) / (z1_i - z2_i)`` over pairs of channel inputs ``Z1``, ``Z2``
-    (q, N) against its bounds: one :class:`Violation` per bound, with the worst pair."""
+    """Channel ``i``'s slopes over the pairs of inputs ``Z1``, ``Z2`` (q, N) against its bounds: a
+    :class:`Violation` per bound broken, with the worst pair."""
     a, b = Z1[i], Z2[i]
     dz = a - b
     with np.errstate(invalid="ignore", divide="ignore"):  # pairs closer than round-off can resolve say nothing
@@ -452,13 +436,10 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
                      checked_on: float | None = None, seed: int = 0, max_points: int = 2000) -> tuple[dict, str]:
     """Check the declarations a certificate uses where a simulation went.
 
-    Along the trajectory (states ``X``, estimates ``XH``, each (n, T); at most ``max_points``
-    instants): the declared Jacobian against finite differences of f (8 states); the channel identity ``f(x) = G phi(H x)`` at ``x`` and ``x_hat``; each channel's
-    slope bounds between ``H x`` and ``H x_hat`` and between ``H x`` and 0; the trusted scalar
-    constants (Lipschitz, OSL, QIB at the trusted gamma) over the pairs ``(x, x_hat)`` and ``(x, 0)``:
-    the very pairs the certificate's inequalities use (inside the declaration's region). A global
-    declaration sampled only out to ``checked_on`` is sampled again out to :data:`REACH_FACTOR`
-    times the largest state reached, when that is farther.
+    Along the trajectory: the declared Jacobian (finite differences at 8 states), the channels'
+    identity and slope bounds, and the trusted scalar constants, over the pairs ``(x, x_hat)`` and
+    ``(x, 0)`` the certificate's inequalities use. A global declaration sampled only out to
+    ``checked_on`` is sampled again out to :data:`REACH_FACTOR` times the largest state reached.
 
     Parameters
     ----------
@@ -480,7 +461,7 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
     Raises
     ------
     PlantError
-        A declared Jacobian that is not the derivative of f at a simulated state (the entry named).
+        A declared Jacobian that is not f's derivative at a simulated state.
     """
     X, XH = _finite_instants(plant.n, X, XH, max_points)
     reach = float(max(np.linalg.norm(X, axis=0).max(initial=0.0), np.linalg.norm(XH, axis=0).max(initial=0.0)))
@@ -510,8 +491,7 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
 
 def _sampled_far(plant: Plant, channels: bool, scalars: dict[str, float], gamma: float | None, far: float,
                  seed: int) -> dict[str, str]:
-    """Global declarations sampled again out to ``||x|| <= far``: the channels (when ``channels``) and the
-    stated scalar constants; declaration -> why, for those disproved."""
+    """The global declarations sampled again out to ``||x|| <= far``: declaration -> why, for those disproved."""
     bad = {}
     rng = np.random.default_rng([seed, 3])
     if channels:
@@ -546,10 +526,8 @@ def _finite_instants(n: int, X, XH, max_points: int) -> tuple[np.ndarray, np.nda
 
 
 def _channels_along(plant: Plant, ch, X: np.ndarray, XH: np.ndarray) -> dict[str, str]:
-    """The declared channels checked along a trajectory: the identity ``f(x) = G phi(H x)`` at the states
-    and estimates, then each channel's slope bounds between ``H x`` and ``H x_hat`` and between ``H x`` and 0.
-    ``{"channels": why}`` when disproved, else empty."""
-    fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
+    """The channels along a trajectory: ``f = G phi(H x)`` at the states and estimates, then the slopes
+    between ``H x`` and ``H x_hat`` and 0; ``{"channels": why}`` when disproved."""
     P = np.concatenate([X, XH], axis=1)
     P = P[:, _inside(P, ch.radius)]
     if P.shape[1]:
@@ -560,7 +538,7 @@ def _channels_along(plant: Plant, ch, X: np.ndarray, XH: np.ndarray) -> dict[str
         if worst.max() > 1e-9:
             j = int(np.argmax(worst))
             return {"channels": f"the declared channels: G phi(H x) differs from f by {err[:, j].max():.3g} at the "
-                                f"simulated state x = {fmt(P[:, j])}"}
+                                f"simulated state x = {_fmt(P[:, j])}"}
     for X2 in (XH, np.zeros_like(X)):
         inside = _inside(X, ch.radius) & _inside(X2, ch.radius)
         Z1, Z2 = ch.H @ X[:, inside], ch.H @ X2[:, inside]
@@ -574,8 +552,7 @@ def _channels_along(plant: Plant, ch, X: np.ndarray, XH: np.ndarray) -> dict[str
 
 def _scalar_violations(f: Callable, a: np.ndarray, b: np.ndarray, gamma: float | None,
                        stated: dict[str, float]) -> dict[str, Violation]:
-    """The stated scalar constants (``alpha``, ``rho``, ``beta`` at ``gamma``) that the pairs ``(a_j, b_j)``
-    exceed beyond the relative tolerance, each with its worst pair."""
+    """The stated constants the pairs ``(a_j, b_j)`` exceed, each with its worst pair."""
     if not a.shape[1]:
         return {}
     with np.errstate(all="ignore"):
@@ -584,13 +561,12 @@ def _scalar_violations(f: Callable, a: np.ndarray, b: np.ndarray, gamma: float |
     for k, value in stated.items():
         r = np.where(np.isfinite(ratios[k]), ratios[k], -np.inf)
         j = int(np.argmax(r))
-        if r[j] > value + _REL_TOL * max(1.0, abs(value)):
+        if _exceeds(r[j], value):
             out[k] = Violation(k, value, float(r[j]), tuple(a[:, j]), tuple(b[:, j]))
     return out
 
 
-#: Pairs of states (or channel inputs) closer than this, relative to their size, are not used along a
-#: simulation: round-off in ``f(x1) - f(x2)`` (about 1e-16 ||f||) would swamp the difference quotient.
+#: Pairs closer than this (relative) are not used: round-off would swamp the difference quotient.
 _MIN_STEP = 1e-6
 
 
@@ -602,20 +578,7 @@ def _inside(X: np.ndarray, radius: float | None) -> np.ndarray:
 
 
 def linear_prechecks(plant: Plant) -> list[str]:
-    """Problems of the linear part that no observer-based controller can overcome.
-
-    ``(A, B)`` must be stabilizable and ``(A, C)`` detectable (PBH test on the eigenvalues with
-    ``Re >= 0``); the messages name the eigenvalue.
-
-    Parameters
-    ----------
-    plant : Plant
-
-    Returns
-    -------
-    list of str
-        Empty when both hold.
-    """
+    """Why (A, B) is not stabilizable or (A, C) not detectable (PBH test, naming the eigenvalue); empty if both hold."""
     A, B, C = plant.A, plant.B, plant.C
     n = plant.n
     scale = max(1.0, float(np.linalg.norm(A, 2)))
@@ -646,12 +609,9 @@ def compute_constants(
     Parameters
     ----------
     plant : Plant
-        The plant; ``plant.bounds`` supplies analytic constants if known, and
-        ``plant.bounds.radius`` (or, without it, ``plant.claimed.radius``) the region where the
-        sampled and used constants hold. Claimed constants are checked on the claimed region
-        ``plant.claimed.radius`` (None = everywhere), sampled separately when it differs.
+        ``plant.bounds`` gives the analytic constants and, with ``plant.claimed``, the region.
     seed : int
-        Seed of the sampler (results are reproducible for a given seed).
+        Seed of the sampler.
     n_samples : int
         Number of random pairs.
     n_refine : int
@@ -664,7 +624,7 @@ def compute_constants(
     Raises
     ------
     PlantError
-        If f returns a complex or non-finite value at a sampled state (the message names it).
+        If f is complex or not finite at a sampled state.
     """
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
@@ -693,20 +653,19 @@ def compute_constants(
 
 
 def _disproved(analytic: Constants | None, best: dict) -> list[Violation]:
-    """The analytic constants a sampled pair exceeds (beyond the relative tolerance), with the pair."""
+    """The analytic constants a sampled pair exceeds, with the pair."""
     disproved = []
     for name in ("alpha", "rho", "beta"):
         av = getattr(analytic, name) if analytic is not None else None
         val, a, b = best[name]
-        if av is not None and val > av + _REL_TOL * max(1.0, abs(av)):
+        if av is not None and _exceeds(val, av):
             disproved.append(Violation(name, av, val, tuple(a), tuple(b)))
     return disproved
 
 
 def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded: dict, gamma: float,
              radius) -> tuple[Constants, dict]:
-    """The constants certificates use and where each comes from: the analytic one unless a sample disproved
-    it, else the sampled one (None where the sampler found the constant unbounded)."""
+    """The used constants and their sources (:attr:`ConstantsReport.used`)."""
     valid_kw, source = {}, {}
     for name in ("alpha", "rho", "beta"):
         av = getattr(analytic, name) if analytic is not None else None
@@ -737,10 +696,9 @@ def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_r
         cval = getattr(claimed, name)
         if cval is not None:
             val, a, b = best[name]
-            if val > cval + _REL_TOL * max(1.0, abs(cval)):
+            if _exceeds(val, cval):
                 violations.append(Violation(name, cval, val, tuple(a), tuple(b)))
-    if claimed.beta is not None:
-        # the claimed pair is checked at the claimed gamma
+    if claimed.beta is not None:  # checked at the claimed gamma
         if claimed.gamma == gamma:
             val, a, b = best["beta"]
         else:
@@ -748,29 +706,16 @@ def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_r
             r = np.where(np.isfinite(r), r, -np.inf)
             k = int(np.argmax(r))
             a, b, val = _local_max(plant.f, 2, claimed.gamma, x1[:, k], x2[:, k], c_radius, n)
-        if val > claimed.beta + _REL_TOL * max(1.0, abs(claimed.beta)):
+        if _exceeds(val, claimed.beta):
             violations.append(Violation("beta", claimed.beta, val, tuple(a), tuple(b)))
     return violations
 
 
 def resolve_constants(report: ConstantsReport, *, use_claimed: bool = False) -> Constants:
-    """The constants a design should use: ``report.used``, or the claimed ones on request.
-
-    With ``use_claimed=True`` a claimed constant replaces the used one where the source gives
-    it (missing claimed constants fall back to the used ones).
-    """
+    """The constants a design uses: ``report.used``, or with ``use_claimed`` the claimed ones where given."""
     if not use_claimed:
         return report.used
     c, v = report.claimed, report.used
-    pick = lambda a, b: a if a is not None else b  # noqa: E731
-    if c.beta is not None:
-        beta, gamma = c.beta, c.gamma
-    else:
-        beta, gamma = v.beta, v.gamma
-    return Constants(
-        alpha=pick(c.alpha, v.alpha),
-        rho=pick(c.rho, v.rho),
-        beta=beta,
-        gamma=gamma,
-        radius=pick(c.radius, v.radius),
-    )
+    pick = lambda k: getattr(c, k) if getattr(c, k) is not None else getattr(v, k)  # noqa: E731
+    qib = c if c.beta is not None else v
+    return Constants(alpha=pick("alpha"), rho=pick("rho"), beta=qib.beta, gamma=qib.gamma, radius=pick("radius"))

@@ -1,9 +1,5 @@
-"""Run-time estimators that are not a fixed gain: the continuous-discrete EKF (filterpy).
-
-This is the simulator's side of :mod:`designs.ekf`: the design fixes the specification
-(:class:`designs.ekf.EKFSpec`), :func:`runtime_estimator` builds the filter, and
-:func:`bench.simulate.simulate_controller` runs it in sampled time.
-"""
+"""Run-time estimators that are not a fixed gain: the continuous-discrete EKF (filterpy), built from
+a :class:`designs.ekf.EKFSpec` and run by :func:`bench.simulate.simulate_controller`."""
 
 from __future__ import annotations
 
@@ -16,29 +12,8 @@ __all__ = ["ContinuousDiscreteEKF"]
 
 
 def runtime_estimator(spec, plant: Plant, x_hat0: np.ndarray, *, t_final: float, options=None):
-    """Build the run-time estimator a design specified (the simulator calls this).
-
-    Parameters
-    ----------
-    spec : object
-        The design's estimator specification (:class:`designs.ekf.EKFSpec`).
-    plant : Plant
-    x_hat0 : ndarray (n,)
-    t_final : float
-        The horizon (the sample time must divide it).
-    options : bench.simulate.SimOptions, optional
-        Integration tolerances of the filter's prediction.
-
-    Returns
-    -------
-    object
-        With ``dt``, ``x``, ``update(y)`` and ``predict(u)``.
-
-    Raises
-    ------
-    TypeError
-        For a specification no run-time estimator is known for.
-    """
+    """The run-time estimator (``dt``, ``x``, ``update(y)``, ``predict(u)``) a design specified (an
+    :class:`designs.ekf.EKFSpec`), its prediction integrated with ``options``' tolerances."""
     if isinstance(spec, EKFSpec):
         spec.check_horizon(t_final)
         kw = {} if options is None else {"rtol": options.rtol, "atol": options.atol}
@@ -56,12 +31,8 @@ def numeric_jacobian(f, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
 
 
 class ContinuousDiscreteEKF:
-    """A continuous-discrete EKF built on filterpy's ``ExtendedKalmanFilter``.
-
-    filterpy's ``predict_x`` is linear (``F x + B u``) by default: it is overridden with the
-    integration of the nonlinear model over one sample, and ``F`` is set to the discretised
-    Jacobian before each ``predict``. ``update`` is called with the measurement of the current
-    sample (``predict_update`` is not used: it evaluates H before predicting).
+    """A continuous-discrete EKF on filterpy's ``ExtendedKalmanFilter``: the prediction integrates the
+    nonlinear model over one sample, the covariance propagates with ``expm((A + Df) dt)``.
 
     Parameters
     ----------
@@ -117,11 +88,9 @@ class ContinuousDiscreteEKF:
         return self._ekf.P.copy()
 
     def _measurement_jacobian(self, x: np.ndarray) -> np.ndarray:
-        """H = C (the measurement is linear)."""
         return self._C
 
     def _measurement(self, x: np.ndarray) -> np.ndarray:
-        """``C x``."""
         return self._C @ x
 
     def update(self, y: np.ndarray) -> None:
@@ -129,8 +98,7 @@ class ContinuousDiscreteEKF:
         self._ekf.update(np.asarray(y, dtype=float).reshape(-1, 1), HJacobian=self._measurement_jacobian,
                          Hx=self._measurement)
 
-    #: The prediction is the plant model's flow from the estimate (u held): a simulator may
-    #: integrate it together with the plant and pass it to :meth:`predict` as ``x_next``.
+    #: A simulator may integrate the prediction with the plant and pass it to :meth:`predict`.
     predicts_with_model = True
 
     def predict(self, u: np.ndarray, x_next: np.ndarray | None = None) -> None:
@@ -141,8 +109,7 @@ class ContinuousDiscreteEKF:
         u : ndarray (m,)
             The input held over the sample.
         x_next : ndarray (n,), optional
-            The estimate's model flow over the sample, already integrated by the caller (with
-            the plant, in one ODE); None integrates it here.
+            The estimate's model flow, integrated by the caller (None: here).
         """
         J = self._A + np.asarray(self._jac(self.x), dtype=float)
         self._ekf.F = self._expm(J * self._dt)

@@ -1,14 +1,6 @@
-"""One executor abstraction for pairs, sweeps and studies.
-
-- ``jobs == 1``: in-process, serial (no pickling; plugins and monkeypatches are visible);
-- ``jobs > 1``: local worker processes (``concurrent.futures.ProcessPoolExecutor``, fork start
-  method, so workers inherit the registries, including plugin plants, and the imported modules);
-  a worker never outlives its parent process (:func:`_worker_init`);
-- ``scheduler="ADDRESS"``: a Dask distributed cluster (``pip install ".[dist]"``), through
-  ``Client.get_executor()``; workers must have the project installed.
-
-Tasks are plain functions of picklable arguments; results are identical whatever the executor
-(only timing columns differ).
+"""One executor abstraction for pairs, sweeps and studies: serial in-process (``jobs == 1``), forked
+local workers that inherit the registries and never outlive their parent (``jobs > 1``), or a Dask
+distributed cluster (``scheduler``). Results are identical whatever the executor.
 """
 
 from __future__ import annotations
@@ -44,14 +36,8 @@ class SerialExecutor(Executor):
 
 
 def _worker_init(parent: int) -> None:
-    """Set up a local worker process.
-
-    It ignores SIGINT: a terminal's Ctrl-C reaches the whole process group, and the parent alone
-    handles it (it terminates the workers), so no worker prints its own traceback. It dies with
-    its parent, even a parent killed by SIGKILL: on Linux the kernel sends it SIGKILL then
-    (``prctl(PR_SET_PDEATHSIG)``); everywhere, a daemon thread exits it within a second of its
-    parent's death (its parent process id changes).
-    """
+    """Set up a local worker: SIGINT ignored (the parent handles Ctrl-C), and death with the parent
+    (``prctl(PR_SET_PDEATHSIG)`` on Linux, and a thread watching the parent's process id)."""
     import ctypes
     import signal
     import threading
@@ -74,8 +60,7 @@ def _worker_init(parent: int) -> None:
 
 
 def warm_imports() -> None:
-    """Import the heavy modules before forking so that workers do not pay for them again
-    (python-control and filterpy cost ~1.5 s per process on first use)."""
+    """Import the heavy modules before forking, so that workers inherit them."""
     import control  # noqa: F401
     import cvxpy  # noqa: F401
     import filterpy.kalman  # noqa: F401

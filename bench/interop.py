@@ -1,21 +1,16 @@
 """python-control at the boundary: plants, observers and closed loops as python-control systems.
 
-The suite's own simulator is :func:`bench.simulate.simulate`; this module hands the same objects
-to python-control (``control.StateSpace`` and ``control.NonlinearIOSystem``) so that its tools
-(``input_output_response``, ``feedback``, ``interconnect``, frequency responses, ...) can be used
-on them. Notation is the paper's: plant (1) ``x' = A x + B u + f(x)``, ``y = C x``; observer-based
-controller (6) ``x_hat' = A x_hat + B u + f(x_hat) + K (y - C x_hat)``, ``u = F x_hat`` with
-``K`` (n x p) and ``F`` (m x n). (python-control's ``lqr`` returns ``K_lqr`` for
-``u = -K_lqr x``, so ``F = -K_lqr``.)
-
-Signal names: plant inputs ``u[i]``, outputs ``y[i]``, states ``x[i]``; controller inputs
-``y[i]``, outputs ``u[i]``, states ``xhat[i]``.
+Plant (1) ``x' = A x + B u + f(x)``, ``y = C x`` and controller (6) ``x_hat' = A x_hat + B u +
+f(x_hat) + K (y - C x_hat)``, ``u = F x_hat`` as ``control.StateSpace`` / ``NonlinearIOSystem``, for
+python-control's tools (python-control's ``lqr`` gain is ``-F``). Signals: plant ``u[i]`` -> ``y[i]``,
+states ``x[i]``; controller ``y[i]`` -> ``u[i]``, states ``xhat[i]``. Every function raises TypeError
+for a ``plant`` that is not a Plant and ValueError (naming it) for a K or F of the wrong shape or
+with non-finite entries.
 """
 
 from __future__ import annotations
 
 import re
-import textwrap
 
 import numpy as np
 
@@ -24,43 +19,13 @@ from plants import Plant
 
 __all__ = ["closed_loop_nlsys", "controller_ss", "observer_nlsys", "plant_nlsys"]
 
-_RAISES_PLANT = """\
-Raises
-------
-TypeError
-    If ``plant`` is not a Plant."""
-
-#: numpydoc text that several docstrings below share, written once: a line ``%(name)s`` of a
-#: docstring decorated with :func:`_doc` is replaced by the entry, indented like that line.
-_DOC_ENTRIES = {
-    "gains": """\
-K : array_like, shape (n, p)
-    Observer gain.
-F : array_like, shape (m, n)
-    State feedback, ``u = F x_hat``.""",
-    # what a bad plant (:func:`_check_plant`), or a bad plant, K or F (:func:`_check_gains`) raises
-    "raises_plant": _RAISES_PLANT,
-    "raises_gains": _RAISES_PLANT + """
-ValueError
-    If K or F has the wrong shape or non-finite entries (the message names which).""",
-}
-
-
-def _doc(func):
-    """Fill the shared entries of :data:`_DOC_ENTRIES` into ``func.__doc__`` (left alone under ``-OO``)."""
-    if func.__doc__:
-        func.__doc__ = re.sub(r"^( *)%\((\w+)\)s$", lambda m: textwrap.indent(_DOC_ENTRIES[m[2]], m[1]),
-                              func.__doc__, flags=re.MULTILINE)
-    return func
-
-
 def _names(prefix: str, count: int) -> list[str]:
     """Signal names ``prefix[0] .. prefix[count-1]``."""
     return [f"{prefix}[{i}]" for i in range(count)]
 
 
 def _sysname(plant: Plant, suffix: str) -> str:
-    """A python-control system name from the plant id (no '.', which python-control reads as 'sys.signal')."""
+    """A python-control system name from the plant id (no '.', read as 'sys.signal')."""
     base = re.sub(r"[^0-9A-Za-z_]", "_", plant.id)
     return f"{base}_{suffix}" if suffix else base
 
@@ -73,44 +38,27 @@ def _check_plant(plant) -> Plant:
 
 
 def _check_gains(plant, K, F) -> tuple[Plant, np.ndarray, np.ndarray]:
-    """The plant (TypeError unless a Plant), K (n x p) and F (m x n) as read-only float arrays
-    (:func:`bench.checks.gains`: ValueError naming the bad one and the expected shape)."""
+    """The plant, K (n x p) and F (m x n) checked (:func:`bench.checks.gains`), the gains read-only."""
     K, F = checks.gains(_check_plant(plant), K, F)
     K.setflags(write=False)
     F.setflags(write=False)
     return plant, K, F
 
 
-@_doc
 def controller_ss(plant: Plant, K, F):
     """The linear part of the observer-based controller (6), from y to u, as a ``control.StateSpace``.
 
-    ``x_hat' = (A + B F - K C) x_hat + K y``, ``u = F x_hat`` (D = 0).
-
-    This is only the linear part: the observer (6) also adds ``f(x_hat)`` to ``x_hat'`` (see
-    :func:`observer_nlsys`). With ``f = 0`` it is the whole controller, and the closed loop with
-    the plant's linear part has the eigenvalues of ``A + B F`` and ``A - K C`` (separation).
+    ``x_hat' = (A + B F - K C) x_hat + K y``, ``u = F x_hat``: (6) without ``f(x_hat)``.
 
     Parameters
     ----------
     plant : Plant
-        Supplies A (n x n), B (n x m), C (p x n).
-    %(gains)s
+    K, F : array_like, shapes (n, p), (m, n)
+        Observer gain and feedback.
 
     Returns
     -------
     control.StateSpace
-        Inputs ``y[0..p-1]``, outputs ``u[0..m-1]``, states ``xhat[0..n-1]``.
-
-    %(raises_gains)s
-
-    Examples
-    --------
-    >>> from bench.registry import PLANTS
-    >>> from plants.flexible_link import PAPER_K, PAPER_F
-    >>> ctrl = controller_ss(PLANTS.create("flexible_link"), PAPER_K, PAPER_F)
-    >>> ctrl.ninputs, ctrl.noutputs, ctrl.nstates
-    (2, 1, 4)
     """
     import control
 
@@ -123,8 +71,8 @@ def controller_ss(plant: Plant, K, F):
 
 def _affine_system(M: np.ndarray, G: np.ndarray, H: np.ndarray, f, *, signals: tuple[str, str, str],
                    state_outputs: bool, name: str):
-    """``s' = M s + G w + f(s)`` with output ``H s`` (followed by ``s`` itself when ``state_outputs``) as a
-    ``control.NonlinearIOSystem``; ``signals`` names the input, output and state signals (prefixes)."""
+    """``s' = M s + G w + f(s)``, output ``H s`` (then ``s`` when ``state_outputs``), as a
+    ``control.NonlinearIOSystem`` with the input, output and state signal prefixes ``signals``."""
     import control
 
     k = G.shape[1]
@@ -134,15 +82,11 @@ def _affine_system(M: np.ndarray, G: np.ndarray, H: np.ndarray, f, *, signals: t
         s = np.asarray(s, dtype=float)
         return M @ s + G @ np.asarray(w, dtype=float).reshape(k) + np.asarray(f(s), dtype=float)
 
-    if state_outputs:
-        def output(t, s, w, params):
-            s = np.asarray(s, dtype=float)
-            return np.concatenate([H @ s, s])
-        outputs = _names(out, H.shape[0]) + _names(st, M.shape[0])
-    else:
-        def output(t, s, w, params):
-            return H @ np.asarray(s, dtype=float)
-        outputs = _names(out, H.shape[0])
+    def output(t, s, w, params):
+        s = np.asarray(s, dtype=float)
+        return np.concatenate([H @ s, s]) if state_outputs else H @ s
+
+    outputs = _names(out, H.shape[0]) + (_names(st, M.shape[0]) if state_outputs else [])
     return control.nlsys(update, output, inputs=_names(inp, k), outputs=outputs, states=_names(st, M.shape[0]),
                          name=name)
 
@@ -154,13 +98,11 @@ def _plant_system(plant: Plant, *, state_outputs: bool, name: str):
 
 
 def _observer_system(plant: Plant, K: np.ndarray, F: np.ndarray, *, state_outputs: bool, name: str):
-    """The observer-based controller (6) with ``u = F x_hat`` substituted: input y, output u (and x_hat),
-    state x_hat."""
-    M = plant.A + plant.B @ F - K @ plant.C  # linear part of x_hat' with u = F x_hat substituted
+    """The controller (6) with ``u = F x_hat`` substituted: input y, output u (and x_hat), state x_hat."""
+    M = plant.A + plant.B @ F - K @ plant.C
     return _affine_system(M, K, F, plant.f, signals=("y", "u", "xhat"), state_outputs=state_outputs, name=name)
 
 
-@_doc
 def plant_nlsys(plant: Plant):
     """The plant (1) ``x' = A x + B u + f(x)``, ``y = C x`` as a ``control.NonlinearIOSystem``.
 
@@ -171,73 +113,44 @@ def plant_nlsys(plant: Plant):
     Returns
     -------
     control.NonlinearIOSystem
-        Continuous time; inputs ``u[0..m-1]``, outputs ``y[0..p-1]``, states ``x[0..n-1]``;
-        named after ``plant.id``.
-
-    %(raises_plant)s
-
-    Examples
-    --------
-    >>> from bench.registry import PLANTS
-    >>> sys = plant_nlsys(PLANTS.create("flexible_link"))
-    >>> sys.ninputs, sys.noutputs, sys.nstates
-    (1, 2, 4)
     """
     plant = _check_plant(plant)
     return _plant_system(plant, state_outputs=False, name=_sysname(plant, ""))
 
 
-@_doc
 def observer_nlsys(plant: Plant, K, F):
     """The nonlinear observer-based controller (6), from y to u, as a ``control.NonlinearIOSystem``.
-
-    ``x_hat' = A x_hat + B F x_hat + f(x_hat) + K (y - C x_hat)``, ``u = F x_hat``.
 
     Parameters
     ----------
     plant : Plant
         Supplies A, B, C and f.
-    %(gains)s
+    K, F : array_like
+        As for :func:`controller_ss`.
 
     Returns
     -------
     control.NonlinearIOSystem
-        Inputs ``y[0..p-1]``, outputs ``u[0..m-1]``, states ``xhat[0..n-1]``.
-
-    %(raises_gains)s
-
-    See Also
-    --------
-    controller_ss : its linear part (without ``f(x_hat)``).
     """
     plant, K, F = _check_gains(plant, K, F)
     return _observer_system(plant, K, F, state_outputs=False, name=_sysname(plant, "observer"))
 
 
-@_doc
 def closed_loop_nlsys(plant: Plant, K, F):
     """Plant (1) in feedback with the observer-based controller (6), as a ``control.NonlinearIOSystem``.
 
-    Built with ``control.interconnect`` from the plant (:func:`plant_nlsys`) and the observer
-    (:func:`observer_nlsys`), each also exporting its state, with ``y`` and ``u`` connected.
-    It is the system :func:`bench.simulate.simulate` integrates::
-
-        x'     = A x + B F x_hat + f(x)
-        x_hat' = A x_hat + B F x_hat + f(x_hat) + K C (x - x_hat)
+    The system :func:`bench.simulate.simulate` integrates, built with ``control.interconnect``.
 
     Parameters
     ----------
     plant : Plant
-    %(gains)s
+    K, F : array_like
+        As for :func:`controller_ss`.
 
     Returns
     -------
-    control.NonlinearIOSystem
-        No inputs; 2n states in the order ``(x[0..n-1], xhat[0..n-1])`` (so
-        ``initial_state=np.concatenate([x0, x_hat0])``); 2n + m outputs in the order
-        ``(x[0..n-1], xhat[0..n-1], u[0..m-1])``.
-
-    %(raises_gains)s
+    control.InterconnectedSystem
+        No inputs; states ``(x, xhat)``; outputs ``(x, xhat, u)``.
 
     Examples
     --------

@@ -1,19 +1,11 @@
 """The LMI toolkit shared by the designs and the certificate: build, compile once, solve, verify.
 
-Conventions (see ``docs/paper.md``):
-
-- every LMI is solved by an explicit solver (Clarabel by default; cvxpy would send SDPs to
-  SCS), and a solve cut short by the runner's time limit raises
-  :class:`bench.limits.DeadlineExceeded`, never a status;
-- strict inequalities are written with a margin, the variable ``slack``: ``M << -slack I``,
-  ``Q >> slack I``, ..., and ``slack`` is maximised under a normalisation;
-- a status is never trusted alone: the numeric LMI matrix is rebuilt at the solution and
-  classified by :func:`classify` with **one** tolerance, :data:`VERIFY_TOL` (relative to the
-  matrix's largest entry): *verified* (max eigenvalue below ``-tol``), *marginal* (within
-  ``tol`` of zero: neither strictly feasible nor proven infeasible) or *violated*;
-- compiled once, solved many times: a program keeps every plant-dependent number as a cvxpy
-  Parameter (:func:`matrices`, :func:`scalar_parameters`) and is fetched from
-  :func:`cached_program`, so repeated calls pay cvxpy's compile once per structure.
+Strict inequalities carry a margin ``slack`` (``M << -slack I``, ``Q >> slack I``), maximised under a
+normalisation. A solver status is never trusted alone: the LMI is rebuilt with numpy at the solution
+and classified by :func:`classify` with one tolerance, :data:`VERIFY_TOL`. Programs keep every
+plant-dependent number as a cvxpy Parameter and are fetched from :func:`cached_program`, so cvxpy
+compiles once per structure. A solve cut short by the time limit raises
+:class:`bench.limits.DeadlineExceeded`, never a status.
 """
 
 from __future__ import annotations
@@ -31,16 +23,14 @@ from bench.limits import DeadlineExceeded, check_deadline, remaining_time
 
 __all__ = ["VERIFY_TOL", "Program", "cached_program", "classify", "conclude", "margin_program"]
 
-#: The one verification tolerance: a numeric LMI matrix M is *verified* negative definite when
-#: its largest eigenvalue is below ``-VERIFY_TOL * max(1, max |M_ij|)``, *marginal* within that
-#: distance of zero. Interior-point solvers return points accurate to ~1e-8 relative; a margin
-#: smaller than this is not evidence either way.
+#: The verification tolerance: M is *verified* negative definite when its largest eigenvalue is
+#: below ``-VERIFY_TOL * max(1, max |M_ij|)``, *marginal* within that distance of zero.
 VERIFY_TOL = 1e-7
 
 
 def sym(M):
     """Symmetric part of a cvxpy expression or array (so ``<<`` sees a symmetric matrix)."""
-    return 0.5 * (M + M.T)  # a product: cvxpy's COO backend rejects "/ 2" of some parameter-affine terms
+    return 0.5 * (M + M.T)  # not "/ 2": cvxpy's COO backend rejects it on some parameter-affine terms
 
 
 def diag(v):
@@ -52,20 +42,19 @@ def diag(v):
     return cp.diag(v)
 
 
+def _sym_eig(M: np.ndarray, k: int) -> float:
+    M = np.asarray(M, dtype=float)
+    return float(np.linalg.eigvalsh((M + M.T) / 2)[k]) if np.all(np.isfinite(M)) else float("nan")
+
+
 def max_eig(M: np.ndarray) -> float:
     """Largest eigenvalue of the symmetric part of ``M`` (NaN if ``M`` is not finite)."""
-    M = np.asarray(M, dtype=float)
-    if not np.all(np.isfinite(M)):
-        return float("nan")
-    return float(np.linalg.eigvalsh((M + M.T) / 2)[-1])
+    return _sym_eig(M, -1)
 
 
 def min_eig(M: np.ndarray) -> float:
     """Smallest eigenvalue of the symmetric part of ``M`` (NaN if ``M`` is not finite)."""
-    M = np.asarray(M, dtype=float)
-    if not np.all(np.isfinite(M)):
-        return float("nan")
-    return float(np.linalg.eigvalsh((M + M.T) / 2)[0])
+    return _sym_eig(M, 0)
 
 
 def verify_tol(M: np.ndarray) -> float:
@@ -75,21 +64,8 @@ def verify_tol(M: np.ndarray) -> float:
 
 
 def classify(margin: float, M: np.ndarray) -> str:
-    """``"verified"``, ``"marginal"`` or ``"violated"`` for the largest eigenvalue ``margin`` of ``M``.
-
-    Parameters
-    ----------
-    margin : float
-        Largest eigenvalue of the (symmetric) numeric matrix, as :func:`max_eig` computes it.
-    M : ndarray
-        The matrix (sets the scale of the tolerance).
-
-    Returns
-    -------
-    str
-        ``"verified"`` when ``margin < -tol``, ``"marginal"`` when ``|margin| <= tol``,
-        ``"violated"`` otherwise (also for a NaN margin), with ``tol = verify_tol(M)``.
-    """
+    """``"verified"`` (``margin < -tol``), ``"marginal"`` (``|margin| <= tol``) or ``"violated"``
+    (otherwise, NaN too) for the largest eigenvalue ``margin`` of ``M``, ``tol = verify_tol(M)``."""
     if not math.isfinite(margin):
         return "violated"
     tol = verify_tol(M)
@@ -106,18 +82,17 @@ def is_positive_definite(X: np.ndarray) -> bool:
 
 @dataclass
 class SolveOutcome:
-    """The outcome of one cvxpy solve."""
+    """The outcome of one cvxpy solve (``solver_s``: the solver's own time, part of ``solve_s``)."""
 
     status: str
     compile_s: float
     solve_s: float
     error: str = ""
     value: float = float("nan")
-    solver_s: float = 0.0  #: the solver's own time (its report), part of ``solve_s``
+    solver_s: float = 0.0
 
     @property
     def solved(self) -> bool:
-        """True when the solver returned an optimal (or optimal-inaccurate) point."""
         return self.status in ("optimal", "optimal_inaccurate")
 
 
@@ -126,12 +101,11 @@ _TIME_LIMIT_OPTION = {"CLARABEL": "time_limit", "SCS": "time_limit_secs"}
 
 
 def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
-    """Solve a cvxpy problem, splitting wall time into compile and solve seconds.
+    """Solve a cvxpy problem cold, splitting wall time into compile and solve seconds.
 
-    Solver failures become a status (``"solver_error"``), never an exception. Inside a
-    :func:`bench.limits.time_limit` scope the solver gets the remaining time as its own limit, and
-    :class:`DeadlineExceeded` is raised when the deadline has passed (before or after the
-    solve): a solve cut short by the limit is never reported as a status.
+    A solver failure is the status ``"solver_error"``. Inside a :func:`bench.limits.time_limit`
+    scope the solver gets the remaining time as its limit, and a solve that ran out of it raises
+    :class:`DeadlineExceeded`.
     """
     import cvxpy as cp
 
@@ -146,16 +120,12 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     try:
         with warnings.catch_warnings():  # the status carries "inaccurate"; no stray warnings
             warnings.simplefilter("ignore", UserWarning)
-            # warm_start=False: a program reused from the cache starts cold, so its answer does not
-            # depend on what the process solved before
             problem.solve(solver=solver, warm_start=False, **{k: v for k, v in opts.items() if k != "warm_start"})
         status = str(problem.status)
         err = ""
     except cp.error.SolverError as exc:
         status, err = "solver_error", str(exc).splitlines()[0] if str(exc) else "solver failed"
     wall = time.perf_counter() - t0
-    # a solver stopped by its own time limit returns a status ("user_limit", or "optimal_inaccurate"
-    # with the point it had): a solve that used (nearly) all the time it was granted is a timeout
     if granted is not None and wall >= 0.9 * granted:
         raise DeadlineExceeded(f"an SDP solve ({solver}, {wall:.3g} s of the {granted:.3g} s left)")
     check_deadline(f"an SDP solve ({solver}, {wall:.3g} s)")
@@ -177,16 +147,8 @@ _tally = {"n": 0, "compile_s": 0.0, "solve_s": 0.0, "solver_s": 0.0}
 
 
 def solve_tally() -> dict:
-    """This process's SDP solves so far (since :func:`reset_solve_tally`), for measuring where time goes.
-
-    Returns
-    -------
-    dict
-        ``n`` solves; ``compile_s`` (cvxpy's compile, first solve of a program), ``solve_s`` (the
-        rest of each solve's wall time) and ``solver_s`` (the solver's own time as it reports
-        it, part of ``solve_s``; ``solve_s - solver_s`` is cvxpy setting parameters in and taking
-        the solution out, and the solver's setup before its own clock starts).
-    """
+    """This process's SDP solves since :func:`reset_solve_tally`: ``n``, ``compile_s``, ``solve_s`` and
+    ``solver_s`` (the solver's own time, part of ``solve_s``)."""
     return dict(_tally)
 
 
@@ -203,13 +165,8 @@ def log_search(
     n_grid: int = 9,
     n_refine: int = 5,
 ) -> tuple[float, float]:
-    """Maximise ``objective`` over ``[lo, hi]`` on a log grid, then golden-section refine.
-
-    Returns
-    -------
-    best_x, best_value : float
-        The best point tried and its value; NaN objective values count as ``-inf``.
-    """
+    """Maximise ``objective`` over ``[lo, hi]`` on a log grid, then golden-section refine; return the
+    best point tried and its value (NaN counts as ``-inf``)."""
     points: list[tuple[float, float]] = []
 
     def ev(x: float) -> float:
@@ -250,14 +207,12 @@ def assemble(blocks_fn: Callable[[dict], list], values: dict, *, numeric: bool):
 
 
 class BestPoint(NamedTuple):
-    """The best solution a :class:`Program` has seen (largest objective value)."""
+    """The best solution a :class:`Program` has seen: objective, variable and parameter values by
+    name, the solver's status."""
 
     value: float
-    #: Variable values by name at that point.
     variables: dict
-    #: Parameter values by name at that point.
     parameters: dict
-    #: The solver's status there.
     status: str
 
 
@@ -268,38 +223,24 @@ class Program:
     Attributes
     ----------
     problem : cvxpy.Problem
-    variables : dict
-        cvxpy variables by name (``slack`` is the margin of the strict inequalities).
-    parameters : dict
-        cvxpy parameters by name; an ndarray given here is moved to ``constants`` (a matrix
-        baked into the problem, see :func:`matrices`), a :class:`Pattern` to ``patterns``.
+    variables, parameters : dict
+        cvxpy variables (``slack`` the margin) and parameters by name; an ndarray among the
+        parameters moves to ``constants`` (baked in), a :class:`Pattern` to ``patterns``.
     blocks : callable
-        ``blocks(values) -> list of lists`` building the LMI matrix from a dict of values.
+        ``blocks(values) -> list of lists``, the LMI matrix from a dict of values.
     positive : tuple of str
-        Names of decision matrices that must be positive definite.
-    compile_s, solve_s : float
-        Seconds of cvxpy's compile (with building the expression tree on the first solve) and of
-        the rest of the solves since :meth:`reset`.
-    n_solves : int
-        Solves since :meth:`reset`.
-    last_status, last_error : str
-        The last solve's status and error message.
+        Decision matrices that must be positive definite.
+    compile_s, solve_s, n_solves
+        cvxpy's compile (with the expression tree's ``build_s``), the other solve seconds, and the
+        solves since :meth:`reset`.
+    last_status, last_error, solver : str
+        The last solve's status, error message and solver.
     best : BestPoint or None
-        The best solution since :meth:`reset` (:meth:`restore_best` puts it back).
-    solver : str
-        The solver of the last solve.
-    build_s : float
-        Seconds spent building the cvxpy expression tree.
+        The best solution since :meth:`reset`.
     reused : bool
-        Whether :func:`cached_program` returned this program from its cache.
-    constants : dict
-        Matrices baked into the problem, by name (for the numeric rebuild).
-    cache_key : tuple or None
-        The program's key in :func:`cached_program`'s cache.
+        Whether :func:`cached_program` returned it from its cache (under ``cache_key``).
     problems : dict
-        One cvxpy problem per solver name (they share variables and parameters).
-    patterns : dict
-        The :class:`Pattern` matrices by name.
+        One cvxpy problem per solver (sharing variables and parameters).
     """
 
     problem: object
@@ -322,12 +263,8 @@ class Program:
     patterns: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
-        # an array among the parameters is a constant of the problem (an all-zero matrix, baked in):
-        # keep it for the numeric rebuild, out of the settable parameters
         arrays = {k: v for k, v in self.parameters.items() if isinstance(v, np.ndarray)}
         self.constants = {**self.constants, **arrays}
-        # a Pattern (a sparse matrix) is set and read as a whole matrix; its Parameter of
-        # nonzeros is an ordinary parameter (cleared, snapshot and restored with the others)
         self.patterns = {k: v for k, v in self.parameters.items() if isinstance(v, Pattern)}
         self.parameters = {k: v for k, v in self.parameters.items() if k not in arrays and k not in self.patterns}
         self.parameters.update({pat.param.name(): pat.param for pat in self.patterns.values()})
@@ -341,12 +278,7 @@ class Program:
                 self.parameters[k].value = v
 
     def _problem_for(self, solver: str):
-        """The cvxpy problem to hand to ``solver``: one per solver, sharing variables and parameters.
-
-        cvxpy keeps one compiled form per problem and drops it when the solver changes, so a
-        side solved by SCS and re-solved by Clarabel (:func:`solve_side`)
-        would otherwise recompile at every switch.
-        """
+        """The problem for ``solver`` (cvxpy drops its compiled form when the solver changes)."""
         import cvxpy as cp
 
         key = solver.upper()
@@ -357,11 +289,7 @@ class Program:
         return prob
 
     def reset(self) -> None:
-        """Forget counters, the best point and every parameter value (before a new design call).
-
-        Parameters are cleared so that a value left over from an earlier call can never be
-        used silently: a parameter the new call does not set makes the solve fail loudly.
-        """
+        """Forget counters, the best point and every parameter value (an unset one fails the solve)."""
         self.compile_s = self.solve_s = 0.0
         self.n_solves = 0
         self.last_status = self.last_error = ""
@@ -376,13 +304,12 @@ class Program:
         try:
             out = solve_timed(self._problem_for(solver), solver, **(solver_opts or {}))
         except BaseException as exc:
-            if not isinstance(exc, Exception) and self.cache_key is not None:
-                # a timeout or an interrupt cut a compile or a solve short: never reuse this problem
+            if not isinstance(exc, Exception) and self.cache_key is not None:  # cut short: never reuse
                 _cache().pop(self.cache_key, None)
             raise
         self.solver = solver
         if not self.reused and self.n_solves == 0:
-            self.compile_s += self.build_s  # building the expression tree is part of the compile
+            self.compile_s += self.build_s
         self.compile_s += out.compile_s
         self.solve_s += out.solve_s
         self.n_solves += 1
@@ -394,10 +321,7 @@ class Program:
         return out.value if out.solved else float("nan")
 
     def restore_best(self) -> bool:
-        """Put the best solution seen so far back into the variables and parameters.
-
-        Returns False (and changes nothing) when no solve succeeded.
-        """
+        """Put the best solution back into the variables and parameters (False: there is none)."""
         if self.best is None:
             return False
         for k, v in self.best.variables.items():
@@ -418,8 +342,7 @@ class Program:
         return vals
 
     def verified(self) -> bool:
-        """True when the last solution is verified: the LMI negative definite and the decision
-        matrices positive definite, by :func:`classify` (one tolerance)."""
+        """True when :func:`classify` verifies the last solution's LMI and decision matrices."""
         if self.last_status not in ("optimal", "optimal_inaccurate"):
             return False
         M = self.numeric_matrix()
@@ -445,14 +368,16 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
     blocks_fn : callable
         Builds the blocks of M from a dict of values (cvxpy or numpy).
     variables, parameters : dict
-        cvxpy variables (must include the scalar ``slack``) and parameters; an array among the
-        parameters is a constant (kept in ``Program.constants`` for the numeric rebuild).
+        As :class:`Program`'s (``slack`` among the variables).
     positive : tuple of str
         Decision matrices constrained ``>> slack I`` and ``<< cap I``.
     extra : callable, optional
         ``extra(vars_and_params) -> list of constraints``.
     cap : float
-        Normalisation cap on the decision matrices.
+
+    Returns
+    -------
+    Program
     """
     import cvxpy as cp
 
@@ -472,18 +397,13 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
     return Program(problem, variables, parameters, blocks_fn, positive, build_s=time.perf_counter() - t_build)
 
 
-#: A matrix with at least this fraction of nonzero entries enters a cached program as a cvxpy
-#: Parameter; a sparser one enters as a :class:`Pattern` (a Parameter holding only its nonzeros,
-#: placed in a fixed sparsity pattern). A pattern hands the solver the same nonzeros as a baked-in
-#: constant (a dense Parameter hands it explicit zeros), and keys the program by the pattern, not
-#: the values, so plants of the same structure share one compiled program.
+#: A matrix with at least this fraction of nonzeros enters a cached program as a Parameter, a
+#: sparser one as a :class:`Pattern` (keyed by its pattern, so plants of one structure share a program).
 DENSE_FRACTION = 0.75
 
 
 def digest(raw) -> str:
-    """SHA-256 of an array's shape and values, exact (every NaN alike); a non-numeric value (None,
-    an object array) by its type. Keys of compiled programs that bake a matrix in, and of the
-    result cache (:mod:`bench.cache`)."""
+    """SHA-256 of an array's shape and values, exact (every NaN alike); a non-numeric value by its type."""
     import hashlib
     import json
 
@@ -501,9 +421,8 @@ def digest(raw) -> str:
 class Pattern:
     """A matrix of fixed sparsity pattern in a cvxpy program: a Parameter of its nonzeros, placed.
 
-    ``expr`` (the matrix as a cvxpy expression, parameter-affine so the program stays DPP) goes
-    into the LMI blocks; :meth:`set` takes a whole matrix of the same pattern; :meth:`value` gives
-    it back. The solver sees exactly the pattern's entries, as with a baked-in constant.
+    ``expr`` (parameter-affine, so the program stays DPP) goes into the LMI blocks; :meth:`set`
+    and :meth:`value` take and give whole matrices.
 
     Parameters
     ----------
@@ -548,13 +467,9 @@ class Pattern:
 
 @dataclass(frozen=True)
 class Matrices:
-    """How a design's matrices enter a cached program: dense ones as Parameters, sparse ones as a
-    :class:`Pattern` (all-zero ones baked in).
-
-    Build with :func:`matrices`. ``key`` goes into the :func:`cached_program` key (shapes for
-    the Parameters, a digest of the sparsity pattern for the others), :meth:`parameters` into the
-    program's build, :meth:`settable` into :meth:`Program.set` on every call.
-    """
+    """How a design's matrices enter a cached program (built by :func:`matrices`): dense ones as
+    Parameters, sparse ones as a :class:`Pattern`, all-zero ones baked in. ``key`` goes into the
+    :func:`cached_program` key, :meth:`parameters` into the build, :meth:`settable` into :meth:`Program.set`."""
 
     values: dict
     dense: frozenset
@@ -570,8 +485,7 @@ class Matrices:
         return tuple(out)
 
     def parameters(self) -> dict:
-        """cvxpy Parameters for the dense matrices, :class:`Pattern` for the sparse ones (the
-        array itself for an all-zero one)."""
+        """A Parameter, :class:`Pattern` or (all zero) the array itself, by name."""
         import cvxpy as cp
 
         out = {}
@@ -588,20 +502,8 @@ class Matrices:
 
 
 def matrices(*, all_parameters: bool = False, **mats: np.ndarray) -> Matrices:
-    """Classify matrices for a cached program (see :data:`DENSE_FRACTION`).
-
-    Parameters
-    ----------
-    all_parameters : bool
-        Make every matrix a dense Parameter whatever its sparsity (for programs solved once per
-        new matrix of any pattern, such as certificates of many gain pairs).
-    **mats : ndarray
-        Matrices by the names the block functions read (``A=plant.A``, ...).
-
-    Returns
-    -------
-    Matrices
-    """
+    """Classify matrices (by the names the block functions read) for a cached program
+    (:data:`DENSE_FRACTION`; every one a dense Parameter with ``all_parameters``)."""
     vals = {k: np.asarray(M, dtype=float) for k, M in mats.items()}
     dense = frozenset(k for k, M in vals.items()
                       if all_parameters or (M.size and np.count_nonzero(M) >= DENSE_FRACTION * M.size))
@@ -635,22 +537,16 @@ def _cache() -> OrderedDict:
 def cached_program(key: tuple, build: Callable[[], Program]) -> Program:
     """The compiled :class:`Program` for ``key``, built by ``build()`` on first use, then reused.
 
-    Design calls that differ only in parameter values (plant matrices of the same shape, the
-    constants rho, beta, gamma, alpha, the searched Young weight) share one cvxpy problem, so
-    cvxpy's DPP compile is paid once per key: a bisection over the scale of f or a sweep over a
-    random family costs one compile. The returned program is :meth:`Program.reset` (counters,
-    best point and parameter values cleared); ``reused`` tells whether it was built now.
-
-    The cache is per thread (a cvxpy problem holds its last solution, so two threads must never
-    share one) and bounded by :data:`PROGRAM_CACHE_SIZE`.
+    Calls differing only in parameter values share one problem, so cvxpy compiles once per key.
+    The program comes back :meth:`Program.reset`. The cache is per thread (a problem holds its
+    last solution) and keeps :data:`PROGRAM_CACHE_SIZE` programs.
 
     Parameters
     ----------
     key : tuple
-        Everything that fixes the problem's structure: the design, its hyperparameters, the
-        shape (n, m, p) and structural flags (e.g. whether a Schur column is present).
+        Everything that fixes the problem's structure (design, hyperparameters, shapes, flags).
     build : callable
-        Builds the program (with every plant-dependent number as a cvxpy Parameter).
+        Builds the program.
 
     Returns
     -------
@@ -673,24 +569,22 @@ def cached_program(key: tuple, build: Callable[[], Program]) -> Program:
 
 
 def clear_program_cache() -> None:
-    """Drop this thread's compiled programs (tests, or to measure a cold compile)."""
+    """Drop this thread's compiled programs."""
     _cache().clear()
 
 
 def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> dict:
     """Turn the last solve of ``prog`` into status, reason and evidence.
 
-    ``feasible`` when the rebuilt LMI is verified (:func:`classify`) with positive definite
-    decision matrices; ``marginal`` when its largest eigenvalue is within the tolerance of zero
-    (neither strictly feasible nor proven infeasible); ``infeasible`` (*under the
-    normalisation*, which the reason names) when the best margin is clearly positive;
-    ``undecided`` when the solver failed, or claimed a margin its point does not have.
+    ``feasible``: the rebuilt LMI verified (:func:`classify`), decision matrices positive definite;
+    ``marginal``: its largest eigenvalue within the tolerance of zero; ``infeasible`` under the
+    normalisation (named in the reason): the best slack is not positive; ``undecided``: the
+    solver failed, or claimed a margin its point does not have.
 
     Returns
     -------
     dict
-        Keys ``status``, ``reason``, ``margin``, ``min_eig``, ``lmi_size``, ``solver_status``, ``slack`` (the solver's
-        margin, which ``margin`` checks).
+        ``status``, ``reason``, ``margin``, ``min_eig``, ``lmi_size``, ``solver_status``, ``slack``.
     """
     out: dict = {"solver_status": prog.last_status, "min_eig": {}, "margin": float("nan"), "lmi_size": 0}
     if prog.last_status not in ("optimal", "optimal_inaccurate"):
@@ -732,32 +626,18 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
     return out
 
 
-#: SCS settings for the sides of separated designs and the observer LMIs (every point is
-#: verified with numpy; a point that fails falls back to Clarabel).
+#: SCS settings of :func:`solve_side`.
 SCS_OPTS = {"eps_abs": 1e-6, "eps_rel": 1e-6, "max_iters": 100_000}
 
-#: From this n on, ``solver="auto"`` tries SCS first (a first-order method, cheaper per solve
-#: than Clarabel's interior point on larger sides; its point is verified, see :func:`solve_side`).
+#: From this n on, ``solver="auto"`` tries SCS first.
 SCS_FROM_N = 8
 
 
 def solve_side(prog: Program, solver: str = "auto", n: int | None = None) -> str:
-    """Solve a program with the solver policy of the suite; return a log of the solvers tried.
+    """Solve a program with the suite's solver policy; return a log of the solvers tried.
 
-    Parameters
-    ----------
-    prog : Program
-    solver : {"auto", "CLARABEL", "SCS"}
-        ``"auto"``: Clarabel when ``n < SCS_FROM_N``; otherwise SCS first, its point verified
-        with numpy (:meth:`Program.verified`), and Clarabel when it does not verify.
-    n : int, optional
-        The state dimension (for ``"auto"``).
-
-    Returns
-    -------
-    str
-        E.g. ``"SCS:optimal"`` or ``"SCS:optimal (not verified) -> CLARABEL:optimal"``; the
-        program's ``solver`` attribute names the solver of the point it holds.
+    ``"auto"``: Clarabel when ``n < SCS_FROM_N``, else SCS, then Clarabel when SCS's point does not
+    verify (:meth:`Program.verified`); the log reads e.g. ``"SCS:optimal (not verified) -> CLARABEL:optimal"``.
     """
     if solver == "auto" and n is not None and n < SCS_FROM_N:
         solver = "CLARABEL"

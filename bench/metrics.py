@@ -1,26 +1,15 @@
 """Metrics of closed-loop trajectories: pure functions of (t, x, x_hat, u), for one or a batch.
 
-One implementation, :func:`batch_metrics`, works on a batch of N trajectories on a common time
-grid (arrays ``(n, N, T)``); :func:`trajectory_metrics` is the same for one trajectory
-(``(n, T)``). With ``z = (x, e)``, ``e = x - x_hat``:
-
-- ``converged``: the run finished, nothing diverged, and at the end both ``||x||`` and
-  ``||e||`` are at most ``CONVERGED_RATIO`` (1e-3) times the peak of ``||z||`` over the run.
-  This is what a certificate guarantees: ``||z(t)|| <= sqrt(cond P) e^{-lam t} ||z(0)||``, so
-  a certified pair converges by ``t = (ln(1/CONVERGED_RATIO) + ln(cond P)/2) / lam``
-  (:func:`bench.verdicts.simulation_horizon` simulates that long);
-- with measurement noise (``noisy=True``) the norms cannot shrink by 1e-3, so ``converged``
-  means the run finished and both norms settled (finite 2 % settling times);
-- ``settling_x_s``, ``settling_e_s``: 2 % settling time of ``||x||`` and ``||e||``, the first
-  time after which the norm stays at or below 2 % of its peak (NaN if it never does);
-- ``iae_e``: integral of ``||e||`` (trapezoid rule on the grid);
-- for one continuous trajectory with the integrator's dense output (:func:`dense_metrics`), the
-  settling times and the IAE come from the dense output (root finding and Gauss-Legendre
-  quadrature within each integrator step), so they do not depend on the output grid; ``rms_e``: RMS of ``||e||`` over the second
-  half of the horizon (the steady state, where noise dominates); ``peak_u``: peak ``|u|``;
-- ``tail_rate``: the exponential decay rate of ``||z||`` fitted (least squares on ``log ||z||``)
-  over the last quarter of the horizon (NaN once the norm is at round-off);
-- ``peak_x``, ``peak_e``, ``max_norm`` (the largest ``max(||x||, ||x_hat||)``, for regions).
+With ``z = (x, e)``, ``e = x - x_hat``: ``converged``: the run finished and at the end ``||x||`` and
+``||e||`` are at most :data:`CONVERGED_RATIO` times the peak of ``||z||`` (what a certificate
+``||z(t)|| <= sqrt(cond P) e^{-lam t} ||z(0)||`` guarantees by the horizon of
+:func:`bench.verdicts.simulation_horizon`); with measurement noise, that both norms settled.
+``settling_x_s``, ``settling_e_s``: the first time after which the norm stays within 2 % of its
+peak (NaN if never); ``iae_e``: the integral of ``||e||``; ``rms_e``: the RMS of ``||e||`` over the
+second half; ``peak_u``: the peak ``|u|``; ``tail_rate``: the decay rate of ``||z||`` fitted by least
+squares on ``log ||z||`` over the last quarter; ``peak_x``, ``peak_e``; ``max_norm``: the largest
+``max(||x||, ||x_hat||)``. With the integrator's dense output (:func:`dense_metrics`) the settling
+times and the IAE do not depend on the output grid.
 """
 
 from __future__ import annotations
@@ -36,11 +25,8 @@ CONVERGED_RATIO = 1e-3
 
 
 def batch_settling_time(t: np.ndarray, s: np.ndarray, fraction: float = SETTLING_FRACTION) -> np.ndarray:
-    """First time after which each row of ``s`` (N, T) stays within ``fraction`` of its peak.
-
-    NaN where a row never settles by the end (or is not finite), ``t[0]`` where it never leaves,
-    0 for an all-zero row.
-    """
+    """First time after which each row of ``s`` (N, T) stays within ``fraction`` of its peak (NaN if
+    never or not finite, ``t[0]`` if it never leaves, 0 for an all-zero row)."""
     t = np.asarray(t, dtype=float)
     s = np.atleast_2d(np.asarray(s, dtype=float))
     N, Tn = s.shape
@@ -80,19 +66,8 @@ def _tail_rate(t: np.ndarray, nz: np.ndarray) -> np.ndarray:
 
 
 def batch_metrics(t, x, x_hat, u=None, *, finished=True, diverged=None, noisy: bool = False) -> dict[str, np.ndarray]:
-    """Per-member metrics of a batch of trajectories (see the module docstring).
-
-    Parameters
-    ----------
-    t : ndarray (T,)
-    x, x_hat : ndarray (n, N, T)
-    u : ndarray (m, N, T), optional
-    finished : bool or ndarray of bool (N,)
-        False where the simulation stopped early (then not converged).
-    diverged : ndarray of bool (N,), optional
-        Members that blew up.
-    noisy : bool
-        The run had measurement noise (``converged`` means settled).
+    """Per-member metrics of a batch (module docstring): ``t`` (T,), ``x``, ``x_hat`` (n, N, T), ``u`` (m, N, T);
+    not converged where not ``finished`` or ``diverged``; ``noisy``: converged means settled.
 
     Returns
     -------
@@ -139,16 +114,8 @@ def batch_metrics(t, x, x_hat, u=None, *, finished=True, diverged=None, noisy: b
 
 def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True, noisy: bool = False,
                        dense=None) -> dict[str, float | bool]:
-    """:func:`batch_metrics` of one trajectory (``x``, ``x_hat`` of shape (n, T), ``u`` (m, T)).
-
-    With the integrator's ``dense`` output (:attr:`bench.simulate.Trajectory.dense`), the settling
-    times and the IAE do not depend on the output grid (:func:`dense_metrics`).
-
-    Returns
-    -------
-    dict
-        The same keys as :func:`batch_metrics`, as Python scalars.
-    """
+    """:func:`batch_metrics` of one trajectory (``x``, ``x_hat`` (n, T), ``u`` (m, T)), as Python scalars;
+    with the integrator's ``dense`` output the settling times and the IAE come from :func:`dense_metrics`."""
     x = np.asarray(x, dtype=float)[:, None, :]
     xh = np.asarray(x_hat, dtype=float)[:, None, :]
     uu = None if u is None or np.size(u) == 0 else np.asarray(u, dtype=float)[:, None, :]
@@ -163,31 +130,16 @@ def trajectory_metrics(t, x, x_hat, u, *, finished: bool = True, noisy: bool = F
     return out
 
 
-#: Gauss-Legendre nodes and weights on [0, 1] (5 points: exact for polynomials of degree 9 on a step).
+#: 5-point Gauss-Legendre nodes and weights on [0, 1].
 _GL_NODES, _GL_WEIGHTS = (lambda p: ((p[0] + 1) / 2, p[1] / 2))(np.polynomial.legendre.leggauss(5))
 
 
 def dense_metrics(dense, n: int, t0: float, t1: float, fraction: float = SETTLING_FRACTION) -> dict[str, float]:
-    """Settling times and IAE from an integrator's dense output, independent of any output grid.
+    """Settling times and IAE (``settling_x_s``, ``settling_e_s``, ``iae_e``) over ``[t0, t1]`` from an
+    integrator's dense output ``(x, x_hat)`` (2n,), independent of any output grid.
 
-    ``dense(t)`` gives ``(x, x_hat)`` (2n,) and ``dense.ts`` the integrator's steps. Within each
-    step the norms are evaluated at 5 Gauss-Legendre nodes: the IAE of ``||e||`` is their
-    quadrature (step by step), the peaks are the largest values at the steps and nodes, and a
-    settling time is the root, within the last interval where the norm exceeds ``fraction`` of its
-    peak, of ``||.|| - fraction * peak`` (Brent's method on the dense output).
-
-    Parameters
-    ----------
-    dense : scipy.integrate.OdeSolution
-    n : int
-    t0, t1 : float
-        The span to measure (within the solution's).
-    fraction : float
-
-    Returns
-    -------
-    dict
-        ``settling_x_s``, ``settling_e_s`` (NaN if never settled), ``iae_e``.
+    The IAE is the 5-point Gauss-Legendre quadrature of ``||e||`` on each integrator step; a settling
+    time is the root of ``||.|| - fraction * peak`` (Brent) in the last interval above the level.
     """
     from scipy.optimize import brentq
 

@@ -1,38 +1,17 @@
 """Output folders: checked before any computing, written whole or not at all.
 
-:func:`check_out_dir` is called by ``python -m bench run`` and ``python -m bench study`` before
-they compute anything: an empty path, a path that is a file, or a folder that cannot be
-written is refused at once (:class:`OutDirError`), not after an hour of computing.
+:func:`check_out_dir` refuses an unusable output folder before anything is computed.
+:func:`publish` (with :func:`staged`) replaces a set of files so that a reader, a second writer, an
+error, a Ctrl-C or a killed process never leaves a mix of two runs: files are rendered into a stage
+folder ``<out>/.tmp-<label>.<pid>.<host>.<random>/``; under an exclusive ``fcntl.flock`` on
+``<out>/.oslbench.lock`` the writer rolls back a swap a killed writer left half done and removes
+stale temporary entries (owner dead on this host), writes the journal ``<out>/.oslbench.journal``,
+keeps the previous versions in a backup folder, moves the new files in (the last one last), and
+deletes the journal: the commit. On an error it restores the previous versions and re-raises.
 
-:func:`publish` (with :func:`staged`) replaces a set of files in an output folder so that a
-reader, a second writer, an I/O error, a Ctrl-C or a killed process never leaves a mix of two
-runs:
-
-1. The writer renders every file into its own stage folder
-   ``<out>/.tmp-<label>.<pid>.<host>.<random>/`` (a unique name recording its owner; only its
-   owner removes it while the owner lives).
-2. It takes an exclusive lock, ``fcntl.flock`` on ``<out>/.oslbench.lock``; a second writer
-   waits for it (at most ``timeout`` seconds, then :class:`OutDirError`).
-3. Under the lock it first rolls back a swap that a killed writer left half done (the journal,
-   below), and removes stale temporary entries: those whose recorded process is dead on this
-   host, and folders that record no owner at all (an older version's). Nobody else can be
-   swapping at that moment.
-4. It writes the journal ``<out>/.oslbench.journal`` (the files, whether each had a previous
-   version, the backup folder), keeps the previous versions of the files it replaces (a hard
-   link, or a move where links are not supported) and moves the stale files it deletes into a
-   backup folder ``<out>/.tmp-backup.<pid>.<host>.<random>/``, moves the new files in (the
-   manifest first, the last one last: ``REPORT.md``), and deletes the journal: that is the
-   commit. The backup folder is removed after it.
-5. On any error (or Ctrl-C) during 4 it moves every previous version back and removes the new
-   files that had none, then re-raises: the previous files are intact. A writer killed during
-   4 leaves the journal, and the next writer rolls the swap back before it starts.
-
-The manifest ``<out>/.oslbench.manifest.json`` records, for each writer (``"report"``), the files
-it published and the SHA-256 of each. A file is stale when the writer's previous publish recorded
-it, this one does not write it, and it still holds what was written; only stale files are
-removed (and named in a warning of the ``bench.outdir`` logger). Every other file stays: the
-user's own, another command's, one the user changed since. The lock file stays in the folder
-(deleting a lock file is itself a race); it is empty.
+The manifest ``<out>/.oslbench.manifest.json`` records each writer's files and their SHA-256. A file
+the writer's previous publish recorded, this one does not write, and that still holds what was
+written is stale and removed (with a warning of the ``bench.outdir`` logger); every other file stays.
 """
 
 from __future__ import annotations
@@ -49,11 +28,11 @@ import socket
 import tempfile
 import time
 from pathlib import Path, PurePosixPath
-from typing import Iterable, Iterator
+from typing import IO, Callable, Iterable, Iterator
 
 from bench.errors import OutDirError
 
-try:  # POSIX; elsewhere writers are not serialised (documented in publish)
+try:  # POSIX; elsewhere writers are not serialised
     import fcntl
 except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
@@ -77,7 +56,6 @@ _NO_LOCKING = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
 _log = logging.getLogger(__name__)
 
 
-# -- checks ---------------------------------------------------------------------------------------
 def check_out_dir(path, *, option: str = "--out") -> Path:
     """Check that ``path`` is a folder this process can write into (create it if missing).
 
@@ -91,13 +69,11 @@ def check_out_dir(path, *, option: str = "--out") -> Path:
     Returns
     -------
     Path
-        ``Path(path)``, now an existing, writable folder.
 
     Raises
     ------
     OutDirError
-        The path is empty, is a file (or under a file), cannot be created, or the folder is not
-        writable (checked by creating and removing a file in it). The message names the path.
+        The path is empty, a file, cannot be created, or is not writable (the message names it).
     """
     try:
         text = os.fspath(path)
@@ -131,9 +107,8 @@ def _why(exc: BaseException) -> str:
     return getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
 
 
-# -- temporary names and owners -------------------------------------------------------------------
 def _tmp_prefix(label: str) -> str:
-    """``.tmp-<label>.<pid>.<host>.``: the owner is recorded in the name (dots separate the fields)."""
+    """``.tmp-<label>.<pid>.<host>.``: the owner recorded in the name."""
     label = re.sub(r"[^A-Za-z0-9_-]", "_", label) or "x"
     return f"{TMP_PREFIX}{label}.{os.getpid()}.{_HOST}."
 
@@ -160,8 +135,7 @@ def _alive(pid: int) -> bool:
 
 
 def _stale(path: Path) -> bool:
-    """A temporary entry whose owner is dead on this host (or a folder that records no owner: left by
-    an older version's writer)."""
+    """A temporary entry whose owner is dead on this host, or a folder that records no owner."""
     owner = _owner(path.name)
     if owner is None:
         return path.is_dir() and not path.is_symlink()
@@ -194,8 +168,7 @@ def staged(out_dir, label: str = "write") -> Iterator[Path]:
     Yields
     ------
     Path
-        The stage folder ``<out>/.tmp-<label>.<pid>.<host>.<random>``; render into it, then
-        call :func:`publish`.
+        The stage folder; render into it, then call :func:`publish`.
     """
     stage = Path(tempfile.mkdtemp(prefix=_tmp_prefix(label), dir=out_dir))
     try:
@@ -204,23 +177,10 @@ def staged(out_dir, label: str = "write") -> Iterator[Path]:
         shutil.rmtree(stage, ignore_errors=True)
 
 
-# -- the lock -------------------------------------------------------------------------------------
 @contextlib.contextmanager
 def locked(out_dir, timeout: float = LOCK_TIMEOUT) -> Iterator[None]:
-    """Hold the exclusive lock of ``out_dir`` (``fcntl.flock`` on ``<out>/.oslbench.lock``).
-
-    Parameters
-    ----------
-    out_dir : path
-        The output folder (must exist).
-    timeout : float
-        Seconds to wait for another writer.
-
-    Raises
-    ------
-    OutDirError
-        The lock file cannot be opened, or another writer held the lock for ``timeout`` s.
-    """
+    """Hold the exclusive lock of ``out_dir`` (``fcntl.flock`` on ``<out>/.oslbench.lock``); OutDirError when
+    the lock file cannot be opened or another writer holds it for ``timeout`` seconds."""
     out = Path(out_dir)
     lock = out / LOCK_NAME
     try:
@@ -250,21 +210,22 @@ def locked(out_dir, timeout: float = LOCK_TIMEOUT) -> Iterator[None]:
         os.close(fd)  # releases the lock
 
 
-# -- the journal ----------------------------------------------------------------------------------
-def _write_journal(out: Path, doc: dict) -> None:
-    """Write the journal of a swap atomically (a temporary file, fsync, rename)."""
-    fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix("journal"), dir=out)
+def atomic_write(path, write: Callable[[IO[bytes]], None], *, prefix: str = TMP_PREFIX, sync: bool = False) -> None:
+    """Write ``path`` whole or not at all: ``write(fh)`` into a temporary file beside it (fsync'ed when
+    ``sync``), then rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=prefix, dir=path.parent)
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(doc, fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, out / JOURNAL_NAME)
-    except BaseException:
-        try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+            if sync:
+                fh.flush()
+                os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:  # KeyboardInterrupt included: leave no temporary file behind
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
-        except OSError:
-            pass
         raise
 
 
@@ -288,26 +249,9 @@ def _rollback(out: Path, doc: dict) -> list[str]:
 
 
 def recover(out_dir) -> bool:
-    """Roll back a swap left half done by a writer that was killed; call it holding :func:`locked`.
-
-    Also removes stale temporary entries (their recorded process is dead on this host, or they
-    are folders that record none). :func:`publish` calls it first.
-
-    Parameters
-    ----------
-    out_dir : path
-
-    Returns
-    -------
-    bool
-        True when a swap was rolled back.
-
-    Raises
-    ------
-    OutDirError
-        The journal is unreadable, or a file could not be restored (the journal is kept, so the
-        next writer tries again).
-    """
+    """Roll back a swap a killed writer left half done, and remove stale temporary entries, holding
+    :func:`locked`; True when a swap was rolled back. OutDirError when the journal is unreadable or a
+    file could not be restored (the journal is kept for the next writer)."""
     out = Path(out_dir)
     journal = out / JOURNAL_NAME
     rolled = False
@@ -334,7 +278,6 @@ def recover(out_dir) -> bool:
     return rolled
 
 
-# -- publishing -----------------------------------------------------------------------------------
 def _relpath(rel: str) -> str:
     """``rel`` if it is a plain relative POSIX path (no absolute path, no ".."), else ValueError."""
     p = PurePosixPath(rel)
@@ -344,8 +287,8 @@ def _relpath(rel: str) -> str:
 
 
 def _keep_old(src: Path, dst: Path, *, move: bool) -> None:
-    """Keep the previous version ``src`` at ``dst``: moved there (``move``), else hard-linked so that
-    ``src`` stays readable until the new version replaces it (moved where links are not supported)."""
+    """Keep the previous version ``src`` at ``dst``: moved (``move``), else hard-linked (``src`` stays
+    readable until replaced), or moved where links are not supported."""
     dst.parent.mkdir(parents=True, exist_ok=True)
     if not move:
         try:
@@ -366,15 +309,11 @@ def publish(out_dir, stage_dir, files: Iterable[str], *, writer: str | None = No
     out_dir : path
         The output folder (must exist).
     stage_dir : path
-        A folder inside ``out_dir`` (same file system) holding the new files, e.g. from
-        :func:`staged`.
+        A folder inside ``out_dir`` holding the new files (:func:`staged`).
     files : iterable of str
-        The new files, as relative POSIX paths (``"figures/a.png"``), in the order they are
-        moved in: the last one last (the file readers open first, e.g. ``REPORT.md``).
+        The new files as relative POSIX paths, in the order they are moved in (the last one last).
     writer : str, optional
-        Record ``files`` in the folder's manifest under this name, and delete (with the same
-        guarantee) the stale files of this writer: recorded by its previous publish, not among
-        ``files``, and unchanged since. Without it nothing is recorded or deleted.
+        Record ``files`` in the manifest under this name and delete this writer's stale files.
     timeout : float
         Seconds to wait for another writer's lock.
 
@@ -386,20 +325,10 @@ def publish(out_dir, stage_dir, files: Iterable[str], *, writer: str | None = No
     Raises
     ------
     OutDirError
-        The lock was not obtained in time, or a previous interrupted write could not be
-        undone (nothing was changed by this call).
-    OSError, KeyboardInterrupt, ...
-        Whatever interrupted the swap, re-raised after every previous file was restored. If
-        the restore itself fails, an :class:`OutDirError` says so and the journal is kept for
-        the next writer.
+        No lock in time, or an earlier interrupted write could not be undone; also when the
+        restore after an interrupted swap fails (the journal is kept).
     ValueError
-        ``files`` holds a path that is absolute, climbs out with "..", repeats, or is missing
-        from the stage folder (a bug of the caller; nothing is changed).
-
-    Notes
-    -----
-    Without ``fcntl`` (not POSIX) or on a file system without ``flock``, writers are not
-    serialised; everything else holds.
+        A path in ``files`` is absolute, climbs out, repeats, or was not rendered.
     """
     out, stage = Path(out_dir), Path(stage_dir)
     files = _staged_files(stage, files)
@@ -419,14 +348,14 @@ def publish(out_dir, stage_dir, files: Iterable[str], *, writer: str | None = No
 
 
 def _journal(out: Path, stale: list[str], files: list[str]) -> tuple[Path, dict]:
-    """A fresh backup folder and the journal of the swap, written to ``out`` before anything moves: the
-    stale files (to delete) and the new ones (each noting whether an old version exists)."""
+    """A fresh backup folder and the journal of the swap (stale and new files), written before anything moves."""
     backup = Path(tempfile.mkdtemp(prefix=_tmp_prefix("backup"), dir=out))
     entries = ([{"path": rel, "old": True, "new": False} for rel in stale]
                + [{"path": rel, "old": os.path.lexists(out / rel), "new": True} for rel in files])
     doc = {"format": JOURNAL_FORMAT, "pid": os.getpid(), "host": _HOST, "backup": backup.name, "entries": entries}
     try:
-        _write_journal(out, doc)
+        atomic_write(out / JOURNAL_NAME, lambda fh: fh.write(json.dumps(doc).encode()), prefix=_tmp_prefix("journal"),
+                     sync=True)
     except BaseException:
         shutil.rmtree(backup, ignore_errors=True)
         raise
@@ -444,17 +373,17 @@ def _staged_files(stage: Path, files: Iterable[str]) -> list[str]:
     return files
 
 
-def _sha_file(path: Path) -> str | None:
+def sha_file(path) -> str | None:
+    """SHA-256 of a file's bytes (None when it cannot be read)."""
     try:
-        return hashlib.sha256(path.read_bytes()).hexdigest()
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
     except OSError:
         return None
 
 
 def _update_manifest(out: Path, stage: Path, files: list[str], writer: str) -> list[str]:
-    """Write the new manifest into ``stage`` (``writer``'s entry: ``files`` and their SHA-256) and return
-    ``writer``'s stale files: recorded before, not among ``files``, and still as written (see the module
-    docstring). An unreadable manifest records nothing: then nothing is stale."""
+    """Write the new manifest into ``stage`` and return ``writer``'s stale files (none when the manifest
+    is unreadable)."""
     try:
         writers = dict(json.loads((out / MANIFEST_NAME).read_text(encoding="utf-8"))["writers"])
     except (OSError, ValueError, KeyError, TypeError):
@@ -468,18 +397,17 @@ def _update_manifest(out: Path, stage: Path, files: list[str], writer: str) -> l
     for rel, sha in sorted(previous.items()):
         path = out / rel
         if rel not in new and path.is_file() and not path.is_symlink():
-            (stale if _sha_file(path) == sha else kept).append(rel)
+            (stale if sha_file(path) == sha else kept).append(rel)
     if kept:
         _log.warning("%s: kept %s: written by an earlier run of this suite, changed since", out, ", ".join(kept))
-    writers[writer] = {rel: _sha_file(stage / rel) for rel in files}
+    writers[writer] = {rel: sha_file(stage / rel) for rel in files}
     (stage / MANIFEST_NAME).write_text(json.dumps({"format": 1, "writers": writers}, indent=1, sort_keys=True),
                                        encoding="utf-8")
     return stale
 
 
 def _swap(out: Path, stage: Path, doc: dict, backup: Path) -> None:
-    """Move the journal's entries (previous versions into ``backup``, new files in from ``stage``) and
-    commit by deleting the journal; on any error roll back and re-raise."""
+    """Move the journal's entries and commit by deleting the journal; on any error roll back and re-raise."""
     try:
         for e in doc["entries"]:
             rel = e["path"]

@@ -1,31 +1,19 @@
-"""Progress where the user is: a tqdm bar behind the ``progress(done, total, label)`` callback.
-
-The harness and the studies report progress by calling ``progress(done, total, label)`` after
-each finished task. :class:`Progress` is such a callable, drawn by ``tqdm.auto``: a widget in a
-Jupyter notebook, a text bar on a terminal, and nothing at all when stderr is not a terminal
-(a log file, CI, a pipe), as ``disable=None`` asks of tqdm.
-"""
+"""A tqdm bar behind the ``progress(done, total, label)`` callback of the harness and the studies."""
 
 from __future__ import annotations
 
-import numbers
+from bench import checks
 
 __all__ = ["Progress"]
 
 
 def _count(name: str, value, *, allow_none: bool = False) -> int | None:
-    if value is None and allow_none:
-        return None
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 0:
-        raise ValueError(f"{name}: expected an integer >= 0{' or None' if allow_none else ''}, got {value!r}")
-    return int(value)
+    return None if value is None and allow_none else checks.integer(name, value, lo=0)
 
 
 class Progress:
-    """A progress bar for ``progress(done, total, label)`` callbacks, built on ``tqdm.auto``.
-
-    The bar is created at the first call (so an unused Progress draws nothing); each call moves
-    it to ``done`` of ``total`` and shows ``label`` as the postfix.
+    """A progress bar for ``progress(done, total, label)`` callbacks (``tqdm.auto``: a widget in a
+    notebook, a text bar on a terminal), created at the first call; also a context manager.
 
     Parameters
     ----------
@@ -36,32 +24,11 @@ class Progress:
     file : file-like, optional
         Where to draw (default ``sys.stderr``; a notebook draws a widget instead).
     disable : bool or None
-        None (the default): draw only when ``file`` is a terminal (always in a notebook);
-        True: never; False: always.
+        None: draw only on a terminal or in a notebook; True: never; False: always.
     max_label : int
-        Labels longer than this are cut (with "...") so that the bar fits on a line.
+        Labels longer than this are cut.
     **tqdm_kwargs
-        Passed to ``tqdm`` (e.g. ``delay=1.0`` to stay quiet for the first second,
-        ``leave=False``, ``unit="pair"``, ``mininterval``).
-
-    Raises
-    ------
-    ValueError
-        If ``total`` or ``max_label`` is not a non-negative integer.
-
-    Examples
-    --------
-    As a callback (the harness's and the studies' ``progress=`` argument):
-
-    >>> bar = Progress(desc="pairs")
-    >>> for i in range(1, 4):
-    ...     bar(i, 3, f"flexible_link x design {i}")
-    >>> bar.close()
-
-    or as a context manager, which closes the bar on exit:
-
-    >>> with Progress(desc="pairs") as bar:
-    ...     bar(1, 1, "done")
+        Passed to ``tqdm``.
     """
 
     def __init__(self, total: int | None = None, desc: str = "", *, file=None, disable: bool | None = None,
@@ -92,26 +59,8 @@ class Progress:
         return text
 
     def __call__(self, done: int, total: int | None, label: str = "") -> None:
-        """Show ``done`` of ``total`` tasks finished, the last being ``label``.
-
-        Parameters
-        ----------
-        done : int
-            Tasks finished so far (absolute, not an increment).
-        total : int or None
-            Number of tasks (None: unknown).
-        label : str
-            What just finished; shown as the postfix.
-
-        Raises
-        ------
-        ValueError
-            If ``done`` or ``total`` is not a non-negative integer.
-
-        Notes
-        -----
-        After :meth:`close` a call does nothing (a late callback never breaks a run).
-        """
+        """Show ``done`` (absolute) of ``total`` (None: unknown) tasks finished, the last being ``label``;
+        nothing after :meth:`close`."""
         done = _count("done", done)
         total = _count("total", total, allow_none=True)
         if self._closed:
@@ -137,7 +86,7 @@ class Progress:
         return 0 if self._bar is None else int(self._bar.n)
 
     def close(self) -> None:
-        """Finish the bar (its final state stays drawn unless ``leave=False``). Safe to call twice."""
+        """Finish the bar (safe to call twice)."""
         if self._closed:
             return
         self._closed = True

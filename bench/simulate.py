@@ -5,11 +5,9 @@ States ``z = (x, x_hat)`` (2n), ``u = F x_hat``::
     x'     = A x + B F x_hat + f(x)
     x_hat' = A x_hat + B F x_hat + f(x_hat) + K C (x - x_hat)
 
-integrated with scipy's ``solve_ivp`` (DOP853 by default). A run that blows up (non-finite
-state, or ``||z||`` above ``blowup`` times ``max(1, ||z(0)||)``) stops and reports
-``"diverged"``; a run that exceeds ``max_nfev`` right-hand-side evaluations stops and reports
-``"budget"``; a run that exceeds ``max_wall_s`` seconds of wall-clock time (a pair's
-``--timeout``) stops and reports ``"timeout"``. A simulation never hangs.
+integrated with scipy's ``solve_ivp``. A run stops with status ``"diverged"`` (non-finite, or
+``||z||`` above ``blowup * max(1, ||z(0)||)``), ``"budget"`` (``max_nfev`` right-hand sides) or
+``"timeout"`` (``max_wall_s`` seconds).
 """
 
 from __future__ import annotations
@@ -33,10 +31,9 @@ class SimOptions:
     Parameters
     ----------
     method : str
-        ``solve_ivp`` method, or ``"auto"``: DOP853, or Radau when the linear closed loop is
-        stiff over the horizon (:func:`choose_method`).
+        ``solve_ivp`` method, or ``"auto"`` (:func:`choose_method`).
     rtol, atol : float
-        Tolerances (tight enough that ``||x(T)|| ~ 1e-9`` is resolved).
+        Tolerances.
     n_points : int
         Output grid size (uniform on [0, t_final]).
     blowup : float
@@ -44,8 +41,7 @@ class SimOptions:
     max_nfev : int
         Budget of right-hand-side evaluations.
     max_wall_s : float, optional
-        Wall-clock budget in seconds (checked at every right-hand-side evaluation and sample);
-        None: no limit. The harness sets it to what is left of a pair's ``--timeout``.
+        Wall-clock budget in seconds (None: none).
     """
 
     method: str = "auto"
@@ -66,22 +62,9 @@ class SimOptions:
 
 @dataclass
 class Trajectory:
-    """A simulated closed loop.
-
-    Attributes
-    ----------
-    t : ndarray (N,)
-    x, x_hat : ndarray (n, N)
-    u : ndarray (m, N)
-    status : str
-        ``"ok"``, ``"diverged"``, ``"budget"``, ``"timeout"`` or ``"failed"``.
-    message : str
-    wall_s : float
-    nfev : int
-    dense : scipy.integrate.OdeSolution, optional
-        The integrator's dense output ``z(t) = (x, x_hat)`` between its own steps (``dense.ts``),
-        for metrics that must not depend on the output grid (continuous loops only).
-    """
+    """A simulated closed loop: ``t`` (N,), ``x``, ``x_hat`` (n, N), ``u`` (m, N), ``status`` (``"ok"``,
+    ``"diverged"``, ``"budget"``, ``"timeout"`` or ``"failed"``), ``message``, ``wall_s``, ``nfev``, and the
+    integrator's ``dense`` output ``z(t) = (x, x_hat)`` (a scipy ``OdeSolution``; continuous loops only)."""
 
     t: np.ndarray
     x: np.ndarray
@@ -99,12 +82,11 @@ class Trajectory:
         return self.x - self.x_hat
 
 
-#: ``method="auto"`` switches to an implicit method (Radau in :func:`simulate`, BDF in
-#: :func:`bench.batch.simulate_batch`) when ``max(-Re lambda) * t_final`` of the linear closed loop exceeds this.
+#: ``method="auto"`` takes an implicit method when ``max(-Re lambda) * t_final`` of the linear loop exceeds this.
 STIFF = 5000.0
 
 
-def _loop_matrix(plant, K: np.ndarray, F: np.ndarray) -> np.ndarray:
+def loop_matrix(plant, K: np.ndarray, F: np.ndarray) -> np.ndarray:
     """The linear part ``[[A, BF], [KC, A + BF - KC]]`` of the closed loop (6) in ``z = (x, x_hat)``."""
     A, B, C = plant.A, plant.B, plant.C
     BF, KC = B @ F, K @ C
@@ -115,32 +97,12 @@ def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: st
                   loop: checks.ClosedLoop | None = None) -> str:
     """The ``solve_ivp`` method for the closed loop (6): ``stiff`` if its linear part is stiff, else DOP853.
 
-    Stiff means ``max(-Re lambda) * t_final > STIFF`` over the eigenvalues lambda of the linear
-    part ``[[A, BF], [KC, A + BF - KC]]``, which are those of ``A + BF`` and ``A - KC`` (the loop
-    is block triangular in ``(x, e)``): an explicit method would then need more than about
-    ``STIFF / 3`` steps for stability alone (Hairer & Wanner, *Solving ODEs II*, IV.2).
-
-    Parameters
-    ----------
-    plant : Plant
-    K, F : ndarray
-        Observer gain (n x p) and feedback (m x n).
-    t_final : float
-        Horizon.
-    stiff : str
-        The implicit method returned for a stiff loop (:func:`simulate` passes ``"Radau"``, the
-        batch simulator keeps ``"BDF"``).
-    loop : ClosedLoop, optional
-        The gains' closed-loop spectra (:func:`bench.checks.closed_loop`) when the caller has them.
-
-    Returns
-    -------
-    str
-        ``stiff`` or ``"DOP853"``.
+    Stiff: ``max(-Re lambda) * t_final > STIFF`` over the eigenvalues of ``A + BF`` and ``A - KC``
+    (those of the loop, block triangular in ``(x, e)``, or ``loop``'s spectra); an explicit method would
+    need about ``STIFF / 3`` steps for stability alone (Hairer & Wanner, *Solving ODEs II*, IV.2).
     """
     A, BF, KC = plant.A, plant.B @ F, K @ plant.C
-    # the loop is block triangular in (x, e): its eigenvalues are those of A + BF and A - KC; a norm
-    # bounds every |lambda|, so when it is small enough no eigenvalue is computed (O(n^2), not O(n^3))
+    # a norm bounds every |lambda|: no eigenvalue computed when it is small enough
     if max(np.linalg.norm(A + BF, 1), np.linalg.norm(A - KC, 1)) * t_final <= STIFF:
         return "DOP853"
     spectra = (loop.eig_x, loop.eig_e) if loop is not None else (np.linalg.eigvals(M) for M in (A + BF, A - KC))
@@ -149,8 +111,7 @@ def choose_method(plant, K: np.ndarray, F: np.ndarray, t_final: float, stiff: st
 
 
 def _all_finite(v: np.ndarray) -> bool:
-    """Whether every entry of ``v`` is finite (counting is cheaper than ``np.all`` on the small arrays
-    of a right-hand side, which runs a dozen times per integration step)."""
+    """Whether every entry of ``v`` is finite (cheaper than ``np.all`` on small arrays)."""
     return np.count_nonzero(np.isfinite(v)) == v.size
 
 
@@ -161,9 +122,7 @@ def _finite(v: np.ndarray, t: float, what: str = "the right-hand side") -> np.nd
     return v
 
 
-#: From this many states on, a plant whose A is at most this dense (fraction of nonzeros) is
-#: simulated with sparse A, B, C and the gains applied as factors (``B (F x_hat)``, ``K (C e)``):
-#: O(nnz + n (m + p)) per right-hand side instead of the dense loop matrix's O(4 n^2).
+#: From this many states on, an A at most this dense is simulated sparse (:class:`_FactoredLoop`).
 SPARSE_FROM_N, SPARSE_DENSITY = 200, 0.05
 
 
@@ -184,17 +143,16 @@ class _FactoredLoop:
 
 
 def _loop_operator(plant, K: np.ndarray, F: np.ndarray):
-    """The loop's linear part as something with ``@ z``: the dense matrix, or :class:`_FactoredLoop`
-    for a large sparse plant (:data:`SPARSE_FROM_N`)."""
+    """The loop's linear part: the dense matrix, or :class:`_FactoredLoop` for a large sparse plant."""
     A = plant.A
     if plant.n >= SPARSE_FROM_N and np.count_nonzero(A) <= SPARSE_DENSITY * A.size:
         return _FactoredLoop(plant, K, F)
-    return _loop_matrix(plant, K, F)
+    return loop_matrix(plant, K, F)
 
 
 class _LoopRHS:
-    """The right-hand side of the continuous loop (6) in ``z = (x, x_hat)``; it counts its calls and
-    stops the run (:class:`_Stop`) past the budget of calls or wall time, or at a non-finite state."""
+    """The right-hand side of the loop (6) in ``z = (x, x_hat)``, stopping the run past the budgets or
+    at a non-finite state."""
 
     def __init__(self, L, f, n: int, options: SimOptions):
         self.L, self.f, self.n, self.options = L, f, n, options
@@ -215,8 +173,6 @@ class _LoopRHS:
 
 
 def _blowup_event(limit: float):
-    """The terminal event of ``solve_ivp``: ``||z||`` reaches ``limit``."""
-
     def blow(t, z):
         return np.linalg.norm(z) - limit
 
@@ -248,13 +204,12 @@ def simulate(
         Initial conditions (default the plant's).
     options : SimOptions
     loop : ClosedLoop, optional
-        The checked gains K, F and their spectra (:func:`bench.checks.closed_loop`), when the
-        caller has them.
+        The checked gains and their spectra (:func:`bench.checks.closed_loop`).
 
     Returns
     -------
     Trajectory
-        Truncated at the stopping time when the run diverged or ran out of budget.
+        Truncated where the run stopped.
     """
     n = plant.n
     K, F = (loop.K, loop.F) if loop is not None else checks.gains(plant, K, F)
@@ -272,8 +227,7 @@ def simulate(
 
 
 def _integrate(rhs: _LoopRHS, z0: np.ndarray, T: float, method: str, options: SimOptions):
-    """``solve_ivp`` of ``rhs`` over ``[0, T]`` from ``z0`` on the output grid, stopped where ``||z||``
-    passes ``options.blowup * max(1, ||z0||)``; ``t, z, dense, status, message``."""
+    """``solve_ivp`` over ``[0, T]`` stopped at the blow-up limit: ``t, z, dense, status, message``."""
     from scipy.integrate import solve_ivp
 
     limit = options.blowup * max(1.0, float(np.linalg.norm(z0)))
@@ -308,18 +262,12 @@ def simulate_controller(
     options: SimOptions = SimOptions(),
     loop: checks.ClosedLoop | None = None,
 ) -> Trajectory:
-    """Simulate an observer-based controller, whatever its estimator: the one entry point for a pair.
+    """Simulate an observer-based controller, whatever its estimator.
 
-    - a fixed gain ``K`` without noise: the continuous loop (:func:`simulate`);
-    - a fixed gain ``K`` with measurement noise: the observer (6) and ``u = F x_hat`` stay
-      continuous, the Gaussian noise ``v_k`` is held over each ``noise_dt``:
-      ``y(t) = C x(t) + v_k``;
-    - a run-time ``estimator`` (a specification such as :class:`designs.ekf.EKFSpec`, built by
-      :func:`bench.estimators.runtime_estimator`, or an estimator already built, with ``dt``,
-      ``x``, ``update(y)``, ``predict(u)``): a discrete filter at its own sample period, with
-      ``u_k = F x_hat_k`` held by a zero-order hold and the plant continuous.
-
-    Sampled paths return the trajectory at the samples (``x_hat`` is the estimate used at ``t_k``).
+    A gain ``K`` without noise: :func:`simulate`; with noise ``v_k`` held over each ``noise_dt``
+    (``y = C x + v_k``) the loop (6) stays continuous. A run-time ``estimator`` (a specification, or a
+    filter with ``dt``, ``x``, ``update(y)``, ``predict(u)``) runs at its own period, ``u_k`` held.
+    Sampled paths return the samples (``x_hat`` the estimate used at ``t_k``).
 
     Parameters
     ----------
@@ -331,41 +279,27 @@ def simulate_controller(
     t_final : float
         The horizon; a sample period must divide it.
     noise, noise_dt, seed
-        Measurement noise (standard deviation, >= 0; 0: none), its hold period for a fixed gain,
-        and the seed of the noise.
+        Measurement noise (standard deviation, >= 0), its hold period for a gain, its seed.
     options : SimOptions
     loop : ClosedLoop, optional
-        Checked K, F and their spectra (:func:`bench.checks.closed_loop`), when the caller has them.
+        As for :func:`simulate`.
 
     Returns
     -------
     Trajectory
-
-    Raises
-    ------
-    ValueError
-        Both or neither of K and estimator, a negative or non-finite noise, or a sample period
-        that does not divide the horizon.
     """
     if (K is None) == (estimator is None):
         raise ValueError("simulate_controller: give exactly one of K and estimator")
     checks.real("noise", noise, lo=0.0)
     if estimator is not None:
-        return _simulate_estimator(plant, F, estimator, t_final, noise, seed, options)
+        if not hasattr(estimator, "update"):  # a specification: build the filter
+            from bench.estimators import runtime_estimator
+
+            estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final, options=options)
+        return _sampled(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options)
     if noise > 0:
         return _sampled(plant, F, K, None, noise_dt, t_final, noise, seed, options)
     return simulate(plant, K, F, t_final=t_final, options=options, loop=loop)
-
-
-def _simulate_estimator(plant: Plant, F, estimator, t_final: float, noise: float, seed: int,
-                        options: SimOptions) -> Trajectory:
-    """The run-time estimator path of :func:`simulate_controller`: the filter built from its
-    specification (unless already built), run at its own sample period."""
-    if not hasattr(estimator, "update"):  # a specification: build the filter
-        from bench.estimators import runtime_estimator
-
-        estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final, options=options)
-    return _sampled(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options)
 
 
 def _sampled(plant: Plant, F, K, estimator, dt: float, t_final: float, noise: float, seed: int,
@@ -382,13 +316,8 @@ def _sampled(plant: Plant, F, K, estimator, dt: float, t_final: float, noise: fl
 
 
 class _SampledLoop:
-    """One run of the sampled paths of :func:`simulate_controller`: the plant continuous, the estimator (or the continuous
-    observer with the measurement noise held) advanced one sample interval at a time.
-
-    The right-hand sides are methods reading what is held over the interval from ``held``, so
-    nothing is rebuilt per interval; ``first`` carries twice the largest step of an interval into
-    the next one as its first step.
-    """
+    """One run of the sampled paths of :func:`simulate_controller`, one sample interval at a time;
+    the right-hand sides read what is held over the interval from ``held``."""
 
     def __init__(self, plant: Plant, F, K, estimator, dt: float, options: SimOptions):
         import scipy.integrate
@@ -396,24 +325,19 @@ class _SampledLoop:
         self.A, self.B, self.C, self.f, self.n = plant.A, plant.B, plant.C, plant.f, plant.n
         self.F = np.asarray(F, dtype=float)
         self.K = None if K is None else np.asarray(K, dtype=float)
-        self.L = None if K is None else _loop_matrix(plant, self.K, self.F)
+        self.L = None if K is None else loop_matrix(plant, self.K, self.F)
         self.x0 = np.asarray(plant.x0, dtype=float).copy()
         self.xh0 = np.asarray(plant.x_hat0, dtype=float).copy()
         self.estimator, self.dt, self.options = estimator, dt, options
-        # "auto": with a run-time estimator an interval carries the plant and the model's flow only
-        # (no observer gain), smooth over a short interval: scipy's RK45 takes one step of 6 right-hand
-        # sides where DOP853 takes one of 12 (EKF pairs: 1.15 -> 0.85 s, states within 1e-8). The
-        # continuous observer's gain K C can make the loop fast: there DOP853 (thm1 on random_osl_v1
-        # with noise 0.01 over 62 s: 1.07e6 right-hand sides with DOP853; RK45 ran past the 2e6 budget)
+        # "auto": RK45 for the smooth plant and model flow of an estimator, DOP853 with an observer gain
         method = options.method if options.method != "auto" else ("RK45" if estimator is not None else "DOP853")
         self.method = getattr(scipy.integrate, method) if isinstance(method, str) else method
         self.held = None  # B u_k ((n, 1) beside the model, (n,) alone), or (0, K v_k) for the observer
         self.first = None  # the first step of the next interval (see _step)
         self.nfev = 0
 
-    # -- right-hand sides over one interval ------------------------------------------------------
     def _model_rhs(self, t, s):
-        """Plant and the estimator's model flow as one ODE, ``s`` the (n, 2) array ``[x, x_hat]`` raveled."""
+        """Plant and the estimator's model flow, ``s`` the (n, 2) array ``[x, x_hat]`` raveled."""
         S = s.reshape(self.n, 2)
         return _finite(self.A @ S + self.held + np.asarray(self.f(S), dtype=float), t).ravel()
 
@@ -425,16 +349,9 @@ class _SampledLoop:
         """Plant and continuous observer (6) in ``z = (x, x_hat)``, the noise injection held."""
         return _finite(self.L @ s + self.held + np.asarray(self.f(s.reshape(2, self.n).T), dtype=float).T.ravel(), t)
 
-    # -- one interval ----------------------------------------------------------------------------
     def _solve(self, fun, y0) -> tuple[np.ndarray, int]:
-        """Integrate over one sample interval from ``y0`` with scipy's solver class stepped directly
-        (what ``solve_ivp`` does, without its per-call wrapping: the loop calls this every sample).
-
-        Returns the state at the interval's end and the right-hand sides used; sets the next
-        interval's first step to twice this one's largest (at most the interval): a step cut short
-        by the interval's end is taken whole next time (carrying the largest step alone kept the
-        integrator at two steps per sample for good), and one too long is shrunk by the error control.
-        """
+        """Integrate over one interval with scipy's solver class stepped directly; the end state and the
+        right-hand sides used. The next interval starts with twice this one's largest step."""
         o = self.options
         solver = self.method(fun, 0.0, y0, self.dt, rtol=o.rtol, atol=o.atol, first_step=self.first)
         largest = 0.0
@@ -451,8 +368,7 @@ class _SampledLoop:
         """The plant with ``u`` held and the estimator's prediction over one interval; the next plant state
         and the right-hand sides used."""
         est = self.estimator
-        # a NaN derivative at the start of an interval makes the integrator's first step NaN and
-        # its step-size loop endless: check f where the filter's prediction starts
+        # a NaN derivative at the start would make the integrator's step-size loop endless
         xe = np.asarray(xh, dtype=float)
         _finite(np.asarray(self.f(xe), dtype=float), 0.0, "f at the estimate")
         bu = self.B @ u

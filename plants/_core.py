@@ -1,8 +1,4 @@
-"""The plant type: x' = A x + B u + f(x), y = C x, validated when built.
-
-A plant is data plus the nonlinearity ``f`` (and optionally its Jacobian). Nothing in this
-package solves LMIs or simulates: that is the job of ``designs`` and ``bench``.
-"""
+"""The plant type: x' = A x + B u + f(x), y = C x, validated when built; the constants and channels of f."""
 
 from __future__ import annotations
 
@@ -14,32 +10,25 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from bench.errors import PlantError
+from bench import checks
+from bench.errors import PlantError, RegistryError
+from bench.registry import check_id
+
+
+def _plant_error(name: str, message: str) -> PlantError:
+    return PlantError(f"{name}: {message}")
 
 
 def _finite_scalar(name: str, value, *, allow_none: bool = True, positive: bool = False):
-    if value is None:
-        if allow_none:
-            return None
-        raise PlantError(f"{name}: a number is required, got None")
-    try:
-        v = float(value)
-    except (TypeError, ValueError, OverflowError):
-        raise PlantError(f"{name}: expected a finite real number, got {_short(value)}") from None
-    if not math.isfinite(v):
-        raise PlantError(f"{name}: must be finite, got {v}")
-    if positive and v <= 0:
-        raise PlantError(f"{name}: must be > 0, got {v}")
-    return v
+    """``value`` as a finite float (> 0 if ``positive``), None passed through when ``allow_none``."""
+    if value is None and allow_none:
+        return None
+    return check_real(name, value, lo=0.0 if positive else None, strict=positive)
 
 
-# -- argument checks of the plant factories (each error names the parameter) -------------------
 def check_int(name: str, value, lo: int, hi: int | None = None, *, what: str = "") -> int:
-    """``value`` as an int in ``[lo, hi]`` (no upper bound when ``hi`` is None), else :class:`PlantError`.
-
-    Integers only (Python or numpy, or a float with an integer value; not bool): ``2.5`` or ``"7"``
-    are rejected. ``what`` describes the parameter in the message (``"the number of states "``).
-    """
+    """``value`` as an int in ``[lo, hi]`` (a float with an integer value too; not bool), else
+    :class:`PlantError`; ``what`` describes the parameter in the message."""
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)):
         raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
     if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
@@ -52,18 +41,8 @@ def check_int(name: str, value, lo: int, hi: int | None = None, *, what: str = "
 
 
 def check_real(name: str, value, *, lo: float | None = None, strict: bool = False) -> float:
-    """``value`` as a finite float (not bool), ``>= lo`` (``> lo`` if ``strict``), else :class:`PlantError`."""
-    if isinstance(value, bool):
-        raise PlantError(f"{name}: expected a real number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise PlantError(f"{name}: expected a real number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise PlantError(f"{name}: must be finite, got {value!r}")
-    if lo is not None and (v < lo or (strict and v == lo)):
-        raise PlantError(f"{name}: must be {'>' if strict else '>='} {lo:g}, got {value!r}")
-    return v
+    """:func:`bench.checks.real` raising :class:`PlantError`."""
+    return checks.real(name, value, lo=lo, strict=strict, error=_plant_error)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -114,12 +93,9 @@ class Constants:
 class Channels:
     """The nonlinearity as slope-restricted channels: ``f(x) = G phi(H x)``, phi acting channel-wise.
 
-    Channel i maps ``z_i = (H x)_i`` to ``phi_i(z_i)`` with
+    Channel i maps ``z_i = (H x)_i`` to ``phi_i(z_i)`` with ``phi(0) = 0`` and
     ``lo_i <= (phi_i(a) - phi_i(b)) / (a - b) <= hi_i`` for all ``a != b`` (globally, or while
-    ``||x|| <= radius``), and ``phi(0) = 0``. This is what most plants know beyond the scalar
-    constants: *which* states f acts on (the columns of G) and *which* it depends on (the
-    rows of H). The certificate ladder and the structured design use it
-    (``docs/structured.md``).
+    ``||x|| <= radius``); see ``docs/structured.md``.
 
     Parameters
     ----------
@@ -134,15 +110,8 @@ class Channels:
     radius : float, optional
         The slopes hold on the ball ``||x|| <= radius``; None means globally.
     narrow : callable, optional
-        ``narrow(r) -> (lo_r, hi_r)`` (scalars or shape (q,)): the slopes of each channel between
-        two points with ``|z_i| <= r`` (analytic, e.g. :func:`sine_slopes`), for certificates that hold
-        on the region ``|(H x)_i| <= r`` only. :meth:`slopes_on` intersects them with ``[lo, hi]``.
-        None: the slopes are not known to narrow.
-
-    Examples
-    --------
-    The flexible link's ``f4 = -c sin(x3)`` is one channel: ``G = e4``, ``H = e3'``,
-    ``phi(z) = -c sin(z)``, slopes in ``[-c, c]``.
+        ``narrow(r) -> (lo_r, hi_r)`` (scalars or shape (q,)): analytic slopes of each channel on
+        ``|z_i| <= r`` (e.g. :func:`sine_slopes`), for certificates on that region.
     """
 
     G: np.ndarray
@@ -202,14 +171,8 @@ class Channels:
         return (self.hi - self.lo) / 2
 
     def slopes_on(self, r: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """Slope bounds of each channel on ``|z_i| <= r``: the declared narrowing intersected with
-        ``[lo, hi]`` (None when the channels declare no narrowing).
-
-        Raises
-        ------
-        PlantError
-            When ``narrow(r)`` is not a pair of real scalars or (q,) arrays with ``lo_r <= hi_r``.
-        """
+        """Slope bounds of each channel on ``|z_i| <= r``: ``narrow(r)`` intersected with ``[lo, hi]``
+        (None without a narrowing); PlantError when ``narrow(r)`` is not a valid pair."""
         if self.narrow is None:
             return None
         try:
@@ -229,11 +192,8 @@ class Channels:
 
 
 def sine_slopes(coef: float) -> Callable[[float], tuple[float, float]]:
-    """Slopes of ``phi(z) = coef sin(z)`` on ``|z| <= r``: ``coef`` times ``[cos(min(r, pi)), 1]``.
-
-    Between ``a, b`` in ``[-r, r]`` the secant of sin is ``cos(xi)`` for some ``xi`` in ``[-r, r]``,
-    and ``cos`` ranges over ``[cos r, 1]`` there for ``r <= pi`` (over ``[-1, 1]`` beyond).
-    """
+    """Slopes of ``phi(z) = coef sin(z)`` on ``|z| <= r``: ``coef`` times ``[cos(min(r, pi)), 1]``
+    (the secant of sin is ``cos(xi)`` for some ``|xi| <= r``)."""
     def narrow(r: float) -> tuple[float, float]:
         ends = (coef, coef * math.cos(min(r, math.pi)))
         return min(ends), max(ends)
@@ -257,29 +217,8 @@ def cubic_slopes(c: float) -> Callable[[float], tuple[float, float]]:
     return narrow
 
 
-@dataclass(frozen=True)
-class SineTerms:
-    """A nonlinearity of sine terms, ``f_{acts[l]}(x) = (coef / scale) sin(x_{reads[l]})``, as plant fields.
-
-    Build with :func:`sine_terms`; :meth:`fields` gives ``f``, ``jacobian``, ``channels`` and
-    ``bounds`` for :class:`Plant`.
-    """
-
-    f: Callable[[np.ndarray], np.ndarray]
-    jacobian: Callable[[np.ndarray], np.ndarray]
-    channels: Channels | None
-    bounds: Constants
-
-    def fields(self) -> dict:
-        """The keyword arguments ``f``, ``jacobian``, ``channels``, ``bounds`` of :class:`Plant`."""
-        return {"f": self.f, "jacobian": self.jacobian, "channels": self.channels, "bounds": self.bounds}
-
-
-def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> SineTerms:
+def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> dict:
     """Sine terms ``f_{acts[l]}(x) = (coef / scale) sin(x_{reads[l]})``: a pendulum (gravity) per channel.
-
-    The flexible link and joint (``f4 = -c sin x3``), the pendulum (``f2 = -(g/l) sin x1``) and the
-    chain of masses (``(c/m) sin q_i`` on each pendulum mass's velocity) are all of this form.
 
     Parameters
     ----------
@@ -295,12 +234,12 @@ def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> SineT
 
     Returns
     -------
-    SineTerms
-        Global constants in closed form, with ``a = |coef| / scale``: alpha = a (``|sin u - sin v| <=
-        |u - v|``); rho = a / 2, since ``<df, dx> = a sum_l s_l d_{acts[l]}`` with ``|s_l| <=
-        |d_{reads[l]}|`` and ``|d_i d_j| <= (d_i^2 + d_j^2) / 2`` over disjoint index pairs;
-        ``(beta, gamma) = (a^2, 0)``. Channels ``G = E_acts / scale``, ``H = E_reads'`` (none when
-        there is no term; every constant is then 0).
+    dict
+        The :class:`Plant` fields ``f``, ``jacobian``, ``channels``, ``bounds``. Global constants,
+        ``a = |coef| / scale``: alpha = a (``|sin u - sin v| <= |u - v|``); rho = a / 2, since
+        ``<df, dx> = a sum_l s_l d_{acts[l]}`` with ``|s_l| <= |d_{reads[l]}|`` and ``|d_i d_j| <=
+        (d_i^2 + d_j^2) / 2`` over disjoint pairs; ``(beta, gamma) = (a^2, 0)``. Channels
+        ``G = E_acts / scale``, ``H = E_reads'`` (none without a term).
 
     Raises
     ------
@@ -328,13 +267,12 @@ def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> SineT
         return J
 
     a = abs(coef) / scale if acts.size else 0.0
-    return SineTerms(f=f, jacobian=jacobian, channels=_sine_channels(n, acts, reads, coef, scale),
-                     bounds=Constants(alpha=a, rho=a / 2, beta=a**2, gamma=0.0))
+    return {"f": f, "jacobian": jacobian, "channels": _sine_channels(n, acts, reads, coef, scale),
+            "bounds": Constants(alpha=a, rho=a / 2, beta=a**2, gamma=0.0)}
 
 
 def _sine_channels(n: int, acts: np.ndarray, reads: np.ndarray, coef: float, scale: float) -> Channels | None:
-    """The channels of :func:`sine_terms`: ``G = E_acts / scale``, ``H = E_reads'``, ``phi_l(z) = coef sin(z)``
-    (None when there is no term)."""
+    """The channels of :func:`sine_terms` (None when there is no term)."""
     q = acts.size
     if not q:
         return None
@@ -412,10 +350,9 @@ class Plant:
     Raises
     ------
     PlantError
-        On inconsistent shapes, non-finite entries, ``f(0) != 0``, an f returning a wrong
-        shape, an f that is not deterministic, writes into its argument or whose batch form mixes
-        columns, a Jacobian that is not the derivative of f (finite differences, the entry
-        named), or channels that do not reproduce f; the message names the field.
+        Naming the field: bad shapes or entries, ``f(0) != 0``, an f that is not deterministic,
+        writes into its argument or mixes a batch's columns, a Jacobian that is not f's
+        derivative, channels that do not reproduce f.
     """
 
     id: str
@@ -436,16 +373,10 @@ class Plant:
     notes: str = ""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.id, str) or not self.id:
-            raise PlantError(f"id: a non-empty string is required, got {self.id!r}")
-        allowed = "letters A-Z a-z, digits 0-9, '_', '-', '.', '+'"  # the id names files: bench.registry.check_id
-        bad = next((ch for ch in self.id if not (ch.isascii() and (ch.isalnum() or ch in "_-.+"))), None)
-        if bad is not None:
-            raise PlantError(f"id: {self.id!r} holds the character {bad!r}, which is not allowed (the id names "
-                             f"files); use only {allowed}")
-        if self.id[0] in ".-":
-            raise PlantError(f"id: {self.id!r} must not start with {self.id[0]!r}; use only {allowed}, starting "
-                             "with a letter, a digit or '_'")
+        try:
+            check_id(self.id, "plant")
+        except RegistryError as exc:
+            raise PlantError(f"id: {exc}") from None
         A = _matrix("A", self.A)
         B = _matrix("B", self.B)
         C = _matrix("C", self.C)
@@ -506,22 +437,8 @@ class Plant:
                 raise PlantError(f"f: {label} is not finite: {out}")
             if label == "f(0)" and np.linalg.norm(out) > 1e-12:
                 raise PlantError(f"f: f(0) must be 0 (origin an equilibrium), got {out}")
-        if self.jacobian is not None:
-            if not callable(self.jacobian):
-                raise PlantError("jacobian: must be callable or None")
-            try:
-                raw = self.jacobian(np.array(self.x0))
-            except Exception as exc:
-                raise PlantError(f"jacobian: raised {type(exc).__name__} at x0: {exc}") from exc
-            try:
-                J = _real_array(raw)
-            except Exception as exc:
-                raise PlantError(f"jacobian: not a real numeric array at x0 ({type(exc).__name__}: {exc}); "
-                                 f"got {_short(raw)}") from None
-            if J.shape != (n, n):
-                raise PlantError(f"jacobian: must return shape ({n}, {n}), got {J.shape}")
-            if not np.all(np.isfinite(J)):
-                raise PlantError(f"jacobian: not finite at x0: {J}")
+        if self.jacobian is not None and not callable(self.jacobian):
+            raise PlantError("jacobian: must be callable or None")
 
     def _check_jacobian(self, n: int) -> None:
         """The declared Jacobian against central differences of f at the probe states, 0 and x0."""
@@ -608,11 +525,9 @@ class Plant:
         Parameters
         ----------
         sys : control.StateSpace
-            Continuous-time system ``x' = A x + B u``, ``y = C x``; D must be zero (the
-            observer-based controller of the paper has no feedthrough).
+            Continuous-time system ``x' = A x + B u``, ``y = C x``; D must be zero.
         f : callable, optional
-            The nonlinearity (default: ``f = 0``, a linear plant). Same contract as the
-            ``f`` field.
+            The nonlinearity (default 0).
         x0 : array_like, optional
             Initial state (default: all ones).
         x_hat0 : array_like, optional
@@ -620,8 +535,7 @@ class Plant:
         id : str, optional
             Plant id (default: the system's name).
         **fields
-            Any other :class:`Plant` field (``bounds``, ``channels``, ``claimed``, ``t_final``,
-            ``source``, ...).
+            Any other :class:`Plant` field.
 
         Returns
         -------
@@ -679,23 +593,11 @@ class Plant:
 
 
 def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: float = 1e-4) -> str | None:
-    """Where a declared Jacobian disagrees with central differences of ``f`` (None: nowhere).
+    """Where a declared Jacobian disagrees with central differences of ``f`` at the columns of ``X``
+    (a message naming the entry and the state; None: nowhere).
 
-    At each state ``x`` (a column of ``X``, (n, N)) the finite difference
-    ``(f(x + h e_j) - f(x - h e_j)) / 2h``, ``h = 1e-6 max(1, ||x||)`` (error ``O(h^2)`` for a smooth f
-    plus round-off ``O(eps ||f|| / h)``), is compared with ``jacobian(x)``; an entry off by more than
-    ``rtol (1 + max |J_fd|)`` is named with the state and both values.
-
-    Parameters
-    ----------
-    f, jacobian : callable
-    X : ndarray (n, N)
-    rtol : float
-
-    Returns
-    -------
-    str or None
-        The message (for a :class:`PlantError`).
+    At each column ``x`` the difference ``(f(x + h e_j) - f(x - h e_j)) / 2h``, ``h = 1e-6 max(1, ||x||)``,
+    must match ``jacobian(x)`` within ``rtol (1 + max |J_fd|)``.
     """
     X = np.asarray(X, dtype=float)
     n = X.shape[0]
@@ -721,5 +623,5 @@ def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: f
 
 
 def _zero_f(x: np.ndarray) -> np.ndarray:
-    """The nonlinearity of a linear plant: ``f(x) = 0`` (any batch shape)."""
+    """``f(x) = 0``, a linear plant's nonlinearity."""
     return np.zeros_like(np.asarray(x, dtype=float))

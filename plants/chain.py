@@ -1,87 +1,35 @@
 """A chain of N masses on springs with inverted-pendulum terms: a physical family that grows with n.
 
-Model (lumped mass-spring chain, fixed at both ends to walls, with a sine term on some masses)::
+Model (lumped mass-spring chain clamped at both ends [1]_, with a sine term on some masses)::
 
     m q_i'' = k (q_{i-1} - 2 q_i + q_{i+1}) + d (v_{i-1} - 2 v_i + v_{i+1}) - b v_i
               + c sin(q_i) [i in nonlinear] + sum_j u_j [i = inputs_j],     q_0 = q_{N+1} = 0,
 
-``i = 1..N`` (0-based in the code), ``v_i = q_i'``. The spring-coupled masses are the textbook
-lumped model of a string or rod clamped at both ends [1]_; with the sine term it is the
-Frenkel-Kontorova chain [2]_ (``-c sin``: masses in a periodic substrate potential, i.e. a chain of
-hanging pendula coupled by torsion springs, the discretised sine-Gordon equation) with the sign of
-the substrate force reversed (``+c sin``: coupled *inverted* pendula, as in the two spring-coupled
-inverted pendula of Siljak [3]_). The choices below are ours: identical masses, springs and
-dampers (dampers in parallel with the springs, plus an optional viscous friction ``b`` to ground),
-the inverted sign, and which masses carry a pendulum term, an actuator or a sensor.
+``v_i = q_i'``: the Frenkel-Kontorova chain [2]_ with the substrate force reversed (``+c sin``:
+coupled *inverted* pendula, as in Siljak's spring-coupled pendula [3]_). Ours: identical masses,
+springs and dampers, the sign, and where the pendula, actuators and sensors sit.
 
-State (interleaved, so A is banded with half-bandwidth 3)::
+State ``x = (q_1, v_1, ..., q_N, v_N)``, n = 2 N, so A is banded::
 
-    x = (q_1, v_1, q_2, v_2, ..., q_N, v_N),  n = 2 N,
     A[2i, 2i+1] = 1,  A[2i+1, 2j] = -k K_ij / m,  A[2i+1, 2j+1] = -(d K_ij + b delta_ij) / m,
 
-with ``K = tridiag(-1, 2, -1)`` (N x N, the fixed-fixed chain). ``B[:, j] = e_{v(inputs_j)} / m``
-(a force on mass ``inputs_j``), ``C[j, :] = e_{q(outputs_j)}'`` (its position). The sine is kept
-whole in f (its linear part is not moved into A): A is the lightly damped spring chain
-(eigenvalues of ``K`` are ``4 sin^2(j pi / (2(N+1)))`` [1]_, all > 0, so A is Hurwitz when
-``d > 0`` or ``b > 0``), while the plant's linearisation at the origin,
-``A + (c/m) sum_i e_{v_i} e_{q_i}'``, is unstable as soon as ``c`` exceeds the stiffness seen by
-one pendulum mass, ``1 / [K^{-1}]_ii = k (N+1) / ((i+1)(N-i))`` (0-based i): the upright
-equilibrium of an inverted pendulum that the springs cannot hold. With the defaults ``k = m = 1``,
-``c = 2`` every member with N >= 2 and a pendulum is open-loop unstable (the largest threshold,
-at an end mass, is ``(N+1)/N < 2``; N = 1 sits on the threshold).
+``K = tridiag(-1, 2, -1)``; ``B[:, j] = e_{v(inputs_j)} / m``, ``C[j, :] = e_{q(outputs_j)}'``. The
+sine stays whole in f. The eigenvalues of K, ``4 sin^2(j pi / (2(N+1)))`` [1]_, are positive, so A is
+Hurwitz when ``d > 0`` or ``b > 0``; the linearisation ``A + (c/m) sum_i e_{v_i} e_{q_i}'`` is
+unstable once c exceeds the stiffness one pendulum mass sees, ``1 / [K^{-1}]_ii = k (N+1) / ((i+1)(N-i))``
+(0-based i). (A, B) and (A, C) are checked by the PBH test when the plant is built.
 
-Stabilizability and detectability: K is a Jacobi (unreduced tridiagonal) matrix, so its
-eigenvalues are simple and every eigenvector has nonzero first and last components; with
-stiffness-proportional damping the modes of A are those of K, so one actuator (sensor) at an end
-mass already makes (A, B) controllable ((A, C) observable) for ``b >= 0``. Linearised instability
-comes from the pendula, i.e. from f; (A, B) and (A, C) are checked with the PBH test at build
-(:func:`plants.random_families.is_stabilizable` / ``is_detectable``), and so is the pair with the
-linear part of f folded in (``A + G diag(c0) H`` with the channels' mid slopes, here ``c0 = 0``,
-i.e. A itself).
-
-Channel structure (global): one channel per pendulum mass i, ``G[:, l] = e_{v_i} / m``,
-``H[l, :] = e_{q_i}'``, ``phi_l(z) = c sin(z)``, slope ``c cos(z)`` in ``[-|c|, |c|]`` (tight: cos
-takes every value in [-1, 1]).
-
-Constants of ``f = G phi(H x)`` (analytic, global). Write ``d_i = dq_i``, ``e_i = dv_i`` for the
-differences at pendulum mass i and ``s_i = sin(a_i) - sin(b_i)``, ``|s_i| <= |d_i|``
-(mean value theorem):
-
-- alpha = |c| / m: ``||df||^2 = (c/m)^2 sum_i s_i^2 <= (c/m)^2 sum_i d_i^2 <= (c/m)^2 ||dx||^2``
-  (this is ``max|slope| ||G|| ||H||`` with ``||G|| = 1/m``, ``||H|| = 1``); tight for ``dx = d e_{q_i}``,
-  d -> 0 at the origin.
-- rho = |c| / (2 m): ``<dx, df> = (c/m) sum_i e_i s_i <= (|c|/m) sum_i |e_i| |d_i|
-  <= (|c|/(2m)) sum_i (d_i^2 + e_i^2) <= (|c|/(2m)) ||dx||^2``; tight for ``d_i = d``,
-  ``e_i = sign(c) d`` at one pendulum mass, d -> 0 at the origin.
-- (beta, gamma) = (c^2 / m^2, 0): ``||df||^2 <= alpha^2 ||dx||^2``; with gamma = 0 this is the
-  smallest beta (the alpha pair is tight).
-
-With no pendulum mass (``nonlinear=()``) f = 0 and every constant is 0 (no channels are declared).
-
-The registry holds one small member, ``chain_v1`` (N = 3, n = 6: pendulum, force and position
-sensor on the end mass 0, c = 2), cheap enough for the default benchmark of every design; sweeps
-call :func:`chain_plant` (default layout: pendula, forces and sensors at every fifth mass, see
-:func:`default_masses`).
-
-Memory: A, B, C are built sparse (:func:`chain_matrices`) and made dense once; f and the
-Jacobian use index arrays (O(N) work per state). G and H are dense n x q arrays (the Channels
-type stores arrays): 2 n q floats, a fifth of A's size with the default layout.
-
-Sparsity: A is banded (half-bandwidth 3) and ``df/dx`` has entries only at ``(v_i, q_i)``, which
-A already holds (``A[v_i, q_i] = -2 k / m != 0``): :func:`chain_sparsity` returns the pattern of
-``A + df/dx`` as a ``scipy.sparse`` matrix (7 N - 4 entries), for stiff solvers at large N;
-:func:`chain_matrices` returns A, B, C in sparse form.
+f is a sum of sine terms, one channel per pendulum mass (``G[:, l] = e_{v_i} / m``, ``H[l, :] = e_{q_i}'``,
+``phi_l(z) = c sin(z)``); its global constants (:func:`plants._core.sine_terms`) are alpha = |c| / m,
+rho = |c| / (2 m), (beta, gamma) = (c^2 / m^2, 0); all 0 without a pendulum.
 
 References
 ----------
-.. [1] L. Meirovitch, Fundamentals of Vibrations, McGraw-Hill, 2001 (lumped-parameter
-   multi-degree-of-freedom systems; the string in transverse vibration as the limit of a chain of
-   masses on springs, and its natural frequencies).
+.. [1] L. Meirovitch, Fundamentals of Vibrations, McGraw-Hill, 2001 (lumped multi-degree-of-freedom
+   systems; the string as the limit of a chain of masses on springs).
 .. [2] O. M. Braun and Y. S. Kivshar, The Frenkel-Kontorova Model: Concepts, Methods, and
-   Applications, Springer, 2004 (the chain of masses with harmonic coupling in a sinusoidal
-   substrate potential; its mechanical analogue, a chain of pendula coupled by torsion springs).
-.. [3] D. D. Siljak, Decentralized Control of Complex Systems, Academic Press, 1991 (two inverted
-   pendula coupled by a spring, the standard interconnected-systems example).
+   Applications, Springer, 2004.
+.. [3] D. D. Siljak, Decentralized Control of Complex Systems, Academic Press, 1991.
 """
 
 from __future__ import annotations
@@ -107,7 +55,6 @@ SOURCE = (
 )
 
 
-# -- argument checks (each error names the parameter) -------------------------------------------
 def _masses(name: str, value, N: int, *, allow_empty: bool) -> tuple[int, ...]:
     if isinstance(value, (str, bytes)) or not isinstance(value, Iterable):
         raise PlantError(f"{name}: expected a sequence of mass indices (0 .. {N - 1}), got {value!r}")
@@ -138,85 +85,13 @@ def default_masses(N: int, stride: int = 5) -> tuple[int, ...]:
     Returns
     -------
     tuple of int
-        Every ``stride``-th mass, starting at ``min(stride // 2, (N - 1) // 2)`` (so a short chain
-        still gets its middle mass).
+        Every ``stride``-th mass from ``min(stride // 2, (N - 1) // 2)``.
     """
     N = check_int("N", N, 1, MAX_N)
     stride = check_int("stride", stride, 1, MAX_N)
     return tuple(range(min(stride // 2, (N - 1) // 2), N, stride))
 
 
-# -- the matrices -------------------------------------------------------------------------------
-def chain_matrices(*, N: int, m: float = 1.0, k: float = 1.0, d: float = 0.02, b: float = 0.0,
-                   inputs: Iterable[int] = (0,), outputs: Iterable[int] = (0,)):
-    """A, B, C of the chain in ``scipy.sparse`` CSR form (no dense n x n matrix is formed).
-
-    Parameters
-    ----------
-    N : int
-        Number of masses (n = 2 N).
-    m, k, d, b : float
-        Mass (> 0), spring stiffness (> 0), damper coefficient (>= 0, in parallel with each spring)
-        and viscous friction to ground (>= 0).
-    inputs, outputs : sequence of int
-        Masses (0-based) driven by a force / whose position is measured.
-
-    Returns
-    -------
-    A, B, C : scipy.sparse.csr_matrix
-        Shapes (n, n), (n, len(inputs)), (len(outputs), n); A has at most 7 N - 4 nonzeros.
-    """
-    import scipy.sparse as sp
-
-    N = check_int("N", N, 1, MAX_N)
-    m = check_real("m", m, lo=0.0, strict=True)
-    k = check_real("k", k, lo=0.0, strict=True)
-    d = check_real("d", d, lo=0.0)
-    b = check_real("b", b, lo=0.0)
-    ins = _masses("inputs", inputs, N, allow_empty=False)
-    outs = _masses("outputs", outputs, N, allow_empty=False)
-    n = 2 * N
-    i = np.arange(N)
-    rows, cols, vals = [2 * i], [2 * i + 1], [np.ones(N)]
-    # K = tridiag(-1, 2, -1): diagonal 2, off-diagonals -1
-    rows += [2 * i + 1, 2 * i + 1]
-    cols += [2 * i, 2 * i + 1]
-    vals += [np.full(N, -2 * k / m), np.full(N, -(2 * d + b) / m)]
-    for off in (-1, 1):
-        j = i[(i + off >= 0) & (i + off < N)]
-        rows += [2 * j + 1, 2 * j + 1]
-        cols += [2 * (j + off), 2 * (j + off) + 1]
-        vals += [np.full(j.size, k / m), np.full(j.size, d / m)]
-    A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
-    A.eliminate_zeros()
-    B = sp.csr_matrix((np.full(len(ins), 1.0 / m), ([2 * v + 1 for v in ins], range(len(ins)))),
-                      shape=(n, len(ins)))
-    C = sp.csr_matrix((np.ones(len(outs)), (range(len(outs)), [2 * v for v in outs])), shape=(len(outs), n))
-    return A, B, C
-
-
-def chain_sparsity(N: int):
-    """Sparsity pattern of ``A + df/dx`` for a chain of N masses (any parameters, any layout).
-
-    Parameters
-    ----------
-    N : int
-        Number of masses (n = 2 N).
-
-    Returns
-    -------
-    scipy.sparse.csr_matrix, shape (2 N, 2 N), dtype bool
-        True where ``A + df/dx`` may be nonzero: ``(q_i, v_i)`` and the rows ``v_i`` at
-        ``q_j, v_j`` for ``|i - j| <= 1`` (df/dx adds only ``(v_i, q_i)``, already there). Pass it
-        as ``jac_sparsity`` to ``scipy.integrate.solve_ivp`` (BDF / Radau) for the plant alone (in
-        the observer loop the gain blocks ``B F`` and ``K C`` add their own, generally dense, rows
-        and columns).
-    """
-    A, _, _ = chain_matrices(N=N, m=1.0, k=1.0, d=1.0, b=0.0)
-    return (A != 0).tocsr()
-
-
-# -- the plant ----------------------------------------------------------------------------------
 def chain_plant(
     *,
     N: int = 3,
@@ -244,9 +119,8 @@ def chain_plant(
     d, b : float
         Damper coefficient in parallel with each spring, and viscous friction to ground (>= 0).
     c : float
-        Pendulum coefficient: force ``c sin(q_i)`` on each mass in ``nonlinear``. ``c > 0`` is
-        an inverted pendulum (destabilising), ``c < 0`` a hanging one (the Frenkel-Kontorova
-        substrate); slopes lie in ``[-|c|, |c|]``.
+        Force ``c sin(q_i)`` on each mass in ``nonlinear``: ``c > 0`` an inverted pendulum, ``c < 0``
+        a hanging one.
     nonlinear, inputs, outputs : sequence of int, optional
         Masses (0-based) carrying a pendulum term, driven by a force, measured (position).
         Default: :func:`default_masses` ``(N, stride)`` for each. ``nonlinear`` may be empty.
@@ -263,15 +137,12 @@ def chain_plant(
     Returns
     -------
     Plant
-        Version 1, dense A (banded), ``channels`` one per pendulum mass, global analytic
-        constants (claimed = bounds): alpha = |c|/m, rho = |c|/(2m), (beta, gamma) = (c^2/m^2, 0).
-        f and its Jacobian cost O(N) to evaluate (index arrays, no n x n products in f).
+        Claimed = bounds: alpha = |c|/m, rho = |c|/(2m), (beta, gamma) = (c^2/m^2, 0), global.
 
     Raises
     ------
     PlantError
-        On a bad argument (the message names it), or if (A, B) fails the PBH stabilizability or
-        (A, C) the detectability test.
+        On a bad argument, or when (A, B) or (A, C) fails the PBH test.
     """
     N = check_int("N", N, 1, MAX_N)
     m = check_real("m", m, lo=0.0, strict=True)
@@ -295,7 +166,7 @@ def chain_plant(
     x0[0::2] = amplitude * np.sin(np.pi * np.arange(1, N + 1) / (N + 1))
     return Plant(
         id=id or f"chain_v1_N{N}",
-        A=A, B=B, C=C, x0=x0, x_hat0=np.zeros(n), **pendula.fields(), claimed=pendula.bounds, t_final=t_final,
+        A=A, B=B, C=C, x0=x0, x_hat0=np.zeros(n), **pendula, claimed=pendula["bounds"], t_final=t_final,
         family="chain",
         params={"N": N, "n": n, "m": m, "k": k, "d": d, "b": b, "c": c, "amplitude": amplitude,
                 "n_inputs": len(ins), "n_outputs": len(outs), "n_channels": q, "version": 1},
@@ -307,12 +178,20 @@ def chain_plant(
 
 
 def _linear_part(N: int, m: float, k: float, d: float, b: float, ins, outs) -> tuple[np.ndarray, ...]:
-    """Dense ``(A, B, C)`` of the chain (:func:`chain_matrices`), or PlantError when (A, B) is not
-    stabilizable or (A, C) not detectable (PBH)."""
+    """``(A, B, C)`` of the chain (module docstring), or PlantError when (A, B) is not stabilizable or
+    (A, C) not detectable (PBH)."""
     from plants.random_families import is_detectable, is_stabilizable, pbh_margin
 
-    As, Bs, Cs = chain_matrices(N=N, m=m, k=k, d=d, b=b, inputs=ins, outputs=outs)
-    A, B, C = As.toarray(), Bs.toarray(), Cs.toarray()
+    n, i, j = 2 * N, np.arange(N), np.arange(N - 1)
+    A = np.zeros((n, n))
+    A[2 * i, 2 * i + 1] = 1.0
+    A[2 * i + 1, 2 * i], A[2 * i + 1, 2 * i + 1] = -2 * k / m, -(2 * d + b) / m
+    for v, w in ((j, j + 1), (j + 1, j)):  # the spring and the damper between neighbours v, w
+        A[2 * v + 1, 2 * w], A[2 * v + 1, 2 * w + 1] = k / m, d / m
+    B = np.zeros((n, len(ins)))
+    B[[2 * v + 1 for v in ins], range(len(ins))] = 1.0 / m
+    C = np.zeros((len(outs), n))
+    C[range(len(outs)), [2 * v for v in outs]] = 1.0
     if not is_stabilizable(A, B):
         raise PlantError(f"inputs: (A, B) is not stabilizable with inputs at masses {list(ins)} "
                          f"(PBH margin {pbh_margin(A, B):.3g})")
@@ -329,25 +208,15 @@ def chain_v1(*, N: int = 3, c: float = 2.0, t_final: float = 20.0) -> Plant:
     Parameters
     ----------
     N : int
-        Number of masses (default 3); the layout stays: pendulum, force and position sensor all on
-        mass 0 (an end mass: every mode is controllable and observable from it).
+        Number of masses; pendulum, force and position sensor all on the end mass 0.
     c : float
-        Pendulum coefficient (default 2: the linearisation is unstable, the threshold at the end
-        mass is ``k (N+1) / N`` = 4/3 for 3 masses).
+        Pendulum coefficient (2: above the end mass's threshold ``k (N+1) / N``, so unstable).
     t_final : float
         Simulation horizon in seconds.
 
     Returns
     -------
     Plant
-        Version 1 of the registered member ``chain_v1``.
-
-    Notes
-    -----
-    Measured with the suite (``python -m bench run --plant chain_v1``): every design that treats f
-    by its scalar constants (alpha = 2) is infeasible; LQR-based designs (built on A, which lacks
-    the pendulum's destabilising linear part) settle at another equilibrium; the structured design
-    is certified (decay about 0.3) and converges.
     """
     N = check_int("N", N, 1, MAX_N)
     return chain_plant(N=N, c=c, nonlinear=(0,), inputs=(0,), outputs=(0,), t_final=t_final, id="chain_v1")

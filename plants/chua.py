@@ -11,18 +11,12 @@ with the double-scroll values a = 9, b = 14.28, m0 = -1/7, m1 = 2/7. The linear 
     A = [[-a (1 + m1), a, 0], [1, -1, 1], [0, -b, 0]],
     f(x) = [k sat(x1), 0, 0]',  k = -a (m0 - m1) = 27/7,  sat(s) = (|s + 1| - |s - 1|) / 2.
 
-Choice made here: **B = [1, 0, 0]'** (one input, driving the first state) and
-**C = [1, 0, 0]** (x1 measured). Both pairs are controllable / observable. Initial conditions
-(picked): ``x(0) = (0.7, 0, 0)`` (on the way to the double-scroll attractor when u = 0) and
-``x_hat(0) = (0, 0, 0)``.
+Chosen here: ``B = C' = e1``, ``x(0) = (0.7, 0, 0)``, ``x_hat(0) = 0``.
 
-Constants (analytic, global): sat is monotone with slopes in [0, 1], so along any pair
-``df = k s dx1 e1`` with ``s in [0, 1]``. Lipschitz alpha = |k| = a |m0 - m1|; OSL
-``<df, dx> = k s dx1^2``, so rho = max(k, 0) (= k = 27/7 here, tight inside |x1| < 1);
-QIB ``(beta, gamma) = (k^2, 0)``. (For k > 0 the pair (0, k) is valid too, since
-``||df||^2 = k^2 s^2 dx1^2 <= k <dx, df>``.) Claimed by the source: alpha = a |m0 - m1|.
-Channel structure (global): ``G = H' = e1``, ``phi(z) = k sat(z)`` with slope ``k s``,
-``s in [0, 1]``, so in ``[min(k, 0), max(k, 0)]``.
+Constants (analytic, global): sat is monotone with slopes in [0, 1], so ``df = k s dx1 e1`` with
+``s in [0, 1]``: alpha = |k|; ``<df, dx> = k s dx1^2`` gives rho = max(k, 0) (tight inside
+|x1| < 1); (beta, gamma) = (k^2, 0). Claimed by the source: alpha = a |m0 - m1|. Channel (global):
+``G = H' = e1``, ``phi(z) = k sat(z)``, slopes in ``[min(k, 0), max(k, 0)]``.
 
 References
 ----------
@@ -63,13 +57,6 @@ def chua(
     Returns
     -------
     Plant
-        Version 1; global constants alpha = |k|, rho = max(k, 0), (beta, gamma) = (k^2, 0)
-        with ``k = -a (m0 - m1)``.
-
-    Raises
-    ------
-    PlantError
-        If a parameter is not finite (the message names it).
     """
     a, b, m0, m1 = (check_real(name, v) for name, v in (("a", a), ("b", b), ("m0", m0), ("m1", m1)))
     k = -a * (m0 - m1)

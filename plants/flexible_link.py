@@ -6,13 +6,9 @@ taken from (35) as printed. The nonlinearity is ``f4 = -c sin(x_i)`` with c = 0.
 (34) and the classic sources (Raghavan & Hedrick 1994; Rajamani 1998) put gravity on the link
 angle x3 (the default plant); the paper prints sin(x1) in (36) (the ``_printed`` variant).
 
-Constants of ``f = (0, 0, 0, -c sin(x_i))``, i in {1, 3} (analytic, global):
-alpha = c; rho = c / 2 (|c (sin a - sin b) d4| <= c |d_i| |d4| <= c/2 (d_i^2 + d4^2));
-(beta, gamma) = (c^2, 0). The paper claims rho = beta = 0.1109 and gamma = 0: its rho is c^2,
+Constants and channels of the sine term: :func:`plants._core.sine_terms` (alpha = c, rho = c / 2,
+(beta, gamma) = (c^2, 0), global). The paper claims rho = beta = 0.1109, gamma = 0: its rho is c^2,
 which is wrong (the pair dx = (0, 0, -d, d) gives a ratio -> c/2 = 0.1665); its beta is right.
-
-Channel structure (global): one channel, ``G = e4``, ``H = e_i'``, ``phi(z) = -c sin(z)`` with
-slope ``-c cos(z)`` in ``[-|c|, |c|]``.
 """
 
 from __future__ import annotations
@@ -44,9 +40,9 @@ PAPER_CLAIMED = Constants(rho=0.1109, beta=0.1109, gamma=0.0, alpha=0.333)
 
 
 def _make(pid: str, c: float, index: int, t_final: float, notes: str) -> Plant:
-    c = check_real("c", c)  # a clear PlantError naming c, not a bare float() error
+    c = check_real("c", c)
     gravity = sine_terms(4, acts=[3], reads=[index], coef=-c)
-    return Plant(id=pid, A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity.fields(), claimed=PAPER_CLAIMED,
+    return Plant(id=pid, A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity, claimed=PAPER_CLAIMED,
                  t_final=t_final, family="flexible_link", params={"c": c}, source=SOURCE, notes=notes)
 
 

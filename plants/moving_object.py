@@ -5,32 +5,15 @@
     A = [[-1, 1], [1.5, -0.5]],  B = [0, -1]',  C = [0, 1],
     f(x) = -x (x1^2 + x2^2) = -||x||^2 x.
 
-A has eigenvalues 0.5 and -2: the linear part is unstable, (A, B)
-is controllable and (A, C) observable. The sources' simulation starts from
-``x(0) = (0.1, -0.1)``, ``x_hat(0) = (-0.1, 0.1)``; Nguyen et al. take the region r = 10.
+A has eigenvalues 0.5 and -2. Sources: ``x(0) = (0.1, -0.1)``, ``x_hat(0) = (-0.1, 0.1)``, the
+region r = 10. ``f = -grad(||x||^4 / 4)`` is monotone, so rho = 0 globally, while f is Lipschitz
+only locally.
 
-This plant shows the point of the one-sided Lipschitz condition: ``f = -grad phi`` with
-``phi(x) = ||x||^4 / 4`` convex, so f is monotone decreasing and **rho = 0 globally**, while f
-is not globally Lipschitz and its Lipschitz constant on ``||x|| <= r`` is ``3 r^2`` (300 for
-r = 10).
-
-Constants on the ball ``||x|| <= r`` (derived here; the ball is convex, so every segment
-between two of its points stays in it):
-
-- Jacobian ``J(x) = -(||x||^2 I + 2 x x')``, symmetric, with eigenvalues ``-||x||^2`` and
-  ``-3 ||x||^2``. Along a segment, ``df = -H dx`` with ``H`` the average of ``-J``,
-  symmetric and ``0 <= H <= 3 r^2 I``.
-- Lipschitz: ``alpha = 3 r^2`` (tight at ``||x|| = r``, dx along x).
-- OSL: ``<df, dx> = -dx' H dx <= 0``, so ``rho = 0`` (tight: the ratio -> 0 as x -> 0).
-- QIB: ``||df||^2 = dx' H^2 dx <= 3 r^2 dx' H dx = -3 r^2 <dx, df>`` (since
-  ``H^2 <= lambda_max(H) H`` for symmetric ``H >= 0``), so ``(beta, gamma) = (0, -3 r^2)`` is
-  valid, and tight (|gamma| cannot be smaller, by the same pair as for alpha). The sources'
-  ``(0, -4 r^2)`` is valid but looser (the condition gets weaker as gamma decreases, because
-  ``<dx, df> <= 0``).
-
-Claimed (as the sources state them): rho = 0; on ``||x|| <= r``:
-beta = 0, gamma = -4 r^2, Lipschitz 3 r^2. The analytic bounds use the tight gamma = -3 r^2.
-gamma < 0 needs the fixed-eps form of the corrected Theorem 1.
+Constants on the (convex) ball ``||x|| <= r``: along a segment ``df = -H dx`` with ``H`` the average
+of ``-J(x) = ||x||^2 I + 2 x x'``, symmetric, ``0 <= H <= 3 r^2 I``. So alpha = 3 r^2 (tight at
+``||x|| = r``, dx along x); ``<df, dx> = -dx' H dx <= 0``, rho = 0; and ``||df||^2 = dx' H^2 dx
+<= 3 r^2 dx' H dx = -3 r^2 <dx, df>``, so (beta, gamma) = (0, -3 r^2), tight. The sources claim
+rho = 0, alpha = 3 r^2 and the looser (0, -4 r^2).
 
 References
 ----------
@@ -86,11 +69,6 @@ def moving_object_bounds(r: float) -> Constants:
     -------
     Constants
         ``alpha = 3 r^2``, ``rho = 0``, ``(beta, gamma) = (0, -3 r^2)``, ``radius = r``.
-
-    Raises
-    ------
-    PlantError
-        If ``r`` is not a finite number > 0 (the message names ``r``).
     """
     r = check_real("r", r, lo=0.0, strict=True)
     return Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-3 * r**2, radius=r)
@@ -110,13 +88,7 @@ def moving_object(*, r: float = R_SOURCE, t_final: float = 20.0) -> Plant:
     Returns
     -------
     Plant
-        Version 1. Claimed: rho = 0, alpha = 3 r^2, (beta, gamma) = (0, -4 r^2) on the region;
-        analytic: the same with the tight gamma = -3 r^2.
-
-    Raises
-    ------
-    PlantError
-        If ``r`` is not finite and > 0, or the initial conditions lie outside the region.
+        PlantError when the region ``||x|| <= r`` does not contain the initial conditions.
     """
     bounds = moving_object_bounds(r)
     r = bounds.radius

@@ -6,17 +6,10 @@ The pendulum equation ``m l theta'' = -m g sin(theta) - k l theta' + T / l`` wit
 
     A = [[0, 1], [0, -b]],  B = [0, 1]',  C = [1, 0],  f(x) = [0, -(g/l) sin(x1)]'.
 
-Values picked here: ``g / l = 9.81`` (l = 1 m, g = 9.81 m/s^2) and ``b = 0.1`` (1/s). The
-angle is measured. A has eigenvalues 0 and -b; the sine is kept whole in f (its linear part
-``-(g/l) x1`` is not moved into A). Initial conditions (picked, the textbook gives none):
-``x(0) = (1, 0)`` (about 57 degrees, at rest), ``x_hat(0) = (0, 0)``.
-
-Constants of ``f = (0, -k sin(x1))``, ``k = g / l`` (analytic, global):
-alpha = k (``|sin a - sin b| <= |a - b|``); rho = k / 2, since
-``<df, dx> = -k (sin a - sin b) d2 <= k |d1| |d2| <= (k/2)(d1^2 + d2^2)``, tight for
-``dx = (d, -d)`` near x1 = 0; ``(beta, gamma) = (k^2, 0)``.
-Claimed (the textbook values): alpha = g/l, rho = (g/l)/2.
-Channel structure (global): ``G = e2``, ``H = e1'``, ``phi(z) = -(g/l) sin(z)``, slopes in ``[-g/l, g/l]``.
+Values picked here: ``g / l = 9.81``, ``b = 0.1``, the angle measured, ``x(0) = (1, 0)``,
+``x_hat(0) = 0``; the whole sine is in f (A has eigenvalues 0 and -b). Constants and channels of
+the sine term: :func:`plants._core.sine_terms` (alpha = g/l, rho = (g/l)/2, (beta, gamma) =
+((g/l)^2, 0), global); claimed: alpha and rho.
 
 References
 ----------
@@ -57,18 +50,12 @@ def pendulum(*, g_over_l: float = G_OVER_L, b: float = DAMPING, t_final: float =
     Returns
     -------
     Plant
-        Version 1; global constants alpha = g/l, rho = (g/l)/2, (beta, gamma) = ((g/l)^2, 0).
-
-    Raises
-    ------
-    PlantError
-        If ``g_over_l`` or ``b`` is negative or not finite (the message names it).
     """
     k = check_real("g_over_l", g_over_l, lo=0.0)
     b = check_real("b", b, lo=0.0)
     gravity = sine_terms(2, acts=[1], reads=[0], coef=-k)
     return Plant(id="pendulum_v1", A=np.array([[0.0, 1.0], [0.0, -b]]), B=np.array([[0.0], [1.0]]),
-                 C=np.array([[1.0, 0.0]]), x0=X0, x_hat0=X_HAT0, **gravity.fields(),
+                 C=np.array([[1.0, 0.0]]), x0=X0, x_hat0=X_HAT0, **gravity,
                  claimed=Constants(alpha=k, rho=k / 2), t_final=t_final, family="pendulum",
                  params={"g_over_l": k, "b": b, "version": 1}, source=SOURCE,
                  notes="theta measured; the whole sine is in f (A has eigenvalues 0 and -b)")

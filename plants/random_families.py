@@ -1,50 +1,22 @@
 """Random plant families for sweeps: seeded n-state plants with constants known in closed form.
 
-The linear part (A, B, C) is built so that (A, B) is stabilizable and (A, C) is detectable
-**by construction**, and both are then **checked** with the PBH rank test:
+The linear part is stabilizable and detectable by construction, then checked by the PBH test:
+``A = T blockdiag(A_u, A_s) T'``, ``B = T [B_u; B_s]``, ``C = [C_u, C_s] T'`` with T random orthogonal.
+``A_u`` is unreduced upper Hessenberg shifted to the largest real part ``max_re``; with
+``B_u[:, 0] = e_1`` and ``C_u[0, :] = e_{n_u}'`` its Krylov and observability matrices are
+triangular with nonzero diagonals, so (A_u, B_u) is controllable and (A_u, C_u) observable.
+``A_s = -(G G' / n_s + delta I) + (S - S') / 2`` has ``A_s + A_s' <= -2 delta I``, so it is Hurwitz.
 
-1. An "unstable" block ``A_u`` (``n_unstable`` states) is an unreduced upper Hessenberg matrix
-   (subdiagonal entries of magnitude in [0.5, 1.5]), shifted so that its largest real part of
-   an eigenvalue is ``max_re``. With ``B_u[:, 0] = e_1`` the Krylov matrix of ``(A_u, e_1)``
-   is triangular with the (nonzero) products of the subdiagonal on its diagonal, so
-   ``(A_u, B_u)`` is controllable; with ``C_u[0, :] = e_{n_u}'`` the observability matrix is
-   (reversed) triangular, so ``(A_u, C_u)`` is observable.
-2. A "stable" block ``A_s = -(G G' / n_s + delta I) + (S - S') / 2`` has
-   ``A_s + A_s' <= -2 delta I``, hence every eigenvalue has real part ``<= -delta < 0``.
-3. ``A = T blockdiag(A_u, A_s) T'``, ``B = T [B_u; B_s]``, ``C = [C_u, C_s] T'`` with ``T`` a
-   random orthogonal matrix (so nothing in A, B, C shows the structure). Every eigenvalue
-   with real part >= 0 belongs to ``A_u``, whose eigenvectors live in the first block:
-   the PBH conditions of those eigenvalues are those of ``(A_u, B_u)`` and ``(A_u, C_u)``.
+Nonlinearities, each scaled by ``c`` (A, B, C and f's directions come from separate seeded streams):
 
-Nonlinearity families, each with a scale knob ``c`` (sweeps over ``c`` keep A, B, C and the
-random directions of f fixed, since they come from separate seeded streams):
-
-- **Lipschitz** (global): ``f(x) = c G sin(H x)`` with random orthogonal G, H (n x n, so
-  ``||G|| = ||H|| = 1``). Componentwise, ``sin a - sin b = cos(xi) (a - b)``, so
-  ``df = c G D H dx`` with ``D`` diagonal, ``|D_ii| <= 1``, and
-  ``||df|| <= c ||G|| ||H|| ||dx|| = c ||dx||``: alpha = c, tight (at x = 0 the Jacobian
-  ``c G H`` is c times an orthogonal matrix). Then rho = c (Cauchy-Schwarz; valid, not
-  tight in general) and ``(beta, gamma) = (c^2, 0)`` (tight, as alpha).
-- **OSL** (local on ``||x|| <= r``): ``f(x) = -c W (W' x)^3`` (cube taken elementwise) with a
-  random orthogonal W. ``f = -grad phi`` with ``phi(x) = (c/4) sum_i (w_i' x)^4`` convex;
-  the Jacobian ``-3 c W diag((W'x)^2) W'`` is symmetric with eigenvalues
-  ``-3 c (w_i' x)^2``, in ``[-3 c r^2, 0]`` on the ball since ``(w_i' x)^2 <= ||x||^2``. Along a segment in the
-  (convex) ball ``df = -M dx`` with ``M`` symmetric, ``0 <= M <= 3 c r^2 I``, so:
-  rho = 0 (globally, as phi is convex everywhere), alpha = 3 c r^2, and since
-  ``M^2 <= 3 c r^2 M``, ``||df||^2 <= -3 c r^2 <dx, df>``: ``(beta, gamma) = (0, -3 c r^2)``.
-  alpha and gamma are tight (at ``x = r w_i``, dx along ``w_i``).
-
-Channel structure: the Lipschitz family is ``q = n`` channels ``G' = c G``, ``H``, ``phi = sin`` with
-slopes in ``[-1, 1]`` (global); the OSL family is ``q = n`` channels ``z = W' x``,
-``phi(z) = -c z^3`` with slope ``-3 c z^2`` in ``[-3 c r^2, 0]`` while ``||x|| <= r`` (since
-``|w_i' x| <= ||x||``).
-
-The registry holds one member of each family, n = 4, m = p = 1, seed 0:
-``random_lipschitz_v1`` with c = 0.2 (alpha = 0.2; on this member the corrected Theorem 1 and
-Corollary 1 were found feasible up to c = 0.3 and infeasible from c = 0.4) and
-``random_osl_v1`` with c = 0.3, r = 1 (rho = 0 but alpha = 0.9, beyond what the Lipschitz
-designs accept on this member). Sweeps call :func:`random_lipschitz_plant` and
-:func:`random_osl_plant` directly.
+- Lipschitz (global): ``f(x) = c G sin(H x)``, G, H orthogonal. ``df = c G D H dx`` with D
+  diagonal, ``|D_ii| <= 1``: alpha = c (tight at x = 0), rho = c (Cauchy-Schwarz),
+  (beta, gamma) = (c^2, 0). Channels ``c G``, ``H``, ``phi = sin``, slopes in [-1, 1].
+- OSL (on ``||x|| <= r``): ``f(x) = -c W (W' x)^3``, W orthogonal, ``f = -grad (c/4) sum (w_i' x)^4``
+  (convex). Along a segment in the ball ``df = -M dx``, M symmetric, ``0 <= M <= 3 c r^2 I``:
+  rho = 0, alpha = 3 c r^2, and ``M^2 <= 3 c r^2 M`` gives (beta, gamma) = (0, -3 c r^2); alpha
+  and gamma tight at ``x = r w_i``. Channels ``z = W' x``, ``phi(z) = -c z^3``, slopes in
+  ``[-3 c r^2, 0]``.
 """
 
 from __future__ import annotations
@@ -64,36 +36,14 @@ PBH_TOL = 1e-8
 _SOURCE = "oslbench random family (plants/random_families.py), constants in closed form"
 
 
-# -- argument checks (each error names the parameter) -------------------------------------------
-#: Largest state dimension the generators accept (dense n x n matrices; the suite is tested to 256).
+#: Largest state dimension the generators accept.
 MAX_N = 4096
 
 
-def _shapes(n, m, p, n_unstable) -> tuple[int, int, int, int]:
-    n = check_int("n", n, 1, MAX_N, what="the number of states ")
-    m = check_int("m", m, 1, n, what=f"the number of inputs (B is n x m, n = {n}) ")
-    p = check_int("p", p, 1, n, what=f"the number of outputs (C is p x n, n = {n}) ")
-    nu = check_int("n_unstable", n_unstable, 0, n, what=f"the size of the unstable block (n = {n}) ")
-    return n, m, p, nu
-
-
-# -- PBH tests ----------------------------------------------------------------------------------
 def pbh_margin(A, B) -> float:
-    """PBH margin of stabilizability of ``(A, B)``.
-
-    Parameters
-    ----------
-    A : array_like, shape (n, n)
-    B : array_like, shape (n, m)
-
-    Returns
-    -------
-    float
-        ``min sigma_min([lambda I - A, B]) / max(1, ||[A, B]||_2)`` over the eigenvalues
-        lambda of A with ``Re lambda >= 0`` (``inf`` when A is Hurwitz). (A, B) is
-        stabilizable iff this is positive; numerically, iff it exceeds :data:`PBH_TOL`.
-        For detectability of (A, C) use ``pbh_margin(A.T, C.T)``.
-    """
+    """PBH margin of stabilizability of ``(A, B)``: ``min sigma_min([lambda I - A, B]) / max(1, ||[A, B]||_2)``
+    over the eigenvalues of A with ``Re lambda >= 0`` (``inf`` when A is Hurwitz); (A, B) is stabilizable iff it
+    is positive (numerically, above :data:`PBH_TOL`)."""
     A = np.asarray(A, dtype=float)
     B = np.asarray(B, dtype=float)
     n = A.shape[0]
@@ -116,7 +66,6 @@ def is_detectable(A, C, tol: float = PBH_TOL) -> bool:
     return pbh_margin(np.asarray(A).T, np.asarray(C).T) > tol
 
 
-# -- the linear part ----------------------------------------------------------------------------
 def _orthogonal(rng: np.random.Generator, n: int) -> np.ndarray:
     Q, R = np.linalg.qr(rng.standard_normal((n, n)))
     return Q * np.where(np.diag(R) < 0, -1.0, 1.0)  # Haar distributed
@@ -142,16 +91,13 @@ def random_lti(
     Returns
     -------
     A, B, C : ndarray
-        Shapes (n, n), (n, m), (p, n).
-
-    Raises
-    ------
-    PlantError
-        On a bad argument (the message names it), or if the PBH check fails (never expected:
-        the construction guarantees it; see the module docstring).
+        Shapes (n, n), (n, m), (p, n); PlantError on a bad argument or a failed PBH check.
     """
     n = check_int("n", n, 1, MAX_N, what="the number of states ")
-    n, m, p, nu = _shapes(n, m, p, min(n, 2) if n_unstable is None else n_unstable)
+    m = check_int("m", m, 1, n, what=f"the number of inputs (B is n x m, n = {n}) ")
+    p = check_int("p", p, 1, n, what=f"the number of outputs (C is p x n, n = {n}) ")
+    nu = check_int("n_unstable", min(n, 2) if n_unstable is None else n_unstable, 0, n,
+                   what=f"the size of the unstable block (n = {n}) ")
     seed = check_int("seed", seed, 0)
     max_re = check_real("max_re", max_re)
     rng = np.random.default_rng([seed, 0])
@@ -189,7 +135,6 @@ def _unit(rng: np.random.Generator, n: int) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-# -- the families -------------------------------------------------------------------------------
 def random_lipschitz_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.5, seed: int = 0,
                            n_unstable: int | None = None, max_re: float = 0.5, t_final: float = 20.0,
                            id: str | None = None) -> Plant:
@@ -213,13 +158,8 @@ def random_lipschitz_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.5
     Returns
     -------
     Plant
-        With global closed-form constants (claimed = analytic): alpha = rho = c,
-        (beta, gamma) = (c^2, 0). ``x0`` is a random unit vector, ``x_hat0 = 0``.
-
-    Raises
-    ------
-    PlantError
-        On a bad argument; the message names it.
+        Claimed = analytic: alpha = rho = c, (beta, gamma) = (c^2, 0), global; ``x0`` a random
+        unit vector, ``x_hat0 = 0``.
     """
     A, B, C, n, c, rng = _start(c, n=n, m=m, p=p, seed=seed, n_unstable=n_unstable, max_re=max_re)
     G = _orthogonal(rng, n)
@@ -261,13 +201,8 @@ def random_osl_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 1.0, r: f
     Returns
     -------
     Plant
-        With closed-form constants (claimed = analytic) on ``||x|| <= r``: rho = 0,
-        alpha = 3 c r^2, (beta, gamma) = (0, -3 c r^2). ``x0`` has norm r/2, ``x_hat0 = 0``.
-
-    Raises
-    ------
-    PlantError
-        On a bad argument; the message names it.
+        Claimed = analytic on ``||x|| <= r``: rho = 0, alpha = 3 c r^2, (beta, gamma) = (0, -3 c r^2);
+        ``x0`` of norm r/2, ``x_hat0 = 0``.
     """
     A, B, C, n, c, rng = _start(c, n=n, m=m, p=p, seed=seed, n_unstable=n_unstable, max_re=max_re)
     r = check_real("r", r, lo=0.0, strict=True)
@@ -276,7 +211,7 @@ def random_osl_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 1.0, r: f
 
     def f(x: np.ndarray) -> np.ndarray:
         z = W.T @ np.asarray(x, dtype=float)
-        return -c * (W @ (z * z * z))  # z*z*z: ~185x faster than z**3 under numpy 2.4
+        return -c * (W @ (z * z * z))
 
     def jacobian(x: np.ndarray) -> np.ndarray:
         z = W.T @ np.asarray(x, dtype=float).reshape(-1)
@@ -312,34 +247,12 @@ def _member(family: str, A, B, C, *, consts: Constants, x0, t_final: float, id: 
 @register_plant("random_lipschitz_v1")
 def random_lipschitz(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.2, seed: int = 0,
                      t_final: float = 20.0) -> Plant:
-    """Random n-state plant, f = c G sin(H x) with G, H orthogonal (Lipschitz c), seeded.
-
-    Parameters
-    ----------
-    n, m, p, c, seed, t_final
-        See :func:`random_lipschitz_plant`.
-
-    Returns
-    -------
-    Plant
-        Version 1 of the registered member ``random_lipschitz_v1``.
-    """
+    """The registered member of :func:`random_lipschitz_plant` (n = 4, c = 0.2, seed 0)."""
     return random_lipschitz_plant(n=n, m=m, p=p, c=c, seed=seed, t_final=t_final, id="random_lipschitz_v1")
 
 
 @register_plant("random_osl_v1")
 def random_osl(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.3, r: float = 1.0, seed: int = 0,
                t_final: float = 20.0) -> Plant:
-    """Random n-state plant, f = -c W (W'x)^3 (rho = 0; alpha = 3 c r^2 on ||x|| <= r), seeded.
-
-    Parameters
-    ----------
-    n, m, p, c, r, seed, t_final
-        See :func:`random_osl_plant`.
-
-    Returns
-    -------
-    Plant
-        Version 1 of the registered member ``random_osl_v1``.
-    """
+    """The registered member of :func:`random_osl_plant` (n = 4, c = 0.3, r = 1, seed 0)."""
     return random_osl_plant(n=n, m=m, p=p, c=c, r=r, seed=seed, t_final=t_final, id="random_osl_v1")

@@ -12,7 +12,7 @@ import pytest
 
 from bench.registry import PLANTS
 from plants import PlantError
-from plants.chain import chain_matrices, chain_plant, chain_sparsity, default_masses
+from plants.chain import chain_plant, default_masses
 from plants.random_families import is_detectable, is_stabilizable
 
 
@@ -48,9 +48,6 @@ def test_shapes_and_matrices_match_newtons_law(N):
     np.testing.assert_allclose(p.A, A, rtol=0, atol=1e-15)
     np.testing.assert_array_equal(p.B, B)
     np.testing.assert_array_equal(p.C, C)
-    As, Bs, Cs = chain_matrices(N=N, m=2.0, k=3.0, d=0.1, b=0.05, inputs=lay, outputs=lay)
-    np.testing.assert_allclose(As.toarray(), A, atol=1e-15)
-    assert As.nnz == 7 * N - 4 if N > 1 else As.nnz == 3
     assert p.x0.shape == (p.n,) and p.x_hat0.shape == (p.n,)
 
 
@@ -186,20 +183,6 @@ def test_no_pendulum_is_linear():
     p = chain_plant(N=4, nonlinear=(), inputs=(0,), outputs=(3,))
     assert p.channels is None and p.bounds.alpha == 0.0
     np.testing.assert_array_equal(p.f(np.ones(p.n)), np.zeros(p.n))
-
-
-def test_sparsity_pattern_covers_a_plus_jacobian():
-    for N in (1, 2, 9):
-        S = chain_sparsity(N)
-        assert S.shape == (2 * N, 2 * N) and S.dtype == bool
-        p = chain_plant(N=N, nonlinear=tuple(range(N)), inputs=(0,), outputs=(0,), b=0.3)
-        rng = np.random.default_rng(4)
-        for _ in range(3):
-            J = p.A + p.jacobian(rng.standard_normal(p.n))
-            assert not np.any((J != 0) & ~S.toarray())
-        # the band: |row - col| <= 3 and nothing else
-        r, c = S.nonzero()
-        assert np.abs(r - c).max() <= 3
 
 
 def test_initial_conditions_are_deterministic():
