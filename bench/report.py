@@ -1,8 +1,8 @@
 """Reports: the run's records and findings rendered as markdown, CSV, JSON, LaTeX and figures.
 
-The report computes no verdict: every judgement comes from the records (:mod:`bench.pipeline`) and
-the findings (:mod:`bench.findings`); this module only renders them. ``write_report`` renders
-everything into a staging folder and publishes it whole or not at all (:mod:`bench.outdir`).
+The report computes no verdict: every judgement comes from the records (:mod:`bench.pipeline`) and the
+findings (:mod:`bench.findings`). ``write_report`` renders everything into a staging folder and
+publishes it whole or not at all (:mod:`bench.outdir`).
 """
 
 from __future__ import annotations
@@ -41,11 +41,8 @@ def package_versions() -> dict[str, str]:
 
 
 def git_revision() -> dict[str, object]:
-    """``{"commit": sha or None, "dirty": bool or None}`` of the checkout holding this package.
-
-    None when the package is not in a git checkout (an installed wheel) or git is missing;
-    ``dirty`` is True when tracked files outside ``reports/`` differ from the commit (then the commit
-    alone does not reproduce the run). Read-only: ``git rev-parse`` and ``git status`` without optional locks.
+    """``{"commit": sha or None, "dirty": bool or None}`` of the checkout holding this package (None outside
+    git); ``dirty``: tracked files outside ``reports/`` differ from the commit.
     """
     import subprocess
 
@@ -69,8 +66,7 @@ def git_revision() -> dict[str, object]:
 
 
 def format_cell(v, spec: str = ".3g") -> str:
-    """Format a markdown table cell: floats with ``spec`` (blank if NaN, +-inf shown), bools as
-    yes/no, text with ``|`` escaped and newlines flattened."""
+    """A markdown cell: floats with ``spec`` (blank if NaN), bools as yes/no, text with ``|`` escaped."""
     if v is None:
         return ""
     if isinstance(v, (bool, np.bool_)):
@@ -96,9 +92,8 @@ REASON_CHARS = 120
 def short_reason(text, limit: int = REASON_CHARS) -> str:
     """The gist of a record's ``reason`` in at most ``limit`` characters.
 
-    The first clause (up to the first ``"; "`` outside parentheses), without parenthesised asides
-    of more than 30 characters, cut at a word boundary with ``"..."`` when still longer than
-    ``limit``. A text of at most ``limit`` characters is returned as it is.
+    A longer text is cut to its first clause (up to ``"; "`` outside parentheses), without parenthesised
+    asides of 30 characters or more, then at a word boundary with ``"..."``.
 
     Parameters
     ----------
@@ -110,13 +105,6 @@ def short_reason(text, limit: int = REASON_CHARS) -> str:
     Returns
     -------
     str
-
-    Examples
-    --------
-    >>> short_reason("infeasible: no strictly feasible point; best margin t = -1.56 (max eig 1.56)")
-    'infeasible: no strictly feasible point; best margin t = -1.56 (max eig 1.56)'
-    >>> short_reason("x" * 10 + " (a; b); " + "y" * 200)
-    'xxxxxxxxxx (a; b)'
     """
     import re
 
@@ -145,10 +133,8 @@ def short_reason(text, limit: int = REASON_CHARS) -> str:
 
 
 def results_table(df):
-    """The results table as results.csv and :attr:`bench.api.Results.table` show it.
-
-    The records (:data:`bench.pipeline.COLUMNS`, in the order asked for) with ``reason``
-    shortened by :func:`short_reason` and the full text in a last column ``details``.
+    """The results table as results.csv and :attr:`bench.api.Results.table` show it: the records with
+    ``reason`` shortened by :func:`short_reason` and the full text in a last column ``details``.
 
     Parameters
     ----------
@@ -158,7 +144,6 @@ def results_table(df):
     Returns
     -------
     pandas.DataFrame
-        A new frame.
     """
     out = df.copy()
     out["details"] = df["reason"].fillna("")
@@ -248,8 +233,7 @@ class _FigureJob:
 
 
 def _figure_jobs(result: RunResult) -> list[_FigureJob]:
-    """The figures of a run, in report order: per plant the norms of every converging design, and
-    for :data:`FIGURE_PLANTS` each design's states, estimates and errors (the paper's Figures 2-5)."""
+    """The figures of a run in report order: per plant the norms, and the states for :data:`FIGURE_PLANTS`."""
     by_plant: dict[str, list] = {}
     for o in result.outcomes:
         if o.trajectory is not None and o.record["converged"] and o.plant is not None:
@@ -286,15 +270,7 @@ NORM_FLOOR = 1e-16
 
 
 def _norms_figure(job: _FigureJob):
-    """The norms figure of a plant: ||x(t)|| and ||e(t)|| of every converging design on log axes, the
-    designs told apart by colour and line style (:data:`NORM_COLOURS`, :data:`NORM_STYLES`), the key in
-    a panel of its own, and the floor :data:`NORM_FLOOR` drawn and named when a norm falls below it.
-
-    Returns
-    -------
-    (matplotlib.figure.Figure, int)
-        The figure and its dpi.
-    """
+    """||x(t)|| and ||e(t)|| of every converging design of a plant on log axes; returns (figure, dpi)."""
     import matplotlib.pyplot as plt
 
     fig = plt.figure(figsize=(12, 4.2))
@@ -327,13 +303,7 @@ def _norms_figure(job: _FigureJob):
 
 
 def _states_figure(job: _FigureJob):
-    """One pair's states with their estimates (dashed) and estimation errors (the paper's Figures 2-5).
-
-    Returns
-    -------
-    (matplotlib.figure.Figure, int)
-        The figure and its dpi.
-    """
+    """One pair's states, estimates (dashed) and errors (the paper's Figures 2-5); returns (figure, dpi)."""
     import matplotlib.pyplot as plt
 
     t, x, x_hat, t_show = job.data
@@ -365,9 +335,10 @@ def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
     import matplotlib.pyplot as plt
 
     fig, dpi = _norms_figure(job) if job.kind == "norms" else _states_figure(job)
-    name = _save(fig, figdir, job.stem, fmts, dpi=dpi)
+    for fmt in fmts:
+        fig.savefig(figdir / f"{job.stem}.{fmt}", dpi=dpi)
     plt.close(fig)
-    return name
+    return f"{job.stem}.{fmts[0]}"
 
 
 def draw_figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png",), jobs: int | None = None
@@ -377,18 +348,16 @@ def draw_figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png"
     Parameters
     ----------
     result : RunResult
-        The run whose figures to draw.
     figdir : Path
-        The folder to write them into.
     fmts : tuple of str
-        The file formats (e.g. ``("png", "pdf")``); each figure is saved in every one.
+        File formats (``"png"``, ``"pdf"``); each figure is saved in every one.
     jobs : int, optional
-        How many figures to draw at a time (default: all cores).
+        Figures drawn at a time (default: all cores).
 
     Returns
     -------
     list of (str, str)
-        (caption, path of the first format relative to the report) pairs, in report order.
+        (caption, path of the first format relative to the report), in report order.
     """
     from bench.executors import default_jobs, executor
 
@@ -397,13 +366,6 @@ def draw_figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png"
     with executor(jobs) as ex:
         names = list(ex.map(_draw, todo, [figdir] * len(todo), [fmts] * len(todo)))
     return [(job.caption, f"figures/{name}") for job, name in zip(todo, names)]
-
-
-def _save(fig, figdir: Path, stem: str, fmts: tuple[str, ...], *, dpi: int) -> str:
-    """Save a figure in every format; return the file name of the first."""
-    for fmt in fmts:
-        fig.savefig(figdir / f"{stem}.{fmt}", dpi=dpi)
-    return f"{stem}.{fmts[0]}"
 
 
 def _summary(found: dict) -> str:
@@ -469,7 +431,7 @@ _LEGEND = (
 
 
 def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info: dict) -> str:
-    """The REPORT.md text, rendered from the records and the findings (no timestamps in table bodies)."""
+    """The REPORT.md text, rendered from the records and the findings."""
     from bench.findings import findings
 
     df = result.frame()
@@ -531,7 +493,6 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
 
 
 def _reasons(df) -> list[str]:
-    """Markdown lines: per plant, each pair that has a reason, with its status and the reason."""
     reasons = df[(df["reason"] != "") & df["reason"].notna()]
     parts = []
     for pid in dict.fromkeys(reasons["plant"]):
@@ -542,7 +503,6 @@ def _reasons(df) -> list[str]:
 
 
 def _figure_lines(figures: list[tuple[str, str]]) -> list[str]:
-    """Markdown lines: each figure with its caption below, or a line saying there is none."""
     if not figures:
         return ["No converging pair to plot."]
     parts = []
@@ -582,7 +542,6 @@ def _gains(result: RunResult) -> list[dict]:
 
 
 def _run_json(result: RunResult, run_info: dict) -> dict:
-    """run.json: the command, settings, versions, git revision, the findings and the constants."""
     o = result.options
     return {
         **run_info,
@@ -615,7 +574,6 @@ def _formats(figure_format) -> tuple[str, ...]:
 
 
 def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: tuple[str, ...]) -> list[str]:
-    """Render every file of the report into ``tmp``; return their paths relative to it."""
     from bench.findings import findings
     from bench.latex import minimal_document, tables_tex
 
@@ -636,7 +594,7 @@ def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: t
 
 def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, *, figures: bool = True,
                  figure_format="png") -> Path:
-    """Write REPORT.md, results.csv, gains.json, run.json, tables.tex (with tables_standalone.tex) and figures/
+    """Write REPORT.md, results.csv, gains.json, run.json, tables.tex, tables_standalone.tex and figures/
     into ``out_dir``, whole or not at all.
 
     Parameters
@@ -644,12 +602,11 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
     result : RunResult
     out_dir : path
     run_info : dict
-        Must hold ``command``; extended with settings, versions, the findings and the constants
-        into run.json.
+        Must hold ``command``; extended with settings, versions, findings and constants into run.json.
     figures : bool
         Draw the figures.
     figure_format : str or iterable of str
-        ``"png"``, ``"pdf"`` or both; REPORT.md links the PNG when there is one.
+        ``"png"``, ``"pdf"`` or both.
 
     Returns
     -------

@@ -1,11 +1,6 @@
 """Helpers shared by the studies: argument checks, plants and gains, random initial conditions,
-markdown tables, and the atomic writer of a study's files.
-
-Every study writes ``STUDY_<name>.md``, ``study_<name>.csv`` (plus, for some, further
-``study_<name>_*.csv``) and ``figures/study_<name>*.png`` into its output folder. The files are
-rendered into a temporary folder next to the destination and moved into place with
-``os.replace`` (the markdown last), so an exception while rendering leaves the previous
-files untouched. ``REPORT.md`` is never touched by a study.
+markdown tables, and the atomic writer of a study's files (``STUDY_<name>.md``, ``study_<name>*.csv``,
+``figures/study_<name>*.png``; :mod:`bench.outdir` publishes them whole, the markdown last).
 """
 
 from __future__ import annotations
@@ -27,16 +22,8 @@ from bench.report import format_cell as fmt  # one cell formatter for every repo
 
 @dataclass
 class StudyResult:
-    """What a study produced; each study's result adds its own fields (with defaults).
-
-    Attributes
-    ----------
-    rows : list of dict
-        One row per plant x design (the study's CSV).
-    settings : dict
-        The settings it ran with (the report's header).
-    wall_s : float
-        Wall-clock seconds.
+    """What a study produced: its ``rows`` (the CSV), the ``settings`` it ran with and ``wall_s``; each
+    study adds its own fields.
     """
 
     rows: list[dict]
@@ -46,35 +33,17 @@ class StudyResult:
 
 # -- argument checks (bench.checks, raising StudyError) --------------------------------------
 def check_box(name: str, value: Any) -> float | None:
-    """A half-width of an initial-condition box: finite and > 0 (None = the plant's default).
-
-    Raises
-    ------
-    StudyError
-        Naming ``name`` when the value is negative, zero or not finite.
-    """
+    """An initial-condition box half-width: finite and > 0 (None: the plant's default)."""
     return None if value is None else checks.real(name, value, lo=0.0, strict=True, error=StudyError)
 
 
 def check_count(name: str, value: Any, lo: int = 1) -> int:
-    """An integer count ``>= lo``.
-
-    Raises
-    ------
-    StudyError
-        Naming ``name``.
-    """
+    """An integer count ``>= lo``."""
     return checks.integer(name, value, lo=lo, error=StudyError)
 
 
 def check_levels(name: str, values: Any) -> list[float]:
-    """Noise levels: a non-empty list of finite numbers > 0 (a log grid cannot hold 0).
-
-    Raises
-    ------
-    StudyError
-        Naming ``name`` and the offending entry.
-    """
+    """Noise levels: a non-empty list of finite numbers > 0, sorted and unique."""
     vals = list(values)
     if not vals:
         raise StudyError(name, "at least one level is needed")
@@ -85,13 +54,7 @@ def check_levels(name: str, values: Any) -> list[float]:
 
 
 def check_range(name: str, value: Any, *, positive: bool = True) -> tuple[float, float] | None:
-    """Bisection bounds ``(lo, hi)`` with ``lo < hi`` (None = automatic bracketing).
-
-    Raises
-    ------
-    StudyError
-        Naming ``name`` when the bounds are not finite, not positive, or in the wrong order.
-    """
+    """Bisection bounds ``(lo, hi)`` with ``0 < lo < hi`` (None: automatic bracketing)."""
     if value is None:
         return None
     try:
@@ -106,25 +69,13 @@ def check_range(name: str, value: Any, *, positive: bool = True) -> tuple[float,
 
 
 def check_rtol(rtol: Any) -> float:
-    """A bisection's relative tolerance: a number in (0, 1).
-
-    Raises
-    ------
-    StudyError
-        Naming ``rtol``.
-    """
+    """A bisection's relative tolerance in (0, 1)."""
     checks.real("rtol", rtol, lo=0.0, strict=True, hi=1.0, error=StudyError)
     return rtol
 
 
 def check_horizon(t_final: Any) -> float | None:
-    """A horizon: None (each plant's) or a finite number > 0.
-
-    Raises
-    ------
-    StudyError
-        Naming ``t_final``.
-    """
+    """A horizon: None (each plant's) or a finite number > 0."""
     return checks.horizon(t_final, error=StudyError)
 
 
@@ -137,37 +88,31 @@ def bisect_largest(
     rtol: float = 0.01,
     max_doublings: int = 12,
 ) -> dict:
-    """Largest value at which ``check(value)["ok"]`` holds (:func:`bench.search.largest_passing`: a fixed
-    geometric grid, bracketed by doubling or halving, then bisected).
+    """Largest value at which ``check(value)["ok"]`` holds (:func:`bench.search.largest_passing`).
 
     Parameters
     ----------
     check : callable
         ``check(value) -> dict`` with a boolean ``"ok"`` and a ``"status"`` string.
     default : float
-        Starting point of the automatic bracketing (> 0).
+        Start of the automatic bracketing (> 0).
     bounds : (float, float), optional
-        ``(lo, hi)`` with ``0 < lo < hi``: bisect inside them instead of bracketing
-        automatically (``lo`` failing gives "below lo", ``hi`` passing gives "at least hi").
+        Bisect inside ``(lo, hi)`` instead (``lo`` failing: "below_range", ``hi`` passing: "above_range").
     rtol : float
         Stop when ``hi / lo - 1 <= rtol``.
     max_doublings : int
-        Automatic bracketing gives up after this many doublings (or halvings). Halving also
-        stops at a value whose record has ``status == "invalid"`` (outside the parameter's
-        valid range; ``hi`` then stays the last valid failing value).
+        Doublings (or halvings) before the bracketing gives up; halving also stops at a status "invalid".
 
     Returns
     -------
     dict
-        ``lo`` (largest passing value, NaN if none), ``hi`` (smallest failing value, NaN if
-        none), ``kind`` (``"bracketed"``, ``"below_range"``, ``"above_range"``, or
-        ``"inapplicable"`` when the first evaluation's status says so) and ``evals`` (every
-        evaluation, in order).
+        ``lo`` (largest passing, NaN if none), ``hi`` (smallest failing, NaN if none), ``kind``
+        ("bracketed", "below_range", "above_range", "inapplicable") and ``evals`` (every record, in order).
 
     Raises
     ------
     StudyError
-        ``bounds`` in the wrong order or not positive, ``rtol`` or ``default`` not > 0.
+        Bad ``bounds``, ``rtol`` or ``default``.
     """
     bounds = check_range("bounds", bounds)
     if not (math.isfinite(rtol) and rtol > 0):
@@ -192,8 +137,7 @@ def bisect_largest(
 
 
 class _Probe:
-    """``check`` with every record kept in ``evals`` (a value is checked once); a call returns whether
-    the value passed."""
+    """``check`` memoised, its records kept in ``evals``; a call returns whether the value passed."""
 
     def __init__(self, check: Callable[[float], dict]):
         self.check = check
@@ -216,12 +160,7 @@ def default_box(plant) -> float:
 
 
 def random_ics(plant, n_ics: int, box: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """``n_ics`` seeded initial conditions, x and x_hat independent and uniform in ``[-box, box]^n``.
-
-    Returns
-    -------
-    x0, x_hat0 : ndarray (n, n_ics)
-    """
+    """``n_ics`` seeded initial conditions ``(x0, x_hat0)``, each uniform in ``[-box, box]^n``, shape (n, n_ics)."""
     rng = np.random.default_rng([int(seed), 5])
     n = plant.n
     X = rng.uniform(-box, box, size=(n, n_ics))
@@ -237,12 +176,7 @@ _CONSTANTS: dict[tuple, object] = {}
 
 
 def study_constants(plant, *, seed: int = 0, n_samples: int = STUDY_SAMPLES):
-    """The plant's :class:`bench.constants.ConstantsReport` (computed once per plant and parameters).
-
-    The same function the harness uses (:func:`bench.constants.compute_constants`), with fewer
-    sampled pairs: what certificates trust is the same (analytic constants and channels that no
-    sample disproved).
-    """
+    """The plant's :func:`bench.constants.compute_constants` with fewer samples, memoised per plant."""
     from bench.constants import compute_constants
 
     key = (plant.id, tuple(sorted(plant.params.items())), seed, n_samples)
@@ -252,18 +186,17 @@ def study_constants(plant, *, seed: int = 0, n_samples: int = STUDY_SAMPLES):
 
 
 def evaluate(plant, design_id: str, options=None, *, overrides: dict | None = None, prior=None, scenario=None):
-    """One pair through :func:`bench.pipeline.evaluate_pair`, with the study's constants.
+    """One pair through :func:`bench.pipeline.evaluate_pair` with the study's constants.
 
     Parameters
     ----------
     plant : Plant
     design_id : str
-        Registry id of the design.
     options : bench.pipeline.RunOptions, optional
     overrides : dict, optional
         Hyperparameters of the design (e.g. ``{"cap": 100.0}``).
     prior : PairOutcome, optional
-        Re-use the design and certificate of an earlier evaluation of the pair.
+        An earlier evaluation whose design and certificate are re-used.
     scenario : bench.pipeline.Scenario, optional
 
     Returns
@@ -290,24 +223,9 @@ def selection(plant_ids, design_ids, default_plants=None, default_designs=None) 
 
 def map_tasks(ex, fn: Callable, tasks: list[tuple[Any, tuple]], progress: Callable[[int, int, str], None] | None = None,
               describe: Callable[[Any, Any], str] | None = None) -> dict:
-    """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks`` on the executor ``ex``.
+    """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks`` on ``ex``; return ``{key: result}``.
 
-    Parameters
-    ----------
-    ex : concurrent.futures.Executor
-        From :func:`bench.executors.executor`.
-    fn : callable
-        A task (a module-level function of picklable arguments).
-    tasks : list of (key, tuple)
-    progress : callable, optional
-        ``progress(done, total, describe(key, result))`` as each task finishes.
-    describe : callable, optional
-        The progress label of a finished task (needed with ``progress``).
-
-    Returns
-    -------
-    dict
-        ``key -> result``, in the order the tasks finished.
+    ``progress(done, total, describe(key, result))`` is called as each task finishes.
     """
     from concurrent.futures import as_completed
 
@@ -342,22 +260,7 @@ def md_table(rows: list[dict], columns: list[str], headers: list[str] | None = N
 
 
 def skipped_lines(rows: list[dict], *, heading: str = "Not simulated:", width: int = 250) -> list[str]:
-    """Markdown lines listing the pairs that were not simulated, with their status and reason.
-
-    Parameters
-    ----------
-    rows : list of dict
-        With ``plant``, ``design``, ``status`` and (optionally) ``reason``.
-    heading : str
-        The line above the list.
-    width : int
-        Reasons are cut at this many characters.
-
-    Returns
-    -------
-    list of str
-        The heading, a blank line, one bullet per row and a blank line; empty without rows.
-    """
+    """Markdown lines: ``heading`` and one bullet per pair not simulated, with its status and reason."""
     if not rows:
         return []
     return [heading, "", *(f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r.get('reason', ''))[:width]}"
@@ -386,24 +289,18 @@ def study_header(title: str, command: str, settings: dict, wall_s: float) -> str
 
 def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: dict[str, Any],
                 figures: dict[str, Callable[[Path], None]]) -> Path:
-    """Write a study's files atomically and return the markdown's path.
+    """Write a study's files whole or not at all; return the markdown's path.
 
     Parameters
     ----------
     out_dir : path
-        The report folder (created if missing).
     name : str
-        Study name: files ``STUDY_<name>.md``, ``<table key>.csv``, ``figures/<figure key>.png``.
+        Files ``STUDY_<name>.md``, ``<table stem>.csv``, ``figures/<figure stem>.png``.
     markdown : str
     tables : dict
-        File stem (e.g. ``"study_noise"``) -> pandas DataFrame, written as CSV.
+        File stem -> pandas DataFrame.
     figures : dict
-        File stem (e.g. ``"study_noise"``) -> callable drawing the figure into the given path.
-
-    Returns
-    -------
-    Path
-        ``out_dir / f"STUDY_{name}.md"``.
+        File stem -> callable drawing the figure into a path.
     """
     from bench.outdir import publish, staged
 

@@ -1,32 +1,12 @@
 """Conservatism: the largest admissible scale of the nonlinearity for each LMI / Riccati design.
 
-For a plant with a scale knob (the coefficient ``c`` of f, or the region radius ``r`` of the
-moving object, or ``g/l`` of the pendulum) and a design, the *admissible scale* is the largest
-knob value at which the design is feasible **and** its gains are certified by the analysis LMI
-of :mod:`bench.certify` (at some level of its ladder) with the plant's trusted constants at that
-value, judged by the same pipeline as the main table (:func:`bench.pipeline.evaluate_pair`). It is found
-by geometric bisection to a relative tolerance (1 % by default): the bracket is found by
-doubling (or halving) from the plant's default value, then ``sqrt(lo hi)`` is evaluated until
-``hi / lo - 1 <= rtol``. The answer is reported as ``[lo, hi)``: ``lo`` is the largest value
-verified feasible and certified, ``hi`` the smallest verified failing (with its reason).
-
-Normalisation. Every LMI of the suite maximises a margin t with ``M << -t I``,
-``Q, R >> t I``, ``Q, R << cap I`` and ``t <= 1`` (``cap = 1e3``; :mod:`bench.lmi`), and
-a point counts as feasible only if the rebuilt numeric matrix has its largest eigenvalue below
-``-1e-9 max(1, ||M||)``. The corrected Theorem 1 and Corollary 1 contain constant identity
-blocks (the Young and Schur columns), so they are not homogeneous in (Q, R, Fh, Kh, ...):
-scaling a feasible point does not keep it feasible, and near the admissible boundary the
-feasible set needs ever larger decision variables. A cap therefore cuts the admissible range,
-and the verification tolerance decides where a vanishing margin stops counting. The study
-states the cap and re-runs Theorem 1 and Corollary 1 with other caps to show by how much the
-answer moves.
-
-Compile vs solve. The LMI designs and the certificate keep one compiled cvxpy problem per
-structure (:func:`bench.lmi.cached_program`): the constants (rho, beta, gamma, 1/beta_eff,
-alpha^2) and the searched Young weights are cvxpy Parameters, the knob changes only f, so the
-whole bisection of one (plant, design) pair compiles its problems once and every later knob
-value only sets parameter values. The compile and solve seconds of every evaluation are
-recorded and summed, so the reuse is measured, not assumed.
+For a plant with a scale knob (the coefficient ``c`` of f, the region radius ``r`` of the moving object,
+``g/l`` of the pendulum) and a design, the *admissible scale* is the largest knob value at which the design
+is feasible **and** its gains are certified at some level of the ladder (:mod:`bench.certify`), judged by
+:func:`bench.pipeline.evaluate_pair`. It is found by geometric bisection (:func:`bisect_largest`) and
+reported as ``[lo, hi)``: ``lo`` the largest value verified to pass, ``hi`` the smallest verified to fail.
+The LMIs' normalisation cap cuts the admissible range, so Theorem 1 and Corollary 1 are re-run with other
+caps (:data:`CAP_DESIGNS`).
 """
 
 from __future__ import annotations
@@ -76,22 +56,13 @@ def _label(overrides: dict) -> str:
     return ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in overrides.items())
 
 
-def hinf_resolvent(M: np.ndarray) -> float:
-    """``sup_w ||(j w I - M)^{-1}||_2`` for a Hurwitz M (log grid of 4000 frequencies plus w = 0,
-    refined by a bounded scalar search around the best grid point); ``inf`` if M is not Hurwitz."""
-    I = np.eye(M.shape[0])
-    return _peak_gain(M, lambda w: float(np.linalg.svd(np.linalg.inv(1j * w * I - M), compute_uv=False)[0]))
-
-
 def small_gain_bound(plant_id: str, knob: str, K: np.ndarray, F: np.ndarray) -> float:
     """Knob value at which the channel small-gain test of fixed gains fails (NaN where it does not apply).
 
-    For a plant with one channel and a symmetric slope sector ``[-r, r]`` (``c0 = 0``) whose half
-    width ``r`` is linear in the knob, the structured certificate with fixed gains exists iff both
-    sides pass the circle criterion (a cascade: Lur'e x-side, Lur'e e-side):
-    ``r ||H (sI - A - BF)^-1 G||_inf < 1`` and ``r ||H (sI - A + KC)^-1 G||_inf < 1``. The bound is
-    the knob value where the larger of the two gains reaches 1, computed on a frequency grid: an
-    independent check on the bisection, which uses the certificate's LMI.
+    For one channel with a symmetric slope sector ``[-r, r]`` whose half-width is linear in the knob, the
+    structured certificate of fixed gains exists iff both sides pass the circle criterion (Khalil,
+    *Nonlinear Systems*, Thm 7.1): ``r ||H (sI - A - BF)^-1 G||_inf < 1`` and ``r ||H (sI - A + KC)^-1 G||_inf < 1``.
+    The bound is where the larger gain reaches 1 (an independent check on the bisection).
     """
     from bench.registry import PLANTS
 
@@ -111,15 +82,14 @@ def small_gain_bound(plant_id: str, knob: str, K: np.ndarray, F: np.ndarray) -> 
 
 
 def _siso_peak(M: np.ndarray, G: np.ndarray, H: np.ndarray) -> float:
-    """``sup_w |H (j w I - M)^-1 G|`` on a log grid refined near its peak (``inf`` if M is not Hurwitz)."""
-    I = np.eye(M.shape[0])
-    return _peak_gain(M, lambda w: float(np.abs(H @ np.linalg.solve(1j * w * I - M, G))[0, 0]))
-
-
-def _peak_gain(M: np.ndarray, gain: Callable[[float], float]) -> float:
-    """``sup_w gain(w)`` over w = 0 and a log grid of 4000 frequencies from 1e-4 to 1e4, refined by a bounded
-    scalar search between the best grid point's neighbours; ``inf`` if M is not Hurwitz."""
+    """``sup_w |H (j w I - M)^-1 G|`` over w = 0 and a log grid on [1e-4, 1e4], refined near the peak; ``inf`` if M
+    is not Hurwitz."""
     from scipy.optimize import minimize_scalar
+
+    I = np.eye(M.shape[0])
+
+    def gain(w: float) -> float:
+        return float(np.abs(H @ np.linalg.solve(1j * w * I - M, G))[0, 0])
 
     if float(np.linalg.eigvals(M).real.max()) >= 0:
         return math.inf
@@ -147,7 +117,6 @@ def knob_of(plant_id: str) -> str | None:
 
 
 def _knob_default(plant_id: str, knob: str) -> float:
-    """The knob's default value in the plant's factory."""
     from bench.registry import PLANTS
 
     return float(PLANTS.create(plant_id).params[knob])
@@ -168,11 +137,8 @@ def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, override
     Returns
     -------
     dict
-        ``value``, ``ok`` (gains designed - feasible, computed or given - and certified at some level),
-        ``status`` (the design's, or
-        ``invalid`` when the plant cannot be built at that value), ``feasible``, ``certified``,
-        ``cert_level``, ``lmi_margin``, ``cert_margin``, ``compile_s``, ``solve_s``,
-        ``n_solves``, ``design_s``, ``cert_s``, ``reason``.
+        ``value``, ``ok`` (gains designed and certified), ``status`` (``invalid`` when the plant cannot be
+        built at that value), ``feasible``, ``certified``, ``cert_level``, margins, timings and ``reason``.
     """
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
@@ -198,7 +164,6 @@ def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, override
 
 
 def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds, rtol: float) -> dict:
-    """Worker: one (plant, design[, overrides]) bisection."""
     from bench.registry import PLANTS
 
     t0 = time.perf_counter()
@@ -261,16 +226,14 @@ def run_admissible(
     plant_ids : list of str, optional
         Plants with a scale knob (default: :data:`KNOBS`).
     design_ids : list of str, optional
-        Designs (default: :data:`DEFAULT_DESIGNS`).
+        Default :data:`DEFAULT_DESIGNS`.
     bounds : (float, float), optional
-        Bisection bounds on the knob for every plant (default: automatic bracketing from each
-        plant's default value).
+        Bisection bounds on the knob (default: bracketing from each plant's default value).
     rtol : float
         Relative tolerance of the bisection.
     caps : tuple of float
         Other normalisation caps for :data:`CAP_DESIGNS` on :data:`CAP_PLANTS` (empty: skip).
     jobs : int
-        Worker processes (:func:`bench.executors.executor`).
     progress : callable, optional
         ``progress(done, total, label)``.
 
@@ -281,7 +244,7 @@ def run_admissible(
     Raises
     ------
     StudyError
-        A plant without a scale knob, bounds in the wrong order, rtol not > 0, a cap not > 0.
+        A plant without a scale knob, bad bounds, rtol or cap.
     """
     t_start = time.perf_counter()
     bounds = check_range("bounds", bounds)
@@ -302,7 +265,6 @@ def run_admissible(
 
 
 def _progress_label(key: tuple[str, str, str], result: dict) -> str:
-    """``plant x design (variant): [lo, hi)`` of a finished bisection."""
     row = result["row"]
     return f"{key[0]} x {key[1]} ({key[2]}): [{fmt(row['admissible_lo'])}, {fmt(row['failing_hi'])})"
 
@@ -386,8 +348,7 @@ def _draw_plant(pid: str, rows: list[dict], evals: list[dict]):
 
 
 def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "Path":  # noqa: F821
-    """Write ``STUDY_admissible.md``, ``study_admissible.csv`` (one row per pair),
-    ``study_admissible_evaluations.csv`` and ``figures/study_admissible_<plant>.png`` atomically."""
+    """Write ``STUDY_admissible.md``, its CSVs and figures atomically; return the markdown's path."""
     import pandas as pd
 
     rows = result.rows
@@ -562,7 +523,7 @@ def _osl_rows(rows: list[dict], plants: list[str]) -> list[dict]:
 
 
 def _compile_note(rows: list[dict]) -> str:
-    """The compile, solve and certificate seconds summed over every evaluation, and why compiling is rare."""
+    """The compile, solve and certificate seconds summed over every evaluation."""
     compile_total = sum(r["compile_s"] for r in rows)
     solve_total = sum(r["solve_s"] for r in rows)
     cert_total = sum(r["cert_s"] for r in rows)

@@ -1,16 +1,10 @@
 """Region of convergence: N seeded random initial conditions per (plant, design), simulated as one batch.
 
-For each plant, ``N`` initial conditions are drawn once (seeded): x and x_hat independent and
-uniform in ``[-box, box]^n`` (default ``box``: the plant's own initial-condition scale,
-``max(||x0||_inf, ||x_hat0||_inf)``), and every design with fixed gains (K, F) is simulated
-from all of them with **one** ``solve_ivp`` call over the whole batch
-(:func:`bench.batch.simulate_batch`: state of size ``2 n N``, f evaluated on the
-``(n, 2N)`` batch). Per design: the fraction converging (final ``||x||`` and ``||e||`` at most
-1e-3 times their peaks, none diverged: the criterion of :mod:`bench.metrics`), the worst final
-``||x||``, and the distribution of the 2 % settling time of ``||x||`` over the converging
-initial conditions. The certificate (:mod:`bench.certify`, valid constants) is shown beside: with
-global constants a certified design must converge from every initial condition; with local
-constants (``||x|| <= r``) only while the trajectories stay in the region.
+Per plant, N initial conditions (x and x_hat uniform in ``[-box, box]^n``) are drawn once; every design with
+fixed gains is simulated from all of them by one ``solve_ivp`` call (:func:`bench.batch.simulate_batch`).
+Per design: the fraction converging (the criterion of :mod:`bench.metrics`), the worst final ``||x||`` and
+the distribution of the 2 % settling time of ``||x||``, beside the certificate (with local constants it
+proves convergence only from its level set).
 """
 
 from __future__ import annotations
@@ -85,7 +79,6 @@ def _inside_level_set(first, X: np.ndarray, XH: np.ndarray) -> np.ndarray:
 
 
 def _describe(key, r: dict) -> str:
-    """The progress label of a finished pair: its fraction converging."""
     return f"{r['row']['plant']} x {r['row']['design']}: {fmt(r['row'].get('frac_converged', math.nan))}"
 
 
@@ -115,8 +108,7 @@ def run_montecarlo(
     Parameters
     ----------
     plant_ids, design_ids : list of str, optional
-        Default: every registered plant and design (designs without fixed gains get a row
-        saying so).
+        Default: every registered plant and design (designs without fixed gains get a row saying so).
     n : int
         Initial conditions per plant (>= 1).
     box : float, optional
@@ -126,8 +118,7 @@ def run_montecarlo(
     t_final : float, optional
         Horizon (default: each plant's).
     method, rtol, atol
-        ``solve_ivp`` settings of the batch (``"auto"``: DOP853, or BDF for a stiff loop, see
-        :func:`bench.simulate.choose_method`).
+        ``solve_ivp`` settings of the batch (``"auto"``: :func:`bench.simulate.choose_method`).
     jobs : int
     progress : callable, optional
 
@@ -138,7 +129,7 @@ def run_montecarlo(
     Raises
     ------
     StudyError
-        ``n < 1``, a box that is not finite and > 0, a horizon that is not finite and > 0.
+        Bad ``n``, box or horizon.
     """
     t_start = time.perf_counter()
     n = check_count("n", n, 1)
@@ -192,8 +183,7 @@ def _draw(pid: str, rows: list[dict], settling: dict):
 
 
 def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
-    """Write ``STUDY_montecarlo.md``, ``study_montecarlo.csv`` and ``figures/study_montecarlo_<plant>.png``
-    atomically; returns the markdown's path."""
+    """Write ``STUDY_montecarlo.md``, its CSV and figures atomically; return the markdown's path."""
     import pandas as pd
 
     rows = result.rows

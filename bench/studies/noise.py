@@ -1,19 +1,10 @@
 """Measurement noise: RMS estimation error and final state norm vs noise level, Luenberger vs EKF.
 
-For each plant and noise level sigma (a log grid), every design with a controller is simulated
-by the harness's own noisy path (:func:`bench.simulate.simulate_controller`, seeded Gaussian
-noise ``v_k ~ N(0, sigma^2 I)`` on ``y = C x + v``):
-
-- fixed-gain (Luenberger-type) observers: continuous observer and ``u = F x_hat``, the noise held
-  over intervals of ``noise_dt = 0.01 s`` (:class:`bench.harness.RunOptions`' default);
-- the EKF (``lqr+ekf``): continuous-discrete filter at its sample time, ``u_k`` held; besides its
-  default tuning (``r = 1e-4``), an EKF with the measurement variance matched to the noise
-  (``r = sigma^2``) is run as ``lqr+ekf (r = sigma^2)``.
-
-Metrics are :func:`bench.metrics.trajectory_metrics` with ``noisy=True``: ``rms_e`` is the RMS
-of ``||x - x_hat||`` over the second half of the horizon (the steady state) and ``final_x`` the
-final ``||x||``; the numbers equal those of ``python -m bench run --noise SIGMA --seed SEED``.
-The gains are designed once per (plant, design) and reused for every level.
+For each plant and noise level sigma, every design with a controller is simulated by the harness's noisy
+path (:func:`bench.simulate.simulate_controller`, seeded noise ``v ~ N(0, sigma^2 I)`` on ``y = C x + v``);
+the EKF is also run with its measurement variance matched to the noise (``r = sigma^2``, :data:`MATCHED_EKF`).
+The gains are designed once per pair and reused at every level; the numbers equal those of
+``python -m bench run --noise SIGMA --seed SEED``.
 """
 
 from __future__ import annotations
@@ -80,7 +71,6 @@ def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[
 
 
 def _describe(key, r: dict) -> str:
-    """The progress label of a finished pair at one level: its RMS estimation error."""
     return f"{r['plant']} x {r['design']} sigma {r['noise']:g}: rms_e {fmt(r['rms_e'])}"
 
 
@@ -110,13 +100,13 @@ def run_noise(
     plant_ids : list of str, optional
         Default :data:`DEFAULT_PLANTS`.
     design_ids : list of str, optional
-        Default: every registered design (those infeasible or inapplicable on a plant are listed).
+        Default: every registered design (those without a controller on a plant are listed).
     levels : sequence of float
         Noise standard deviations (each finite and > 0).
     seed : int
         Seed of the noise (the same sequence for every design and level, scaled by sigma).
     matched_ekf : bool
-        Also run the EKF with ``r = sigma^2`` (when ``lqr+ekf`` is selected).
+        Also run the EKF with ``r = sigma^2``.
     noise_dt : float
         Hold interval of the noise for fixed-gain observers.
     t_final : float, optional
@@ -130,7 +120,7 @@ def run_noise(
     Raises
     ------
     StudyError
-        A noise level that is negative, zero or not finite; a bad ``noise_dt`` or horizon.
+        A bad noise level, ``noise_dt`` or horizon.
     """
     t_start = time.perf_counter()
     levels = check_levels("levels", levels)
@@ -174,8 +164,7 @@ def _draw(pid: str, rows: list[dict]):
 
 
 def _plant_section(pid: str, sub: list[dict], levels: list[float]) -> list[str]:
-    """The markdown of one plant: a table per metric (design x level), the best estimator per level, its
-    figure, and the designs whose error at the smallest level is still the transient, not the noise."""
+    """The markdown of one plant: a table per metric, the best estimator per level, its figure, notes."""
     designs = list(dict.fromkeys(r["design"] for r in sub))
     by = {(r["design"], r["noise"]): r for r in sub}
     lines = []
@@ -237,7 +226,7 @@ def _transient_dominated(by: dict, designs: list[str], levels: list[float]) -> l
 
 
 def write_noise(result: NoiseResult, out_dir: str, command: str):
-    """Write ``STUDY_noise.md``, ``study_noise.csv`` and ``figures/study_noise_<plant>.png`` atomically."""
+    """Write ``STUDY_noise.md``, its CSV and figures atomically; return the markdown's path."""
     import pandas as pd
 
     rows = result.rows

@@ -1,28 +1,12 @@
 """Digital implementation: the largest sample period h at which each design's loop still converges.
 
-The controller and the observer run in discrete time at period h, the plant stays continuous
-(:func:`bench.batch.simulate_digital_batch`): at ``t_k = k h`` the output is sampled,
-``u_k = F x_hat_k`` is held by a zero-order hold, and the observer is advanced by the ``"zoh"``
-discretisation (its model integrated over the period with ``B u_k`` and ``K (y_k - C x_hat_k)``
-held; for a linear plant this is the exact ZOH discretisation) or by forward Euler. The gains
-(K, F) are the continuous-time designs' own, unchanged (emulation design).
-
-For each (plant, design with fixed gains):
-
-- ``h_lin``: the first period at which the sampled loop *linearised at the origin* (A replaced
-  by ``A + df/dx(0)``) loses exponential stability, i.e. the spectral radius of its one-period
-  matrix (:func:`bench.batch.digital_matrix`, from ``scipy.linalg.expm``) reaches 1
-  (log grid from 1e-5 s, then Brent's method);
-- ``h_max``: the largest h (geometric bisection to 1 % relative, bracketed from ``h_lin / 2``)
-  at which the nonlinear sampled loop **converges within the horizon** from the plant's initial
-  conditions and from ``n_ics`` seeded random initial conditions (x and x_hat uniform in a box):
-  every member's final ``||x||`` and ``||e||`` at most 1e-3 times their peaks, none diverged.
-  Convergence within a finite horizon is a stronger demand than ``rho < 1`` (a spectral radius
-  just below 1 decays too slowly), so ``h_max <= h_lin`` is expected;
-- the 2 % settling time of ``||x||`` from the plant's initial conditions at every simulated h,
-  and the continuous loop's (h -> 0, :func:`bench.simulate.simulate`) for reference.
-
-Convergence need not be monotone in h; the bisection reports the first boundary it brackets.
+The controller and the observer run at period h, the plant stays continuous
+(:func:`bench.batch.simulate_digital_batch`): the output is sampled at ``t_k = k h``, ``u_k = F x_hat_k``
+is held, and the observer is advanced by its ``"zoh"`` or forward-Euler discretisation; the gains are the
+continuous designs' own (emulation). Per pair: ``h_lin``, where the loop linearised at the origin loses
+stability (spectral radius of the one-period matrix reaches 1), and ``h_max``, the largest h found by
+bisection at which the nonlinear loop converges within the horizon from the plant's and ``n_ics`` seeded
+random initial conditions (``h_max <= h_lin`` expected), with settling times vs h.
 """
 
 from __future__ import annotations
@@ -70,8 +54,7 @@ def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1
     Returns
     -------
     float
-        The crossing; ``0.0`` if the loop is not stable even at ``h_min`` (e.g. the continuous
-        loop is not exponentially stable), ``inf`` if it is stable on the whole grid.
+        The crossing; ``0.0`` if the loop is unstable at ``h_min``, ``inf`` if stable on the whole grid.
     """
     from scipy.optimize import brentq
 
@@ -131,7 +114,7 @@ def _design_task(plant_id: str, design_id: str, t_final: float | None):
 
 def _sampling_task(prior, n_ics: int, box: float | None, seed: int, disc: str, h_range, rtol: float,
                    t_final: float | None) -> dict:
-    """Worker: one (plant, design with fixed gains): h_lin, the bisection of h_max, settling vs h."""
+    """One (plant, design with fixed gains): h_lin, the bisection of h_max, settling vs h."""
     from bench.registry import PLANTS
 
     t0 = time.perf_counter()
@@ -206,24 +189,19 @@ def run_sampling(
     plant_ids : list of str, optional
         Default :data:`DEFAULT_PLANTS`.
     design_ids : list of str, optional
-        Default: every registered design; designs without fixed gains (the EKF) and designs
-        infeasible on a plant get a row with the reason.
+        Default: every registered design (those without fixed gains get a row with the reason).
     required : sequence of str
-        Designs the caller named explicitly: one of them without fixed gains on a plant raises
-        :class:`StudyError` (parameter ``design``).
+        Designs named explicitly: one without fixed gains raises :class:`StudyError`.
     n_ics : int
         Random initial conditions besides the plant's own (>= 1).
     box : float, optional
         Half-width of the initial-condition box (default: the plant's initial-condition scale).
     seed : int
-        Seed of the random initial conditions.
     discretisation : {"zoh", "euler"}
     h_range : (float, float), optional
         Bisection bounds on h (default: bracketed from ``h_lin / 2``).
     rtol : float
-        Relative tolerance of the bisection.
     t_final : float, optional
-        Horizon (default: each plant's).
     jobs : int
     progress : callable, optional
 
@@ -245,7 +223,6 @@ def run_sampling(
 
 
 def _settings(n_ics, box, seed, discretisation, h_range, rtol, t_final, jobs) -> dict:
-    """The study's settings as its report states them (defaults named, not left blank)."""
     return {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
             "seed": seed, "discretisation": discretisation,
             "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
@@ -254,9 +231,7 @@ def _settings(n_ics, box, seed, discretisation, h_range, rtol, t_final, jobs) ->
 
 def _bisect_pairs(plant_ids: list[str], design_ids: list[str], required, args: tuple, jobs: int,
                   progress) -> tuple[list[dict], list[dict]]:
-    """Design every pair, then bisect h for those with fixed gains: the rows in plant x design order and every
-    evaluation, sorted by pair and h. ``args``: :func:`_sampling_task`'s arguments after the prior (the last
-    is the horizon, also the designs')."""
+    """Design every pair, then bisect h where there are fixed gains: rows (plant x design order), evaluations."""
     from bench.executors import executor
 
     t_final = args[-1]
@@ -277,7 +252,6 @@ def _bisect_pairs(plant_ids: list[str], design_ids: list[str], required, args: t
 
 
 def _check_args(n_ics, box, h_range, discretisation, rtol, t_final) -> tuple[int, float | None, tuple | None]:
-    """The checked ``n_ics``, ``box`` and ``h_range``; StudyError naming a bad argument."""
     from bench.batch import DISCRETISATIONS
 
     n_ics = check_count("n_ics", n_ics, 1)
@@ -349,8 +323,7 @@ def _draw(pid: str, rows: list[dict], evals: list[dict]):
 
 
 def write_sampling(result: SamplingResult, out_dir: str, command: str):
-    """Write ``STUDY_sampling.md``, ``study_sampling.csv``, ``study_sampling_evaluations.csv`` and
-    ``figures/study_sampling_<plant>.png`` atomically; returns the markdown's path."""
+    """Write ``STUDY_sampling.md``, its CSVs and figures atomically; return the markdown's path."""
     import pandas as pd
 
     rows = result.rows
