@@ -148,7 +148,7 @@ class ClosedLoop:
 
 
 def closed_loop(plant, K: Any, F: Any, *, optional_K: bool = False) -> ClosedLoop:
-    """Check ``K``, ``F`` (:func:`gains`) and compute their :class:`ClosedLoop` (``Df(0)`` by central differences without a Jacobian)."""
+    """Check ``K``, ``F`` (:func:`gains`) and compute their :class:`ClosedLoop`."""
     import numpy as np
 
     from bench.estimators import numeric_jacobian
@@ -169,7 +169,7 @@ def closed_loop(plant, K: Any, F: Any, *, optional_K: bool = False) -> ClosedLoo
 
 
 def argtype(check: Callable[..., Any], **bounds: Any) -> Callable[[str], Any]:
-    """An ``argparse`` type: the text parsed by ``float`` (``int`` for :func:`integer`), then ``check(name, value, **bounds)``."""
+    """An ``argparse`` type: the text parsed by ``float`` (``int`` for :func:`integer`), then ``check``."""
     kind = int if check is integer else float
 
     def parse(text: str):

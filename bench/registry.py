@@ -64,7 +64,7 @@ def _first_line(obj: Any) -> str:
 
 
 class Registry:
-    """An ordered mapping from id to :class:`Entry`, filled by the modules of ``package``; ``kind`` names it in messages."""
+    """An ordered mapping from id to :class:`Entry`, filled by ``package``'s modules."""
 
     def __init__(self, kind: str, package: str):
         self.kind = kind
@@ -73,7 +73,7 @@ class Registry:
         self._discovered = False
 
     def register(self, id: str, factory: Callable[..., Any], summary: str | None = None, *, order: int = 100) -> None:
-        """Register ``factory`` under ``id`` (listings sort by ``order``, then id); RegistryError on a duplicate or bad id."""
+        """Register ``factory`` under ``id`` (sorted by ``order``, then id); RegistryError on a bad id."""
         check_id(id, self.kind)
         if id in self._entries:
             other = self._entries[id].module

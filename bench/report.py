@@ -151,18 +151,26 @@ def results_table(df):
     return out
 
 
-def _table(df, columns: list[str], headers: list[str] | None = None) -> str:
-    rows = [[_fmt(v) for v in row] for row in df[columns].itertuples(index=False)]
-    headers = headers or columns
+def md_table(rows, columns: list, headers: list[str] | None = None) -> str:
+    """A markdown table of ``rows`` (dicts) restricted to ``columns``, each cell by :func:`format_cell`."""
+    headers = [str(h).replace("|", "\\|") for h in (headers or columns)]
     out = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
-    out += ["| " + " | ".join(r) + " |" for r in rows]
+    out += ["| " + " | ".join(_fmt(r.get(c)) for c in columns) + " |" for r in rows]
     return "\n".join(out)
 
 
-#: Short words for a design status in the feasibility matrix.
-_SHORT = {"feasible": "feasible", "computed": "computed", "given": "given", "infeasible": "infeasible",
-          "marginal": "marginal", "inapplicable": "n/a", "undecided": "undecided", "error": "ERROR",
-          "timeout": "timeout"}
+def pyplot():
+    """matplotlib.pyplot with the Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+#: Words of the feasibility matrix that differ from the status.
+_SHORT = {"inapplicable": "n/a", "error": "ERROR"}
 
 
 def _cell(rec) -> str:
@@ -177,18 +185,18 @@ def _cell(rec) -> str:
 
 
 def _matrix(df, cell) -> str:
-    plants = list(dict.fromkeys(df["plant"]))
     designs = list(dict.fromkeys(df["design"]))
-    lines = ["| plant | " + " | ".join(designs) + " |", "|---|" + "|".join("---" for _ in designs) + "|"]
-    for p in plants:
+    rows = []
+    for p in dict.fromkeys(df["plant"]):
         sub = df[df["plant"] == p].set_index("design")
-        lines.append(f"| {p} | " + " | ".join(cell(sub.loc[d]) if d in sub.index else "" for d in designs) + " |")
-    return "\n".join(lines)
+        rows.append({"plant": p, **{d: cell(sub.loc[d]) for d in designs if d in sub.index}})
+    return md_table(rows, ["plant", *designs])
 
 
 def _ladder(df) -> str:
     """Certified decay rate per plant x design x level (blank: not certified at that level)."""
     from bench.certify import LEVELS
+    from bench.latex import CERT_SHORT
 
     sub = df[df[[f"cert_{lv}" for lv in LEVELS]].ne("").any(axis=1)]
     if not len(sub):
@@ -198,27 +206,21 @@ def _ladder(df) -> str:
         st = r[f"cert_{lv}"]
         if st == "certified":
             return _fmt(r[f"decay_{lv}"])
-        return {"inapplicable": "n/a", "not certified": "no", "marginal": "marginal", "undecided": "undecided"}.get(st, st)
+        return CERT_SHORT.get(st, st)
 
-    heads = ["plant", "design", *[f"{lv}" for lv in LEVELS], "headline (strongest level)", "scope"]
-    lines = ["| " + " | ".join(heads) + " |", "|" + "|".join("---" for _ in heads) + "|"]
-    for r in sub.to_dict("records"):
-        head = f"{_fmt(r['decay_rate'])} ({r['cert_level']})" if r["certified"] else "not certified"
-        lines.append(f"| {r['plant']} | {r['design']} | " + " | ".join(rate(r, lv) for lv in LEVELS)
-                     + f" | {head} | {r['cert_scope']} |")
-    return "\n".join(lines)
+    rows = [{"plant": r["plant"], "design": r["design"], **{lv: rate(r, lv) for lv in LEVELS},
+             "head": f"{_fmt(r['decay_rate'])} ({r['cert_level']})" if r["certified"] else "not certified",
+             "scope": r["cert_scope"]} for r in sub.to_dict("records")]
+    return md_table(rows, ["plant", "design", *LEVELS, "head", "scope"],
+                    ["plant", "design", *LEVELS, "headline (strongest level)", "scope"])
 
 
 def _constants_table(result: RunResult) -> str:
     from bench.findings import constants_rows
 
     rows = constants_rows(result.constants, result.constants_errors)
-    heads = ["plant", "constant", "claimed", "analytic", "sampled (lower bound)", "used", "source", "region", "flag"]
-    lines = ["| " + " | ".join(heads) + " |", "|" + "|".join("---" for _ in heads) + "|"]
-    for r in rows:
-        lines.append("| " + " | ".join(_fmt(r[k]) for k in ("plant", "constant", "claimed", "analytic", "sampled",
-                                                                "used", "source", "region", "flag")) + " |")
-    return "\n".join(lines)
+    keys = ["plant", "constant", "claimed", "analytic", "sampled", "used", "source", "region", "flag"]
+    return md_table(rows, keys, [*keys[:4], "sampled (lower bound)", *keys[5:]])
 
 
 @dataclass(frozen=True)
@@ -329,11 +331,7 @@ def _states_figure(job: _FigureJob):
 
 def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
     """Draw one figure into ``figdir`` in every format; return the first file's name."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, dpi = _norms_figure(job) if job.kind == "norms" else _states_figure(job)
     for fmt in fmts:
         fig.savefig(figdir / f"{job.stem}.{fmt}", dpi=dpi)
@@ -406,28 +404,23 @@ def _summary(found: dict) -> str:
 
 _LEGEND = (
     "How to read a row. *Status*: `feasible` (an LMI or Riccati condition solved and verified), `computed` "
-    "(LQR/Kalman gains: no feasibility question), `given` (printed gains), `infeasible` (under the stated "
-    "normalisation), `marginal` (best margin within the verification tolerance of zero), `inapplicable`, "
-    "`undecided` (solver trouble), `error`, `timeout`. *Stabilizing*: A+BF and A-KC Hurwitz (blank for an "
-    "estimator with no fixed gain). **The certificate ladder** checks the gains (K, F) as they are, with "
-    "quadratic Lyapunov functions V = z'Pz of z = (x, e), at three levels of what is known about f: *paper* is "
-    "the paper's (20) (block-diagonal P, the OSL and QIB constants); *full* lets P couple x and e and adds every "
-    "scalar constant (Lipschitz, OSL, QIB), one multiplier each; *structured* adds the plant's declared channels "
-    "f = G phi(Hx) with their slope bounds, one multiplier per channel. Each level contains the one below, so "
-    "rates can only grow up the ladder; the headline *certified* is the strongest level that certifies, and "
-    "*decay rate* its rate lam (V' <= -2 lam V). Only analytic constants and channels that no sample disproved "
-    "are used; sampled constants are lower bounds and never certify. With constants that hold on ||x|| <= r the "
-    "certificate is local: *scope* is `from x0` when the level set of V through the initial condition stays in "
-    "the region, else `local`. Where no global certificate is found, the suite looks for a *witness* that none "
-    "can exist (column `witness`): a straight line phi(s) = c s with slopes in the declared box whose linear loop "
-    "is unstable (no certificate over that class exists), or an equilibrium of the true loop besides the origin "
-    "(no certificate of any form proves global convergence); it then searches a certificate `from x0` on a "
-    "region |Hx|, |Hx_hat| <= r where the channels' slopes narrow. *rate_ceiling* is the slowest linear member "
-    "of the certified class (no certificate over that class can prove more), *rate_ratio* the certified rate "
-    "over it. *Converged*: at the end of the horizon ||x|| and ||e|| are below 1e-3 of the peak "
-    "of ||z|| (with noise: both norms settled). The horizon follows the rates: long enough for the certified rate "
-    "(or, uncertified, twice the linearisation's) to decay by 1e-3, at least the plant's own, at most 10 times it "
-    "(*horizon_rule* says which); a certified pair that does not converge says why in its reason.")
+    "(LQR/Kalman gains), `given` (printed gains), `infeasible` (under the stated normalisation), `marginal` (best "
+    "margin within the verification tolerance of zero), `inapplicable`, `undecided` (solver trouble), `error`, "
+    "`timeout`. *Stabilizing*: A+BF and A-KC Hurwitz. **The certificate ladder** checks the gains (K, F) with "
+    "quadratic Lyapunov functions V = z'Pz of z = (x, e) at three levels of what is known about f: *paper* is the "
+    "paper's (20) (block-diagonal P, the OSL and QIB constants); *full* couples x and e in P and adds every scalar "
+    "constant; *structured* adds the plant's declared channels f = G phi(Hx) with their slope bounds. Each level "
+    "contains the one below; *certified* is the strongest level that certifies and *decay rate* its rate lam "
+    "(V' <= -2 lam V). Only analytic constants and channels no sample disproved are used (sampled constants are "
+    "lower bounds and never certify). With constants that hold on ||x|| <= r the *scope* is `from x0` when the "
+    "level set of V through the initial condition stays in the region, else `local`. Where no global certificate "
+    "is found, a *witness* shows none can exist: a linear phi(s) = c s in the declared slope box whose loop is "
+    "unstable, or an equilibrium besides the origin; a certificate `from x0` is then searched on a region "
+    "|Hx|, |Hx_hat| <= r where the slopes narrow. *rate_ceiling* is the slowest linear member of the certified "
+    "class (no certificate over it can prove more), *rate_ratio* the certified rate over it. *Converged*: at the "
+    "end of the horizon ||x|| and ||e|| are below 1e-3 of the peak of ||z|| (with noise: settled). The horizon is "
+    "long enough for the certified rate (uncertified: twice the linearisation's) to decay by 1e-3, from the "
+    "plant's own to 10 times it (*horizon_rule*); a certified pair that does not converge says why in its reason.")
 
 
 def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info: dict) -> str:
@@ -468,11 +461,11 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         "",
         "## Convergence",
         "",
-        _table(with_gains, conv_cols) if len(with_gains) else "No design produced gains.",
+        md_table(with_gains.to_dict("records"), conv_cols) if len(with_gains) else "No design produced gains.",
         "",
         "## Timing (seconds)",
         "",
-        _table(df, time_cols),
+        md_table(df.to_dict("records"), time_cols),
         "",
         "## Constants",
         "",

@@ -1,10 +1,8 @@
 """Observer-based controllers composed of a feedback part (F) and an estimator part (K or EKF).
 
-A *part* is a frozen dataclass of hyperparameters with ``compute(plant, constants)`` returning
-a :class:`designs.DesignResult` holding its half of the controller (``F`` for a feedback part;
-``K`` or a run-time ``estimator`` for an estimator part). A *pairing* ``"feedback+estimator"`` is registered as a design with one
-line, :func:`register_pairing`; the composed design runs both parts and merges their evidence,
-so every pairing goes through the same harness, certificate and tables as Theorem 1.
+A *part* is a frozen dataclass of hyperparameters whose ``compute(plant, constants)`` returns a
+:class:`designs.DesignResult` with its half of the controller; :func:`register_pairing` registers a
+pairing ``"feedback+estimator"`` as a design that runs both parts and merges their evidence.
 """
 
 from __future__ import annotations
@@ -35,10 +33,7 @@ class Part(Configurable):
 
 
 def check_weight(name: str, W, size: int, *, definite: bool) -> np.ndarray:
-    """Validate a weight matrix: shape (size, size), finite, symmetric, PSD (or PD).
-
-    ``None`` means the identity. Raises :class:`DesignError` naming ``name``.
-    """
+    """A weight matrix (None: the identity): shape (size, size), finite, symmetric, PSD (PD with ``definite``)."""
     if W is None:
         return np.eye(size)
     try:

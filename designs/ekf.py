@@ -1,17 +1,13 @@
 """Continuous-discrete extended Kalman filter (filterpy) as an estimator part.
 
 The design only fixes the filter's specification (:class:`EKFSpec`); the harness runs it
-(``bench.estimators.ContinuousDiscreteEKF``) in sampled time: at each sample ``t_k = k dt`` the
-filter updates with ``y_k = C x(t_k) + v_k``, the controller applies ``u_k = F x_hat_k`` held
-until ``t_{k+1}`` (zero-order hold), and the filter predicts by integrating the nonlinear model
-``x_hat' = A x_hat + B u_k + f(x_hat)`` over the step, with the covariance propagated through the
-Jacobian: ``P <- Phi P Phi' + q dt I``, ``Phi = expm((A + df/dx(x_hat_k)) dt)``.
+(``bench.estimators.ContinuousDiscreteEKF``): at each sample ``t_k = k dt`` the filter updates with
+``y_k = C x(t_k) + v_k``, ``u_k = F x_hat_k`` is held, and the filter predicts by integrating
+``x_hat' = A x_hat + B u_k + f(x_hat)`` with ``P <- Phi P Phi' + q dt I``, ``Phi = expm((A + df/dx(x_hat_k)) dt)``.
 
 References
 ----------
 A. H. Jazwinski, *Stochastic Processes and Filtering Theory*, 1970 (continuous-discrete EKF).
-R. Labbe, filterpy ``ExtendedKalmanFilter`` (its ``predict_x`` is linear by default and is
-overridden; ``predict_update`` evaluates H before predicting and is not used).
 """
 
 from __future__ import annotations

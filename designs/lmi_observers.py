@@ -1,10 +1,7 @@
 """LMI observers for Lipschitz (Rajamani-style) and OSL/QIB (Zhang et al. 2012) systems.
 
-Both solve a 2n x 2n LMI with cvxpy + Clarabel, maximising a margin ``slack`` under the normalisation
-``P << cap I`` (these LMIs are homogeneous in their variables, so the cap only fixes the scale),
-and are verified like every LMI of the suite: the matrix is rebuilt with numpy at the solution
-and its largest eigenvalue must be negative. ``solver="auto"`` tries SCS first (much faster
-for large n) and falls back to Clarabel when SCS's point does not verify
+Both solve a 2n x 2n LMI maximising a margin ``slack`` under ``P << cap I`` (the LMIs are homogeneous,
+so the cap only fixes the scale), verified with numpy like every LMI of the suite
 (:func:`bench.lmi.solve_side`).
 
 References
@@ -35,13 +32,8 @@ def _check_solver(solver: str) -> None:
 
 def _solve_observer(part: "Part", key: tuple, build, settable: dict, *, what: str, n: int,
                     searched: str) -> tuple[lmi.Program, dict, str]:
-    """Solve an observer LMI under ``P << cap I``; a marginal verdict is decided again scale-free.
-
-    The LMI is homogeneous in its variables, so under ``slack I << P << cap I`` an infeasible one has
-    best margin 0 (every variable shrinking with ``slack``): "marginal" cannot tell it from a boundary
-    case. The scale-free solve adds ``I << P``, which loses only points with ``cond(P) > cap``;
-    there an infeasible LMI has a clearly negative margin and is labelled infeasible (the gains,
-    when there are any, always come from the first solve). ``build(scale_free)`` builds the program.
+    """Solve an observer LMI built by ``build(scale_free)`` under ``P << cap I``; a marginal verdict is decided
+    again under the scale-free ``I << P << cap I`` (as :mod:`designs._separated` does for its sides).
     """
     prog = lmi.cached_program((*key, "capped"), lambda: build(False))
     prog.set(**settable)

@@ -17,7 +17,7 @@ import numpy as np
 from bench import checks
 from bench.errors import StudyError
 from bench.search import largest_passing
-from bench.report import format_cell as fmt  # one cell formatter for every report
+from bench.report import format_cell as fmt, md_table, pyplot  # noqa: F401 (the studies import them from here)
 
 
 @dataclass
@@ -211,6 +211,18 @@ def evaluate(plant, design_id: str, options=None, *, overrides: dict | None = No
                          prior=prior, scenario=scenario)
 
 
+def unsimulated_row(pid: str, did: str, outcome, *, need_gains: bool = True) -> dict | None:
+    """The row of a pair that cannot be simulated (no controller, or no fixed gains when ``need_gains``); None when
+    it can."""
+    res, rec = outcome.result, outcome.record
+    if res is None or not res.has_controller:
+        return {"plant": pid, "design": did, "status": rec["status"], "reason": rec["reason"]}
+    if need_gains and not res.has_gains:
+        return {"plant": pid, "design": did, "status": "no fixed gains",
+                "reason": f"estimator {type(res.estimator).__name__}: not a fixed gain K"}
+    return None
+
+
 def selection(plant_ids, design_ids, default_plants=None, default_designs=None) -> tuple[list[str], list[str]]:
     """The plant and design ids a study runs: those given, else the defaults (else every registered one)."""
     from bench.registry import DESIGNS, PLANTS
@@ -250,13 +262,10 @@ def run_tasks(jobs: int, fn: Callable, tasks: list[tuple[Any, tuple]],
 
 
 # -- rendering ---------------------------------------------------------------------------------
-def md_table(rows: list[dict], columns: list[str], headers: list[str] | None = None) -> str:
-    """A markdown table of ``rows`` (dicts) restricted to ``columns``."""
-    headers = [h.replace("|", "\\|") for h in (headers or columns)]
-    out = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
-    for r in rows:
-        out.append("| " + " | ".join(fmt(r.get(c)) for c in columns) + " |")
-    return "\n".join(out)
+def bracket_cell(kind: str, lo: float, hi: float) -> str:
+    """A bisection's answer (:func:`bisect_largest`) as a table cell: ``lo``, ``< hi``, ``>= lo`` or ``n/a``."""
+    return {"bracketed": fmt(lo, ".3g"), "below_range": f"< {fmt(hi, '.3g')}", "above_range": f">= {fmt(lo, '.3g')}",
+            "inapplicable": "n/a"}.get(kind, "")
 
 
 def skipped_lines(rows: list[dict], *, heading: str = "Not simulated:", width: int = 250) -> list[str]:
@@ -317,13 +326,3 @@ def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: di
         # whole or not at all (bench.outdir), the markdown last
         publish(out, tmp, [*(f"figures/{stem}.png" for stem in figures), *(f"{stem}.csv" for stem in tables), md_name])
     return out / md_name
-
-
-def pyplot():
-    """matplotlib.pyplot with the Agg backend."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt

@@ -18,8 +18,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, bisect_largest, check_range, check_rtol, fmt, md_table,
-                                   pyplot, run_tasks, selection, study_header, write_study)
+from bench.studies._common import (StudyError, StudyResult, bisect_largest, bracket_cell, check_range, check_rtol,
+                                   evaluate, fmt, md_table, pyplot, run_tasks, selection, study_header, write_study)
 from designs import GAIN_STATUSES
 
 __all__ = ["run_admissible", "write_admissible"]
@@ -142,7 +142,6 @@ def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, override
     """
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from bench.studies._common import evaluate
     from designs import GAIN_STATUSES
     from plants import PlantError
 
@@ -428,66 +427,44 @@ def _variant_section(result: AdmissibleResult) -> list[str]:
 
 _INTRO = (
     "For each plant with a scale knob on f and each LMI / Riccati design: the largest knob value at which the "
-    "design is **feasible and its gains are certified** (at some level of the certificate ladder, "
-    "`bench.certify`, with the plant's trusted constants and channels at that value, by the same pipeline as "
-    "the main table: `bench.pipeline.evaluate_pair`), by geometric bisection to "
-    "{percent} % relative. `lo` is the largest value verified to pass; the value in "
-    "parentheses is the smallest verified to fail.")
+    "design is **feasible and its gains are certified** (at some level of `bench.certify`'s ladder, by the "
+    "pipeline of the main table), by geometric bisection to {percent} % relative. `lo` is the largest value "
+    "verified to pass; the value in parentheses the smallest verified to fail.")
 
 _NORMALISATION = (
     "Every LMI maximises a margin t with `M << -t I`, `Q, R >> t I`, **`Q, R << 1e3 I`** and `t <= 1` "
-    "(`bench/lmi.py`); a point is feasible only if the rebuilt numeric LMI has largest eigenvalue below "
-    "`-1e-9 max(1, ||M||)`. The corrected Theorem 1 and Corollary 1 contain constant identity blocks (the Young "
-    "term `[I; -phi Q]` and the Schur column `-(kappa/beta) I`, `-(kappa/alpha^2) I`), so they are not "
-    "homogeneous: a feasible point cannot be rescaled at will, and near the boundary the feasible set needs "
-    "larger Q, R. A cap on Q, R therefore cuts the admissible range, and the verification tolerance decides where "
-    "a vanishing margin stops counting. The separated designs cap each side the same way; the observer LMIs "
-    "(Rajamani, Zhang) are homogeneous, so their cap only fixes the scale. The sensitivity table below re-runs "
-    "the joint Theorem 1 and Corollary 1 with other caps. The answer also depends on the designs' own searches: "
-    "the gamma < 0 form of Theorem 1 fixes the QIB multiplier eps2 on a grid (default 1e-2 to 1e2).")
+    "(`bench/lmi.py`). The corrected Theorem 1 and Corollary 1 contain constant identity blocks (the Young term "
+    "and the Schur column), so they are not homogeneous: near the boundary the feasible set needs larger Q, R, and "
+    "the cap cuts the admissible range (the observer LMIs are homogeneous: there the cap only fixes the scale). "
+    "The sensitivity table below re-runs the joint Theorem 1 and Corollary 1 with other caps; the answer also "
+    "depends on the designs' own searches (the gamma < 0 form of Theorem 1 fixes eps2 on a grid).")
 
 _DETAILS_NOTE = (
     "`at default`: the outcome at the plant's default knob value. `fails by`: why the first failing value fails "
-    "(`infeasible`, `undecided` = solver trouble, `not certified` = feasible gains that the analysis LMI does "
-    "not certify). Reasons at the failing value are in `study_admissible.csv` (`fail_reason`). "
-    "`small-gain bound`: for `lqr+lqe` (neither gain depends on the knob) on a plant with one channel and a "
-    "symmetric slope sector `[-r, r]`, the knob value at which `r max(||H (sI - A - BF)^-1 G||_inf, "
-    "||H (sI - A + KC)^-1 G||_inf) = 1`, computed on a frequency grid: an independent check, since the "
-    "structured certificate of fixed gains exists iff both sides pass this circle criterion (a cascade); where "
-    "the pair fails by `not certified`, the bisection's bracket should contain it.")
+    "(`undecided` = solver trouble, `not certified` = feasible gains the ladder does not certify; the reasons are "
+    "in `study_admissible.csv`, `fail_reason`). `small-gain bound`: for `lqr+lqe` on a plant with one channel "
+    "and a symmetric slope sector `[-r, r]`, the knob value at which `r max(||H (sI - A - BF)^-1 G||_inf, "
+    "||H (sI - A + KC)^-1 G||_inf) = 1`: the structured certificate of fixed gains exists iff both sides pass "
+    "this circle criterion, so where the pair fails by `not certified` the bracket should contain it.")
 
 _OSL_INTRO = (
-    "The paper's claim is that the one-sided Lipschitz condition (Theorem 1) is less conservative than the "
-    "Lipschitz one (Corollary 1) when rho is much smaller than alpha. On `moving_object_v1` (knob r, the region "
-    "radius: rho = 0, alpha = 3 r^2, gamma = -3 r^2) and `random_osl_v1` (knob c: rho = 0, alpha = 3c, "
-    "gamma = -3c on ||x|| <= 1), rho = 0 at every scale. On the other plants gamma = 0 and beta = alpha^2, so "
-    "Theorem 1's state-feedback side (Schur block `-(kappa/beta) I`) is Corollary 1's (`-(kappa/alpha^2) I`); "
-    "there the separated designs fail on that side first (`fail_reason`), and the two must agree up to the "
-    "joint designs' phi search.")
+    "The paper claims the one-sided Lipschitz condition (Theorem 1) is less conservative than the Lipschitz one "
+    "(Corollary 1) when rho is much smaller than alpha. On `moving_object_v1` (knob r: rho = 0, alpha = 3 r^2, "
+    "gamma = -3 r^2) and `random_osl_v1` (knob c: rho = 0, alpha = 3c, gamma = -3c) rho = 0 at every scale. On "
+    "the other plants gamma = 0 and beta = alpha^2, so Theorem 1's state-feedback side is Corollary 1's and the "
+    "two must agree up to the joint designs' phi search.")
 
 
 def _matrix(rows: list[dict], plants: list[str]) -> str:
     """The markdown matrix plant x design of the admissible values."""
     designs = list(dict.fromkeys(r["design"] for r in rows))
-    mat = ["| plant (knob, default) | " + " | ".join(designs) + " |", "|---|" + "|".join("---" for _ in designs) + "|"]
+    table = []
     for pid in plants:
         sub = {r["design"]: r for r in rows if r["plant"] == pid}
         first = next(iter(sub.values()))
-        cells = []
-        for d in designs:
-            r = sub.get(d)
-            if r is None:
-                cells.append("")
-            elif r["kind"] == "inapplicable":
-                cells.append("n/a")
-            elif r["kind"] == "below_range":
-                cells.append(f"< {fmt(r['failing_hi'], '.3g')}")
-            elif r["kind"] == "above_range":
-                cells.append(f">= {fmt(r['admissible_lo'], '.3g')}")
-            else:
-                cells.append(fmt(r["admissible_lo"], ".3g"))
-        mat.append(f"| {pid} ({first['knob']}, {fmt(first['default'])}) | " + " | ".join(cells) + " |")
-    return "\n".join(mat)
+        table.append({"plant": f"{pid} ({first['knob']}, {fmt(first['default'])})",
+                      **{d: bracket_cell(r["kind"], r["admissible_lo"], r["failing_hi"]) for d, r in sub.items()}})
+    return md_table(table, ["plant", *designs], ["plant (knob, default)", *designs])
 
 
 def _details_table(rows: list[dict]) -> str:
@@ -529,11 +506,9 @@ def _compile_note(rows: list[dict]) -> str:
     cert_total = sum(r["cert_s"] for r in rows)
     n_evals = sum(r["n_evals"] for r in rows)
     return (f"{n_evals} evaluations (design + certificate at one knob value each): compile {compile_total:.2f} s, "
-            f"solve {solve_total:.2f} s (design LMIs), certificate (compile + solve) {cert_total:.2f} s. Each design "
-            "compiles its cvxpy problem once per structure and re-uses it across the bisection: the constants (rho, "
-            "beta, gamma, 1/beta_eff, alpha^2) enter as cvxpy Parameters (parameter x variable, which is DPP), and "
-            "the knob does not change A, B, C; later knob values only set parameter values "
-            "(`bench.lmi.cached_program`; `python -m bench perf` measures the same sweep with and without reuse).")
+            f"solve {solve_total:.2f} s (design LMIs), certificate (compile + solve) {cert_total:.2f} s. Each "
+            "design compiles its cvxpy problem once per structure and re-uses it across the bisection, the knob "
+            "entering as parameter values (`bench.lmi.cached_program`).")
 
 
 def _osl_verdict(osl: list[dict]) -> str:

@@ -16,8 +16,9 @@ from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, check_horizon, check_levels, fmt, md_table, pyplot,
-                                   run_tasks, selection, skipped_lines, study_header, write_study)
+from bench.studies._common import (StudyError, StudyResult, check_horizon, check_levels, evaluate, fmt, md_table,
+                                   pyplot, run_tasks, selection, skipped_lines, study_header, unsimulated_row,
+                                   write_study)
 
 __all__ = ["run_noise", "write_noise"]
 
@@ -31,7 +32,6 @@ def _noise_task(prior, label: str, sigma: float, seed: int, noise_dt: float, t_f
     """One pair at one noise level: the pipeline with ``noise = sigma``, design and certificate re-used."""
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from bench.studies._common import evaluate
 
     plant = PLANTS.create(prior.record["plant"])
     options = RunOptions(noise=sigma, seed=seed, noise_dt=noise_dt, t_final=t_final, certificate="none")
@@ -49,18 +49,17 @@ def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[
 
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from bench.studies._common import evaluate
 
     skipped, jobs_list = [], []
     for pid in plant_ids:
         plant = PLANTS.create(pid)
         for did in design_ids:
             prior = evaluate(plant, did, RunOptions(simulate=False, t_final=t_final))
-            res = prior.result
-            if res is None or not res.has_controller:
-                skipped.append({"plant": pid, "design": did, "status": prior.record["status"],
-                                "reason": prior.record["reason"]})
+            skip = unsimulated_row(pid, did, prior, need_gains=False)
+            if skip is not None:
+                skipped.append(skip)
                 continue
+            res = prior.result
             prior.plant = None
             for sig in levels:
                 jobs_list.append((prior, did, sig))
@@ -169,13 +168,9 @@ def _plant_section(pid: str, sub: list[dict], levels: list[float]) -> list[str]:
     by = {(r["design"], r["noise"]): r for r in sub}
     lines = []
     for metric, title in (("rms_e", "RMS estimation error"), ("final_x", "final ||x||")):
-        lines += [f"## {pid}: {title}", "",
-                  "| design | " + " | ".join(f"sigma {s:.3g}" for s in levels) + " |",
-                  "|---|" + "|".join("---" for _ in levels) + "|"]
-        for did in designs:
-            lines.append(f"| {did} | " + " | ".join(fmt(by[(did, s)][metric]) if (did, s) in by else ""
-                                                    for s in levels) + " |")
-        lines.append("")
+        rows = [{"design": did, **{s: by[(did, s)][metric] for s in levels if (did, s) in by}} for did in designs]
+        heads = ["design", *(f"sigma {s:.3g}" for s in levels)]
+        lines += [f"## {pid}: {title}", "", md_table(rows, ["design", *levels], heads), ""]
     lines += [f"## {pid}: best estimator per level", "",
               md_table(_best_per_level(sub, levels), ["noise", "best", "best_rms_e", "best_luenberger",
                                                       "luenberger_rms_e", "best_ekf", "ekf_rms_e"],

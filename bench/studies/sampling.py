@@ -18,9 +18,10 @@ from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, bisect_largest, check_box, check_count, check_horizon,
-                                   check_range, check_rtol, default_box, fmt, map_tasks, md_table, pyplot, random_ics,
-                                   selection, skipped_lines, study_header, write_study)
+from bench.studies._common import (StudyError, StudyResult, bisect_largest, bracket_cell, check_box, check_count,
+                                   check_horizon, check_range, check_rtol, default_box, evaluate, fmt, map_tasks,
+                                   md_table, pyplot, random_ics, selection, skipped_lines, study_header,
+                                   unsimulated_row, write_study)
 
 __all__ = ["run_sampling", "write_sampling"]
 
@@ -79,7 +80,6 @@ def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1
 def _check_h(plant, prior, X, XH, h, disc, t_final) -> dict:
     """The digital loop at period ``h`` from every initial condition: the pipeline with a scenario."""
     from bench.pipeline import RunOptions, Scenario
-    from bench.studies._common import evaluate
 
     out = evaluate(plant, prior.record["design"], RunOptions(certificate="none", t_final=t_final), prior=prior,
                    scenario=Scenario(x0=X, x_hat0=XH, sample_period=h, discretisation=disc))
@@ -106,7 +106,6 @@ def _design_task(plant_id: str, design_id: str, t_final: float | None):
 
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from bench.studies._common import evaluate
 
     out = evaluate(PLANTS.create(plant_id), design_id, RunOptions(t_final=t_final))
     return replace(out, trajectory=None, plant=None)
@@ -239,7 +238,7 @@ def _bisect_pairs(plant_ids: list[str], design_ids: list[str], required, args: t
     with executor(jobs) as ex:
         designed = map_tasks(ex, _design_task, [((pid, did), (pid, did, t_final)) for pid, did in pairs])
         _check_required(designed, required)
-        rows = {key: row for key in pairs if (row := _unsimulated_row(*key, designed[key])) is not None}
+        rows = {key: row for key in pairs if (row := unsimulated_row(*key, designed[key])) is not None}
         tasks = [(key, (designed[key], *args)) for key in pairs if key not in rows]
         done = map_tasks(ex, _sampling_task, tasks, progress,
                          lambda key, r: f"{key[0]} x {key[1]}: h_max {fmt(r['row']['h_max'])}")
@@ -271,29 +270,6 @@ def _check_required(designed: dict, required) -> None:
         if res is not None and res.has_controller and not res.has_gains and did in required:
             raise StudyError("design", f"{did!r} has no fixed gains (K, F) on {pid!r} (its estimator is "
                                        f"{type(res.estimator).__name__}): a sampling study needs fixed gains")
-
-
-def _unsimulated_row(pid: str, did: str, designed) -> dict | None:
-    """The row of a pair that cannot be simulated (no controller, or no fixed gains); None when it can."""
-    res, rec = designed.result, designed.record
-    if res is None or not res.has_controller:
-        return {"plant": pid, "design": did, "status": rec["status"], "reason": rec["reason"]}
-    if not res.has_gains:
-        return {"plant": pid, "design": did, "status": "no fixed gains",
-                "reason": f"estimator {type(res.estimator).__name__}: not a fixed gain K"}
-    return None
-
-
-def _h_interval(r: dict) -> str:
-    """The largest converging h as a cell (``< h`` or ``>= h`` when not bracketed)."""
-    kind = r.get("kind")
-    if kind == "below_range":
-        return f"< {fmt(r['h_fail'], '.3g')}"
-    if kind == "above_range":
-        return f">= {fmt(r['h_max'], '.3g')}"
-    if kind == "bracketed":
-        return fmt(r["h_max"], ".3g")
-    return ""
 
 
 def _draw(pid: str, rows: list[dict], evals: list[dict]):
@@ -328,7 +304,7 @@ def write_sampling(result: SamplingResult, out_dir: str, command: str):
 
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
-    trows = [{**r, "h_max_s": _h_interval(r)} for r in rows]
+    trows = [{**r, "h_max_s": bracket_cell(r.get("kind", ""), r.get("h_max"), r.get("h_fail"))} for r in rows]
     cols = ["plant", "design", "status", "h_max_s", "h_fail", "h_lin", "settling_x_cont", "settling_x_at_hmax",
             "settling_x_median_at_hmax", "at_fail", "n_evals", "wall_s"]
     heads = ["plant", "design", "status", "largest converging h [s]", "first failing h", "h_lin (rho = 1)",
@@ -340,20 +316,17 @@ def write_sampling(result: SamplingResult, out_dir: str, command: str):
         study_header("Study: digital implementation (largest sample period)", "python -m bench study sampling"
                      if not command else command, result.settings, result.wall_s),
         "The controller and the observer run at period h, the plant is continuous: at `t_k = k h` the output is "
-        "sampled, `u_k = F x_hat_k` is held (zero-order hold) and the observer is advanced by the "
-        + ("**zoh** discretisation (its model `x_hat' = A x_hat + f(x_hat) + B u_k + K (y_k - C x_hat_k)` "
-           "integrated over the period with the input and the output injection held; exact ZOH for a linear plant)"
-           if disc == "zoh" else "**forward Euler** discretisation of (6)")
-        + ". The gains are the continuous designs' own (emulation). Plant and observer model are integrated between "
-          "samples by fixed-step RK4 on the whole batch of initial conditions.",
+        "sampled, `u_k = F x_hat_k` is held and the observer is advanced by its "
+        + ("**zoh** discretisation (its model integrated over the period, input and output injection held)"
+           if disc == "zoh" else "**forward Euler** discretisation")
+        + "; the gains are the continuous designs' own. The batch is integrated between samples by fixed-step RK4.",
         "",
-        "- **largest converging h**: geometric bisection (1 % relative) of the largest h at which *every* initial "
-        "condition (the plant's own plus the seeded random ones, x and x_hat uniform in the box) converges within the "
-        "horizon (final `||x||` and `||e||` at most 1e-3 of their peaks, no divergence);",
-        "- **h_lin**: the first h at which the loop linearised at the origin loses exponential stability "
-        "(spectral radius of the one-period matrix from `scipy.linalg.expm` reaches 1). Convergence within a finite "
-        "horizon demands more than `rho < 1`, so `h_max <= h_lin` is expected;",
-        "- settling times are 2 % settling of `||x||` at the sample instants, from the plant's initial conditions.",
+        "- **largest converging h**: bisection (1 % relative) of the largest h at which *every* initial condition "
+        "(the plant's and the seeded random ones) converges within the horizon (final `||x||`, `||e||` at most 1e-3 "
+        "of their peaks);",
+        "- **h_lin**: the first h at which the one-period matrix of the loop linearised at the origin reaches "
+        "spectral radius 1 (`h_max <= h_lin` expected);",
+        "- settling times: 2 % settling of `||x||` at the sample instants, from the plant's initial conditions.",
         "",
         "## Largest sample period per design",
         "",
