@@ -91,16 +91,9 @@ def escape_tex(text) -> str:
 
 def _is_missing(value) -> bool:
     """None, NaN, ``pd.NA`` or ``pd.NaT``."""
-    if value is None:
-        return True
-    try:
-        import pandas as pd
+    import pandas as pd
 
-        if value is pd.NA or value is pd.NaT:
-            return True
-    except ImportError:  # pragma: no cover - pandas is a dependency
-        pass
-    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and math.isnan(value)
+    return pd.api.types.is_scalar(value) and bool(pd.isna(value))
 
 
 def format_cell(value) -> str:

@@ -57,24 +57,20 @@ def check_weight(name: str, W, size: int, *, definite: bool) -> np.ndarray:
     return M
 
 
-def register_feedback(id: str):
-    """Decorator registering a feedback part class under ``id``."""
+def _registrar(registry: Registry, kind: str):
+    def register(id: str):
+        def deco(cls):
+            registry.register(id, cls)
+            return cls
 
-    def deco(cls):
-        FEEDBACKS.register(id, cls)
-        return cls
+        return deco
 
-    return deco
+    register.__doc__ = f"Decorator registering {kind} part class under ``id``."
+    return register
 
 
-def register_estimator(id: str):
-    """Decorator registering an estimator part class under ``id``."""
-
-    def deco(cls):
-        ESTIMATORS.register(id, cls)
-        return cls
-
-    return deco
+register_feedback = _registrar(FEEDBACKS, "a feedback")
+register_estimator = _registrar(ESTIMATORS, "an estimator")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -97,11 +93,8 @@ class Composite(Design):
         return None
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
-        """Compute both parts and merge their evidence (timings add up, the LMI margin is the worst).
-
-        The status is the worst part's; when both parts have gains it is ``feasible`` if either
-        part solved a feasibility problem, else ``computed`` (or ``given``).
-        """
+        """Compute both parts and merge their evidence: the worst part's status (with gains: the strongest of
+        feasible, computed, given), timings added, the worst LMI margin."""
         fb = self.feedback.compute(plant, constants)
         es = self.estimator.compute(plant, constants)
         parts = (("feedback", fb), ("estimator", es))
@@ -134,11 +127,8 @@ class Composite(Design):
 
 
 def register_pairing(feedback: str, estimator: str, *, summary: str | None = None) -> str:
-    """Register the design ``"feedback+estimator"``; returns its id.
-
-    Keyword overrides of the design factory: ``feedback_params`` and ``estimator_params``
-    (dicts of the parts' hyperparameters).
-    """
+    """Register the design ``"feedback+estimator"`` (hyperparameters: the dicts ``feedback_params`` and
+    ``estimator_params``); returns its id."""
     did = f"{feedback}+{estimator}"
 
     def factory(*, feedback_params: dict | None = None, estimator_params: dict | None = None,

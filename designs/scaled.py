@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from bench import lmi
 from bench.registry import DESIGNS, register_design
 from designs._core import Design, DesignResult, check_choice, check_int
 from plants import Channels, Constants, Plant
@@ -49,7 +50,7 @@ def scaled_plant(plant: Plant, d: np.ndarray) -> tuple[Plant, Constants]:
     delta = float(np.max(np.maximum(np.abs(ch.lo), np.abs(ch.hi))))
     alpha = delta * np.linalg.norm(G, 2) * np.linalg.norm(H, 2)
     if ch.q <= 10:
-        rho = max(float(np.linalg.eigvalsh(_sym(G @ np.diag(v) @ H))[-1])
+        rho = max(float(np.linalg.eigvalsh(lmi.sym(G @ np.diag(v) @ H))[-1])
                   for v in itertools.product(*zip(ch.lo, ch.hi)))
     else:
         rho = alpha
@@ -60,10 +61,6 @@ def scaled_plant(plant: Plant, d: np.ndarray) -> tuple[Plant, Constants]:
                   jacobian=None, x0=plant.x0 / d, x_hat0=plant.x_hat0 / d, bounds=consts, claimed=Constants(),
                   channels=Channels(G=G, H=H, phi=ch.phi, lo=ch.lo, hi=ch.hi, radius=None))
     return new, consts
-
-
-def _sym(M: np.ndarray) -> np.ndarray:
-    return (M + M.T) / 2
 
 
 @register_design("cor1_scaled", "Corrected Corollary 1 (separated) after a searched diagonal state scaling x = D x~ "

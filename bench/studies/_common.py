@@ -93,11 +93,11 @@ def bisect_largest(
     Parameters
     ----------
     check : callable
-        ``check(value) -> dict`` with a boolean ``"ok"`` and a ``"status"`` string.
+        ``check(value) -> dict`` with a boolean ``"ok"`` and a ``"status"``.
     default : float
         Start of the automatic bracketing (> 0).
     bounds : (float, float), optional
-        Bisect inside ``(lo, hi)`` instead (``lo`` failing: "below_range", ``hi`` passing: "above_range").
+        Bisect inside ``(lo, hi)`` instead.
     rtol : float
         Stop when ``hi / lo - 1 <= rtol``.
     max_doublings : int
@@ -108,11 +108,6 @@ def bisect_largest(
     dict
         ``lo`` (largest passing, NaN if none), ``hi`` (smallest failing, NaN if none), ``kind``
         ("bracketed", "below_range", "above_range", "inapplicable") and ``evals`` (every record, in order).
-
-    Raises
-    ------
-    StudyError
-        Bad ``bounds``, ``rtol`` or ``default``.
     """
     bounds = check_range("bounds", bounds)
     if not (math.isfinite(rtol) and rtol > 0):
@@ -186,22 +181,8 @@ def study_constants(plant, *, seed: int = 0, n_samples: int = STUDY_SAMPLES):
 
 
 def evaluate(plant, design_id: str, options=None, *, overrides: dict | None = None, prior=None, scenario=None):
-    """One pair through :func:`bench.pipeline.evaluate_pair` with the study's constants.
-
-    Parameters
-    ----------
-    plant : Plant
-    design_id : str
-    options : bench.pipeline.RunOptions, optional
-    overrides : dict, optional
-        Hyperparameters of the design (e.g. ``{"cap": 100.0}``).
-    prior : PairOutcome, optional
-        An earlier evaluation whose design and certificate are re-used.
-    scenario : bench.pipeline.Scenario, optional
-
-    Returns
-    -------
-    bench.pipeline.PairOutcome
+    """One pair through :func:`bench.pipeline.evaluate_pair` with the study's constants; ``overrides`` are the
+    design's hyperparameters, ``prior`` an earlier outcome whose design and certificate are re-used.
     """
     from bench.pipeline import RunOptions, evaluate_pair
     from bench.registry import DESIGNS
@@ -277,7 +258,7 @@ def skipped_lines(rows: list[dict], *, heading: str = "Not simulated:", width: i
 
 
 def study_header(title: str, command: str, settings: dict, wall_s: float) -> str:
-    """The first lines of a study's markdown: title, command, settings (seeds) and versions."""
+    """The first lines of a study's markdown: title, command, settings and versions."""
     from bench.report import package_versions
 
     vers = package_versions()
@@ -298,18 +279,8 @@ def study_header(title: str, command: str, settings: dict, wall_s: float) -> str
 
 def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: dict[str, Any],
                 figures: dict[str, Callable[[Path], None]]) -> Path:
-    """Write a study's files whole or not at all; return the markdown's path.
-
-    Parameters
-    ----------
-    out_dir : path
-    name : str
-        Files ``STUDY_<name>.md``, ``<table stem>.csv``, ``figures/<figure stem>.png``.
-    markdown : str
-    tables : dict
-        File stem -> pandas DataFrame.
-    figures : dict
-        File stem -> callable drawing the figure into a path.
+    """Write a study's files whole or not at all: ``STUDY_<name>.md``, each table (file stem -> DataFrame) as CSV
+    and each figure (file stem -> callable drawing into a path) as PNG; return the markdown's path.
     """
     from bench.outdir import publish, staged
 
