@@ -50,20 +50,8 @@ class Results:
 
     def write(self, out_dir: str | os.PathLike = "reports", *, figures: bool = True,
               figure_format: str | Iterable[str] = "png") -> Path:
-        """Write the report files into ``out_dir``, whole or not at all (:func:`bench.report.write_report`).
-
-        Parameters
-        ----------
-        out_dir : path
-        figures : bool
-            Draw the figures.
-        figure_format : str or iterable of str
-            ``"png"``, ``"pdf"`` or both.
-
-        Returns
-        -------
-        Path
-            The REPORT.md path.
+        """Write the report files of this run into ``out_dir`` (:func:`bench.report.write_report`, same options);
+        return the REPORT.md path.
         """
         from bench.outdir import check_out_dir
         from bench.report import write_report

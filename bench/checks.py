@@ -23,7 +23,8 @@ def _value_error(name: str, message: str) -> Exception:
     return ValueError(f"{name}: {message}")
 
 
-def _short(value: Any, limit: int = 80) -> str:
+def brief(value: Any, limit: int = 80) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for messages."""
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
@@ -50,23 +51,23 @@ def real(name: str, value: Any, *, lo: float | None = None, strict: bool = False
     float
     """
     if isinstance(value, (bool, str, bytes)):
-        raise error(name, f"expected a real number, got {_short(value)}")
+        raise error(name, f"expected a real number, got {brief(value)}")
     try:
         v = float(value)
     except (TypeError, ValueError, OverflowError):
-        raise error(name, f"expected a real number, got {_short(value)}") from None
+        raise error(name, f"expected a real number, got {brief(value)}") from None
     if not math.isfinite(v):
-        raise error(name, f"must be finite, got {_short(value)}")
+        raise error(name, f"must be finite, got {brief(value)}")
     if (lo is not None and (v < lo or (strict and v == lo))) or (hi is not None and v >= hi):
         bounds = [f"{'>' if strict else '>='} {lo:g}" if lo is not None else "", f"< {hi:g}" if hi is not None else ""]
-        raise error(name, f"must be finite and {' and '.join(b for b in bounds if b)}, got {_short(value)}")
+        raise error(name, f"must be finite and {' and '.join(b for b in bounds if b)}, got {brief(value)}")
     return v
 
 
 def integer(name: str, value: Any, *, lo: int, error: ErrorFactory = _value_error) -> int:
     """``value`` as an int ``>= lo``: integers only (Python or numpy, not bool), never truncated or parsed."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise error(name, f"expected an integer, got {_short(value)}")
+        raise error(name, f"expected an integer, got {brief(value)}")
     if int(value) < lo:
         raise error(name, f"must be >= {lo}, got {value!r}")
     return int(value)
@@ -116,7 +117,7 @@ def gains(plant, K: Any, F: Any, *, optional_K: bool = False):
             raise ValueError(f"{name}: expected shape {shape} ({what} for plant {plant.id!r} with n={n}, m={m}, "
                              f"p={p}), got {arr.shape}")
         if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name}: entries must be finite, got {_short(arr.tolist())}")
+            raise ValueError(f"{name}: entries must be finite, got {brief(arr.tolist())}")
         out.append(arr)
     return out[0], out[1]
 

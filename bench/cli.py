@@ -173,17 +173,8 @@ def _write_run(results, args, t0: float) -> int:
 
 
 def summary_line(df) -> str:
-    """What a run gave, in one line: pairs with gains and how, pairs without and why, and how many
-    with gains are certified and converged.
-
-    Parameters
-    ----------
-    df : pandas.DataFrame
-        The results table (columns ``status``, ``certified``, ``converged``).
-
-    Returns
-    -------
-    str
+    """What a run's results table gave, in one line: pairs with gains and how, pairs without and why, and
+    how many with gains are certified and converged.
     """
     from designs import GAIN_STATUSES, STATUSES
 

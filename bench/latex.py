@@ -8,7 +8,6 @@ fragment in a document ``pdflatex`` compiles as it is.
 
 from __future__ import annotations
 
-import math
 import numbers
 import re
 
@@ -116,6 +115,11 @@ def format_cell(value) -> str:
     return escape_tex(value)
 
 
+def _short(status, words: dict[str, str]) -> str:
+    """A status cell in the short ``words`` (a status not listed as it is), escaped; blank when missing."""
+    return "" if _is_missing(status) else escape_tex(words.get(str(status), str(status)))
+
+
 def _head(text: str) -> str:
     """A header cell: escaped, with a line break at each ``"\n"`` (a one-column tabular: no package)."""
     lines = [escape_tex(t) for t in text.split("\n")]
@@ -159,7 +163,7 @@ def _cert_cell(rec: dict, col: str) -> str:
     status = rec.get(f"cert_{level}") if level else None
     if level is None or _is_missing(status) or status in ("", "certified"):
         return format_cell(rec[col])
-    return escape_tex(CERT_SHORT.get(str(status), str(status)))
+    return _short(status, CERT_SHORT)
 
 
 def _row_table(frame, columns, caption: str, label: str, *, max_rows: int, cell=None) -> str | None:
@@ -298,12 +302,6 @@ def _check_frame(frame, max_rows) -> None:
         raise ValueError(f"max_rows: expected an integer >= 2 (a plant's heading and a row), got {max_rows!r}")
 
 
-def _short_status(status) -> str:
-    if _is_missing(status):
-        return ""
-    return escape_tex(STATUS_SHORT.get(str(status), str(status)))
-
-
 def _feasibility_tables(frame, caption_prefix: str, label: str, text_width_pt: float) -> str:
     """The plant x design matrix of ``status`` with a legend, split by designs to fit ``text_width_pt``."""
     import pandas as pd
@@ -325,7 +323,7 @@ def _feasibility_tables(frame, caption_prefix: str, label: str, text_width_pt: f
         groups[-1].append(d)
     parts = []
     for k, group in enumerate(groups):
-        rows = [[format_cell(p)] + [_short_status(shown[d][i]) for d in group] for i, p in enumerate(plants)]
+        rows = [[format_cell(p)] + [_short(shown[d][i], STATUS_SHORT) for d in group] for i, p in enumerate(plants)]
         part = f", designs {designs.index(group[0]) + 1}-{designs.index(group[-1]) + 1} of {len(designs)}"
         caption = (caption_prefix + "Feasibility of each design on each plant" + (part if len(groups) > 1 else "")
                    + (f" ({legend})." if legend else "."))

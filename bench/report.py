@@ -133,17 +133,9 @@ def short_reason(text, limit: int = REASON_CHARS) -> str:
 
 
 def results_table(df):
-    """The results table as results.csv and :attr:`bench.api.Results.table` show it: the records with
-    ``reason`` shortened by :func:`short_reason` and the full text in a last column ``details``.
-
-    Parameters
-    ----------
-    df : pandas.DataFrame
-        :meth:`bench.harness.RunResult.frame`.
-
-    Returns
-    -------
-    pandas.DataFrame
+    """The results table as results.csv and :attr:`bench.api.Results.table` show it: the records of
+    :meth:`bench.harness.RunResult.frame` (a DataFrame) with ``reason`` shortened by :func:`short_reason` and the
+    full text in a last column ``details``; returns a new frame.
     """
     out = df.copy()
     out["details"] = df["reason"].fillna("")
@@ -341,21 +333,9 @@ def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
 
 def draw_figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png",), jobs: int | None = None
              ) -> list[tuple[str, str]]:
-    """Draw the report's figures of a run into ``figdir``.
-
-    Parameters
-    ----------
-    result : RunResult
-    figdir : Path
-    fmts : tuple of str
-        File formats (``"png"``, ``"pdf"``); each figure is saved in every one.
-    jobs : int, optional
-        Figures drawn at a time (default: all cores).
-
-    Returns
-    -------
-    list of (str, str)
-        (caption, path of the first format relative to the report), in report order.
+    """Draw the report's figures of a run into ``figdir``, each in every format of ``fmts`` (``"png"``, ``"pdf"``),
+    ``jobs`` at a time (default: all cores); returns (caption, path of the first format relative to the report)
+    pairs in report order.
     """
     from bench.executors import default_jobs, executor
 
@@ -424,12 +404,10 @@ _LEGEND = (
 
 
 def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info: dict) -> str:
-    """The REPORT.md text, rendered from the records and the findings."""
-    from bench.findings import findings
-
+    """The REPORT.md text, rendered from the records and ``run_info["findings"]``."""
     df = result.frame()
     o = result.options
-    found = run_info.get("findings") or findings(df, result.constants)
+    found = run_info["findings"]
     conv_cols = ["plant", "design", "stabilizing", "certified", "cert_level", "decay_rate", "cert_scope",
                  "witness", "rate_ceiling", "rate_ratio", "converged", "horizon_s", "horizon_rule", "sim_status", "settling_x_s", "settling_e_s", "final_x",
                  "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "in_region"]
@@ -616,9 +594,7 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
     fmts = _formats(figure_format)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with staged(out, "report") as tmp:  # a folder of its own; stale ones are removed by publish
+    with staged(out, "report") as tmp:
         files = _render(result, tmp, run_info, figures, fmts)
-        # swap it in whole or not at all (bench.outdir), REPORT.md last; files an earlier report wrote and
-        # this one does not are removed, every other file stays (the folder's manifest)
         publish(out, tmp, files, writer="report")
     return out / "REPORT.md"

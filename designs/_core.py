@@ -35,11 +35,6 @@ def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
     return checks.real(name, value, lo=0.0, strict=not allow_zero, error=_design_error)
 
 
-def _short(value: Any, limit: int = 80) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 def check_int(name: str, value: Any, *, minimum: int) -> int:
     """``value`` as an int ``>= minimum`` (never truncated or parsed), else a :class:`DesignError`."""
     return checks.integer(name, value, lo=minimum, error=_design_error)
@@ -52,25 +47,25 @@ def _is_sequence(value: Any) -> bool:
 def check_range(name: str, value: Any, *, strict: bool = True) -> tuple[float, float]:
     """``(lo, hi)`` with ``0 < lo < hi < inf`` (``lo <= hi`` unless ``strict``), else a :class:`DesignError`."""
     if not _is_sequence(value) or len(value) != 2:
-        raise DesignError(f"{name}: expected a pair (lo, hi) of positive numbers, got {_short(value)}")
+        raise DesignError(f"{name}: expected a pair (lo, hi) of positive numbers, got {checks.brief(value)}")
     lo, hi = (check_positive(name, v) for v in value)
     if lo > hi or (strict and lo == hi):
         rel = "<" if strict else "<="
-        raise DesignError(f"{name}: must be (lo, hi) with lo {rel} hi, got {_short(value)}")
+        raise DesignError(f"{name}: must be (lo, hi) with lo {rel} hi, got {checks.brief(value)}")
     return lo, hi
 
 
 def check_values_in(name: str, value: Any, lo: float, hi: float) -> tuple[float, ...]:
     """A non-empty sequence of numbers, each in the open interval ``(lo, hi)``, else a :class:`DesignError`."""
     if not _is_sequence(value):
-        raise DesignError(f"{name}: expected a sequence of numbers in ({lo:g}, {hi:g}), got {_short(value)}")
+        raise DesignError(f"{name}: expected a sequence of numbers in ({lo:g}, {hi:g}), got {checks.brief(value)}")
     if len(value) == 0:
         raise DesignError(f"{name}: at least one value is needed")
     out = []
     for x in value:
         v = check_positive(name, x, allow_zero=True)
         if not lo < v < hi:
-            raise DesignError(f"{name}: each value must be in ({lo:g}, {hi:g}), got {_short(x)}")
+            raise DesignError(f"{name}: each value must be in ({lo:g}, {hi:g}), got {checks.brief(x)}")
         out.append(v)
     return tuple(out)
 
@@ -78,7 +73,7 @@ def check_values_in(name: str, value: Any, lo: float, hi: float) -> tuple[float,
 def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> str:
     """Return ``value`` if it is one of the strings ``choices``, else raise :class:`DesignError`."""
     if not isinstance(value, str) or value not in choices:
-        raise DesignError(f"{name}: must be one of {', '.join(repr(c) for c in choices)}, got {_short(value)}")
+        raise DesignError(f"{name}: must be one of {', '.join(repr(c) for c in choices)}, got {checks.brief(value)}")
     return value
 
 

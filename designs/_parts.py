@@ -32,18 +32,20 @@ class Part(Configurable):
         raise NotImplementedError
 
 
-def check_weight(name: str, W, size: int, *, definite: bool) -> np.ndarray:
-    """A weight matrix (None: the identity): shape (size, size), finite, symmetric, PSD (PD with ``definite``)."""
+def check_weight(name: str, W, size: int | None, *, definite: bool) -> np.ndarray:
+    """A weight matrix: None is the identity, a scalar s is s I; square (``size`` x ``size`` when given), finite,
+    symmetric, PSD (PD with ``definite``); else a :class:`DesignError` naming ``name``."""
     if W is None:
         return np.eye(size)
     try:
         M = np.atleast_2d(np.array(W, dtype=float))
     except (TypeError, ValueError, OverflowError):
-        raise DesignError(f"{name}: not a numeric matrix") from None
-    if M.shape == (1, 1) and size > 1:
+        raise DesignError(f"{name}: not a numeric matrix, got {W!r}"[:200]) from None
+    if M.shape == (1, 1) and size is not None and size > 1:
         M = M[0, 0] * np.eye(size)  # a scalar weight means scalar * I
-    if M.shape != (size, size):
-        raise DesignError(f"{name}: expected shape ({size}, {size}), got {M.shape}")
+    k = M.shape[0] if size is None else size
+    if M.shape != (k, k) or M.size == 0:
+        raise DesignError(f"{name}: expected shape ({k}, {k}), got {M.shape}")
     if not np.all(np.isfinite(M)):
         raise DesignError(f"{name}: entries must be finite")
     if not np.allclose(M, M.T, rtol=1e-10, atol=1e-12):

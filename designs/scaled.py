@@ -31,19 +31,7 @@ __all__ = ["Scaled", "scaled_plant"]
 
 
 def scaled_plant(plant: Plant, d: np.ndarray) -> tuple[Plant, Constants]:
-    """The plant in coordinates ``x = diag(d) x~`` and the constants of its nonlinearity.
-
-    Parameters
-    ----------
-    plant : Plant
-        With channels.
-    d : ndarray (n,)
-        Positive scales.
-
-    Returns
-    -------
-    Plant, Constants
-    """
+    """The plant (with channels) in coordinates ``x = diag(d) x~``, ``d > 0``, and the constants of its nonlinearity."""
     ch = plant.channels
     D, Di = np.diag(d), np.diag(1 / d)
     G, H = Di @ ch.G, ch.H @ D

@@ -5,10 +5,12 @@ markdown tables, and the atomic writer of a study's files (``STUDY_<name>.md``, 
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import platform
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -37,9 +39,10 @@ def check_box(name: str, value: Any) -> float | None:
     return None if value is None else checks.real(name, value, lo=0.0, strict=True, error=StudyError)
 
 
-def check_count(name: str, value: Any, lo: int = 1) -> int:
-    """An integer count ``>= lo``."""
-    return checks.integer(name, value, lo=lo, error=StudyError)
+#: A count ``>= 1``, a bisection's relative tolerance in (0, 1), a horizon (None: each plant's); StudyError if not.
+check_count = functools.partial(checks.integer, lo=1, error=StudyError)
+check_rtol = functools.partial(checks.real, "rtol", lo=0.0, strict=True, hi=1.0, error=StudyError)
+check_horizon = functools.partial(checks.horizon, error=StudyError)
 
 
 def check_levels(name: str, values: Any) -> list[float]:
@@ -47,13 +50,10 @@ def check_levels(name: str, values: Any) -> list[float]:
     vals = list(values)
     if not vals:
         raise StudyError(name, "at least one level is needed")
-    out = []
-    for v in vals:
-        out.append(checks.real(name, v, lo=0.0, strict=True, error=StudyError))
-    return sorted(set(out))
+    return sorted({checks.real(name, v, lo=0.0, strict=True, error=StudyError) for v in vals})
 
 
-def check_range(name: str, value: Any, *, positive: bool = True) -> tuple[float, float] | None:
+def check_range(name: str, value: Any) -> tuple[float, float] | None:
     """Bisection bounds ``(lo, hi)`` with ``0 < lo < hi`` (None: automatic bracketing)."""
     if value is None:
         return None
@@ -61,22 +61,11 @@ def check_range(name: str, value: Any, *, positive: bool = True) -> tuple[float,
         lo, hi = value
     except (TypeError, ValueError):
         raise StudyError(name, f"expected two numbers LO HI, got {value!r}") from None
-    lo = checks.real(name, lo, lo=0.0 if positive else None, strict=True, error=StudyError)
+    lo = checks.real(name, lo, lo=0.0, strict=True, error=StudyError)
     hi = checks.real(name, hi, error=StudyError)
     if not lo < hi:
         raise StudyError(name, f"bounds in the wrong order: LO = {lo:g} must be < HI = {hi:g}")
     return lo, hi
-
-
-def check_rtol(rtol: Any) -> float:
-    """A bisection's relative tolerance in (0, 1)."""
-    checks.real("rtol", rtol, lo=0.0, strict=True, hi=1.0, error=StudyError)
-    return rtol
-
-
-def check_horizon(t_final: Any) -> float | None:
-    """A horizon: None (each plant's) or a finite number > 0."""
-    return checks.horizon(t_final, error=StudyError)
 
 
 # -- bisection --------------------------------------------------------------------------------
@@ -90,24 +79,10 @@ def bisect_largest(
 ) -> dict:
     """Largest value at which ``check(value)["ok"]`` holds (:func:`bench.search.largest_passing`).
 
-    Parameters
-    ----------
-    check : callable
-        ``check(value) -> dict`` with a boolean ``"ok"`` and a ``"status"``.
-    default : float
-        Start of the automatic bracketing (> 0).
-    bounds : (float, float), optional
-        Bisect inside ``(lo, hi)`` instead.
-    rtol : float
-        Stop when ``hi / lo - 1 <= rtol``.
-    max_doublings : int
-        Doublings (or halvings) before the bracketing gives up; halving also stops at a status "invalid".
-
-    Returns
-    -------
-    dict
-        ``lo`` (largest passing, NaN if none), ``hi`` (smallest failing, NaN if none), ``kind``
-        ("bracketed", "below_range", "above_range", "inapplicable") and ``evals`` (every record, in order).
+    The bracket is found by doubling or halving from ``default`` (at most ``max_doublings`` moves; halving stops
+    at a record with status "invalid"), or is ``bounds``; it is then bisected until ``hi / lo - 1 <= rtol``.
+    Returns ``lo`` (largest passing, NaN if none), ``hi`` (smallest failing, NaN if none), ``kind``
+    ("bracketed", "below_range", "above_range", "inapplicable") and ``evals`` (every record, in order).
     """
     bounds = check_range("bounds", bounds)
     if not (math.isfinite(rtol) and rtol > 0):
@@ -204,16 +179,6 @@ def unsimulated_row(pid: str, did: str, outcome, *, need_gains: bool = True) -> 
     return None
 
 
-def selection(plant_ids, design_ids, default_plants=None, default_designs=None) -> tuple[list[str], list[str]]:
-    """The plant and design ids a study runs: those given, else the defaults (else every registered one)."""
-    from bench.registry import DESIGNS, PLANTS
-
-    def pick(ids, default, registry):
-        return list(ids) if ids else (list(default) if default is not None else registry.ids())
-
-    return pick(plant_ids, default_plants, PLANTS), pick(design_ids, default_designs, DESIGNS)
-
-
 def map_tasks(ex, fn: Callable, tasks: list[tuple[Any, tuple]], progress: Callable[[int, int, str], None] | None = None,
               describe: Callable[[Any, Any], str] | None = None) -> dict:
     """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks`` on ``ex``; return ``{key: result}``.
@@ -232,14 +197,48 @@ def map_tasks(ex, fn: Callable, tasks: list[tuple[Any, tuple]], progress: Callab
     return out
 
 
-def run_tasks(jobs: int, fn: Callable, tasks: list[tuple[Any, tuple]],
-              progress: Callable[[int, int, str], None] | None = None,
-              describe: Callable[[Any, Any], str] | None = None) -> dict:
-    """:func:`map_tasks` on a fresh :func:`bench.executors.executor` of ``jobs`` workers."""
-    from bench.executors import executor
+@dataclass
+class StudyRun:
+    """The pairs a study runs and how: ``plant_ids``, ``design_ids``, ``jobs`` worker processes and
+    ``progress(done, total, label)``; :meth:`wall_s` counts from its creation."""
 
-    with executor(jobs) as ex:
-        return map_tasks(ex, fn, tasks, progress, describe)
+    plant_ids: list[str]
+    design_ids: list[str]
+    jobs: int = 1
+    progress: Callable[[int, int, str], None] | None = None
+    t_start: float = field(default_factory=time.perf_counter)
+
+    def map(self, fn: Callable, tasks: list[tuple[Any, tuple]], describe: Callable[[Any, Any], str]) -> dict:
+        """:func:`map_tasks` on a fresh :func:`bench.executors.executor` of ``jobs`` workers."""
+        from bench.executors import executor
+
+        with executor(self.jobs) as ex:
+            return map_tasks(ex, fn, tasks, self.progress, describe)
+
+    def wall_s(self) -> float:
+        return time.perf_counter() - self.t_start
+
+
+def study(default_plants=None, default_designs=None):
+    """Decorator making ``fn(run: StudyRun, **options)`` a study's
+    ``fn(plant_ids=None, design_ids=None, *, jobs=1, progress=None, **options)``; without ids, the defaults
+    (None: every registered one)."""
+    def deco(fn):
+        def run(plant_ids=None, design_ids=None, *, jobs: int = 1, progress=None, **options):
+            from bench.registry import DESIGNS, PLANTS
+
+            def pick(ids, default, registry):
+                return list(ids) if ids else (list(default) if default is not None else registry.ids())
+
+            pairs = StudyRun(pick(plant_ids, default_plants, PLANTS), pick(design_ids, default_designs, DESIGNS), jobs,
+                             progress)
+            return fn(pairs, **options)
+
+        functools.update_wrapper(run, fn)
+        del run.__wrapped__  # the signature is the wrapper's; the docstring lists every option
+        return run
+
+    return deco
 
 
 # -- rendering ---------------------------------------------------------------------------------
@@ -277,6 +276,12 @@ def study_header(title: str, command: str, settings: dict, wall_s: float) -> str
     ])
 
 
+def save_figure(fig, path) -> None:
+    """Save a study's figure at 100 dpi and close it."""
+    fig.savefig(path, dpi=100)
+    pyplot().close(fig)
+
+
 def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: dict[str, Any],
                 figures: dict[str, Callable[[Path], None]]) -> Path:
     """Write a study's files whole or not at all: ``STUDY_<name>.md``, each table (file stem -> DataFrame) as CSV
@@ -294,6 +299,5 @@ def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: di
         for stem, df in tables.items():
             df.to_csv(tmp / f"{stem}.csv", index=False)
         (tmp / md_name).write_text(markdown.rstrip("\n") + "\n", encoding="utf-8")
-        # whole or not at all (bench.outdir), the markdown last
         publish(out, tmp, [*(f"figures/{stem}.png" for stem in figures), *(f"{stem}.csv" for stem in tables), md_name])
     return out / md_name

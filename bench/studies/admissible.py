@@ -14,12 +14,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, bisect_largest, bracket_cell, check_range, check_rtol,
-                                   evaluate, fmt, md_table, pyplot, run_tasks, selection, study_header, write_study)
+from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_range,
+                                   check_rtol, evaluate, fmt, md_table, pyplot, save_figure, study, study_header,
+                                   write_study)
 from designs import GAIN_STATUSES
 
 __all__ = ["run_admissible", "write_admissible"]
@@ -123,22 +124,9 @@ def _knob_default(plant_id: str, knob: str) -> float:
 
 
 def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, overrides: dict | None = None) -> dict:
-    """Design and certify at one knob value (the pipeline, without simulation).
-
-    Parameters
-    ----------
-    plant_id, knob : str
-        The plant is ``PLANTS.create(plant_id, **{knob: value})``.
-    value : float
-    design_id : str
-    overrides : dict, optional
-        Hyperparameters of the design (e.g. ``{"cap": 100.0}``).
-
-    Returns
-    -------
-    dict
-        ``value``, ``ok`` (gains designed and certified), ``status`` (``invalid`` when the plant cannot be
-        built at that value), ``feasible``, ``certified``, ``cert_level``, margins, timings and ``reason``.
+    """Design and certify ``design_id`` (with ``overrides``) on ``PLANTS.create(plant_id, **{knob: value})``
+    without simulating: a record with ``value``, ``ok`` (gains designed and certified), ``status`` (``invalid``
+    when the plant cannot be built there), ``feasible``, ``certified``, ``cert_level``, margins, timings, ``reason``.
     """
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
@@ -208,16 +196,9 @@ class AdmissibleResult(StudyResult):
     evals: list[dict] = field(default_factory=list)
 
 
-def run_admissible(
-    plant_ids: list[str] | None = None,
-    design_ids: list[str] | None = None,
-    *,
-    bounds: tuple[float, float] | None = None,
-    rtol: float = 0.01,
-    caps: tuple[float, ...] = (10.0, 100.0, 1e4),
-    jobs: int = 1,
-    progress: Callable[[int, int, str], None] | None = None,
-) -> AdmissibleResult:
+@study(KNOBS, DEFAULT_DESIGNS)
+def run_admissible(run: StudyRun, *, bounds: tuple[float, float] | None = None, rtol: float = 0.01,
+                   caps: tuple[float, ...] = (10.0, 100.0, 1e4)) -> AdmissibleResult:
     """Bisect the admissible scale of every (plant, design) pair.
 
     Parameters
@@ -232,9 +213,8 @@ def run_admissible(
         Relative tolerance of the bisection.
     caps : tuple of float
         Other normalisation caps for :data:`CAP_DESIGNS` on :data:`CAP_PLANTS` (empty: skip).
-    jobs : int
-    progress : callable, optional
-        ``progress(done, total, label)``.
+    jobs, progress
+        Worker processes; ``progress(done, total, label)``.
 
     Returns
     -------
@@ -245,22 +225,20 @@ def run_admissible(
     StudyError
         A plant without a scale knob, bad bounds, rtol or cap.
     """
-    t_start = time.perf_counter()
     bounds = check_range("bounds", bounds)
     check_rtol(rtol)
     for c in caps:
         if not (math.isfinite(c) and c > 0):
             raise StudyError("caps", f"each cap must be finite and > 0, got {c!r}")
-    plant_ids, design_ids = selection(plant_ids, design_ids, KNOBS, DEFAULT_DESIGNS)
-    tasks = _tasks(plant_ids, design_ids, caps)
-    results = run_tasks(jobs, _pair_task, [((pid, did, _label(ov)), (pid, k, did, ov, bounds, rtol))
-                                           for pid, k, did, ov in tasks], progress, _progress_label)
+    tasks = _tasks(run.plant_ids, run.design_ids, caps)
+    results = run.map(_pair_task, [((pid, did, _label(ov)), (pid, k, did, ov, bounds, rtol))
+                                   for pid, k, did, ov in tasks], _progress_label)
     rows, variant_rows, evals = _gather(tasks, results)
     settings = {"rtol": rtol, "bounds": bounds or "automatic (doubling/halving from the plant's default)",
                 "cap": 1e3, "other caps": tuple(caps),
                 "certificate": "the pipeline's ladder at lam = 0 (strongest level first), trusted constants",
-                "jobs": jobs}
-    return AdmissibleResult(rows, settings, time.perf_counter() - t_start, variant_rows=variant_rows, evals=evals)
+                "jobs": run.jobs}
+    return AdmissibleResult(rows, settings, run.wall_s(), variant_rows=variant_rows, evals=evals)
 
 
 def _progress_label(key: tuple[str, str, str], result: dict) -> str:
@@ -340,8 +318,7 @@ def _draw_plant(pid: str, rows: list[dict], evals: list[dict]):
                title=f"{pid}: feasibility vs {rows[0]['knob']} (black bar: admissible value)")
         ax.grid(True, axis="x", which="both", alpha=0.3)
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        save_figure(fig, path)
 
     return draw
 

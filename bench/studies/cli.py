@@ -9,6 +9,7 @@ option value: the message names the option).
 from __future__ import annotations
 
 import argparse
+import importlib
 import shlex
 import sys
 import time
@@ -111,6 +112,22 @@ def _explicit(patterns: list[str] | None) -> list[str]:
     return [p for p in (patterns or []) if not any(ch in p for ch in "*?[]")]
 
 
+def _options(args) -> dict:
+    """The study's own options from the parsed arguments."""
+    if args.study == "admissible":
+        return dict(bounds=tuple(args.range) if args.range else None, rtol=args.rtol, caps=tuple(args.caps))
+    if args.study == "sampling":
+        return dict(required=_explicit(args.design), n_ics=args.n_ics, box=args.box, seed=args.seed,
+                    discretisation=args.discretisation, h_range=tuple(args.h_range) if args.h_range else None,
+                    rtol=args.rtol, t_final=args.t_final)
+    if args.study == "montecarlo":
+        return dict(n=args.n, box=args.box, seed=args.seed, t_final=args.t_final, method=args.method)
+    from bench.studies.noise import DEFAULT_LEVELS
+
+    return dict(levels=tuple(args.levels) if args.levels else DEFAULT_LEVELS, seed=args.seed,
+                matched_ekf=not args.no_matched_ekf, t_final=args.t_final)
+
+
 def run_study(args, argv: list[str]) -> int:
     """Run the study named by ``args.study``; returns the exit code."""
     from bench.selection import check_selection
@@ -131,29 +148,9 @@ def run_study(args, argv: list[str]) -> int:
         bar = Progress(desc=f"study {args.study}", delay=1.0)
     t0 = time.perf_counter()
     try:
-        if args.study == "admissible":
-            from bench.studies.admissible import run_admissible as run, write_admissible as write
-
-            result = run(plant_ids, design_ids, bounds=tuple(args.range) if args.range else None, rtol=args.rtol,
-                         caps=tuple(args.caps), jobs=jobs, progress=bar)
-        elif args.study == "sampling":
-            from bench.studies.sampling import run_sampling as run, write_sampling as write
-
-            result = run(plant_ids, design_ids, required=_explicit(args.design), n_ics=args.n_ics, box=args.box,
-                         seed=args.seed, discretisation=args.discretisation,
-                         h_range=tuple(args.h_range) if args.h_range else None, rtol=args.rtol,
-                         t_final=args.t_final, jobs=jobs, progress=bar)
-        elif args.study == "montecarlo":
-            from bench.studies.montecarlo import run_montecarlo as run, write_montecarlo as write
-
-            result = run(plant_ids, design_ids, n=args.n, box=args.box, seed=args.seed, t_final=args.t_final,
-                         method=args.method, jobs=jobs, progress=bar)
-        else:
-            from bench.studies.noise import DEFAULT_LEVELS, run_noise as run, write_noise as write
-
-            result = run(plant_ids, design_ids, levels=tuple(args.levels) if args.levels else DEFAULT_LEVELS,
-                         seed=args.seed, matched_ekf=not args.no_matched_ekf, t_final=args.t_final, jobs=jobs,
-                         progress=bar)
+        module = importlib.import_module(f"bench.studies.{args.study}")
+        run, write = getattr(module, f"run_{args.study}"), getattr(module, f"write_{args.study}")
+        result = run(plant_ids, design_ids, jobs=jobs, progress=bar, **_options(args))
     except StudyError as exc:
         print(f"{prog}: error: {OPTIONS.get(exc.param, exc.param)}: {exc.message}", file=sys.stderr)
         return 2

@@ -12,12 +12,11 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyResult, check_box, check_count, check_horizon, default_box, evaluate, fmt,
-                                   md_table, pyplot, random_ics, run_tasks, selection, skipped_lines, study_header,
+from bench.studies._common import (StudyResult, StudyRun, check_box, check_count, check_horizon, default_box, evaluate,
+                                   fmt, md_table, pyplot, random_ics, save_figure, skipped_lines, study, study_header,
                                    unsimulated_row, write_study)
 
 __all__ = ["run_montecarlo", "write_montecarlo"]
@@ -85,20 +84,10 @@ class MonteCarloResult(StudyResult):
     settling: dict = field(default_factory=dict)
 
 
-def run_montecarlo(
-    plant_ids: list[str] | None = None,
-    design_ids: list[str] | None = None,
-    *,
-    n: int = 1000,
-    box: float | None = None,
-    seed: int = 0,
-    t_final: float | None = None,
-    method: str = "auto",
-    rtol: float = 1e-6,
-    atol: float = 1e-9,
-    jobs: int = 1,
-    progress: Callable[[int, int, str], None] | None = None,
-) -> MonteCarloResult:
+@study()
+def run_montecarlo(run: StudyRun, *, n: int = 1000, box: float | None = None, seed: int = 0,
+                   t_final: float | None = None, method: str = "auto", rtol: float = 1e-6,
+                   atol: float = 1e-9) -> MonteCarloResult:
     """Simulate N seeded random initial conditions per (plant, design) as one vectorised batch.
 
     Parameters
@@ -115,8 +104,8 @@ def run_montecarlo(
         Horizon (default: each plant's).
     method, rtol, atol
         ``solve_ivp`` settings of the batch (``"auto"``: :func:`bench.simulate.choose_method`).
-    jobs : int
-    progress : callable, optional
+    jobs, progress
+        Worker processes; ``progress(done, total, label)``.
 
     Returns
     -------
@@ -127,20 +116,17 @@ def run_montecarlo(
     StudyError
         Bad ``n``, box or horizon.
     """
-    t_start = time.perf_counter()
-    n = check_count("n", n, 1)
+    n = check_count("n", n)
     box = check_box("box", box)
     check_horizon(t_final)
-    plant_ids, design_ids = selection(plant_ids, design_ids)
-    pairs = [(pid, did) for pid in plant_ids for did in design_ids]
-    out = run_tasks(jobs, _mc_task, [(key, (*key, n, box, seed, t_final, method, rtol, atol)) for key in pairs],
-                    progress, _describe)
+    pairs = [(pid, did) for pid in run.plant_ids for did in run.design_ids]
+    out = run.map(_mc_task, [(key, (*key, n, box, seed, t_final, method, rtol, atol)) for key in pairs], _describe)
     rows = [out[key]["row"] for key in pairs]
     settling = {key: out[key]["settling"] for key in pairs}
     settings = {"N": n, "box": box if box is not None else "plant's initial-condition scale", "seed": seed,
                 "t_final": t_final if t_final is not None else "plant's", "method": method, "rtol": rtol,
-                "atol": atol, "jobs": jobs}
-    return MonteCarloResult(rows, settings, time.perf_counter() - t_start, settling=settling)
+                "atol": atol, "jobs": run.jobs}
+    return MonteCarloResult(rows, settings, run.wall_s(), settling=settling)
 
 
 def _draw(pid: str, rows: list[dict], settling: dict):
@@ -172,8 +158,7 @@ def _draw(pid: str, rows: list[dict], settling: dict):
                title=f"{pid}: {sim[0]['N'] if sim else 0} initial conditions in [-{fmt(sim[0]['box']) if sim else ''}, "
                      f"{fmt(sim[0]['box']) if sim else ''}]^n")
         a2.grid(True, axis="x", alpha=0.3)
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        save_figure(fig, path)
 
     return draw
 

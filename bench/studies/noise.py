@@ -10,14 +10,13 @@ The gains are designed once per pair and reused at every level; the numbers equa
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, check_horizon, check_levels, evaluate, fmt, md_table,
-                                   pyplot, run_tasks, selection, skipped_lines, study_header, unsimulated_row,
+from bench import checks
+from bench.studies._common import (StudyError, StudyResult, StudyRun, check_horizon, check_levels, evaluate, fmt,
+                                   md_table, pyplot, save_figure, skipped_lines, study, study_header, unsimulated_row,
                                    write_study)
 
 __all__ = ["run_noise", "write_noise"]
@@ -80,26 +79,15 @@ class NoiseResult(StudyResult):
     skipped: list[dict] = field(default_factory=list)
 
 
-def run_noise(
-    plant_ids: list[str] | None = None,
-    design_ids: list[str] | None = None,
-    *,
-    levels: tuple[float, ...] = DEFAULT_LEVELS,
-    seed: int = 0,
-    matched_ekf: bool = True,
-    noise_dt: float = 0.01,
-    t_final: float | None = None,
-    jobs: int = 1,
-    progress: Callable[[int, int, str], None] | None = None,
-) -> NoiseResult:
+@study(DEFAULT_PLANTS)
+def run_noise(run: StudyRun, *, levels: tuple[float, ...] = DEFAULT_LEVELS, seed: int = 0, matched_ekf: bool = True,
+              noise_dt: float = 0.01, t_final: float | None = None) -> NoiseResult:
     """RMS estimation error and final state norm vs noise level for every design with a controller.
 
     Parameters
     ----------
-    plant_ids : list of str, optional
-        Default :data:`DEFAULT_PLANTS`.
-    design_ids : list of str, optional
-        Default: every registered design (those without a controller on a plant are listed).
+    plant_ids, design_ids : list of str, optional
+        Default :data:`DEFAULT_PLANTS` and every registered design (those without a controller are listed).
     levels : sequence of float
         Noise standard deviations (each finite and > 0).
     seed : int
@@ -109,8 +97,8 @@ def run_noise(
     noise_dt : float
         Hold interval of the noise for fixed-gain observers.
     t_final : float, optional
-    jobs : int
-    progress : callable, optional
+    jobs, progress
+        Worker processes; ``progress(done, total, label)``.
 
     Returns
     -------
@@ -121,20 +109,17 @@ def run_noise(
     StudyError
         A bad noise level, ``noise_dt`` or horizon.
     """
-    t_start = time.perf_counter()
     levels = check_levels("levels", levels)
-    if not (isinstance(noise_dt, (int, float)) and math.isfinite(noise_dt) and noise_dt > 0):
-        raise StudyError("noise_dt", f"must be finite and > 0, got {noise_dt!r}")
+    checks.real("noise_dt", noise_dt, lo=0.0, strict=True, error=StudyError)
     check_horizon(t_final)
-    plant_ids, design_ids = selection(plant_ids, design_ids, DEFAULT_PLANTS)
-    skipped, jobs_list = _priors(plant_ids, design_ids, levels, matched_ekf, t_final)
+    skipped, jobs_list = _priors(run.plant_ids, run.design_ids, levels, matched_ekf, t_final)
     tasks = [((prior.record["plant"], label, s), (prior, label, s, seed, noise_dt, t_final))
              for prior, label, s in jobs_list]
-    rows = run_tasks(jobs, _noise_task, tasks, progress, _describe)
+    rows = run.map(_noise_task, tasks, _describe)
     ordered = [rows[(prior.record["plant"], label, s)] for prior, label, s in jobs_list]
     settings = {"levels": ", ".join(f"{v:.3g}" for v in levels), "seed": seed, "noise_dt": noise_dt,
-                "matched EKF": matched_ekf, "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
-    return NoiseResult(ordered, settings, time.perf_counter() - t_start, skipped=skipped)
+                "matched EKF": matched_ekf, "t_final": t_final if t_final is not None else "plant's", "jobs": run.jobs}
+    return NoiseResult(ordered, settings, run.wall_s(), skipped=skipped)
 
 
 def _draw(pid: str, rows: list[dict]):
@@ -156,8 +141,7 @@ def _draw(pid: str, rows: list[dict]):
         for a in (a1, a2):
             a.grid(True, which="both", alpha=0.3)
         a2.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        save_figure(fig, path)
 
     return draw
 

@@ -14,14 +14,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, bisect_largest, bracket_cell, check_box, check_count,
-                                   check_horizon, check_range, check_rtol, default_box, evaluate, fmt, map_tasks,
-                                   md_table, pyplot, random_ics, selection, skipped_lines, study_header,
-                                   unsimulated_row, write_study)
+from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_box,
+                                   check_count, check_horizon, check_range, check_rtol, default_box, evaluate, fmt,
+                                   map_tasks, md_table, pyplot, random_ics, save_figure, skipped_lines, study,
+                                   study_header, unsimulated_row, write_study)
 
 __all__ = ["run_sampling", "write_sampling"]
 
@@ -166,21 +165,11 @@ class SamplingResult(StudyResult):
     evals: list[dict] = field(default_factory=list)
 
 
-def run_sampling(
-    plant_ids: list[str] | None = None,
-    design_ids: list[str] | None = None,
-    *,
-    required: list[str] | tuple[str, ...] = (),
-    n_ics: int = 20,
-    box: float | None = None,
-    seed: int = 0,
-    discretisation: str = "zoh",
-    h_range: tuple[float, float] | None = None,
-    rtol: float = 0.01,
-    t_final: float | None = None,
-    jobs: int = 1,
-    progress: Callable[[int, int, str], None] | None = None,
-) -> SamplingResult:
+@study(DEFAULT_PLANTS)
+def run_sampling(run: StudyRun, *, required: list[str] | tuple[str, ...] = (), n_ics: int = 20,
+                 box: float | None = None, seed: int = 0, discretisation: str = "zoh",
+                 h_range: tuple[float, float] | None = None, rtol: float = 0.01,
+                 t_final: float | None = None) -> SamplingResult:
     """Largest sample period per (plant, design with fixed gains).
 
     Parameters
@@ -201,8 +190,8 @@ def run_sampling(
         Bisection bounds on h (default: bracketed from ``h_lin / 2``).
     rtol : float
     t_final : float, optional
-    jobs : int
-    progress : callable, optional
+    jobs, progress
+        Worker processes; ``progress(done, total, label)``.
 
     Returns
     -------
@@ -213,12 +202,10 @@ def run_sampling(
     StudyError
         Bad box, count, bounds, discretisation, or a required design without fixed gains.
     """
-    t_start = time.perf_counter()
     n_ics, box, h_range = _check_args(n_ics, box, h_range, discretisation, rtol, t_final)
-    plant_ids, design_ids = selection(plant_ids, design_ids, DEFAULT_PLANTS)
     args = (n_ics, box, seed, discretisation, h_range, rtol, t_final)
-    ordered, evals = _bisect_pairs(plant_ids, design_ids, required, args, jobs, progress)
-    return SamplingResult(ordered, _settings(*args, jobs), time.perf_counter() - t_start, evals=evals)
+    ordered, evals = _bisect_pairs(run, required, args)
+    return SamplingResult(ordered, _settings(*args, run.jobs), run.wall_s(), evals=evals)
 
 
 def _settings(n_ics, box, seed, discretisation, h_range, rtol, t_final, jobs) -> dict:
@@ -228,19 +215,18 @@ def _settings(n_ics, box, seed, discretisation, h_range, rtol, t_final, jobs) ->
             "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
 
 
-def _bisect_pairs(plant_ids: list[str], design_ids: list[str], required, args: tuple, jobs: int,
-                  progress) -> tuple[list[dict], list[dict]]:
+def _bisect_pairs(run: StudyRun, required, args: tuple) -> tuple[list[dict], list[dict]]:
     """Design every pair, then bisect h where there are fixed gains: rows (plant x design order), evaluations."""
     from bench.executors import executor
 
-    t_final = args[-1]
+    t_final, plant_ids, design_ids = args[-1], run.plant_ids, run.design_ids
     pairs = [(pid, did) for pid in plant_ids for did in design_ids]
-    with executor(jobs) as ex:
+    with executor(run.jobs) as ex:
         designed = map_tasks(ex, _design_task, [((pid, did), (pid, did, t_final)) for pid, did in pairs])
         _check_required(designed, required)
         rows = {key: row for key in pairs if (row := unsimulated_row(*key, designed[key])) is not None}
         tasks = [(key, (designed[key], *args)) for key in pairs if key not in rows]
-        done = map_tasks(ex, _sampling_task, tasks, progress,
+        done = map_tasks(ex, _sampling_task, tasks, run.progress,
                          lambda key, r: f"{key[0]} x {key[1]}: h_max {fmt(r['row']['h_max'])}")
     evals: list[dict] = []
     for key, r in done.items():
@@ -253,7 +239,7 @@ def _bisect_pairs(plant_ids: list[str], design_ids: list[str], required, args: t
 def _check_args(n_ics, box, h_range, discretisation, rtol, t_final) -> tuple[int, float | None, tuple | None]:
     from bench.batch import DISCRETISATIONS
 
-    n_ics = check_count("n_ics", n_ics, 1)
+    n_ics = check_count("n_ics", n_ics)
     box = check_box("box", box)
     h_range = check_range("h_range", h_range)
     if discretisation not in DISCRETISATIONS:
@@ -292,8 +278,7 @@ def _draw(pid: str, rows: list[dict], evals: list[dict]):
                title=f"{pid}: settling time vs h (dotted: continuous loop)")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        save_figure(fig, path)
 
     return draw
 
