@@ -78,13 +78,7 @@ _COLSEP_PT = 12.0
 
 
 def escape_tex(text) -> str:
-    """Escape LaTeX's special characters (``\\ & % $ # _ { } ~ ^ < > |``) in ``str(text)``, in one pass.
-
-    Examples
-    --------
-    >>> escape_tex("lqr+rh_riccati 5% & $x$")
-    'lqr+rh\\\\_riccati 5\\\\% \\\\& \\\\$x\\\\$'
-    """
+    """Escape LaTeX's special characters (``\\ & % $ # _ { } ~ ^ < > |``) in ``str(text)``, in one pass."""
     return _ESCAPE_RE.sub(lambda m: _ESCAPES[m.group(0)], str(text))
 
 
@@ -96,13 +90,8 @@ def _is_missing(value) -> bool:
 
 
 def format_cell(value) -> str:
-    """One table cell as escaped LaTeX text: blank for None/NaN/``pd.NA``, yes/no for a bool, an integer
-    in full, another real like ``.3g``, anything else with ``str``.
-
-    Examples
-    --------
-    >>> [format_cell(v) for v in (float("nan"), True, 12, 0.0151694, "a_b")]
-    ['', 'yes', '12', '0.0152', 'a\\_b']
+    """One table cell as escaped LaTeX text: blank for None/NaN/``pd.NA``, yes/no for a bool, an integer in
+    full, another real like ``.3g``, anything else with ``str``.
     """
     if _is_missing(value):
         return ""

@@ -90,21 +90,9 @@ REASON_CHARS = 120
 
 
 def short_reason(text, limit: int = REASON_CHARS) -> str:
-    """The gist of a record's ``reason`` in at most ``limit`` characters.
-
-    A longer text is cut to its first clause (up to ``"; "`` outside parentheses), without parenthesised
-    asides of 30 characters or more, then at a word boundary with ``"..."``.
-
-    Parameters
-    ----------
-    text : str or None
-        The full reason (None or NaN: ``""``).
-    limit : int
-        At least 20.
-
-    Returns
-    -------
-    str
+    """The gist of a record's ``reason`` (None or NaN: ``""``) in at most ``limit`` (>= 20) characters: a longer
+    text is cut to its first clause (up to ``"; "`` outside parentheses), without parenthesised asides of 30
+    characters or more, then at a word boundary with ``"..."``.
     """
     import re
 

@@ -97,20 +97,9 @@ def young_layout(n: int, eside: Callable[[dict], list], schur_weight: Callable[[
 
 @dataclass(frozen=True)
 class YoungForm:
-    """One corrected LMI in the Young layout and its programs.
-
-    Attributes
-    ----------
-    what : str
-        The design's name, for reasons.
-    key : tuple
-        The LMI's structure; with the shape and the cap it keys the compiled programs.
-    blocks : tuple
-        ``(joint, xside, eside)`` (:func:`young_layout`).
-    e_scalars : tuple of str
-        The e-side's nonnegative scalar variables; the x-side has ``kappa``.
-    constants : dict
-        The scalar constants, cvxpy Parameters of every program.
+    """One corrected LMI in the Young layout and its programs: ``what`` names it in reasons, ``key`` (with the
+    shape and the cap) keys its compiled programs, ``blocks`` are :func:`young_layout`'s ``(joint, xside, eside)``,
+    ``e_scalars`` the e-side's nonnegative scalars (the x-side has ``kappa``), ``constants`` the scalar Parameters.
     """
 
     what: str
@@ -170,12 +159,8 @@ class YoungForm:
         return prog
 
     def decide_side(self, plant, side: str, *, cap: float, solver: str) -> dict:
-        """Decide a side that is not strictly feasible under the capped normalisation by its scale-free solve.
-
-        Returns
-        -------
-        dict
-            :func:`bench.lmi.conclude` of the scale-free solve, plus ``normalisation``, ``cap`` and ``cost``.
+        """Decide a side that is not strictly feasible under the capped normalisation by its scale-free solve:
+        :func:`bench.lmi.conclude`'s dict plus ``normalisation``, ``cap`` and ``cost``.
         """
         prog = self.side_program(plant, side, cap=cap, scale_free=True)
         # one accurate solve: a verdict of infeasibility is not left to SCS
@@ -205,26 +190,12 @@ def recombine(
     joint_blocks: Callable[[dict], list],
     decide: Callable[[str], dict] | None,
 ) -> dict:
-    """Rebuild and verify the joint certificate from solved x-side and e-side programs.
+    """Rebuild and verify the joint certificate from the solved x-side and e-side programs (module docstring).
 
-    Parameters
-    ----------
-    B : ndarray
-    xprog, eprog : Program
-        Solved x-side and e-side programs.
-    e_keys : tuple of str
-        The e-side variables, all scaled by s.
-    joint_blocks : callable
-        Blocks of the joint LMI.
-    decide : callable or None
-        ``decide(side) -> dict`` (:meth:`YoungForm.decide_side`) for a side that is not strictly feasible;
-        None leaves it undecided.
-
-    Returns
-    -------
-    dict
-        ``status``, ``reason``, ``margin`` (equilibrated joint matrix), ``raw_margin``, ``lmi_size``,
-        ``min_eig``, ``phi``, ``scale``, ``x_margin``, ``e_margin``, ``values``, ``cost``.
+    The e-side variables ``e_keys`` are scaled by s; ``decide(side)`` (:meth:`YoungForm.decide_side`) labels a side
+    that is not strictly feasible (None: undecided). Returns ``status``, ``reason``, ``margin`` (equilibrated joint
+    matrix), ``raw_margin``, ``lmi_size``, ``min_eig``, ``phi``, ``scale``, ``x_margin``, ``e_margin``, ``values``,
+    ``cost``.
     """
     out: dict = {"margin": float("nan"), "lmi_size": 0, "min_eig": {}, "phi": float("nan"),
                  "scale": float("nan"), "x_margin": float("nan"), "e_margin": float("nan"), "values": None,
@@ -327,26 +298,9 @@ def _side_verdict(decided: dict[str, dict], margins: str) -> dict:
 
 def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_name: str, extra_params,
                      decide: bool = True) -> DesignResult:
-    """Solve the x-side and e-side apart and rebuild the joint certificate (:func:`recombine`).
-
-    Parameters
-    ----------
-    plant : Plant
-    form : YoungForm
-    solver : str
-        ``"auto"``, ``"CLARABEL"`` or ``"SCS"`` (:func:`bench.lmi.solve_side`).
-    cap : float
-        Normalisation cap.
-    phi_name : str
-        Name under which the Young weight is reported.
-    extra_params : callable
-        ``extra_params(values) -> dict`` of design-specific scalars to report.
-    decide : bool
-        Decide a side that is not strictly feasible by its scale-free solve (else undecided).
-
-    Returns
-    -------
-    DesignResult
+    """Solve ``form``'s x-side and e-side apart and rebuild the joint certificate (:func:`recombine`) as a
+    :class:`DesignResult`; ``phi_name`` names the Young weight, ``extra_params(values)`` adds the design's scalars,
+    ``decide=False`` leaves a side that is not strictly feasible undecided.
     """
     xprog = form.side_program(plant, "x-side", cap=cap)
     eprog = form.side_program(plant, "e-side", cap=cap)
@@ -374,14 +328,8 @@ def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_nam
 
 def settle_joint(plant, form: YoungForm, concl: dict, *, cap: float, solver: str, searched: str,
                  normalisation: str) -> tuple[dict, tuple]:
-    """Re-decide a marginal joint solve side by side: a side proven infeasible by its scale-free solve makes
-    the joint LMI infeasible (a principal submatrix); otherwise ``concl`` is returned unchanged.
-
-    Returns
-    -------
-    concl : dict
-    cost : tuple
-        Compile seconds, solve seconds and solves spent deciding.
+    """Re-decide a marginal joint solve side by side: a side proven infeasible by its scale-free solve makes the
+    joint LMI infeasible (a principal submatrix); else ``concl`` unchanged. Returns ``(concl, cost)``.
     """
     if concl["status"] != "marginal":
         return concl, (0.0, 0.0, 0)

@@ -284,9 +284,10 @@ def save_figure(fig, path) -> None:
 
 def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: dict[str, Any],
                 figures: dict[str, Callable[[Path], None]]) -> Path:
-    """Write a study's files whole or not at all: ``STUDY_<name>.md``, each table (file stem -> DataFrame) as CSV
-    and each figure (file stem -> callable drawing into a path) as PNG; return the markdown's path.
-    """
+    """Write a study's files whole or not at all: ``STUDY_<name>.md``, each table (file stem -> DataFrame or
+    row dicts) as CSV and each figure (file stem -> callable drawing into a path) as PNG; return the markdown's path."""
+    import pandas as pd
+
     from bench.outdir import publish, staged
 
     out = Path(out_dir)
@@ -296,8 +297,8 @@ def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: di
         (tmp / "figures").mkdir()
         for stem, draw in figures.items():
             draw(tmp / "figures" / f"{stem}.png")
-        for stem, df in tables.items():
-            df.to_csv(tmp / f"{stem}.csv", index=False)
+        for stem, table in tables.items():
+            pd.DataFrame(table).to_csv(tmp / f"{stem}.csv", index=False)
         (tmp / md_name).write_text(markdown.rstrip("\n") + "\n", encoding="utf-8")
         publish(out, tmp, [*(f"figures/{stem}.png" for stem in figures), *(f"{stem}.csv" for stem in tables), md_name])
     return out / md_name

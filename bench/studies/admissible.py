@@ -325,8 +325,6 @@ def _draw_plant(pid: str, rows: list[dict], evals: list[dict]):
 
 def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "Path":  # noqa: F821
     """Write ``STUDY_admissible.md``, its CSVs and figures atomically; return the markdown's path."""
-    import pandas as pd
-
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
     lines = [
@@ -363,10 +361,9 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
     lines.append("")
     figs = {f"study_admissible_{pid}": _draw_plant(pid, [r for r in rows if r["plant"] == pid], result.evals)
             for pid in plants}
-    tables = {"study_admissible": pd.DataFrame(rows), "study_admissible_evaluations": pd.DataFrame(result.evals)}
-    variants = pd.DataFrame(result.variant_rows)
-    if len(variants):
-        tables["study_admissible_variants"] = variants
+    tables = {"study_admissible": rows, "study_admissible_evaluations": result.evals}
+    if result.variant_rows:
+        tables["study_admissible_variants"] = result.variant_rows
     return write_study(out_dir, "admissible", "\n".join(lines), tables, figs)
 
 
@@ -397,7 +394,7 @@ def _variant_section(result: AdmissibleResult) -> list[str]:
                    "wall s"])
          if result.variant_rows else "(not run: no variant's plant and design selected, or `--caps ''`)"),
         "",
-        _variant_notes(result),
+        "A value that changes with the variant is set by the normalisation or the search, not by the theorem alone.",
         "",
     ]
 
@@ -504,19 +501,3 @@ def _osl_verdict(osl: list[dict]) -> str:
         else:
             lines.append(f"- {o['plant']} ({tag}), {o['pair']}: Theorem 1 {o['thm']}; Corollary 1 {o['cor']}.")
     return "What the numbers say:\n\n" + "\n".join(lines) if lines else ""
-
-
-def _variant_notes(result: AdmissibleResult) -> str:
-    """Sentences drawn from the sensitivity rows (numbers only from this run)."""
-    out = []
-    by: dict[tuple[str, str], list[dict]] = {}
-    for r in result.variant_rows:
-        by.setdefault((r["plant"], r["design"]), []).append(r)
-    for (pid, did), rs in by.items():
-        vals = [(r["variant"], r["admissible_lo"], r["kind"]) for r in rs]
-        parts = "; ".join(f"{v}: {fmt(lo, '.4g')}{' (or more)' if k == 'above_range' else ''}" for v, lo, k in vals)
-        out.append(f"- {pid} x {did}: {parts}.")
-    if not out:
-        return ""
-    return ("Admissible values by variant (a different value means the answer is set by the normalisation or the "
-            "search, not by the theorem alone):\n\n" + "\n".join(out))

@@ -165,8 +165,6 @@ def _draw(pid: str, rows: list[dict], settling: dict):
 
 def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
     """Write ``STUDY_montecarlo.md``, its CSV and figures atomically; return the markdown's path."""
-    import pandas as pd
-
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
     sim = [r for r in rows if "frac_converged" in r]
@@ -198,4 +196,4 @@ def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
     lines.append("")
     figs = {f"study_montecarlo_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid], result.settling)
             for pid in plants if any(r["plant"] == pid for r in sim)}
-    return write_study(out_dir, "montecarlo", "\n".join(lines), {"study_montecarlo": pd.DataFrame(rows)}, figs)
+    return write_study(out_dir, "montecarlo", "\n".join(lines), {"study_montecarlo": rows}, figs)

@@ -206,8 +206,6 @@ def _transient_dominated(by: dict, designs: list[str], levels: list[float]) -> l
 
 def write_noise(result: NoiseResult, out_dir: str, command: str):
     """Write ``STUDY_noise.md``, its CSV and figures atomically; return the markdown's path."""
-    import pandas as pd
-
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
     levels = sorted({r["noise"] for r in rows})
@@ -226,4 +224,4 @@ def write_noise(result: NoiseResult, out_dir: str, command: str):
         lines += _plant_section(pid, [r for r in rows if r["plant"] == pid], levels)
     lines += skipped_lines(result.skipped, heading="## Not simulated", width=250)
     figs = {f"study_noise_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid]) for pid in plants}
-    return write_study(out_dir, "noise", "\n".join(lines), {"study_noise": pd.DataFrame(rows)}, figs)
+    return write_study(out_dir, "noise", "\n".join(lines), {"study_noise": rows}, figs)

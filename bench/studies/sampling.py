@@ -39,22 +39,9 @@ def _jacobian0(plant) -> np.ndarray:
 
 def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1e-5, h_max: float = 10.0,
                    n_grid: int = 400) -> float:
-    """First sample period at which the sampled loop linearised at the origin loses stability.
-
-    Parameters
-    ----------
-    plant : Plant
-    K, F : ndarray
-    discretisation : {"zoh", "euler"}
-    h_min, h_max : float
-        Search interval of the log grid.
-    n_grid : int
-        Grid points; the first crossing of ``rho(Phi(h)) = 1`` is refined by Brent's method.
-
-    Returns
-    -------
-    float
-        The crossing; ``0.0`` if the loop is unstable at ``h_min``, ``inf`` if stable on the whole grid.
+    """First sample period at which the sampled loop linearised at the origin loses stability: the first
+    crossing of ``rho(Phi(h)) = 1`` on a log grid of ``n_grid`` points in ``[h_min, h_max]``, refined by Brent's
+    method; ``0.0`` if unstable at ``h_min``, ``inf`` if stable on the whole grid.
     """
     from scipy.optimize import brentq
 
@@ -285,8 +272,6 @@ def _draw(pid: str, rows: list[dict], evals: list[dict]):
 
 def write_sampling(result: SamplingResult, out_dir: str, command: str):
     """Write ``STUDY_sampling.md``, its CSVs and figures atomically; return the markdown's path."""
-    import pandas as pd
-
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
     trows = [{**r, "h_max_s": bracket_cell(r.get("kind", ""), r.get("h_max"), r.get("h_fail"))} for r in rows]
@@ -329,5 +314,5 @@ def write_sampling(result: SamplingResult, out_dir: str, command: str):
     lines.append("")
     figs = {f"study_sampling_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid], result.evals)
             for pid in plants}
-    tables = {"study_sampling": pd.DataFrame(rows), "study_sampling_evaluations": pd.DataFrame(result.evals)}
+    tables = {"study_sampling": rows, "study_sampling_evaluations": result.evals}
     return write_study(out_dir, "sampling", "\n".join(lines), tables, figs)
