@@ -178,15 +178,14 @@ def _best_per_level(sub: list[dict], levels: list[float]) -> list[dict]:
     best = []
     for s in levels:
         cand = [r for r in sub if r["noise"] == s and math.isfinite(r["rms_e"])]
+        row = {"noise": s}
+        for name, rms, kind in (("best", "best_rms_e", None), ("best_luenberger", "luenberger_rms_e", "fixed K"),
+                                ("best_ekf", "ekf_rms_e", "EKF")):
+            b = min((r for r in cand if kind in (None, r["estimator"])), key=lambda r: r["rms_e"],
+                    default={"design": "", "rms_e": math.nan})
+            row.update({name: b["design"], rms: b["rms_e"]})
         if cand:
-            b = min(cand, key=lambda r: r["rms_e"])
-            luen = [r for r in cand if r["estimator"] == "fixed K"]
-            ekf = [r for r in cand if r["estimator"] == "EKF"]
-            best.append({"noise": s, "best": b["design"], "best_rms_e": b["rms_e"],
-                         "best_luenberger": min(luen, key=lambda r: r["rms_e"])["design"] if luen else "",
-                         "luenberger_rms_e": min(r["rms_e"] for r in luen) if luen else math.nan,
-                         "best_ekf": min(ekf, key=lambda r: r["rms_e"])["design"] if ekf else "",
-                         "ekf_rms_e": min(r["rms_e"] for r in ekf) if ekf else math.nan})
+            best.append(row)
     return best
 
 
