@@ -471,32 +471,24 @@ def _figure_lines(figures: list[tuple[str, str]]) -> list[str]:
 
 
 def _gains(result: RunResult) -> list[dict]:
+    """gains.json: per pair with a controller, its gains, verdicts and certificate levels."""
+    def num(v):
+        return float(v) if math.isfinite(v) else None
+
+    def arr(M):
+        return None if M is None else np.asarray(M).tolist()
+
     out = []
     for o in result.outcomes:
-        r = o.result
-        if r is not None and r.has_controller:
-            rec = o.record
-            cert = o.certificate
-            levels = {}
-            if cert is not None:
-                for lv, lr in cert.levels.items():
-                    levels[lv] = {"status": lr.status, "decay_rate": None if not math.isfinite(lr.decay_rate)
-                                  else float(lr.decay_rate),
-                                  "P": None if lr.P is None else np.asarray(lr.P).tolist()}
-            out.append({
-                "plant": rec["plant"],
-                "design": rec["design"],
-                "status": rec["status"],
-                "reason": rec["reason"],
-                "route": rec["route"],
-                "K": None if r.K is None else np.asarray(r.K).tolist(),
-                "F": np.asarray(r.F).tolist(),
-                "estimator": None if r.estimator is None else repr(r.estimator),
-                "certified": bool(rec["certified"]),
-                "cert_level": rec["cert_level"],
-                "decay_rate": None if not math.isfinite(rec["decay_rate"]) else float(rec["decay_rate"]),
-                "certificate": levels,
-            })
+        r, rec, cert = o.result, o.record, o.certificate
+        if r is None or not r.has_controller:
+            continue
+        levels = {lv: {"status": lr.status, "decay_rate": num(lr.decay_rate), "P": arr(lr.P)}
+                  for lv, lr in (cert.levels.items() if cert is not None else ())}
+        out.append({**{k: rec[k] for k in ("plant", "design", "status", "reason", "route")}, "K": arr(r.K),
+                    "F": arr(r.F), "estimator": None if r.estimator is None else repr(r.estimator),
+                    "certified": bool(rec["certified"]), "cert_level": rec["cert_level"],
+                    "decay_rate": num(rec["decay_rate"]), "certificate": levels})
     return out
 
 

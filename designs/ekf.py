@@ -14,8 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from designs._core import check_positive
-from designs._core import DesignResult
+from designs._core import DesignError, DesignResult, check_positive
 from designs._parts import Part, register_estimator
 from plants import Constants, Plant
 
@@ -51,8 +50,6 @@ class EKFSpec:
 
     def check_horizon(self, t_final: float) -> None:
         """Raise :class:`designs.DesignError` unless ``dt`` divides ``t_final``."""
-        from designs._core import DesignError
-
         k = t_final / self.dt
         if abs(k - round(k)) > 1e-9 * max(1.0, k) or round(k) < 1:
             raise DesignError(f"dt: the sample time {self.dt:g} must divide the horizon t_final = {t_final:g}")
@@ -60,20 +57,12 @@ class EKFSpec:
 
 @register_estimator("ekf")
 @dataclass(frozen=True, kw_only=True)
-class EKFEstimator(Part):
-    """Continuous-discrete EKF via filterpy (sample time dt, noise levels q, r); no fixed gain."""
-
-    dt: float = 0.01
-    q: float = 1e-3
-    r: float = 1e-4
-    p0: float = 10.0
-
-    def __post_init__(self) -> None:
-        EKFSpec(dt=self.dt, q=self.q, r=self.r, p0=self.p0)  # validates, naming the parameter
+class EKFEstimator(EKFSpec, Part):
+    """Continuous-discrete EKF via filterpy (the hyperparameters of :class:`EKFSpec`); no fixed gain."""
 
     def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Return the filter specification (checked against the plant's horizon)."""
-        spec = EKFSpec(dt=self.dt, q=self.q, r=self.r, p0=self.p0)
+        spec = EKFSpec(dt=self.dt, q=self.q, r=self.r, p0=self.p0)  # the spec alone, for the simulator
         spec.check_horizon(plant.t_final)
         return DesignResult(status="given", route="given", estimator=spec, solver=None,
                           params={"dt": spec.dt, "q": spec.q, "r": spec.r, "p0": spec.p0,
