@@ -1,23 +1,16 @@
 """oslbench: a benchmark suite for observer-based control of Lipschitz and one-sided Lipschitz systems.
 
-From the command line, ``python -m bench run`` writes ``reports/REPORT.md``; from Python::
+``python -m bench run`` writes ``reports/REPORT.md``; from Python::
 
-    from bench import Plant, run
+    from bench import run
     r = run(plants=["flexible_link"], designs=["thm1"])
-    r.table        # one row per pair (pandas), in the order asked for
+    r.table        # one row per pair (pandas)
     r.write("out") # the same report files as the command
 
-The public names (``dir(bench)``):
-
-- :func:`run`, :class:`Results`: the suite as a library (:mod:`bench.api`);
-- :class:`Plant`, :class:`Constants`, :class:`Channels`: what a plant is (:mod:`plants`), and
-  :func:`register_plant` to put your own in the registry;
-- :class:`Design`, :class:`DesignResult`: what a design is and returns (:mod:`designs`), and
-  :func:`register_design` to put your own in the registry;
-- :class:`OslbenchError` and the errors beneath it (:class:`PlantError`, :class:`DesignError`, ...):
-  what the suite raises (:mod:`bench.errors`).
-
-They are imported on first use (``python -m bench --help`` stays fast).
+Public names: :func:`run`, :class:`Results` (:mod:`bench.api`); :class:`Plant`, :class:`Constants`,
+:class:`Channels`, :func:`register_plant` (:mod:`plants`); :class:`Design`, :class:`DesignResult`,
+:func:`register_design` (:mod:`designs`); :class:`OslbenchError` and the errors beneath it
+(:mod:`bench.errors`). They are imported on first use.
 """
 
 from . import _env, errors  # noqa: F401  (_env: BLAS threads, before numpy; errors imports nothing)

@@ -26,18 +26,14 @@ class Results:
     Attributes
     ----------
     table : pandas.DataFrame
-        results.csv: one row per (plant, design) pair, plants and designs in the order asked for,
-        the columns :data:`bench.pipeline.COLUMNS` with ``reason`` cut to its gist (at most
-        :data:`bench.report.REASON_CHARS` characters) and the full text in a last column
-        ``details`` (:func:`bench.report.results_table`).
+        results.csv: one row per pair in the order asked for (:func:`bench.report.results_table`).
     gains : dict
-        ``(plant, design) -> {"K", "F", "result", "certificate", "trajectory", "plant"}`` for every
-        pair with a controller (``result`` is the :class:`designs.DesignResult`, ``certificate``
-        the :class:`bench.certify.Certificate` ladder).
+        ``(plant, design) -> {"K", "F", "result", "certificate", "trajectory", "plant"}`` for every pair
+        with a controller.
     constants : dict
         Plant id -> :class:`bench.constants.ConstantsReport`.
     findings : dict
-        What the run found (:func:`bench.findings.findings`).
+        :func:`bench.findings.findings`.
     run_result : bench.harness.RunResult
         Everything, including the outcomes and timings.
     command : str
@@ -54,22 +50,8 @@ class Results:
 
     def write(self, out_dir: str | os.PathLike = "reports", *, figures: bool = True,
               figure_format: str | Iterable[str] = "png") -> Path:
-        """Write the report files (REPORT.md, results.csv, gains.json, run.json, tables.tex, tables_standalone.tex,
-        figures/).
-
-        Parameters
-        ----------
-        out_dir : path
-            The report folder; written whole or not at all (:mod:`bench.outdir`).
-        figures : bool
-            Draw the figures.
-        figure_format : str or iterable of str
-            ``"png"``, ``"pdf"`` or both (``("png", "pdf")``); the report links the PNG.
-
-        Returns
-        -------
-        Path
-            The REPORT.md path.
+        """Write the report files of this run into ``out_dir`` (:func:`bench.report.write_report`, same options);
+        return the REPORT.md path.
         """
         from bench.outdir import check_out_dir
         from bench.report import write_report
@@ -125,7 +107,7 @@ def _registry_order(ids: list[str], registry) -> list[str]:
 
 
 def _reorder(result, plant_ids: list[str], design_ids: list[str]) -> None:
-    """Put a run's outcomes and constants in the order of ``plant_ids`` x ``design_ids`` (in place)."""
+    """Sort a run's outcomes and constants in the order of ``plant_ids`` x ``design_ids`` (in place)."""
     p_rank = {p: k for k, p in enumerate(plant_ids)}
     d_rank = {d: k for k, d in enumerate(design_ids)}
     result.outcomes.sort(key=lambda o: (p_rank.get(o.record["plant"], 0), d_rank.get(o.record["design"], 0)))
@@ -151,17 +133,14 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     Parameters
     ----------
     plants, designs : iterable, optional
-        Registry ids or globs (``"flexible_link*"``), :class:`plants.Plant` objects (e.g. from
-        :meth:`plants.Plant.from_statespace`) or :class:`designs.Design` objects (registered for
-        this process under their class name in lower case); default: every registered one. The
-        table keeps the order given (a glob's matches in the registry's order).
+        Registry ids or globs, :class:`plants.Plant` or :class:`designs.Design` objects (registered for this
+        process); default: every registered one. The table keeps the order given.
     seed : int
         Seed of the constants sampler and of the noise.
     claimed_constants : bool
         Design with the constants the sources claim (certificates still use the trusted ones).
     t_final : float, optional
-        A fixed horizon for every pair (default: each pair's horizon follows its certified rate,
-        or its linearised rate when uncertified: :func:`bench.verdicts.simulation_horizon`).
+        A fixed horizon for every pair (default: :func:`bench.verdicts.simulation_horizon`).
     noise : float
         Standard deviation of a seeded measurement noise.
     timeout : float, optional
@@ -173,12 +152,11 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     cache : path, optional
         A cache folder of finished pairs (None: no cache).
     progress : bool or callable
-        True: a progress bar (terminal or notebook, :class:`bench.progress.Progress`); or a
-        callable ``progress(done, total, label)``.
+        True: a progress bar; or ``progress(done, total, label)``.
     fail_fast : bool
         Raise the first exception instead of recording an ``error`` row.
     command : str
-        Recorded in run.json (the command line passes its own).
+        Recorded in run.json.
 
     Returns
     -------
@@ -187,7 +165,7 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     Raises
     ------
     bench.registry.UnknownIdError
-        An id or glob that matches nothing (with a "did you mean").
+        An id or glob that matches nothing.
     ValueError
         A bad option (the message names it).
     """
@@ -214,8 +192,7 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
 
 def _run_in_registry_order(plant_ids: list[str], design_ids: list[str], options, bar, jobs: int,
                            scheduler: str | None, store):
-    """The pairs computed in the registry's order (as every run is), then put in the order asked for;
-    the progress ``bar`` is closed however the run ends."""
+    """The pairs computed in the registry's order, then put in the order asked for; ``bar`` closed."""
     from bench.harness import run as run_pairs
     from bench.registry import DESIGNS, PLANTS
 
@@ -230,8 +207,7 @@ def _run_in_registry_order(plant_ids: list[str], design_ids: list[str], options,
 
 
 def _controllers(result) -> dict:
-    """(plant, design) -> gains, design result, certificate, trajectory and plant, for every pair with a
-    controller."""
+    """(plant, design) -> gains, design result, certificate, trajectory and plant, for pairs with a controller."""
     return {(o.record["plant"], o.record["design"]): {"K": o.result.K, "F": o.result.F, "result": o.result,
                                                         "certificate": o.certificate, "trajectory": o.trajectory,
                                                         "plant": o.plant}

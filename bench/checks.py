@@ -1,11 +1,9 @@
 """The checks of the suite's inputs at its boundary: numbers, horizon, plant and gains.
 
-Each check returns its input converted (a float, an int, float arrays) or raises an error whose
-message starts with the bad input's name (``"t_final: must be finite and > 0, got -1"``); the
-code behind a check trusts what it returns. The error is a :class:`ValueError` unless the caller
-passes ``error``, a callable ``(name, message) -> Exception`` (e.g. ``StudyError``).
-:func:`argtype` turns a check into an ``argparse`` type, so the command line and the library
-reject the same values with the same words (this module imports no numpy until :func:`gains`).
+Each check returns its input converted or raises an error whose message starts with the input's name
+(``"t_final: must be finite and > 0, got -1"``): a :class:`ValueError`, or ``error(name, message)`` when
+the caller passes one (e.g. ``StudyError``). :func:`argtype` makes a check an ``argparse`` type, so the
+command line and the library reject the same values with the same words.
 """
 
 from __future__ import annotations
@@ -25,7 +23,8 @@ def _value_error(name: str, message: str) -> Exception:
     return ValueError(f"{name}: {message}")
 
 
-def _short(value: Any, limit: int = 80) -> str:
+def brief(value: Any, limit: int = 80) -> str:
+    """``repr(value)`` cut to ``limit`` characters, for messages."""
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
@@ -34,13 +33,12 @@ def real(name: str, value: Any, *, lo: float | None = None, strict: bool = False
          error: ErrorFactory = _value_error) -> float:
     """``value`` as a finite float with ``lo <= value`` (``lo < value`` if ``strict``) and ``value < hi``.
 
-    Booleans and strings are rejected (``float("1e-3")`` would accept a string silently).
-
     Parameters
     ----------
     name : str
         The input's name, first in the message.
     value : object
+        A real number (not a bool or a string).
     lo, hi : float, optional
         Bounds (None: none); ``hi`` is always strict.
     strict : bool
@@ -53,24 +51,23 @@ def real(name: str, value: Any, *, lo: float | None = None, strict: bool = False
     float
     """
     if isinstance(value, (bool, str, bytes)):
-        raise error(name, f"expected a real number, got {_short(value)}")
+        raise error(name, f"expected a real number, got {brief(value)}")
     try:
         v = float(value)
     except (TypeError, ValueError, OverflowError):
-        raise error(name, f"expected a real number, got {_short(value)}") from None
+        raise error(name, f"expected a real number, got {brief(value)}") from None
     if not math.isfinite(v):
-        raise error(name, f"must be finite, got {_short(value)}")
+        raise error(name, f"must be finite, got {brief(value)}")
     if (lo is not None and (v < lo or (strict and v == lo))) or (hi is not None and v >= hi):
         bounds = [f"{'>' if strict else '>='} {lo:g}" if lo is not None else "", f"< {hi:g}" if hi is not None else ""]
-        raise error(name, f"must be finite and {' and '.join(b for b in bounds if b)}, got {_short(value)}")
+        raise error(name, f"must be finite and {' and '.join(b for b in bounds if b)}, got {brief(value)}")
     return v
 
 
 def integer(name: str, value: Any, *, lo: int, error: ErrorFactory = _value_error) -> int:
-    """``value`` as an int ``>= lo``: integers only (Python or numpy, not bool); ``2.5`` or ``"7"``
-    are rejected rather than truncated or parsed."""
+    """``value`` as an int ``>= lo``: integers only (Python or numpy, not bool), never truncated or parsed."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise error(name, f"expected an integer, got {_short(value)}")
+        raise error(name, f"expected an integer, got {brief(value)}")
     if int(value) < lo:
         raise error(name, f"must be >= {lo}, got {value!r}")
     return int(value)
@@ -101,8 +98,7 @@ def gains(plant, K: Any, F: Any, *, optional_K: bool = False):
     Raises
     ------
     ValueError
-        Naming the matrix, the expected shape and the dimension it fails (``K: expected shape
-        (4, 2) (n x p for plant 'flexible_link'), got (4, 1)``), or a non-finite entry.
+        Naming the matrix, the expected shape and the dimensions, or a non-finite entry.
     """
     import numpy as np  # here: the command line's argument types import this module, not numpy
 
@@ -121,7 +117,7 @@ def gains(plant, K: Any, F: Any, *, optional_K: bool = False):
             raise ValueError(f"{name}: expected shape {shape} ({what} for plant {plant.id!r} with n={n}, m={m}, "
                              f"p={p}), got {arr.shape}")
         if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name}: entries must be finite, got {_short(arr.tolist())}")
+            raise ValueError(f"{name}: entries must be finite, got {brief(arr.tolist())}")
         out.append(arr)
     return out[0], out[1]
 
@@ -130,8 +126,8 @@ def gains(plant, K: Any, F: Any, *, optional_K: bool = False):
 class ClosedLoop:
     """Checked gains of a plant and the spectra of their linear closed loop, computed once per pair.
 
-    The linear part ``[[A, BF], [KC, A + BF - KC]]`` of the loop (6) is block triangular in
-    ``(x, e)``: its eigenvalues are those of ``A + B F`` and ``A - K C``.
+    The linear part ``[[A, BF], [KC, A + BF - KC]]`` of the loop (6) is block triangular in ``(x, e)``:
+    its eigenvalues are those of ``A + B F`` and ``A - K C``.
 
     Attributes
     ----------
@@ -141,9 +137,8 @@ class ClosedLoop:
     eig_x, eig_e : ndarray
         Eigenvalues of ``A + B F`` and ``A - K C`` (``eig_e`` empty without K).
     linearised_rate : float
-        ``-max Re`` of the eigenvalues of ``A + Df(0) + B F`` and ``A + Df(0) - K C``: the decay
-        rate of the loop linearised at the origin, which no certificate can beat (NaN without K;
-        negative when unstable).
+        ``-max Re`` of the eigenvalues of ``A + Df(0) + B F`` and ``A + Df(0) - K C``, the rate no
+        certificate can beat (NaN without K).
     """
 
     K: Any
@@ -154,19 +149,18 @@ class ClosedLoop:
 
 
 def closed_loop(plant, K: Any, F: Any, *, optional_K: bool = False) -> ClosedLoop:
-    """Check ``K``, ``F`` (:func:`gains`) and compute the spectra of their closed loop (:class:`ClosedLoop`).
-
-    ``Df(0)`` is the plant's Jacobian at 0, or a central difference of f when it declares none.
-    """
+    """Check ``K``, ``F`` (:func:`gains`) and compute their :class:`ClosedLoop`."""
     import numpy as np
+
+    from bench.estimators import numeric_jacobian
 
     K, F = gains(plant, K, F, optional_K=optional_K)
     eig_x = np.linalg.eigvals(plant.A + plant.B @ F)
     if K is None:
         return ClosedLoop(K, F, eig_x, np.empty(0, dtype=complex), math.nan)
     eig_e = np.linalg.eigvals(plant.A - K @ plant.C)
-    J = np.asarray(plant.jacobian(np.zeros(plant.n)) if plant.jacobian is not None else _fd_jacobian(plant.f, plant.n),
-                   dtype=float)
+    zero = np.zeros(plant.n)
+    J = np.asarray(plant.jacobian(zero) if plant.jacobian is not None else numeric_jacobian(plant.f, zero), dtype=float)
     if np.any(J):
         A = plant.A + J
         lin = np.concatenate([np.linalg.eigvals(A + plant.B @ F), np.linalg.eigvals(A - K @ plant.C)])
@@ -175,17 +169,8 @@ def closed_loop(plant, K: Any, F: Any, *, optional_K: bool = False) -> ClosedLoo
     return ClosedLoop(K, F, eig_x, eig_e, float(-lin.real.max()))
 
 
-def _fd_jacobian(f, n: int, h: float = 1e-6):
-    import numpy as np
-
-    E = np.eye(n) * h
-    return (np.asarray(f(E), dtype=float) - np.asarray(f(-E), dtype=float)) / (2 * h)
-
-
 def argtype(check: Callable[..., Any], **bounds: Any) -> Callable[[str], Any]:
-    """An ``argparse`` type that parses the option's text with ``float`` (or ``int`` for
-    :func:`integer`) and runs ``check(name, value, **bounds)``; a failure is an
-    ``ArgumentTypeError`` with the check's message."""
+    """An ``argparse`` type: the text parsed by ``float`` (``int`` for :func:`integer`), then ``check``."""
     kind = int if check is integer else float
 
     def parse(text: str):

@@ -1,15 +1,9 @@
-"""Command line: ``python -m bench run`` and ``python -m bench list``.
+"""Command line: ``python -m bench run``, ``list``, ``perf`` and ``study``.
 
-Exit codes: 0 success, 1 a run that could not write its report (or an internal error: the
-CLI prints one line, never a bare traceback), 2 bad usage (unknown id, bad option value),
-130 interrupted (Ctrl-C / SIGINT).
-
-``run`` keeps finished pairs in ``.bench-cache/`` next to the report folder (:mod:`bench.cache`),
-so a run interrupted by Ctrl-C or a killed process resumes where it stopped when run again;
-the previous report stays untouched until the new one is complete (:func:`bench.report.write_report`
-is atomic, and a Ctrl-C while it moves the files in is deferred until it is done).
-``--no-cache`` ignores the cache. ``--timeout SECONDS`` turns a pair that runs longer into a
-``timeout`` row (:mod:`bench.harness`).
+Exit codes: 0 success, 1 a report that could not be written (or an internal error, in one line), 2 bad
+usage, 130 interrupted. ``run`` keeps finished pairs in ``.bench-cache/`` next to the report folder
+(:mod:`bench.cache`), so an interrupted run resumes when run again (``--no-cache`` ignores it); the
+previous report stays untouched until the new one is whole.
 """
 
 from __future__ import annotations
@@ -33,7 +27,7 @@ __all__ = ["main"]
 
 class _Parser(argparse.ArgumentParser):
     """An argparse parser whose errors exit 2 with the usage and one line."""
-    def error(self, message: str):  # exit 2 with a one-line message, argparse-style
+    def error(self, message: str):
         self.print_usage(sys.stderr)
         self.exit(2, f"{self.prog}: error: {message}\n")
 
@@ -45,7 +39,7 @@ _nonneg_int = argtype(checks.integer, lo=0)
 
 
 def _scheduler_address(text: str) -> str:
-    """An argparse type: a Dask scheduler address ``[scheme://]host:port`` (checked before connecting)."""
+    """An argparse type: a Dask scheduler address ``[scheme://]host:port``."""
     import re
 
     if not re.fullmatch(r"([a-z][a-z0-9+.-]*://)?\S+:\d+", text):
@@ -54,7 +48,6 @@ def _scheduler_address(text: str) -> str:
 
 
 def _build_parser() -> argparse.ArgumentParser:
-    """The parser of ``python -m bench`` and its subcommands."""
     p = _Parser(prog="python -m bench", description="oslbench: observer-based control of OSL/Lipschitz systems")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
     r = sub.add_parser("run", help="run (plant, design) pairs and write the report")
@@ -107,7 +100,6 @@ def _build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_list() -> int:
-    """``python -m bench list``: plants and designs with their summaries."""
     print("plants:")
     for pid in PLANTS.ids():
         print(f"  {pid:<24} {PLANTS[pid].summary}")
@@ -181,19 +173,8 @@ def _write_run(results, args, t0: float) -> int:
 
 
 def summary_line(df) -> str:
-    """What a run gave, in one line: how many pairs got gains and how (feasible, computed, given),
-    how many did not and why, and how many of those with gains are certified and converged.
-
-    Parameters
-    ----------
-    df : pandas.DataFrame
-        The results table (columns ``status``, ``certified``, ``converged``).
-
-    Returns
-    -------
-    str
-        E.g. ``"135 pairs: 81 with gains (45 feasible, 30 computed, 6 given), 54 without (40
-        infeasible, 14 inapplicable); of the 81 with gains, 53 certified and 70 converged"``.
+    """What a run's results table gave, in one line: pairs with gains and how, pairs without and why, and
+    how many with gains are certified and converged.
     """
     from designs import GAIN_STATUSES, STATUSES
 
@@ -217,10 +198,7 @@ def summary_line(df) -> str:
 
 @contextmanager
 def _sigint_deferred(message: str) -> Iterator[None]:
-    """Hold a Ctrl-C until the block is done (a second Ctrl-C aborts at once); then raise it.
-
-    Only in the main thread and when SIGINT has Python's default handler; otherwise a no-op.
-    """
+    """Hold a Ctrl-C until the block is done, then raise it (a second one aborts at once); main thread only."""
     import signal
     import threading
 
@@ -284,18 +262,8 @@ def _cmd_perf(args) -> int:
     return 0
 
 
-def _cmd_study(args, argv: list[str]) -> int:
-    """``python -m bench study NAME``: see :mod:`bench.studies` (writes STUDY_<NAME>.md, never REPORT.md)."""
-    from bench.studies.cli import run_study
-
-    return run_study(args, argv)
-
-
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit code and never raises.
-
-    A Ctrl-C returns 130 with a one-line message; an unexpected exception returns 1 with a
-    one-line message naming it (no traceback).
+    """Entry point; returns the exit code and never raises (a Ctrl-C gives 130, an exception 1, in one line).
 
     Parameters
     ----------
@@ -318,7 +286,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str]) -> int:
-    """Parse, load the plugins, dispatch to the subcommand; the exit code."""
     parser = _build_parser()
     try:
         args = parser.parse_args(argv)
@@ -335,7 +302,9 @@ def _main(argv: list[str]) -> int:
     if args.command == "perf":
         return _cmd_perf(args)
     if args.command == "study":
-        return _cmd_study(args, argv)
+        from bench.studies.cli import run_study
+
+        return run_study(args, argv)
     if args.command == "list":
         return _cmd_list()
     return _cmd_run(args, argv)

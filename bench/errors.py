@@ -1,10 +1,6 @@
-"""The errors of oslbench, in one place.
-
-Everything the suite raises for a caller derives from :class:`OslbenchError`; an error about a bad
-input is also a :class:`ValueError` (an unknown id is also a :class:`KeyError`), and its message
-names the input. The modules that raise an error re-export it (``from plants import PlantError``
-works). :class:`SimulationStopped` and :class:`DeadlineExceeded` are the runner's own control flow
-and never reach a caller: a stopped simulation is a trajectory status, a time limit a ``timeout`` row.
+"""The errors of oslbench. Everything raised for a caller derives from :class:`OslbenchError`; a bad input is
+also a :class:`ValueError` (an unknown id a :class:`KeyError`) whose message names the input.
+:class:`SimulationStopped` and :class:`DeadlineExceeded` are the runner's control flow and never reach a caller.
 """
 
 from __future__ import annotations
@@ -48,15 +44,7 @@ class UnknownIdError(OslbenchError, KeyError):
 
 
 class StudyError(OslbenchError, ValueError):
-    """A bad argument of a study.
-
-    Parameters
-    ----------
-    param : str
-        The parameter's name (the CLI maps it to its option, e.g. ``box`` -> ``--box``).
-    message : str
-        What is wrong; ``str(error)`` is ``"<param>: <message>"``.
-    """
+    """A bad argument ``param`` of a study; ``str(error)`` is ``"<param>: <message>"``."""
 
     def __init__(self, param: str, message: str):
         self.param = param
@@ -65,10 +53,7 @@ class StudyError(OslbenchError, ValueError):
 
 
 class OutDirError(OslbenchError, ValueError):
-    """An output folder that cannot be used, or a write that could not be completed.
-
-    The message names the folder (and the option, for :func:`bench.outdir.check_out_dir`).
-    """
+    """An output folder that cannot be used, or a write that could not be completed."""
 
 
 class ExecutorError(OslbenchError, RuntimeError):
@@ -77,15 +62,7 @@ class ExecutorError(OslbenchError, RuntimeError):
 
 # -- the runner's control flow (not exported from ``bench``) --------------------------------------
 class SimulationStopped(Exception):
-    """A simulation stopped by its right-hand side (budget of calls or wall time, non-finite state).
-
-    Parameters
-    ----------
-    status : str
-        The trajectory's status (``budget``, ``timeout``, ``diverged``).
-    message : str
-        What stopped it.
-    """
+    """A simulation stopped by its right-hand side; ``status`` is the trajectory's (budget, timeout, diverged)."""
 
     def __init__(self, status: str, message: str):
         super().__init__(message)
@@ -93,15 +70,9 @@ class SimulationStopped(Exception):
 
 
 class DeadlineExceeded(BaseException):
-    """The time limit of the current :func:`bench.limits.time_limit` scope ran out.
+    """The time limit of the current :func:`bench.limits.time_limit` scope ran out (``where``: what was running).
 
-    A ``BaseException``, so that no ``except Exception`` in a design can turn a timeout into an
-    "infeasible" row.
-
-    Parameters
-    ----------
-    where : str
-        What was running when the limit ran out (for the row's reason).
+    A ``BaseException``, so that no ``except Exception`` in a design turns a timeout into an "infeasible" row.
     """
 
     def __init__(self, where: str):

@@ -1,16 +1,9 @@
 """The harness: every (plant, design) pair through :func:`bench.pipeline.evaluate_pair`.
 
-The harness owns what is about many pairs: each plant's constants (computed once, shared by
-its pairs), the executor (serial, local processes or a Dask cluster; :mod:`bench.executors`),
-the on-disk cache of finished pairs (:mod:`bench.cache`), progress, and the order of the
-results. It judges nothing itself: a pair's record comes from the pipeline.
-
-Time limits (``RunOptions.timeout``, ``--timeout``): a pair that runs longer becomes a row with
-status ``timeout``. A plant's constants get ``CONSTANTS_TIMEOUT_FACTOR`` times the pair limit;
-when they time out, every pair of the plant is a ``timeout`` row.
-
-Scheduling: pairs are submitted longest first (by a cost estimate per design), so that a slow
-pair does not start last and leave the other workers idle.
+The harness owns what is about many pairs: each plant's constants (computed once, shared by its
+pairs), the executor (:mod:`bench.executors`), the cache of finished pairs (:mod:`bench.cache`),
+time limits (a pair over ``RunOptions.timeout`` is a ``timeout`` row; a plant's constants get
+:data:`CONSTANTS_TIMEOUT_FACTOR` times it), progress, and the order of the results. It judges nothing.
 """
 
 from __future__ import annotations
@@ -33,11 +26,7 @@ CONSTANTS_TIMEOUT_FACTOR = 10
 
 @dataclass
 class RunResult:
-    """Everything a run produced.
-
-    ``cache_hits`` / ``cache_misses`` count pairs taken from / computed despite an enabled
-    cache (both 0 without one); ``cache_dir`` is the cache folder or None.
-    """
+    """Everything a run produced; ``cache_hits`` / ``cache_misses`` count pairs from / not from an enabled cache."""
 
     outcomes: list[PairOutcome]
     constants: dict[str, ConstantsReport]
@@ -55,13 +44,8 @@ class RunResult:
         return pd.DataFrame([o.record for o in self.outcomes], columns=COLUMNS)
 
 
-def run_pair(plant: Plant, design_id: str, report: ConstantsReport, options: RunOptions) -> PairOutcome:
-    """One registered design on one plant: :func:`bench.pipeline.evaluate_pair` by id."""
-    return evaluate_pair(plant, design_id, report, options)
-
-
 def _constants_task(pid: str, seed: int, n_samples: int, timeout: float | None = None):
-    """Worker task: the constants of one plant (or the error message, ``"timeout: ..."`` on a timeout)."""
+    """The constants of one plant, or the error message (``"timeout: ..."`` on a timeout)."""
     try:
         with time_limit(timeout), hard_stop(timeout):
             return compute_constants(PLANTS.create(pid), seed=seed, n_samples=n_samples), ""
@@ -72,7 +56,7 @@ def _constants_task(pid: str, seed: int, n_samples: int, timeout: float | None =
 
 
 def _pair_task(pid: str, did: str, report: ConstantsReport, options: RunOptions) -> PairOutcome:
-    """Worker task: one pair; the plant is rebuilt from the registry (plants hold closures)."""
+    """One pair; the plant is rebuilt from the registry (plants hold closures)."""
     out = evaluate_pair(PLANTS.create(pid), did, report, options)
     out.plant = None  # the parent re-attaches its own plant object
     return out
@@ -88,15 +72,14 @@ def _flags(r: dict) -> str:
 
 
 def expected_cost(plant: Plant | None, design_id: str) -> float:
-    """A rough cost of a pair, for scheduling longest first (run-time estimators and joint LMIs are slow)."""
+    """A rough cost of a pair, for scheduling longest first."""
     n = plant.n if plant is not None else 4
     weight = 3.0 if "ekf" in design_id else 2.0 if design_id in ("thm1", "cor1", "thm1_scaled", "cor1_scaled") else 1.0
     return weight * n
 
 
 def _stop_workers(ex) -> None:
-    """Terminate a process pool's workers (after a Ctrl-C), so that shutting it down does not
-    wait for the pairs already handed to them; other executors are left to their own shutdown."""
+    """Terminate a process pool's workers after a Ctrl-C, so shutting it down does not wait for them."""
     for proc in list((getattr(ex, "_processes", None) or {}).values()):
         try:
             proc.terminate()
@@ -105,13 +88,8 @@ def _stop_workers(ex) -> None:
 
 
 def _drain(ex, tasks, finish) -> None:
-    """Submit ``(fn, args, tag)`` tasks and call ``finish(future, tag)`` as each completes;
-    ``finish`` may return more tasks, which are submitted at once (a plant's pairs follow its
-    constants without waiting for the other plants' constants).
-
-    A future already done when submitted (the serial executor runs the task inside
-    ``submit``) is finished at once: a serial run stores each pair as it finishes and stops
-    at a ``KeyboardInterrupt`` where it happens.
+    """Submit ``(fn, args, tag)`` tasks and call ``finish(future, tag)`` as each completes, submitting the
+    tasks it returns at once; a future done on submit (the serial executor) is finished at once.
     """
     from concurrent.futures import FIRST_COMPLETED, wait
 
@@ -208,8 +186,7 @@ class _Run:
         return False
 
     def pair_tasks(self, plant_ids) -> list:
-        """The pair tasks of these plants (longest first); pairs from the cache or of a plant whose
-        constants failed are recorded at once."""
+        """The pair tasks of these plants, longest first; cached pairs and those of failed plants are recorded at once."""
         todo = []
         for pid in plant_ids:
             for did in self.design_ids:
@@ -240,12 +217,10 @@ class _Run:
         self.tick(f"{pid} x {did}: {_flags(o.record)}")
 
     def finish(self, fut, tag):
-        """Finish a constants task (tag: a plant id) or a pair task (tag: (plant, design))."""
         return self.finish_pair(fut, tag) if isinstance(tag, tuple) else self.finish_constants(fut, tag)
 
     def constants_in_order(self) -> tuple[dict, dict]:
-        """The constants and the constants errors in the order of the plants asked for (they finish
-        in any order; the report and run.json must not depend on it)."""
+        """The constants and their errors in the order of the plants asked for."""
         return ({pid: self.constants[pid] for pid in self.plant_ids if pid in self.constants},
                 {pid: self.errors[pid] for pid in self.plant_ids if pid in self.errors})
 
@@ -281,21 +256,21 @@ def run(
     jobs : int
         Local worker processes (1: serial, in-process).
     scheduler : str, optional
-        Dask distributed scheduler address (see :mod:`bench.executors`).
+        Dask distributed scheduler address.
     cache : bench.cache.Cache, optional
-        Take finished pairs and constants from this cache and store new ones as they finish.
+        Take finished pairs and constants from it, store new ones as they finish.
 
     Returns
     -------
     RunResult
-        Outcomes in (plant, design) order, whatever the order in which they finished.
+        Outcomes in (plant, design) order.
 
     Raises
     ------
     bench.executors.ExecutorError
         If the executor cannot be created.
     KeyboardInterrupt
-        Passed on; pairs finished before it are already in the cache.
+        Passed on; pairs finished before it are in the cache.
     """
     from bench.executors import executor
 

@@ -1,22 +1,13 @@
 """LaTeX (booktabs) tables of a results frame, for papers.
 
-:func:`tables_tex` turns the results table (one row per (plant, design) pair, as
-``reports/results.csv``) into four kinds of ``table`` environments: feasibility (a plant x design
-matrix of ``status``), certified decay by certificate level (with the certificate's scope),
-convergence and timing. Columns that are missing are skipped; a table with none of its value
-columns is left out. Every cell is escaped; numbers are written like ``.3g``, booleans as yes/no,
-NaN as a blank cell.
-
-The tables need only ``booktabs`` (:data:`PACKAGES`) and are set at the text's own size, never
-scaled: a matrix wider than :data:`TEXT_WIDTH_PT` is split into several tables of fewer designs,
-a long table into several tables of fewer rows, and plants head their group of rows instead of
-taking a column. :func:`minimal_document` wraps the fragment (or ``\\input{tables.tex}``) in a
-document that ``pdflatex`` compiles as it is (the report writes it as ``tables_standalone.tex``).
+:func:`tables_tex` turns the results table (one row per (plant, design), as ``reports/results.csv``)
+into feasibility, certified-decay, convergence and timing tables that need only ``booktabs``, set at the
+text's own size (too wide or too long tables are split, never scaled); :func:`minimal_document` wraps the
+fragment in a document ``pdflatex`` compiles as it is.
 """
 
 from __future__ import annotations
 
-import math
 import numbers
 import re
 
@@ -87,60 +78,20 @@ _COLSEP_PT = 12.0
 
 
 def escape_tex(text) -> str:
-    """Escape LaTeX's special characters in plain text.
-
-    Parameters
-    ----------
-    text : object
-        Converted with ``str``.
-
-    Returns
-    -------
-    str
-        ``\\ & % $ # _ { } ~ ^`` (and ``< > |``, which the default OT1 font encoding would
-        misprint) replaced by their text-mode commands, in one pass so that a replacement is
-        never escaped again.
-
-    Examples
-    --------
-    >>> escape_tex("lqr+rh_riccati 5% & $x$")
-    'lqr+rh\\\\_riccati 5\\\\% \\\\& \\\\$x\\\\$'
-    """
+    """Escape LaTeX's special characters (``\\ & % $ # _ { } ~ ^ < > |``) in ``str(text)``, in one pass."""
     return _ESCAPE_RE.sub(lambda m: _ESCAPES[m.group(0)], str(text))
 
 
 def _is_missing(value) -> bool:
     """None, NaN, ``pd.NA`` or ``pd.NaT``."""
-    if value is None:
-        return True
-    try:
-        import pandas as pd
+    import pandas as pd
 
-        if value is pd.NA or value is pd.NaT:
-            return True
-    except ImportError:  # pragma: no cover - pandas is a dependency
-        pass
-    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)) and math.isnan(value)
+    return pd.api.types.is_scalar(value) and bool(pd.isna(value))
 
 
 def format_cell(value) -> str:
-    """One table cell as escaped LaTeX text.
-
-    Parameters
-    ----------
-    value : object
-        None, NaN or ``pd.NA`` give a blank cell; a bool gives ``yes``/``no``; an integer is
-        written in full; another real number like ``.3g``; anything else with ``str``.
-
-    Returns
-    -------
-    str
-        The escaped cell.
-
-    Examples
-    --------
-    >>> [format_cell(v) for v in (float("nan"), True, 12, 0.0151694, "a_b")]
-    ['', 'yes', '12', '0.0152', 'a\\\\_b']
+    """One table cell as escaped LaTeX text: blank for None/NaN/``pd.NA``, yes/no for a bool, an integer in
+    full, another real like ``.3g``, anything else with ``str``.
     """
     if _is_missing(value):
         return ""
@@ -151,6 +102,11 @@ def format_cell(value) -> str:
     if isinstance(value, numbers.Real):
         return escape_tex(f"{float(value):.3g}")
     return escape_tex(value)
+
+
+def _short(status, words: dict[str, str]) -> str:
+    """A status cell in the short ``words`` (a status not listed as it is), escaped; blank when missing."""
+    return "" if _is_missing(status) else escape_tex(words.get(str(status), str(status)))
 
 
 def _head(text: str) -> str:
@@ -191,18 +147,16 @@ def _table(tabular: str, caption: str, label: str | None) -> str:
 
 
 def _cert_cell(rec: dict, col: str) -> str:
-    """A decay cell: the rate where the level certified, else the level's status in short
-    (:data:`CERT_SHORT`: "no" for not certified, "marginal" apart from it); blank when unknown."""
+    """A decay cell: the rate where the level certified, else its status in short (:data:`CERT_SHORT`)."""
     level = col[len("decay_"):] if col.startswith("decay_") else None
     status = rec.get(f"cert_{level}") if level else None
     if level is None or _is_missing(status) or status in ("", "certified"):
         return format_cell(rec[col])
-    return escape_tex(CERT_SHORT.get(str(status), str(status)))
+    return _short(status, CERT_SHORT)
 
 
 def _row_table(frame, columns, caption: str, label: str, *, max_rows: int, cell=None) -> str | None:
-    """Tables of one row per pair, grouped under a heading per plant; several tables (captions
-    "(continued)", the label on the first) when longer than ``max_rows`` lines."""
+    """Tables of one row per pair under a heading per plant, split every ``max_rows`` lines ("(continued)")."""
     present = [(col, head) for col, head in columns if col in frame.columns]
     if not present:
         return None
@@ -240,40 +194,24 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
                text_width_pt: float = TEXT_WIDTH_PT) -> str:
     r"""Booktabs tables of a results frame, as a LaTeX fragment that needs only ``booktabs``.
 
-    Four kinds of ``table`` environments, each left out when the frame has none of its value
-    columns:
-
-    1. feasibility: plant x design matrix of ``status`` (short cells, see :data:`STATUS_SHORT`;
-       a pair that was not run is blank), split into several tables of fewer designs when wider
-       than ``text_width_pt``;
-    2. certified decay by certificate level: ``decay_paper``, ``decay_full``,
-       ``decay_structured`` (a level that did not certify shows its ``cert_<level>`` status in
-       short, :data:`CERT_SHORT`: "no" and "marginal" apart), ``cert_level`` and ``cert_scope``
-       (``global``, ``from x0`` or ``local``); ``decay_rate`` when none of the first three is in
-       the frame;
-    3. convergence: ``converged``, ``settling_x_s``, ``settling_e_s``, ``peak_u``, ``horizon_s``;
-    4. timing: ``design_s``, ``cert_s``, ``sim_s``.
-
-    Tables are set at the text's size, never scaled; the file starts with a comment naming the
-    packages and the text width it is laid out for.
+    The tables, each left out when the frame has none of its columns: feasibility (plant x design
+    matrix of ``status``, :data:`STATUS_SHORT`, split by designs when wider than ``text_width_pt``);
+    certified decay by level (``decay_paper``, ``decay_full``, ``decay_structured``, else ``decay_rate``;
+    a level that did not certify shows its status, :data:`CERT_SHORT`) with ``cert_level`` and
+    ``cert_scope``; convergence; timing.
 
     Parameters
     ----------
     frame : pandas.DataFrame
-        One row per (plant, design) pair with at least the columns ``plant`` and ``design``
-        (e.g. ``pd.read_csv("reports/results.csv")``).
+        One row per (plant, design) pair with at least the columns ``plant`` and ``design``.
     caption_prefix : str
-        Put before every caption, verbatim (it is LaTeX: escape plain text with
-        :func:`escape_tex`).
+        Put before every caption, verbatim (LaTeX).
     label_prefix : str
-        Prefix of the ``\label`` of each table (``feasibility``, ``decay``, ``convergence``,
-        ``timing`` follow it).
+        Prefix of each table's ``\label`` (``feasibility``, ``decay``, ``convergence``, ``timing`` follow).
     max_rows : int
-        Lines per table of the decay, convergence and timing tables (a plant's heading counts):
-        a longer frame is split into several tables (captions "(continued)"), since a float
-        cannot break across pages.
+        Lines per row table (a plant's heading counts); longer frames are split.
     text_width_pt : float
-        The text width the feasibility matrix must fit (estimated from the cells' lengths).
+        The text width the feasibility matrix must fit.
 
     Returns
     -------
@@ -285,15 +223,7 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     TypeError
         If ``frame`` is not a DataFrame.
     ValueError
-        If ``frame`` lacks the column ``plant`` or ``design``, or has two rows for one pair, or
-        ``max_rows < 2``.
-
-    Examples
-    --------
-    >>> import pandas as pd
-    >>> df = pd.DataFrame({"plant": ["flexible_link"], "design": ["thm1"], "status": ["feasible"],
-    ...                    "design_s": [0.236]})
-    >>> print(minimal_document(tables_tex(df)))  # doctest: +SKIP
+        A missing ``plant`` or ``design`` column, two rows for one pair, or ``max_rows < 2``.
     """
     _check_frame(frame, max_rows)
     if frame.empty:
@@ -318,8 +248,7 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
 
 
 def _decay_tables(frame, caption_prefix: str, label: str, max_rows: int) -> str:
-    """The certified decay rate per certificate level (``decay_rate`` when the frame has no level's column),
-    with the level and scope; empty when the frame has no rate column."""
+    """The certified decay rate per level with the level and scope (empty without a rate column)."""
     decay = _DECAY_COLUMNS
     if not any(c in frame.columns for c, _ in _DECAY_COLUMNS[:3]):
         decay = (("decay_rate", "decay rate"),) + _DECAY_COLUMNS[3:]
@@ -333,7 +262,6 @@ def _decay_tables(frame, caption_prefix: str, label: str, max_rows: int) -> str:
 
 
 def _preamble_comment(text_width_pt: float) -> str:
-    """The comment at the top of the fragment: what it needs, and the document that compiles it."""
     needs = ", ".join(r"\usepackage{" + p + "}" for p in PACKAGES)
     return "\n".join([
         "% oslbench tables (bench.latex.tables_tex).",
@@ -345,8 +273,7 @@ def _preamble_comment(text_width_pt: float) -> str:
 
 
 def _check_frame(frame, max_rows) -> None:
-    """TypeError or ValueError unless ``frame`` is a DataFrame with one row per (plant, design) and
-    ``max_rows`` an integer >= 2 (the messages of :func:`tables_tex`)."""
+    """TypeError or ValueError unless ``frame`` is a DataFrame with one row per pair and ``max_rows >= 2``."""
     import pandas as pd
 
     if not isinstance(frame, pd.DataFrame):
@@ -364,16 +291,8 @@ def _check_frame(frame, max_rows) -> None:
         raise ValueError(f"max_rows: expected an integer >= 2 (a plant's heading and a row), got {max_rows!r}")
 
 
-def _short_status(status) -> str:
-    """A feasibility cell: the short form of ``status`` (:data:`STATUS_SHORT`), escaped; blank when missing."""
-    if _is_missing(status):
-        return ""
-    return escape_tex(STATUS_SHORT.get(str(status), str(status)))
-
-
 def _feasibility_tables(frame, caption_prefix: str, label: str, text_width_pt: float) -> str:
-    """The plant x design matrix of ``status``, with a legend of the short cells it uses; split
-    into tables of consecutive designs when wider than ``text_width_pt`` (estimated)."""
+    """The plant x design matrix of ``status`` with a legend, split by designs to fit ``text_width_pt``."""
     import pandas as pd
 
     plants = list(pd.unique(frame["plant"]))
@@ -393,7 +312,7 @@ def _feasibility_tables(frame, caption_prefix: str, label: str, text_width_pt: f
         groups[-1].append(d)
     parts = []
     for k, group in enumerate(groups):
-        rows = [[format_cell(p)] + [_short_status(shown[d][i]) for d in group] for i, p in enumerate(plants)]
+        rows = [[format_cell(p)] + [_short(shown[d][i], STATUS_SHORT) for d in group] for i, p in enumerate(plants)]
         part = f", designs {designs.index(group[0]) + 1}-{designs.index(group[-1]) + 1} of {len(designs)}"
         caption = (caption_prefix + "Feasibility of each design on each plant" + (part if len(groups) > 1 else "")
                    + (f" ({legend})." if legend else "."))
@@ -403,30 +322,23 @@ def _feasibility_tables(frame, caption_prefix: str, label: str, text_width_pt: f
 
 
 def minimal_document(body: str, *, landscape: bool = False) -> str:
-    r"""Wrap a fragment (e.g. from :func:`tables_tex`) in a minimal compilable LaTeX document.
+    r"""Wrap a fragment in a minimal compilable document (article, :data:`PACKAGES`, 2 cm margins).
 
     Parameters
     ----------
     body : str
-        LaTeX to put between ``\begin{document}`` and ``\end{document}``.
+        LaTeX between ``\begin{document}`` and ``\end{document}`` (e.g. ``r"\input{tables.tex}"``).
     landscape : bool
-        Landscape pages (geometry's ``landscape`` option), for wide feasibility matrices.
+        Landscape pages, for wide feasibility matrices.
 
     Returns
     -------
     str
-        ``\documentclass{article}`` with :data:`PACKAGES` and geometry (2 cm margins): with
-        ``body = r"\input{tables.tex}"`` the report's ``tables_standalone.tex``.
 
     Raises
     ------
     TypeError
         If ``body`` is not a string.
-
-    Examples
-    --------
-    >>> print(minimal_document("Hello").splitlines()[0])
-    \documentclass{article}
     """
     if not isinstance(body, str):
         raise TypeError(f"body: expected a str of LaTeX, got {type(body).__name__}")

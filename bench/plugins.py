@@ -1,18 +1,10 @@
-"""Users' own plants (and designs) from a Python file, without editing the package.
+"""Users' own plants (and designs) from a Python file that registers them when imported::
 
-A plugin is any Python file that registers plants (``@register_plant``) or designs
-(``@register_design``) when imported::
-
-    python -m bench list --plugin my_plants.py
     python -m bench run --plugin my_plants.py --plant my_plant
 
-:func:`load_plugin` imports the file under a private module name, checks that it registered
-something, and builds every plant it registered with the factory's defaults (so a plant that
-fails validation is reported at once, not in the middle of a run). Any failure - a missing
-file, a syntax error, an exception at import, a duplicate id, a plant that fails validation,
-a file that registers nothing - raises :class:`PluginError` whose message names the file
-(and the line, where there is one); the ids the file registered are removed again, so a
-failed plugin leaves the registries as they were.
+:func:`load_plugin` imports the file under a private module name and builds every plant it registered
+with its defaults; any failure raises :class:`PluginError` naming the file (and the line) and leaves
+the registries as they were.
 """
 
 from __future__ import annotations
@@ -30,7 +22,6 @@ __all__ = ["load_plugin", "load_plugins"]
 
 
 def _module_name(path: Path) -> str:
-    """A fresh private module name for the file (``oslbench_plugin_<stem>[_k]``)."""
     stem = re.sub(r"\W", "_", path.stem) or "plugin"
     base = f"oslbench_plugin_{stem}"
     name, k = base, 1
@@ -60,7 +51,6 @@ def load_plugin(path) -> list[str]:
     Parameters
     ----------
     path : str or path-like
-        The Python file.
 
     Returns
     -------
@@ -70,10 +60,9 @@ def load_plugin(path) -> list[str]:
     Raises
     ------
     PluginError
-        If the file does not exist or is not a file, does not import (syntax error, exception,
-        duplicate id), registers nothing, or registers a plant that cannot be built with its
-        defaults (e.g. fails validation) or whose ``id`` differs from its registry id. The
-        message starts with ``plugin <path>:``.
+        A missing file, an import failure (syntax error, exception, duplicate id), nothing registered,
+        or a plant that cannot be built with its defaults or has another id; the message starts
+        with ``plugin <path>:``.
     """
     shown = str(path)
     p = Path(path)
@@ -99,8 +88,7 @@ def load_plugin(path) -> list[str]:
 
 
 class _Loading:
-    """One plugin file being loaded: its module name, the registries' ids before it, and the undo of a
-    failure (every id it registered removed again, its module forgotten)."""
+    """One plugin file being loaded: its module name, the ids before it, and the undo of a failure."""
 
     def __init__(self, shown: str, path: Path):
         self.shown, self.path = shown, path
@@ -108,7 +96,6 @@ class _Loading:
         self.name = _module_name(path)
 
     def new_ids(self) -> tuple[list[str], list[str]]:
-        """The plant and design ids registered since the loading began."""
         return ([i for i in PLANTS.ids() if i not in self.plants_before],
                 [i for i in DESIGNS.ids() if i not in self.designs_before])
 
@@ -127,7 +114,7 @@ class _Loading:
         return PluginError(f"plugin {self.shown}: {message}")
 
     def import_module(self) -> None:
-        """Execute the file as a module (helper modules beside it importable); any failure is undone."""
+        """Execute the file as a module (helper modules beside it importable); a failure is undone."""
         shown, p, name = self.shown, self.path, self.name
         try:
             spec = importlib.util.spec_from_file_location(name, p)
@@ -163,7 +150,7 @@ class _Loading:
                             f"{type(exc).__name__}: {exc}") from None
 
     def check_plant(self, pid: str) -> None:
-        """The plant builds with its defaults, is a :class:`plants.Plant` and has the id it was registered under."""
+        """The plant builds, is a :class:`plants.Plant` and has the id it was registered under."""
         from plants import Plant
 
         plant = self.build("plant", PLANTS, pid)
@@ -175,18 +162,7 @@ class _Loading:
 
 
 def load_plugins(paths) -> list[str]:
-    """Load several plugin files in order (see :func:`load_plugin`); None or empty loads nothing.
-
-    Returns
-    -------
-    list of str
-        Every id registered, in order.
-
-    Raises
-    ------
-    PluginError
-        At the first file that fails (earlier files stay loaded).
-    """
+    """Load several plugin files in order (:func:`load_plugin`); stops at the first failure. Returns every id."""
     ids: list[str] = []
     for path in paths or ():
         ids.extend(load_plugin(path))

@@ -1,12 +1,9 @@
 """Registries of plants and designs: a decorator registers a factory under an id.
 
-Modules of the ``plants`` and ``designs`` packages are discovered by walking the packages
-(modules whose name starts with ``_`` are skipped), so adding a plant or a design is adding
-one file. Unknown ids raise :class:`UnknownIdError` with a "did you mean" suggestion.
-
-Ids name files (``figures/<plant>__<design>.png``) and are matched by command-line globs, so
-:func:`check_id` allows only letters, digits, ``_``, ``-``, ``.`` and ``+`` (``"lqr+lqe"``), and
-no leading ``.`` or ``-``; :meth:`Registry.register` refuses any other id at once.
+The modules of the ``plants`` and ``designs`` packages (not those starting with ``_``) are imported on
+first use, so adding a plant or a design is adding one file. Ids name files and are matched by globs,
+so :func:`check_id` allows only :data:`ID_CHARS`; unknown ids raise :class:`UnknownIdError` with a
+"did you mean".
 """
 
 from __future__ import annotations
@@ -46,24 +43,8 @@ _ID_RE = re.compile(r"[A-Za-z0-9_.+-]+")
 
 
 def check_id(id: Any, kind: str = "id") -> str:
-    """Check that ``id`` is a non-empty string of :data:`ID_CHARS`, not starting with '.' or '-'.
-
-    Parameters
-    ----------
-    id : str
-        The plant or design id (e.g. ``"flexible_link"``, ``"lqr+lqe"``).
-    kind : str
-        ``"plant"``, ``"design"``, ... (used in the message).
-
-    Returns
-    -------
-    str
-        ``id``.
-
-    Raises
-    ------
-    RegistryError
-        Naming the id, the first offending character and the allowed characters.
+    """``id`` if it is a non-empty string of :data:`ID_CHARS` not starting with '.' or '-', else a
+    :class:`RegistryError` naming the id, the offending character and the allowed ones (``kind`` starts the message).
     """
     if not isinstance(id, str) or not id:
         raise RegistryError(f"{kind} id {id!r}: must be a non-empty string of {ID_CHARS}")
@@ -83,15 +64,7 @@ def _first_line(obj: Any) -> str:
 
 
 class Registry:
-    """An ordered mapping from id to :class:`Entry`, filled by modules of one package.
-
-    Parameters
-    ----------
-    kind : str
-        ``"plant"`` or ``"design"`` (used in messages).
-    package : str
-        The package whose modules are imported by :meth:`discover`.
-    """
+    """An ordered mapping from id to :class:`Entry`, filled by ``package``'s modules."""
 
     def __init__(self, kind: str, package: str):
         self.kind = kind
@@ -100,15 +73,7 @@ class Registry:
         self._discovered = False
 
     def register(self, id: str, factory: Callable[..., Any], summary: str | None = None, *, order: int = 100) -> None:
-        """Register ``factory`` under ``id``.
-
-        ``order`` sorts listings and tables (then the id), whatever the import order.
-
-        Raises
-        ------
-        RegistryError
-            A duplicate id, or an id that is not a safe file-name part (:func:`check_id`).
-        """
+        """Register ``factory`` under ``id`` (sorted by ``order``, then id); RegistryError on a bad id."""
         check_id(id, self.kind)
         if id in self._entries:
             other = self._entries[id].module
@@ -156,10 +121,8 @@ class Registry:
         Parameters
         ----------
         patterns : list of str, optional
-            Ids or globs.
         keep_order : bool
-            False: the registry's order (:meth:`ids`); True: the order of the patterns (the ids
-            a glob matches in the registry's order), each id once.
+            False: the registry's order; True: the order of the patterns, each id once.
 
         Raises
         ------
@@ -197,11 +160,7 @@ def register_plant(id: str, summary: str | None = None, *, order: int = 100):
 
 
 def register_design(id: str, summary: str | None = None, *, order: int = 100, **fixed: Any):
-    """Decorator registering a design class (or factory) under ``id``.
-
-    Keyword arguments are bound as defaults, so one class can be registered under several
-    ids with different parameters (e.g. an estimator/feedback pairing).
-    """
+    """Decorator registering a design class (or factory) under ``id``, with ``fixed`` keyword defaults bound."""
 
     def deco(cls):
         if fixed:

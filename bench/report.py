@@ -1,8 +1,8 @@
 """Reports: the run's records and findings rendered as markdown, CSV, JSON, LaTeX and figures.
 
-The report computes no verdict: every judgement comes from the records (:mod:`bench.pipeline`) and
-the findings (:mod:`bench.findings`); this module only renders them. ``write_report`` renders
-everything into a staging folder and publishes it whole or not at all (:mod:`bench.outdir`).
+The report computes no verdict: every judgement comes from the records (:mod:`bench.pipeline`) and the
+findings (:mod:`bench.findings`). ``write_report`` renders everything into a staging folder and
+publishes it whole or not at all (:mod:`bench.outdir`).
 """
 
 from __future__ import annotations
@@ -41,11 +41,8 @@ def package_versions() -> dict[str, str]:
 
 
 def git_revision() -> dict[str, object]:
-    """``{"commit": sha or None, "dirty": bool or None}`` of the checkout holding this package.
-
-    None when the package is not in a git checkout (an installed wheel) or git is missing;
-    ``dirty`` is True when tracked files outside ``reports/`` differ from the commit (then the commit
-    alone does not reproduce the run). Read-only: ``git rev-parse`` and ``git status`` without optional locks.
+    """``{"commit": sha or None, "dirty": bool or None}`` of the checkout holding this package (None outside
+    git); ``dirty``: tracked files outside ``reports/`` differ from the commit.
     """
     import subprocess
 
@@ -69,8 +66,7 @@ def git_revision() -> dict[str, object]:
 
 
 def format_cell(v, spec: str = ".3g") -> str:
-    """Format a markdown table cell: floats with ``spec`` (blank if NaN, +-inf shown), bools as
-    yes/no, text with ``|`` escaped and newlines flattened."""
+    """A markdown cell: floats with ``spec`` (blank if NaN), bools as yes/no, text with ``|`` escaped."""
     if v is None:
         return ""
     if isinstance(v, (bool, np.bool_)):
@@ -94,29 +90,9 @@ REASON_CHARS = 120
 
 
 def short_reason(text, limit: int = REASON_CHARS) -> str:
-    """The gist of a record's ``reason`` in at most ``limit`` characters.
-
-    The first clause (up to the first ``"; "`` outside parentheses), without parenthesised asides
-    of more than 30 characters, cut at a word boundary with ``"..."`` when still longer than
-    ``limit``. A text of at most ``limit`` characters is returned as it is.
-
-    Parameters
-    ----------
-    text : str or None
-        The full reason (None or NaN: ``""``).
-    limit : int
-        At least 20.
-
-    Returns
-    -------
-    str
-
-    Examples
-    --------
-    >>> short_reason("infeasible: no strictly feasible point; best margin t = -1.56 (max eig 1.56)")
-    'infeasible: no strictly feasible point; best margin t = -1.56 (max eig 1.56)'
-    >>> short_reason("x" * 10 + " (a; b); " + "y" * 200)
-    'xxxxxxxxxx (a; b)'
+    """The gist of a record's ``reason`` (None or NaN: ``""``) in at most ``limit`` (>= 20) characters: a longer
+    text is cut to its first clause (up to ``"; "`` outside parentheses), without parenthesised asides of 30
+    characters or more, then at a word boundary with ``"..."``.
     """
     import re
 
@@ -145,20 +121,9 @@ def short_reason(text, limit: int = REASON_CHARS) -> str:
 
 
 def results_table(df):
-    """The results table as results.csv and :attr:`bench.api.Results.table` show it.
-
-    The records (:data:`bench.pipeline.COLUMNS`, in the order asked for) with ``reason``
-    shortened by :func:`short_reason` and the full text in a last column ``details``.
-
-    Parameters
-    ----------
-    df : pandas.DataFrame
-        :meth:`bench.harness.RunResult.frame`.
-
-    Returns
-    -------
-    pandas.DataFrame
-        A new frame.
+    """The results table as results.csv and :attr:`bench.api.Results.table` show it: the records of
+    :meth:`bench.harness.RunResult.frame` (a DataFrame) with ``reason`` shortened by :func:`short_reason` and the
+    full text in a last column ``details``; returns a new frame.
     """
     out = df.copy()
     out["details"] = df["reason"].fillna("")
@@ -166,18 +131,26 @@ def results_table(df):
     return out
 
 
-def _table(df, columns: list[str], headers: list[str] | None = None) -> str:
-    rows = [[_fmt(v) for v in row] for row in df[columns].itertuples(index=False)]
-    headers = headers or columns
+def md_table(rows, columns: list, headers: list[str] | None = None) -> str:
+    """A markdown table of ``rows`` (dicts) restricted to ``columns``, each cell by :func:`format_cell`."""
+    headers = [str(h).replace("|", "\\|") for h in (headers or columns)]
     out = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
-    out += ["| " + " | ".join(r) + " |" for r in rows]
+    out += ["| " + " | ".join(_fmt(r.get(c)) for c in columns) + " |" for r in rows]
     return "\n".join(out)
 
 
-#: Short words for a design status in the feasibility matrix.
-_SHORT = {"feasible": "feasible", "computed": "computed", "given": "given", "infeasible": "infeasible",
-          "marginal": "marginal", "inapplicable": "n/a", "undecided": "undecided", "error": "ERROR",
-          "timeout": "timeout"}
+def pyplot():
+    """matplotlib.pyplot with the Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+#: Words of the feasibility matrix that differ from the status.
+_SHORT = {"inapplicable": "n/a", "error": "ERROR"}
 
 
 def _cell(rec) -> str:
@@ -192,18 +165,18 @@ def _cell(rec) -> str:
 
 
 def _matrix(df, cell) -> str:
-    plants = list(dict.fromkeys(df["plant"]))
     designs = list(dict.fromkeys(df["design"]))
-    lines = ["| plant | " + " | ".join(designs) + " |", "|---|" + "|".join("---" for _ in designs) + "|"]
-    for p in plants:
+    rows = []
+    for p in dict.fromkeys(df["plant"]):
         sub = df[df["plant"] == p].set_index("design")
-        lines.append(f"| {p} | " + " | ".join(cell(sub.loc[d]) if d in sub.index else "" for d in designs) + " |")
-    return "\n".join(lines)
+        rows.append({"plant": p, **{d: cell(sub.loc[d]) for d in designs if d in sub.index}})
+    return md_table(rows, ["plant", *designs])
 
 
 def _ladder(df) -> str:
     """Certified decay rate per plant x design x level (blank: not certified at that level)."""
     from bench.certify import LEVELS
+    from bench.latex import CERT_SHORT
 
     sub = df[df[[f"cert_{lv}" for lv in LEVELS]].ne("").any(axis=1)]
     if not len(sub):
@@ -213,27 +186,21 @@ def _ladder(df) -> str:
         st = r[f"cert_{lv}"]
         if st == "certified":
             return _fmt(r[f"decay_{lv}"])
-        return {"inapplicable": "n/a", "not certified": "no", "marginal": "marginal", "undecided": "undecided"}.get(st, st)
+        return CERT_SHORT.get(st, st)
 
-    heads = ["plant", "design", *[f"{lv}" for lv in LEVELS], "headline (strongest level)", "scope"]
-    lines = ["| " + " | ".join(heads) + " |", "|" + "|".join("---" for _ in heads) + "|"]
-    for r in sub.to_dict("records"):
-        head = f"{_fmt(r['decay_rate'])} ({r['cert_level']})" if r["certified"] else "not certified"
-        lines.append(f"| {r['plant']} | {r['design']} | " + " | ".join(rate(r, lv) for lv in LEVELS)
-                     + f" | {head} | {r['cert_scope']} |")
-    return "\n".join(lines)
+    rows = [{"plant": r["plant"], "design": r["design"], **{lv: rate(r, lv) for lv in LEVELS},
+             "head": f"{_fmt(r['decay_rate'])} ({r['cert_level']})" if r["certified"] else "not certified",
+             "scope": r["cert_scope"]} for r in sub.to_dict("records")]
+    return md_table(rows, ["plant", "design", *LEVELS, "head", "scope"],
+                    ["plant", "design", *LEVELS, "headline (strongest level)", "scope"])
 
 
 def _constants_table(result: RunResult) -> str:
     from bench.findings import constants_rows
 
     rows = constants_rows(result.constants, result.constants_errors)
-    heads = ["plant", "constant", "claimed", "analytic", "sampled (lower bound)", "used", "source", "region", "flag"]
-    lines = ["| " + " | ".join(heads) + " |", "|" + "|".join("---" for _ in heads) + "|"]
-    for r in rows:
-        lines.append("| " + " | ".join(_fmt(r[k]) for k in ("plant", "constant", "claimed", "analytic", "sampled",
-                                                                "used", "source", "region", "flag")) + " |")
-    return "\n".join(lines)
+    keys = ["plant", "constant", "claimed", "analytic", "sampled", "used", "source", "region", "flag"]
+    return md_table(rows, keys, [*keys[:4], "sampled (lower bound)", *keys[5:]])
 
 
 @dataclass(frozen=True)
@@ -248,8 +215,7 @@ class _FigureJob:
 
 
 def _figure_jobs(result: RunResult) -> list[_FigureJob]:
-    """The figures of a run, in report order: per plant the norms of every converging design, and
-    for :data:`FIGURE_PLANTS` each design's states, estimates and errors (the paper's Figures 2-5)."""
+    """The figures of a run in report order: per plant the norms, and the states for :data:`FIGURE_PLANTS`."""
     by_plant: dict[str, list] = {}
     for o in result.outcomes:
         if o.trajectory is not None and o.record["converged"] and o.plant is not None:
@@ -286,15 +252,7 @@ NORM_FLOOR = 1e-16
 
 
 def _norms_figure(job: _FigureJob):
-    """The norms figure of a plant: ||x(t)|| and ||e(t)|| of every converging design on log axes, the
-    designs told apart by colour and line style (:data:`NORM_COLOURS`, :data:`NORM_STYLES`), the key in
-    a panel of its own, and the floor :data:`NORM_FLOOR` drawn and named when a norm falls below it.
-
-    Returns
-    -------
-    (matplotlib.figure.Figure, int)
-        The figure and its dpi.
-    """
+    """||x(t)|| and ||e(t)|| of every converging design of a plant on log axes; returns (figure, dpi)."""
     import matplotlib.pyplot as plt
 
     fig = plt.figure(figsize=(12, 4.2))
@@ -327,13 +285,7 @@ def _norms_figure(job: _FigureJob):
 
 
 def _states_figure(job: _FigureJob):
-    """One pair's states with their estimates (dashed) and estimation errors (the paper's Figures 2-5).
-
-    Returns
-    -------
-    (matplotlib.figure.Figure, int)
-        The figure and its dpi.
-    """
+    """One pair's states, estimates (dashed) and errors (the paper's Figures 2-5); returns (figure, dpi)."""
     import matplotlib.pyplot as plt
 
     t, x, x_hat, t_show = job.data
@@ -359,36 +311,19 @@ def _states_figure(job: _FigureJob):
 
 def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
     """Draw one figure into ``figdir`` in every format; return the first file's name."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, dpi = _norms_figure(job) if job.kind == "norms" else _states_figure(job)
-    name = _save(fig, figdir, job.stem, fmts, dpi=dpi)
+    for fmt in fmts:
+        fig.savefig(figdir / f"{job.stem}.{fmt}", dpi=dpi)
     plt.close(fig)
-    return name
+    return f"{job.stem}.{fmts[0]}"
 
 
 def draw_figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png",), jobs: int | None = None
              ) -> list[tuple[str, str]]:
-    """Draw the report's figures of a run into ``figdir``.
-
-    Parameters
-    ----------
-    result : RunResult
-        The run whose figures to draw.
-    figdir : Path
-        The folder to write them into.
-    fmts : tuple of str
-        The file formats (e.g. ``("png", "pdf")``); each figure is saved in every one.
-    jobs : int, optional
-        How many figures to draw at a time (default: all cores).
-
-    Returns
-    -------
-    list of (str, str)
-        (caption, path of the first format relative to the report) pairs, in report order.
+    """Draw the report's figures of a run into ``figdir``, each in every format of ``fmts`` (``"png"``, ``"pdf"``),
+    ``jobs`` at a time (default: all cores); returns (caption, path of the first format relative to the report)
+    pairs in report order.
     """
     from bench.executors import default_jobs, executor
 
@@ -397,13 +332,6 @@ def draw_figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png"
     with executor(jobs) as ex:
         names = list(ex.map(_draw, todo, [figdir] * len(todo), [fmts] * len(todo)))
     return [(job.caption, f"figures/{name}") for job, name in zip(todo, names)]
-
-
-def _save(fig, figdir: Path, stem: str, fmts: tuple[str, ...], *, dpi: int) -> str:
-    """Save a figure in every format; return the file name of the first."""
-    for fmt in fmts:
-        fig.savefig(figdir / f"{stem}.{fmt}", dpi=dpi)
-    return f"{stem}.{fmts[0]}"
 
 
 def _summary(found: dict) -> str:
@@ -444,37 +372,30 @@ def _summary(found: dict) -> str:
 
 _LEGEND = (
     "How to read a row. *Status*: `feasible` (an LMI or Riccati condition solved and verified), `computed` "
-    "(LQR/Kalman gains: no feasibility question), `given` (printed gains), `infeasible` (under the stated "
-    "normalisation), `marginal` (best margin within the verification tolerance of zero), `inapplicable`, "
-    "`undecided` (solver trouble), `error`, `timeout`. *Stabilizing*: A+BF and A-KC Hurwitz (blank for an "
-    "estimator with no fixed gain). **The certificate ladder** checks the gains (K, F) as they are, with "
-    "quadratic Lyapunov functions V = z'Pz of z = (x, e), at three levels of what is known about f: *paper* is "
-    "the paper's (20) (block-diagonal P, the OSL and QIB constants); *full* lets P couple x and e and adds every "
-    "scalar constant (Lipschitz, OSL, QIB), one multiplier each; *structured* adds the plant's declared channels "
-    "f = G phi(Hx) with their slope bounds, one multiplier per channel. Each level contains the one below, so "
-    "rates can only grow up the ladder; the headline *certified* is the strongest level that certifies, and "
-    "*decay rate* its rate lam (V' <= -2 lam V). Only analytic constants and channels that no sample disproved "
-    "are used; sampled constants are lower bounds and never certify. With constants that hold on ||x|| <= r the "
-    "certificate is local: *scope* is `from x0` when the level set of V through the initial condition stays in "
-    "the region, else `local`. Where no global certificate is found, the suite looks for a *witness* that none "
-    "can exist (column `witness`): a straight line phi(s) = c s with slopes in the declared box whose linear loop "
-    "is unstable (no certificate over that class exists), or an equilibrium of the true loop besides the origin "
-    "(no certificate of any form proves global convergence); it then searches a certificate `from x0` on a "
-    "region |Hx|, |Hx_hat| <= r where the channels' slopes narrow. *rate_ceiling* is the slowest linear member "
-    "of the certified class (no certificate over that class can prove more), *rate_ratio* the certified rate "
-    "over it. *Converged*: at the end of the horizon ||x|| and ||e|| are below 1e-3 of the peak "
-    "of ||z|| (with noise: both norms settled). The horizon follows the rates: long enough for the certified rate "
-    "(or, uncertified, twice the linearisation's) to decay by 1e-3, at least the plant's own, at most 10 times it "
-    "(*horizon_rule* says which); a certified pair that does not converge says why in its reason.")
+    "(LQR/Kalman gains), `given` (printed gains), `infeasible` (under the stated normalisation), `marginal` (best "
+    "margin within the verification tolerance of zero), `inapplicable`, `undecided` (solver trouble), `error`, "
+    "`timeout`. *Stabilizing*: A+BF and A-KC Hurwitz. **The certificate ladder** checks the gains (K, F) with "
+    "quadratic Lyapunov functions V = z'Pz of z = (x, e) at three levels of what is known about f: *paper* is the "
+    "paper's (20) (block-diagonal P, the OSL and QIB constants); *full* couples x and e in P and adds every scalar "
+    "constant; *structured* adds the plant's declared channels f = G phi(Hx) with their slope bounds. Each level "
+    "contains the one below; *certified* is the strongest level that certifies and *decay rate* its rate lam "
+    "(V' <= -2 lam V). Only analytic constants and channels no sample disproved are used (sampled constants are "
+    "lower bounds and never certify). With constants that hold on ||x|| <= r the *scope* is `from x0` when the "
+    "level set of V through the initial condition stays in the region, else `local`. Where no global certificate "
+    "is found, a *witness* shows none can exist: a linear phi(s) = c s in the declared slope box whose loop is "
+    "unstable, or an equilibrium besides the origin; a certificate `from x0` is then searched on a region "
+    "|Hx|, |Hx_hat| <= r where the slopes narrow. *rate_ceiling* is the slowest linear member of the certified "
+    "class (no certificate over it can prove more), *rate_ratio* the certified rate over it. *Converged*: at the "
+    "end of the horizon ||x|| and ||e|| are below 1e-3 of the peak of ||z|| (with noise: settled). The horizon is "
+    "long enough for the certified rate (uncertified: twice the linearisation's) to decay by 1e-3, from the "
+    "plant's own to 10 times it (*horizon_rule*); a certified pair that does not converge says why in its reason.")
 
 
 def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info: dict) -> str:
-    """The REPORT.md text, rendered from the records and the findings (no timestamps in table bodies)."""
-    from bench.findings import findings
-
+    """The REPORT.md text, rendered from the records and ``run_info["findings"]``."""
     df = result.frame()
     o = result.options
-    found = run_info.get("findings") or findings(df, result.constants)
+    found = run_info["findings"]
     conv_cols = ["plant", "design", "stabilizing", "certified", "cert_level", "decay_rate", "cert_scope",
                  "witness", "rate_ceiling", "rate_ratio", "converged", "horizon_s", "horizon_rule", "sim_status", "settling_x_s", "settling_e_s", "final_x",
                  "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "in_region"]
@@ -506,11 +427,11 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         "",
         "## Convergence",
         "",
-        _table(with_gains, conv_cols) if len(with_gains) else "No design produced gains.",
+        md_table(with_gains.to_dict("records"), conv_cols) if len(with_gains) else "No design produced gains.",
         "",
         "## Timing (seconds)",
         "",
-        _table(df, time_cols),
+        md_table(df.to_dict("records"), time_cols),
         "",
         "## Constants",
         "",
@@ -531,7 +452,6 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
 
 
 def _reasons(df) -> list[str]:
-    """Markdown lines: per plant, each pair that has a reason, with its status and the reason."""
     reasons = df[(df["reason"] != "") & df["reason"].notna()]
     parts = []
     for pid in dict.fromkeys(reasons["plant"]):
@@ -542,7 +462,6 @@ def _reasons(df) -> list[str]:
 
 
 def _figure_lines(figures: list[tuple[str, str]]) -> list[str]:
-    """Markdown lines: each figure with its caption below, or a line saying there is none."""
     if not figures:
         return ["No converging pair to plot."]
     parts = []
@@ -552,37 +471,28 @@ def _figure_lines(figures: list[tuple[str, str]]) -> list[str]:
 
 
 def _gains(result: RunResult) -> list[dict]:
+    """gains.json: per pair with a controller, its gains, verdicts and certificate levels."""
+    def num(v):
+        return float(v) if math.isfinite(v) else None
+
+    def arr(M):
+        return None if M is None else np.asarray(M).tolist()
+
     out = []
     for o in result.outcomes:
-        r = o.result
-        if r is not None and r.has_controller:
-            rec = o.record
-            cert = o.certificate
-            levels = {}
-            if cert is not None:
-                for lv, lr in cert.levels.items():
-                    levels[lv] = {"status": lr.status, "decay_rate": None if not math.isfinite(lr.decay_rate)
-                                  else float(lr.decay_rate),
-                                  "P": None if lr.P is None else np.asarray(lr.P).tolist()}
-            out.append({
-                "plant": rec["plant"],
-                "design": rec["design"],
-                "status": rec["status"],
-                "reason": rec["reason"],
-                "route": rec["route"],
-                "K": None if r.K is None else np.asarray(r.K).tolist(),
-                "F": np.asarray(r.F).tolist(),
-                "estimator": None if r.estimator is None else repr(r.estimator),
-                "certified": bool(rec["certified"]),
-                "cert_level": rec["cert_level"],
-                "decay_rate": None if not math.isfinite(rec["decay_rate"]) else float(rec["decay_rate"]),
-                "certificate": levels,
-            })
+        r, rec, cert = o.result, o.record, o.certificate
+        if r is None or not r.has_controller:
+            continue
+        levels = {lv: {"status": lr.status, "decay_rate": num(lr.decay_rate), "P": arr(lr.P)}
+                  for lv, lr in (cert.levels.items() if cert is not None else ())}
+        out.append({**{k: rec[k] for k in ("plant", "design", "status", "reason", "route")}, "K": arr(r.K),
+                    "F": arr(r.F), "estimator": None if r.estimator is None else repr(r.estimator),
+                    "certified": bool(rec["certified"]), "cert_level": rec["cert_level"],
+                    "decay_rate": num(rec["decay_rate"]), "certificate": levels})
     return out
 
 
 def _run_json(result: RunResult, run_info: dict) -> dict:
-    """run.json: the command, settings, versions, git revision, the findings and the constants."""
     o = result.options
     return {
         **run_info,
@@ -615,7 +525,6 @@ def _formats(figure_format) -> tuple[str, ...]:
 
 
 def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: tuple[str, ...]) -> list[str]:
-    """Render every file of the report into ``tmp``; return their paths relative to it."""
     from bench.findings import findings
     from bench.latex import minimal_document, tables_tex
 
@@ -636,7 +545,7 @@ def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: t
 
 def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, *, figures: bool = True,
                  figure_format="png") -> Path:
-    """Write REPORT.md, results.csv, gains.json, run.json, tables.tex (with tables_standalone.tex) and figures/
+    """Write REPORT.md, results.csv, gains.json, run.json, tables.tex, tables_standalone.tex and figures/
     into ``out_dir``, whole or not at all.
 
     Parameters
@@ -644,12 +553,11 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
     result : RunResult
     out_dir : path
     run_info : dict
-        Must hold ``command``; extended with settings, versions, the findings and the constants
-        into run.json.
+        Must hold ``command``; extended with settings, versions, findings and constants into run.json.
     figures : bool
         Draw the figures.
     figure_format : str or iterable of str
-        ``"png"``, ``"pdf"`` or both; REPORT.md links the PNG when there is one.
+        ``"png"``, ``"pdf"`` or both.
 
     Returns
     -------
@@ -666,9 +574,7 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
     fmts = _formats(figure_format)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with staged(out, "report") as tmp:  # a folder of its own; stale ones are removed by publish
+    with staged(out, "report") as tmp:
         files = _render(result, tmp, run_info, figures, fmts)
-        # swap it in whole or not at all (bench.outdir), REPORT.md last; files an earlier report wrote and
-        # this one does not are removed, every other file stays (the folder's manifest)
         publish(out, tmp, files, writer="report")
     return out / "REPORT.md"

@@ -1,20 +1,7 @@
-"""The judgements of a pair, each in one place: how long to simulate, what a certificate proves,
-and why a pair did or did not converge.
-
-Every rule here is a pure function of numbers the pipeline already has (:mod:`bench.pipeline`
-calls them and stores what they return in the record); the report only renders the record.
-
-- :func:`simulation_horizon`: a pair is simulated long enough to decay by the convergence threshold
-  (:data:`bench.metrics.CONVERGED_RATIO`) at its certified rate
-  (``||z(t)|| <= sqrt(cond P) e^{-lam t} ||z(0)||``), or, uncertified, at the rate of its
-  linearisation, never shorter than the plant's horizon and at most ``horizon_cap`` times it;
-- :func:`certificate_scope`: a certificate built on constants that hold on ``||x|| <= r`` is
-  local; it proves convergence *from the initial condition* only when the sublevel set of
-  ``V`` through ``(x0, e0)`` keeps ``x`` and ``x_hat`` in the region;
-- :func:`convergence_note`: the reason a pair did not converge (diverged, left the region,
-  horizon cut, slow tail); a certified pair that diverges, leaves its region or does not converge
-  within a horizon long enough for its certified rate is INCONSISTENT (a bug, or a declaration
-  the samplers missed: the suite's verdicts must agree), one whose horizon was too short says so.
+"""The judgements of a pair, each a pure function of numbers the pipeline already has: how long to
+simulate (:func:`simulation_horizon`), what a certificate proves from the initial condition
+(:func:`certificate_scope`), and why a pair did not converge (:func:`convergence_note`; a certified pair
+that diverges, leaves its region or does not converge within the horizon its rate needs is INCONSISTENT).
 """
 
 from __future__ import annotations
@@ -36,18 +23,21 @@ def simulation_horizon(t_plant: float, *, fixed: float | None, cap_factor: float
             linear_rate: float) -> tuple[float, str]:
     """The simulation horizon of a pair and the rule that set it.
 
+    Long enough to decay by :data:`bench.metrics.CONVERGED_RATIO` at the certified rate
+    (:func:`certified_horizon`), or uncertified at ``LINEAR_FACTOR`` times the linearisation's; at least
+    ``t_plant``, at most ``cap_factor * t_plant``.
+
     Parameters
     ----------
     t_plant : float
-        The plant's own horizon (the shortest the rule gives).
+        The plant's own horizon.
     fixed : float, optional
         A horizon the user fixed (``--t-final``): used as it is.
     cap_factor : float
-        The rule gives at most ``cap_factor * t_plant``.
     cert_rate : float
         Certified decay rate (NaN or <= 0: none).
     cond_p : float
-        Condition number of the certificate's P (its transient bound ``sqrt(cond P)``).
+        Condition number of the certificate's P.
     linear_rate : float
         Decay rate of the loop linearised at the origin (NaN or <= 0: not stable).
 
@@ -55,8 +45,7 @@ def simulation_horizon(t_plant: float, *, fixed: float | None, cap_factor: float
     -------
     T : float
     rule : str
-        ``"fixed"``, ``"plant"``, ``"certified rate"``, ``"linearised rate"``, or
-        ``"cut at cap (... asks for ... s)"``.
+        ``"fixed"``, ``"plant"``, ``"certified rate"``, ``"linearised rate"`` or ``"cut at cap (...)"``.
     """
     if fixed is not None:
         return float(fixed), "fixed"
@@ -91,9 +80,8 @@ def certificate_scope(P: np.ndarray | None, radius: float | None, x0: np.ndarray
     Returns
     -------
     dict
-        ``cert_scope`` (``"global"``, ``"from x0"``, ``"local"`` or ``""``), ``cert_radius``,
-        ``level_set`` (the largest certified ``v``: ``{V <= v}`` inside the region),
-        ``level_x0`` (``V`` at the initial condition).
+        ``cert_scope`` (``"global"``, ``"from x0"`` when ``V(z0)`` is below the largest level set inside
+        the region, ``"local"``, or ``""``), ``cert_radius``, ``level_set``, ``level_x0``.
     """
     from bench.certify import level_set
 
@@ -123,15 +111,9 @@ def certified_horizon(cert_rate: float, cond_p: float) -> float:
 def convergence_note(rec: dict) -> str:
     """Why the pair of record ``rec`` did not converge (empty when it converged).
 
-    A certified pair whose certificate applies to the simulation (``cert_scope`` ``"global"`` or
-    ``"from x0"`` and a finite ``cert_horizon_s``: noise-free, continuous, from a covered initial
-    condition) and that diverged, left the certified region, or ended unconverged although its
-    horizon ``horizon_s`` was at least ``cert_horizon_s`` contradicts its certificate: the note says
-    INCONSISTENT and gives the ``witness`` (time, state). A horizon shorter than the certified rate
-    needs is "horizon too short", not a contradiction.
-
-    Reads ``converged``, ``sim_status``, ``certified``, ``cert_scope``, ``cert_horizon_s``,
-    ``in_region``, ``horizon_rule``, ``horizon_s``, ``tail_rate`` and ``witness`` of the record.
+    A certified pair whose certificate covers the simulation (scope ``"global"`` or ``"from x0"``, a finite
+    ``cert_horizon_s``) that diverged, left the region, or ended unconverged after at least
+    ``cert_horizon_s`` is INCONSISTENT (the note gives the witness); a shorter horizon is "horizon too short".
     """
     if rec.get("converged"):
         return ""

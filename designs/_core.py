@@ -15,18 +15,10 @@ from bench import checks
 from bench.errors import DesignError
 from plants import Constants, Plant
 
-#: Possible design statuses.
-#:
-#: - ``feasible``: a feasibility problem (an LMI, or a Riccati equation's existence condition)
-#:   was solved and its solution verified;
-#: - ``computed``: gains computed by a method that has no feasibility question (LQR, a Kalman
-#:   gain): nothing was found feasible;
-#: - ``given``: gains (or an estimator's settings) taken as given, nothing solved (printed gains);
-#: - ``infeasible``: verified not strictly feasible under the stated normalisation;
-#: - ``marginal``: the best margin is within the verification tolerance of zero;
-#: - ``inapplicable``: the design does not apply to the plant (the reason says why);
-#: - ``undecided``: the solver failed or claimed what its point does not show;
-#: - ``error``, ``timeout``: set by the pipeline for a failure or a pair over its ``--timeout``.
+#: Design statuses: ``feasible`` (a feasibility problem solved and verified), ``computed`` (gains with no
+#: feasibility question: LQR, Kalman), ``given`` (printed gains), ``infeasible`` (under the stated normalisation),
+#: ``marginal`` (best margin within the verification tolerance of zero), ``inapplicable``, ``undecided`` (solver
+#: trouble), ``error`` and ``timeout`` (set by the pipeline).
 STATUSES = ("feasible", "computed", "given", "infeasible", "marginal", "inapplicable", "undecided", "error",
             "timeout")
 
@@ -39,19 +31,12 @@ def _design_error(name: str, message: str) -> DesignError:
 
 
 def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
-    """Return ``value`` as a finite float ``> 0`` (``>= 0`` with ``allow_zero``), or raise
-    :class:`DesignError` naming ``name`` (:func:`bench.checks.real`)."""
+    """``value`` as a finite float ``> 0`` (``>= 0`` with ``allow_zero``), else a :class:`DesignError`."""
     return checks.real(name, value, lo=0.0, strict=not allow_zero, error=_design_error)
 
 
-def _short(value: Any, limit: int = 80) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 def check_int(name: str, value: Any, *, minimum: int) -> int:
-    """Return ``value`` as an int ``>= minimum``, or raise :class:`DesignError` naming ``name``
-    (:func:`bench.checks.integer`: ``2.5`` or ``"7"`` are rejected rather than truncated or parsed)."""
+    """``value`` as an int ``>= minimum`` (never truncated or parsed), else a :class:`DesignError`."""
     return checks.integer(name, value, lo=minimum, error=_design_error)
 
 
@@ -60,34 +45,27 @@ def _is_sequence(value: Any) -> bool:
 
 
 def check_range(name: str, value: Any, *, strict: bool = True) -> tuple[float, float]:
-    """Return ``(lo, hi)`` with ``0 < lo < hi < inf`` (``lo <= hi`` unless ``strict``).
-
-    Raises :class:`DesignError` naming ``name`` for anything else (a scalar, a string, three
-    values, a non-finite or non-positive end, reversed ends).
-    """
+    """``(lo, hi)`` with ``0 < lo < hi < inf`` (``lo <= hi`` unless ``strict``), else a :class:`DesignError`."""
     if not _is_sequence(value) or len(value) != 2:
-        raise DesignError(f"{name}: expected a pair (lo, hi) of positive numbers, got {_short(value)}")
+        raise DesignError(f"{name}: expected a pair (lo, hi) of positive numbers, got {checks.brief(value)}")
     lo, hi = (check_positive(name, v) for v in value)
     if lo > hi or (strict and lo == hi):
         rel = "<" if strict else "<="
-        raise DesignError(f"{name}: must be (lo, hi) with lo {rel} hi, got {_short(value)}")
+        raise DesignError(f"{name}: must be (lo, hi) with lo {rel} hi, got {checks.brief(value)}")
     return lo, hi
 
 
 def check_values_in(name: str, value: Any, lo: float, hi: float) -> tuple[float, ...]:
-    """Return a non-empty sequence of numbers, each in the open interval ``(lo, hi)`` with ``lo >= 0``.
-
-    Raises :class:`DesignError` naming ``name`` otherwise.
-    """
+    """A non-empty sequence of numbers, each in the open interval ``(lo, hi)``, else a :class:`DesignError`."""
     if not _is_sequence(value):
-        raise DesignError(f"{name}: expected a sequence of numbers in ({lo:g}, {hi:g}), got {_short(value)}")
+        raise DesignError(f"{name}: expected a sequence of numbers in ({lo:g}, {hi:g}), got {checks.brief(value)}")
     if len(value) == 0:
         raise DesignError(f"{name}: at least one value is needed")
     out = []
     for x in value:
         v = check_positive(name, x, allow_zero=True)
         if not lo < v < hi:
-            raise DesignError(f"{name}: each value must be in ({lo:g}, {hi:g}), got {_short(x)}")
+            raise DesignError(f"{name}: each value must be in ({lo:g}, {hi:g}), got {checks.brief(x)}")
         out.append(v)
     return tuple(out)
 
@@ -95,16 +73,14 @@ def check_values_in(name: str, value: Any, lo: float, hi: float) -> tuple[float,
 def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> str:
     """Return ``value`` if it is one of the strings ``choices``, else raise :class:`DesignError`."""
     if not isinstance(value, str) or value not in choices:
-        raise DesignError(f"{name}: must be one of {', '.join(repr(c) for c in choices)}, got {_short(value)}")
+        raise DesignError(f"{name}: must be one of {', '.join(repr(c) for c in choices)}, got {checks.brief(value)}")
     return value
 
 
 def check_hyperparameter_names(cls: type, args: tuple, kwargs: dict) -> None:
-    """Reject positional arguments and unknown keyword hyperparameters of a dataclass design or part.
-
-    Called from ``__new__``, before the dataclass ``__init__`` (which would raise a bare
-    ``TypeError``); the :class:`DesignError` names the unknown parameter and suggests a close
-    match.
+    """Reject positional arguments and unknown keyword hyperparameters of a dataclass design or part with a
+    :class:`DesignError` naming the parameter and a close match (called from ``__new__``, before the bare
+    ``TypeError`` of the dataclass ``__init__``).
     """
     known = [k for k, f in getattr(cls, "__dataclass_fields__", {}).items() if f.init]
     if args:
@@ -127,24 +103,23 @@ class DesignResult:
 
     Attributes
     ----------
+    K, F : ndarray or None
+        Observer gain (n x p) and feedback gain (m x n), ``u = F x_hat``.
     status : str
         One of :data:`STATUSES`.
     reason : str
         Why, in words (always set unless feasible).
     route : str
-        How the gains were produced: ``"sdp"`` (an LMI solved by an SDP solver), ``"riccati"``
-        (algebraic Riccati equations), ``"formula"`` (a closed form, e.g. LQR), ``"given"``.
-    K, F : ndarray or None
-        Observer gain (n x p) and feedback gain (m x n), ``u = F x_hat``.
+        ``"sdp"`` (an LMI), ``"riccati"`` (algebraic Riccati equations), ``"formula"`` (e.g. LQR), ``"given"``.
     solver, solver_status : str or None
         The SDP solver and its final status.
     compile_s, solve_s : float
-        Seconds spent compiling (cvxpy canonicalisation) and solving, summed over all solves.
+        Seconds compiling (cvxpy canonicalisation) and solving, summed over all solves.
     n_solves : int
-        Number of LMI solves (searches over scalars solve several times).
+        Number of LMI solves.
     margin : float
-        Verified margin: the largest eigenvalue of the numeric LMI matrix, recomputed with numpy
-        at the solution (negative = strictly feasible). NaN when there is no LMI.
+        Largest eigenvalue of the numeric LMI matrix recomputed at the solution (negative: strictly
+        feasible; NaN without an LMI).
     lmi_size : int
         Dimension of the LMI matrix.
     min_eig : dict
@@ -152,13 +127,10 @@ class DesignResult:
     params : dict
         Every scalar the design used (fixed, searched or solved for).
     estimator : object, optional
-        A run-time estimator specification (e.g. :class:`designs.ekf.EKFSpec`) for designs whose
-        estimator is not a fixed gain K; the harness simulates it in sampled time.
+        A run-time estimator (e.g. :class:`designs.ekf.EKFSpec`) instead of a fixed gain K.
     certificate : dict, optional
-        The design's own joint certificate, verified by the design with numpy: ``level`` (the
-        certificate ladder's level whose knowledge it uses), ``P`` (2n x 2n, ``V = z' P z``),
-        ``decay_rate``, ``margin``, ``radius``, ``how``. The pipeline keeps it where the ladder's
-        own LMI certifies less (or cannot run, for large n).
+        The design's own verified joint certificate: ``level``, ``P`` (2n x 2n, ``V = z' P z``),
+        ``decay_rate``, ``margin``, ``radius``, ``how``; kept where the ladder certifies less.
     """
 
     status: str
@@ -204,11 +176,8 @@ def missing_constants(needs, constants: Constants) -> str | None:
 
 @dataclass(frozen=True, kw_only=True)
 class Configurable:
-    """Base of designs and design parts: hyperparameters are keyword-only dataclass fields.
-
-    Unknown or positional hyperparameters raise :class:`DesignError` naming them (before the
-    dataclass ``__init__`` would raise a bare ``TypeError``). Subclasses set :attr:`needs`, the
-    constants they require.
+    """Base of designs and design parts: hyperparameters are keyword-only dataclass fields (unknown or
+    positional ones raise :class:`DesignError`); :attr:`needs` names the constants required.
     """
 
     #: Constants required (names of :class:`plants.Constants` fields).
@@ -225,10 +194,7 @@ class Configurable:
 
 @dataclass(frozen=True, kw_only=True)
 class Design(Configurable):
-    """Base class of designs: hyperparameters are dataclass fields; the plant is an argument.
-
-    Subclasses set :attr:`needs` and implement :meth:`design`.
-    """
+    """Base class of designs: hyperparameters are dataclass fields; subclasses implement :meth:`design`."""
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:  # pragma: no cover
         """Compute gains for ``plant`` with ``constants``."""

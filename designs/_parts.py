@@ -1,10 +1,8 @@
 """Observer-based controllers composed of a feedback part (F) and an estimator part (K or EKF).
 
-A *part* is a frozen dataclass of hyperparameters with ``compute(plant, constants)`` returning
-a :class:`designs.DesignResult` holding its half of the controller (``F`` for a feedback part;
-``K`` or a run-time ``estimator`` for an estimator part). A *pairing* ``"feedback+estimator"`` is registered as a design with one
-line, :func:`register_pairing`; the composed design runs both parts and merges their evidence,
-so every pairing goes through the same harness, certificate and tables as Theorem 1.
+A *part* is a frozen dataclass of hyperparameters whose ``compute(plant, constants)`` returns a
+:class:`designs.DesignResult` with its half of the controller; :func:`register_pairing` registers a
+pairing ``"feedback+estimator"`` as a design that runs both parts and merges their evidence.
 """
 
 from __future__ import annotations
@@ -34,21 +32,20 @@ class Part(Configurable):
         raise NotImplementedError
 
 
-def check_weight(name: str, W, size: int, *, definite: bool) -> np.ndarray:
-    """Validate a weight matrix: shape (size, size), finite, symmetric, PSD (or PD).
-
-    ``None`` means the identity. Raises :class:`DesignError` naming ``name``.
-    """
+def check_weight(name: str, W, size: int | None, *, definite: bool) -> np.ndarray:
+    """A weight matrix: None is the identity, a scalar s is s I; square (``size`` x ``size`` when given), finite,
+    symmetric, PSD (PD with ``definite``); else a :class:`DesignError` naming ``name``."""
     if W is None:
         return np.eye(size)
     try:
         M = np.atleast_2d(np.array(W, dtype=float))
     except (TypeError, ValueError, OverflowError):
-        raise DesignError(f"{name}: not a numeric matrix") from None
-    if M.shape == (1, 1) and size > 1:
+        raise DesignError(f"{name}: not a numeric matrix, got {W!r}"[:200]) from None
+    if M.shape == (1, 1) and size is not None and size > 1:
         M = M[0, 0] * np.eye(size)  # a scalar weight means scalar * I
-    if M.shape != (size, size):
-        raise DesignError(f"{name}: expected shape ({size}, {size}), got {M.shape}")
+    k = M.shape[0] if size is None else size
+    if M.shape != (k, k) or M.size == 0:
+        raise DesignError(f"{name}: expected shape ({k}, {k}), got {M.shape}")
     if not np.all(np.isfinite(M)):
         raise DesignError(f"{name}: entries must be finite")
     if not np.allclose(M, M.T, rtol=1e-10, atol=1e-12):
@@ -62,24 +59,20 @@ def check_weight(name: str, W, size: int, *, definite: bool) -> np.ndarray:
     return M
 
 
-def register_feedback(id: str):
-    """Decorator registering a feedback part class under ``id``."""
+def _registrar(registry: Registry, kind: str):
+    def register(id: str):
+        def deco(cls):
+            registry.register(id, cls)
+            return cls
 
-    def deco(cls):
-        FEEDBACKS.register(id, cls)
-        return cls
+        return deco
 
-    return deco
+    register.__doc__ = f"Decorator registering {kind} part class under ``id``."
+    return register
 
 
-def register_estimator(id: str):
-    """Decorator registering an estimator part class under ``id``."""
-
-    def deco(cls):
-        ESTIMATORS.register(id, cls)
-        return cls
-
-    return deco
+register_feedback = _registrar(FEEDBACKS, "a feedback")
+register_estimator = _registrar(ESTIMATORS, "an estimator")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -102,11 +95,8 @@ class Composite(Design):
         return None
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
-        """Compute both parts and merge their evidence (timings add up, the LMI margin is the worst).
-
-        The status is the worst part's; when both parts have gains it is ``feasible`` if either
-        part solved a feasibility problem, else ``computed`` (or ``given``).
-        """
+        """Compute both parts and merge their evidence: the worst part's status (with gains: the strongest of
+        feasible, computed, given), timings added, the worst LMI margin."""
         fb = self.feedback.compute(plant, constants)
         es = self.estimator.compute(plant, constants)
         parts = (("feedback", fb), ("estimator", es))
@@ -139,11 +129,8 @@ class Composite(Design):
 
 
 def register_pairing(feedback: str, estimator: str, *, summary: str | None = None) -> str:
-    """Register the design ``"feedback+estimator"``; returns its id.
-
-    Keyword overrides of the design factory: ``feedback_params`` and ``estimator_params``
-    (dicts of the parts' hyperparameters).
-    """
+    """Register the design ``"feedback+estimator"`` (hyperparameters: the dicts ``feedback_params`` and
+    ``estimator_params``); returns its id."""
     did = f"{feedback}+{estimator}"
 
     def factory(*, feedback_params: dict | None = None, estimator_params: dict | None = None,

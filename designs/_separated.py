@@ -1,38 +1,18 @@
 """The corrected Theorem 1 and Corollary 1 in one layout: the joint LMI, its two sides, their verdicts.
 
-Without the Young coupling the corrected Theorem 1 (and Corollary 1) LMI splits into an x-side
-LMI in (Q, Fh, kappa) and an e-side LMI in (R, Kh, multipliers), each 2n x 2n. The joint LMI
-is feasible iff both are (``docs/paper.md``): given strictly feasible sides with margins ``X < 0`` and
-``E < 0``, Schur complements on the Young blocks ``-Q/phi`` and ``-phi Q`` show that the joint
-matrix is negative definite iff
+Without the Young coupling the joint LMI splits into an x-side in (Q, Fh, kappa) and an e-side in
+(R, Kh, multipliers), each 2n x 2n, and the joint LMI is feasible iff both are (``docs/paper.md``): for
+strictly feasible sides with margins ``X < 0`` and ``E < 0``, Schur complements on the Young blocks
+``-Q/phi`` and ``-phi Q`` make the joint matrix negative definite at
+``phi = 0.5 |lmax(X)| / lmax(B Fh' Q^{-1} Fh B')`` with the (homogeneous) e-side scaled by
+``s = 2 / (phi lmin(Q) |lmax(E)|)``. The rebuilt joint matrix is verified after Jacobi equilibration
+``D M D``, ``D = diag(|M_ii|^{-1/2})`` (Sylvester's law of inertia: ``D M D < 0`` iff ``M < 0``).
 
-- x-side: ``X + diag(phi B Fh' Q^{-1} Fh B', 0) < 0``, true for
-  ``phi = 0.5 |lmax(X)| / lmax(B Fh' Q^{-1} Fh B')``, and
-- e-side: ``s E + diag(Q^{-1} / phi, 0) < 0`` with the e-variables scaled by s > 0 (the e-side
-  is homogeneous in them, and K = R^{-1} Kh' does not change), true for
-  ``s = 2 / (phi lmin(Q) |lmax(E)|)``.
-
-The joint matrix is then rebuilt with numpy at (Q, Fh, kappa, sR, sKh, s eps..., phi). Its
-entries span many orders of magnitude (phi can be tiny and s large), so it is verified after
-the congruence ``D M D`` with ``D = diag(|M_ii|^{-1/2})`` (Jacobi equilibration): by Sylvester's
-law of inertia ``D M D < 0`` iff ``M < 0``, and the equilibrated matrix has a unit diagonal
-scale, so its largest eigenvalue (the reported margin) is a well-conditioned test. The raw
-largest eigenvalue is reported too. An interior-point
-solver's cost grows roughly with the cube of the PSD cone's size, so two 2n cones are much
-cheaper than one 6n cone.
-
-Verdict on a side that is not strictly feasible. Each side is homogeneous in its variables
-(scaling (Q, Fh, kappa), or (R, Kh, multipliers), by s > 0 scales its matrix by s). Under the
-solve's normalisation ``slack I << Q << cap I`` the best slack of an infeasible side is therefore
-0, reached as every variable tends to 0 (the margin shrinks with them), so "within the
-verification tolerance of zero" cannot tell an infeasible side from one on the boundary. Such a
-side is decided again under the scale-free normalisation ``I << Q << cap I`` (R for the e-side):
-every strictly feasible point of a homogeneous side scales into it unless cond(Q) > cap, and the
-margin no longer shrinks with the variables, so a clearly negative best margin proves the side
-infeasible (slack = -0.32 for an uncontrollable mode at -0.3 with sqrt(beta) = 0.5), while a side on
-the boundary keeps a best margin of 0 and stays marginal. Both sides are principal submatrices of
-the joint matrix, so a side proven infeasible proves the joint LMI infeasible (:func:`settle_joint`).
-The gains always come from the solve's own normalisation: the scale-free solve only labels.
+Each side is homogeneous, so under ``slack I << Q << cap I`` an infeasible side has best slack 0, like
+one on the boundary. Such a side is decided again under the scale-free ``I << Q << cap I`` (R for the
+e-side), where a clearly negative margin proves it infeasible; both sides are principal submatrices of
+the joint matrix, so that proves the joint LMI infeasible (:func:`settle_joint`). The gains always come
+from the capped solve.
 """
 
 from __future__ import annotations
@@ -65,12 +45,7 @@ def append_schur_column(rows: list, Q, corner) -> list:
 
 
 def young_layout(n: int, eside: Callable[[dict], list], schur_weight: Callable[[dict], object] | None):
-    """Block functions ``(joint, xside, eside)`` of a corrected Theorem 1 / Corollary 1 LMI.
-
-    Both LMIs share one layout (``docs/paper.md``): the x-side block ``s11 = AQ + QA' + B Fh' + Fh B' +
-    kappa I``, an e-side 2 x 2 block matrix ``[[E11, E12], [E12', E22]]``, the Young coupling of
-    ``-B F e`` through ``-Q/phi`` and ``-phi Q``, and, when ``schur_weight`` is given, the Schur
-    column ``Q`` with ``-w I`` (``w = kappa / beta_eff`` or ``kappa / alpha^2``)::
+    """Block functions ``(joint, xside, eside)`` of a corrected Theorem 1 / Corollary 1 LMI::
 
         [ s11    0     0     B Fh'    0        Q    ]
         [ 0      E11   E12   0        I        0    ]
@@ -79,8 +54,9 @@ def young_layout(n: int, eside: Callable[[dict], list], schur_weight: Callable[[
         [ 0      I     0     0        -phi Q   0    ]
         [ Q      0     0     0        0        -w I ]
 
-    The functions read ``A``, ``B``, ``Q``, ``Fh``, ``kappa``, ``phi`` and ``iphi`` (= 1/phi) from
-    the values dict, so they build the cvxpy matrix (Parameters) and the numeric one (arrays) alike.
+    with ``s11 = AQ + QA' + B Fh' + Fh B' + kappa I``; the last row and column only with ``schur_weight``
+    (``w = kappa / beta_eff`` or ``kappa / alpha^2``). The functions read ``A``, ``B``, ``Q``, ``Fh``,
+    ``kappa``, ``phi``, ``iphi`` from a values dict, so they build cvxpy and numpy matrices alike.
 
     Parameters
     ----------
@@ -88,7 +64,7 @@ def young_layout(n: int, eside: Callable[[dict], list], schur_weight: Callable[[
     eside : callable
         ``eside(values)``: the e-side blocks ``[[E11, E12], [E21, E22]]``.
     schur_weight : callable or None
-        ``schur_weight(values)``: the scalar ``w`` of the Schur block, or None without the column.
+        ``schur_weight(values)``: ``w``, or None without the Schur column.
 
     Returns
     -------
@@ -121,22 +97,9 @@ def young_layout(n: int, eside: Callable[[dict], list], schur_weight: Callable[[
 
 @dataclass(frozen=True)
 class YoungForm:
-    """One corrected LMI in the Young layout (Theorem 1's convex form, or Corollary 1) and its programs.
-
-    Attributes
-    ----------
-    what : str
-        The design's name, for reasons (``"corrected Theorem 1"``).
-    key : tuple
-        Identifies the LMI's structure (e.g. ``("thm1", schur)``); with the shape and the cap it
-        keys the compiled programs (:func:`bench.lmi.cached_program`).
-    blocks : tuple
-        ``(joint, xside, eside)`` block functions (:func:`young_layout`).
-    e_scalars : tuple of str
-        The e-side's nonnegative scalar variables (scaled with R and Kh); the x-side has ``kappa``.
-    constants : dict
-        The scalar constants, each a cvxpy Parameter of every program; the plant's ``A``, ``B``,
-        ``C`` enter as :func:`bench.lmi.plant_matrices`.
+    """One corrected LMI in the Young layout and its programs: ``what`` names it in reasons, ``key`` (with the
+    shape and the cap) keys its compiled programs, ``blocks`` are :func:`young_layout`'s ``(joint, xside, eside)``,
+    ``e_scalars`` the e-side's nonnegative scalars (the x-side has ``kappa``), ``constants`` the scalar Parameters.
     """
 
     what: str
@@ -149,8 +112,7 @@ class YoungForm:
         return {**mats.parameters(), **lmi.scalar_parameters(*self.constants)}
 
     def joint_program(self, plant, *, cap: float, phi_name: str) -> lmi.Program:
-        """The joint program (compiled once per shape), plant and constants set; the Young weight
-        ``phi`` (and ``iphi`` = 1/phi) is left to the caller."""
+        """The joint program (compiled once per shape), plant and constants set; ``phi`` left to the caller."""
         import cvxpy as cp
 
         n, m, p = plant.n, plant.m, plant.p
@@ -169,10 +131,7 @@ class YoungForm:
         return prog
 
     def side_program(self, plant, side: str, *, cap: float, scale_free: bool = False) -> lmi.Program:
-        """The x-side (Q, Fh, kappa) or e-side (R, Kh, ``e_scalars``) program, compiled once per shape.
-
-        ``scale_free`` adds ``I << Q`` (``I << R``) to the normalisation (module docstring).
-        """
+        """The x-side or e-side program, compiled once per shape; ``scale_free`` adds ``I << Q`` (``I << R``)."""
         import cvxpy as cp
 
         n, m, p = plant.n, plant.m, plant.p
@@ -200,14 +159,8 @@ class YoungForm:
         return prog
 
     def decide_side(self, plant, side: str, *, cap: float, solver: str) -> dict:
-        """Decide a side that is not strictly feasible under the capped normalisation (module docstring).
-
-        Returns
-        -------
-        dict
-            :func:`bench.lmi.conclude` of the scale-free solve (``status`` ``infeasible``,
-            ``marginal``, ``feasible`` or ``undecided``, ``slack``, ``margin``), plus ``normalisation``
-            ``cap`` and ``cost`` (compile seconds, solve seconds, solves).
+        """Decide a side that is not strictly feasible under the capped normalisation by its scale-free solve:
+        :func:`bench.lmi.conclude`'s dict plus ``normalisation``, ``cap`` and ``cost``.
         """
         prog = self.side_program(plant, side, cap=cap, scale_free=True)
         # one accurate solve: a verdict of infeasibility is not left to SCS
@@ -220,7 +173,6 @@ class YoungForm:
 
 
 def _scale_free_clause(decided: dict[str, dict]) -> str:
-    """``"not strictly feasible under the normalisation I << Q << cap I (...)"`` for the sides in ``decided``."""
     norms = " and ".join(d["normalisation"] for d in decided.values())
     ts = ", ".join(f"{d.get('slack', float('nan')):.3g}" for d in decided.values())
     mats = ", ".join(f"cond({SIDE_MATRIX[side]})" for side in decided)
@@ -238,29 +190,12 @@ def recombine(
     joint_blocks: Callable[[dict], list],
     decide: Callable[[str], dict] | None,
 ) -> dict:
-    """Rebuild and verify the joint certificate from solved x-side and e-side programs.
+    """Rebuild and verify the joint certificate from the solved x-side and e-side programs (module docstring).
 
-    Parameters
-    ----------
-    B : ndarray
-    xprog, eprog : Program
-        Solved (restored to their best point) x-side and e-side programs; the x-side holds
-        ``Q`` and ``Fh``.
-    e_keys : tuple of str
-        The e-side variables, all scaled by s.
-    joint_blocks : callable
-        Blocks of the joint LMI, taking the values of both sides plus ``phi`` and ``iphi``.
-    decide : callable or None
-        ``decide(side) -> dict`` (:meth:`YoungForm.decide_side`) for a side that is not strictly
-        feasible; None leaves such a side undecided (for searches that read only the margins).
-
-    Returns
-    -------
-    dict
-        ``status`` (feasible / infeasible / marginal / undecided), ``reason``, ``margin`` (largest
-        eigenvalue of the equilibrated joint matrix, verified), ``raw_margin`` (of the joint matrix
-        itself), ``lmi_size``, ``min_eig``, ``phi``, ``scale``, ``x_margin``, ``e_margin``,
-        ``values``, ``cost`` (of the scale-free solves).
+    The e-side variables ``e_keys`` are scaled by s; ``decide(side)`` (:meth:`YoungForm.decide_side`) labels a side
+    that is not strictly feasible (None: undecided). Returns ``status``, ``reason``, ``margin`` (equilibrated joint
+    matrix), ``raw_margin``, ``lmi_size``, ``min_eig``, ``phi``, ``scale``, ``x_margin``, ``e_margin``, ``values``,
+    ``cost``.
     """
     out: dict = {"margin": float("nan"), "lmi_size": 0, "min_eig": {}, "phi": float("nan"),
                  "scale": float("nan"), "x_margin": float("nan"), "e_margin": float("nan"), "values": None,
@@ -283,9 +218,7 @@ def recombine(
 
 def _failed_sides(xprog: lmi.Program, eprog: lmi.Program, X: np.ndarray, E: np.ndarray, lx: float, le: float,
                   decide: Callable[[str], dict] | None) -> dict | None:
-    """``status`` and ``reason`` when a side does not verify (undecided when its solver claimed a positive
-    margin its point does not have, or when ``decide`` is None; else ``decide``'s verdict); None when both
-    verify and ``Q > 0``."""
+    """Status and reason when a side does not verify (a solver's unverified positive margin: undecided); None if both do."""
     sides = {"x-side": (lmi.classify(lx, X), xprog), "e-side": (lmi.classify(le, E), eprog)}
     if not lmi.is_positive_definite(xprog.values()["Q"]):
         sides["x-side"] = ("violated", xprog)
@@ -308,9 +241,7 @@ def _failed_sides(xprog: lmi.Program, eprog: lmi.Program, X: np.ndarray, E: np.n
 
 def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, e_keys: tuple[str, ...], joint_blocks: Callable[[dict], list],
                    lx: float, le: float) -> dict:
-    """The joint matrix rebuilt from both sides: ``phi = |lx| / (2 lambda_max(B F' Q^-1 F B'))`` (1 when that
-    is 0), the e-side scaled by ``s = 2 / (phi lambda_min(Q) |le|)``, its margin on the Jacobi-equilibrated
-    matrix (inf when a diagonal entry is not negative), and the verdict."""
+    """The joint matrix rebuilt at the module docstring's ``phi`` and ``s``, its equilibrated margin and verdict."""
     qmin = lmi.min_eig(xv["Q"])
     Q, Fh = xv["Q"], xv["Fh"]
     BF = B @ np.linalg.solve(Q, Fh).T  # B Fh' Q^{-1}
@@ -345,12 +276,7 @@ def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, e_keys: tuple[str, ...], j
 
 
 def _side_verdict(decided: dict[str, dict], margins: str) -> dict:
-    """Status and reason of a separated design whose sides ``decided`` are not strictly feasible.
-
-    ``infeasible`` when a scale-free solve proves a side infeasible, ``marginal`` when every such
-    side stays within the verification tolerance of zero there, ``undecided`` otherwise (the two
-    normalisations disagree, or the solver failed).
-    """
+    """Status and reason from the scale-free solves of the sides that are not strictly feasible."""
     cost = tuple(sum(c) for c in zip(*(d["cost"] for d in decided.values())))
     proven = {k: d for k, d in decided.items() if d["status"] == "infeasible"}
     marginal = [k for k, d in decided.items() if d["status"] == "marginal"]
@@ -372,28 +298,9 @@ def _side_verdict(decided: dict[str, dict], margins: str) -> dict:
 
 def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_name: str, extra_params,
                      decide: bool = True) -> DesignResult:
-    """Solve the x-side (Q, Fh, kappa) and e-side (R, Kh, ``form.e_scalars``) apart and rebuild the joint.
-
-    Parameters
-    ----------
-    plant : Plant
-    form : YoungForm
-        The design's LMI.
-    solver : str
-        ``"auto"``, ``"CLARABEL"`` or ``"SCS"`` (see :func:`bench.lmi.solve_side`).
-    cap : float
-        Normalisation cap.
-    phi_name : str
-        Name under which the recombination's Young weight is reported.
-    extra_params : callable
-        ``extra_params(values) -> dict`` of design-specific scalars to report.
-    decide : bool
-        Decide a side that is not strictly feasible by its scale-free solve (module docstring);
-        False leaves the result ``undecided`` there (for a search that reads only the margins).
-
-    Returns
-    -------
-    DesignResult
+    """Solve ``form``'s x-side and e-side apart and rebuild the joint certificate (:func:`recombine`) as a
+    :class:`DesignResult`; ``phi_name`` names the Young weight, ``extra_params(values)`` adds the design's scalars,
+    ``decide=False`` leaves a side that is not strictly feasible undecided.
     """
     xprog = form.side_program(plant, "x-side", cap=cap)
     eprog = form.side_program(plant, "e-side", cap=cap)
@@ -421,18 +328,8 @@ def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_nam
 
 def settle_joint(plant, form: YoungForm, concl: dict, *, cap: float, solver: str, searched: str,
                  normalisation: str) -> tuple[dict, tuple]:
-    """Re-decide a joint solve that :func:`bench.lmi.conclude` found marginal, side by side.
-
-    The x-side and e-side blocks are principal submatrices of the joint matrix: a side proven
-    infeasible by its scale-free solve (:meth:`YoungForm.decide_side`) makes the joint LMI
-    infeasible at every Young weight. Otherwise ``concl`` is returned unchanged. ``searched`` and
-    ``normalisation`` describe the joint solve, for the reason.
-
-    Returns
-    -------
-    concl : dict
-    cost : tuple
-        Compile seconds, solve seconds and solves spent deciding.
+    """Re-decide a marginal joint solve side by side: a side proven infeasible by its scale-free solve makes the
+    joint LMI infeasible (a principal submatrix); else ``concl`` unchanged. Returns ``(concl, cost)``.
     """
     if concl["status"] != "marginal":
         return concl, (0.0, 0.0, 0)
@@ -451,7 +348,7 @@ def settle_joint(plant, form: YoungForm, concl: dict, *, cap: float, solver: str
 
 # -- helpers shared by the corrected Theorem 1 and Corollary 1 ---------------------------------
 def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...]) -> dict:
-    """cvxpy variables Q, R (n x n symmetric), Fh (n x m), Kh (p x n), the margin ``slack`` and ``scalars``."""
+    """cvxpy variables Q, R (symmetric), Fh (n x m), Kh (p x n), the margin ``slack`` and ``scalars``."""
     import cvxpy as cp
 
     v = {
@@ -474,17 +371,12 @@ def paper_gains_from(vals: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 def scalar(vals: dict, k: str) -> float:
-    """``vals[k]`` as a float (NaN when unsolved)."""
     v = vals.get(k)
     return float(v) if v is not None else float("nan")
 
 
 def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.0, 0.0, 0)) -> DesignResult:
-    """The :class:`DesignResult` of a joint LMI program concluded by :func:`bench.lmi.conclude`.
-
-    ``cost`` (compile seconds, solve seconds, solves) of other solves is added to the program's own
-    (e.g. :func:`settle_joint`'s).
-    """
+    """The :class:`DesignResult` of a concluded joint program, with ``cost`` of other solves added."""
     K = F = None
     if concl["status"] == "feasible":
         K, F = paper_gains_from(prog.values())
@@ -497,11 +389,7 @@ def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.
 
 
 def coordinate_hint(plant, res: DesignResult, variant: str) -> DesignResult:
-    """Append to an infeasible or marginal result that the scalar constants depend on the coordinates.
-
-    The constants of f change with a state scaling ``x = D x~``; for a plant with channels the
-    ``variant`` design (e.g. ``thm1_scaled``) searches one (:mod:`designs.scaled`).
-    """
+    """Append to an infeasible or marginal result with channels that the ``variant`` design searches a scaling."""
     scaled_already = plant.id.endswith(".scaled")
     if res.status in ("infeasible", "marginal") and plant.channels is not None and not scaled_already:
         res.reason += (f"; the scalar constants depend on the state's coordinates: {variant} searches a diagonal "

@@ -25,18 +25,15 @@ class YoungDesign(Design):
     Parameters
     ----------
     n_grid, n_refine : int
-        Search effort for the Young weight: a log grid of ``n_grid`` points, then ``n_refine``
-        golden steps on its log10 around the best grid point, maximising the normalised margin ``slack``.
+        The Young weight's search: a log grid of ``n_grid`` points, then ``n_refine`` golden steps on
+        its log10 around the best, maximising the normalised margin ``slack``.
     cap : float
-        Normalisation ``Q, R << cap I``; the margin ``slack`` (<= 1) is maximised under it.
+        Normalisation ``Q, R << cap I``.
     method : {"joint", "separated"}
-        ``"joint"`` solves the 6n x 6n LMI; ``"separated"`` solves the x-side and e-side 2n x 2n
-        LMIs apart and rebuilds a verified joint certificate (:mod:`designs._separated`); the
-        Young weight is then chosen by the recombination, not searched.
+        ``"joint"`` solves the 6n x 6n LMI; ``"separated"`` the two 2n x 2n sides apart, the joint
+        certificate rebuilt (:mod:`designs._separated`).
     solver : {"auto", "CLARABEL", "SCS"}
-        ``"auto"``: Clarabel for the joint LMI (SCS is inaccurate there); for the separated sides
-        SCS first (much faster from n ~ 16 on), its point verified with numpy, and Clarabel if it
-        does not verify.
+        ``"auto"``: Clarabel for the joint LMI; for the sides SCS first, Clarabel if its point does not verify.
     """
 
     n_grid: int = 7
@@ -101,12 +98,7 @@ class YoungDesign(Design):
         return self._design_joint(plant, self.form(plant, constants), constants)
 
     def separated(self, plant: Plant, constants: Constants, *, decide: bool = True) -> DesignResult:
-        """The x-side and e-side solved apart and the joint certificate rebuilt, whatever ``method`` is.
-
-        ``decide=False`` skips the scale-free solves that label a side which is not strictly
-        feasible (the result is then ``undecided``), for a search that reads only the sides'
-        margins (:class:`designs.scaled.Scaled`).
-        """
+        """The sides solved apart and the joint certificate rebuilt; ``decide=False`` skips the scale-free solves."""
         return separated_design(plant, self.form(plant, constants), solver=self.solver, cap=self.cap,
                                 phi_name=self.phi_name, extra_params=lambda vals: self.separated_params(vals, constants),
                                 decide=decide)
@@ -118,10 +110,7 @@ class YoungDesign(Design):
 
     def _search_phi(self, obj: Callable[[float], float], *, n_grid: int | None = None,
                     n_refine: int | None = None) -> tuple[float, float, str]:
-        """Search (or fix) the Young weight with the objective ``obj(phi) -> margin``.
-
-        Returns the weight, its margin and, for reasons, where it was searched.
-        """
+        """Search (or fix) the Young weight maximising ``obj(phi)``: the weight, its margin and where it was searched."""
         lo, hi = self._phi_range
         if self._fixed_phi is not None:
             return self._fixed_phi, obj(self._fixed_phi), f"at {self.phi_name} = {self._fixed_phi:g}"

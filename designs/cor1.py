@@ -35,21 +35,18 @@ def lipschitz_w22(d: dict, I: np.ndarray):
 class Cor1(YoungDesign):
     """Corollary 1, corrected (kappa = 1/mu1 exact, docs/paper.md): the joint 6n LMI, Young weight phi2 searched.
 
-    For fixed phi2, the 6n x 6n LMI in Q, R, Fh, Kh, kappa, mu2 is the Young layout
+    For fixed phi2, the LMI in Q, R, Fh, Kh, kappa, mu2 is the Young layout
     (:func:`designs._separated.young_layout`) with the e-side ``[[W22, R], [R, -mu2 I]]``,
-    ``W22 = A'R + RA - C'Kh - Kh'C + mu2 alpha^2 I``, and the Schur weight ``kappa / alpha^2``;
-    ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``. For alpha = 0 (linear plant) the Schur column is
-    dropped. phi2 is searched as Theorem 1's phi1 (log grid, then golden refinement, maximising
-    the normalised margin).
+    ``W22 = A'R + RA - C'Kh - Kh'C + mu2 alpha^2 I``, and the Schur weight ``kappa / alpha^2`` (no Schur
+    column for alpha = 0); ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
 
     Parameters
     ----------
     phi2 : float, optional
         Fixed Young weight; None (default) searches ``phi2_range``.
     phi2_range : tuple of float
-        Search interval.
     n_grid, n_refine, cap, method, solver
-        See :class:`designs._young.YoungDesign`; ``method="separated"`` is registered as ``cor1_sep``.
+        :class:`designs._young.YoungDesign`.
     """
 
     phi2: float | None = None

@@ -1,25 +1,20 @@
 """Continuous-discrete extended Kalman filter (filterpy) as an estimator part.
 
 The design only fixes the filter's specification (:class:`EKFSpec`); the harness runs it
-(``bench.estimators.ContinuousDiscreteEKF``) in sampled time: at each sample ``t_k = k dt`` the
-filter updates with ``y_k = C x(t_k) + v_k``, the controller applies ``u_k = F x_hat_k`` held
-until ``t_{k+1}`` (zero-order hold), and the filter predicts by integrating the nonlinear model
-``x_hat' = A x_hat + B u_k + f(x_hat)`` over the step, with the covariance propagated through the
-Jacobian: ``P <- Phi P Phi' + q dt I``, ``Phi = expm((A + df/dx(x_hat_k)) dt)``.
+(``bench.estimators.ContinuousDiscreteEKF``): at each sample ``t_k = k dt`` the filter updates with
+``y_k = C x(t_k) + v_k``, ``u_k = F x_hat_k`` is held, and the filter predicts by integrating
+``x_hat' = A x_hat + B u_k + f(x_hat)`` with ``P <- Phi P Phi' + q dt I``, ``Phi = expm((A + df/dx(x_hat_k)) dt)``.
 
 References
 ----------
 A. H. Jazwinski, *Stochastic Processes and Filtering Theory*, 1970 (continuous-discrete EKF).
-R. Labbe, filterpy ``ExtendedKalmanFilter`` (its ``predict_x`` is linear by default and is
-overridden; ``predict_update`` evaluates H before predicting and is not used).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from designs._core import check_positive
-from designs._core import DesignResult
+from designs._core import DesignError, DesignResult, check_positive
 from designs._parts import Part, register_estimator
 from plants import Constants, Plant
 
@@ -55,8 +50,6 @@ class EKFSpec:
 
     def check_horizon(self, t_final: float) -> None:
         """Raise :class:`designs.DesignError` unless ``dt`` divides ``t_final``."""
-        from designs._core import DesignError
-
         k = t_final / self.dt
         if abs(k - round(k)) > 1e-9 * max(1.0, k) or round(k) < 1:
             raise DesignError(f"dt: the sample time {self.dt:g} must divide the horizon t_final = {t_final:g}")
@@ -64,20 +57,12 @@ class EKFSpec:
 
 @register_estimator("ekf")
 @dataclass(frozen=True, kw_only=True)
-class EKFEstimator(Part):
-    """Continuous-discrete EKF via filterpy (sample time dt, noise levels q, r); no fixed gain."""
-
-    dt: float = 0.01
-    q: float = 1e-3
-    r: float = 1e-4
-    p0: float = 10.0
-
-    def __post_init__(self) -> None:
-        EKFSpec(dt=self.dt, q=self.q, r=self.r, p0=self.p0)  # validates, naming the parameter
+class EKFEstimator(EKFSpec, Part):
+    """Continuous-discrete EKF via filterpy (the hyperparameters of :class:`EKFSpec`); no fixed gain."""
 
     def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Return the filter specification (checked against the plant's horizon)."""
-        spec = EKFSpec(dt=self.dt, q=self.q, r=self.r, p0=self.p0)
+        spec = EKFSpec(dt=self.dt, q=self.q, r=self.r, p0=self.p0)  # the spec alone, for the simulator
         spec.check_horizon(plant.t_final)
         return DesignResult(status="given", route="given", estimator=spec, solver=None,
                           params={"dt": spec.dt, "q": spec.q, "r": spec.r, "p0": spec.p0,

@@ -1,10 +1,7 @@
 """LMI observers for Lipschitz (Rajamani-style) and OSL/QIB (Zhang et al. 2012) systems.
 
-Both solve a 2n x 2n LMI with cvxpy + Clarabel, maximising a margin ``slack`` under the normalisation
-``P << cap I`` (these LMIs are homogeneous in their variables, so the cap only fixes the scale),
-and are verified like every LMI of the suite: the matrix is rebuilt with numpy at the solution
-and its largest eigenvalue must be negative. ``solver="auto"`` tries SCS first (much faster
-for large n) and falls back to Clarabel when SCS's point does not verify
+Both solve a 2n x 2n LMI maximising a margin ``slack`` under ``P << cap I`` (the LMIs are homogeneous,
+so the cap only fixes the scale), verified with numpy like every LMI of the suite
 (:func:`bench.lmi.solve_side`).
 
 References
@@ -24,24 +21,30 @@ import numpy as np
 from bench import lmi
 from designs._core import DesignResult, check_choice, check_positive
 from designs._parts import Part, register_estimator
+from designs._separated import scalar
 from plants import Constants, Plant
 
 __all__ = ["RajamaniLMI", "ZhangOSL"]
 
 
-def _check_solver(solver: str) -> None:
-    check_choice("solver", solver, ("auto", "CLARABEL", "SCS"))
+@dataclass(frozen=True, kw_only=True)
+class _ObserverLMI(Part):
+    """The hyperparameters of an observer LMI: decay rate ``lam`` asked for, normalisation cap, solver."""
+
+    decay: float = 0.0
+    cap: float = 1e3
+    solver: str = "auto"
+
+    def __post_init__(self) -> None:
+        check_positive("decay", self.decay, allow_zero=True)
+        check_positive("cap", self.cap)
+        check_choice("solver", self.solver, ("auto", "CLARABEL", "SCS"))
 
 
 def _solve_observer(part: "Part", key: tuple, build, settable: dict, *, what: str, n: int,
                     searched: str) -> tuple[lmi.Program, dict, str]:
-    """Solve an observer LMI under ``P << cap I``; a marginal verdict is decided again scale-free.
-
-    The LMI is homogeneous in its variables, so under ``slack I << P << cap I`` an infeasible one has
-    best margin 0 (every variable shrinking with ``slack``): "marginal" cannot tell it from a boundary
-    case. The scale-free solve adds ``I << P``, which loses only points with ``cond(P) > cap``;
-    there an infeasible LMI has a clearly negative margin and is labelled infeasible (the gains,
-    when there are any, always come from the first solve). ``build(scale_free)`` builds the program.
+    """Solve an observer LMI built by ``build(scale_free)`` under ``P << cap I``; a marginal verdict is decided
+    again under the scale-free ``I << P << cap I`` (as :mod:`designs._separated` does for its sides).
     """
     prog = lmi.cached_program((*key, "capped"), lambda: build(False))
     prog.set(**settable)
@@ -74,23 +77,14 @@ def _part_from(prog: lmi.Program, concl: dict, K, params: dict, log: str = "") -
 
 @register_estimator("rajamani")
 @dataclass(frozen=True, kw_only=True)
-class RajamaniLMI(Part):
+class RajamaniLMI(_ObserverLMI):
     """Lipschitz LMI observer: [(A-KC)'P + P(A-KC) + eps alpha^2 I + 2 lam P, P; P, -eps I] < 0.
 
     With ``W = P K`` this is an LMI in (P, W, eps) (V = e'Pe, Young's inequality on
     2 e'P (f - f_hat)); ``K = P^{-1} W``. ``decay`` (lam >= 0) asks for ``V' <= -2 lam V``.
     """
 
-    decay: float = 0.0
-    cap: float = 1e3
-    solver: str = "auto"
-
     needs = ("alpha",)
-
-    def __post_init__(self) -> None:
-        check_positive("decay", self.decay, allow_zero=True)
-        check_positive("cap", self.cap)
-        _check_solver(self.solver)
 
     def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the LMI and return K."""
@@ -118,14 +112,12 @@ class RajamaniLMI(Part):
                                            searched=f"with decay {lam:g}")
         vals = prog.values()
         K = np.linalg.solve(vals["P"], vals["W"]) if concl["status"] == "feasible" else None
-        eps = vals["eps"]
-        return _part_from(prog, concl, K, {"alpha": constants.alpha, "decay": lam,
-                                           "eps": float(eps) if eps is not None else float("nan")}, log)
+        return _part_from(prog, concl, K, {"alpha": constants.alpha, "decay": lam, "eps": scalar(vals, "eps")}, log)
 
 
 @register_estimator("zhang_osl")
 @dataclass(frozen=True, kw_only=True)
-class ZhangOSL(Part):
+class ZhangOSL(_ObserverLMI):
     """OSL/QIB LMI observer (Zhang et al. 2012): K = (sigma/2) P^{-1} C'.
 
     The LMI, in (P, sigma, eps1, eps2) ::
@@ -137,16 +129,7 @@ class ZhangOSL(Part):
     ``decay`` (lam >= 0) asks for ``V' <= -2 lam V``.
     """
 
-    decay: float = 0.0
-    cap: float = 1e3
-    solver: str = "auto"
-
     needs = ("rho", "beta", "gamma")
-
-    def __post_init__(self) -> None:
-        check_positive("decay", self.decay, allow_zero=True)
-        check_positive("cap", self.cap)
-        _check_solver(self.solver)
 
     def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the LMI and return K."""
@@ -183,5 +166,5 @@ class ZhangOSL(Part):
         K = None
         if concl["status"] == "feasible":
             K = (float(vals["sigma"]) / 2) * np.linalg.solve(vals["P"], C.T)
-        sc = {k: (float(vals[k]) if vals[k] is not None else float("nan")) for k in ("sigma", "eps1", "eps2")}
+        sc = {k: scalar(vals, k) for k in ("sigma", "eps1", "eps2")}
         return _part_from(prog, concl, K, {"rho": rho, "beta": beta, "gamma": gamma, "decay": lam, **sc}, log)

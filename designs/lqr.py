@@ -18,24 +18,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from designs._core import DesignError, DesignResult
+from designs._core import DesignResult
 from designs._parts import Part, check_weight, register_estimator, register_feedback
 from plants import Constants, Plant
 
 __all__ = ["LQEObserver", "LQRFeedback"]
-
-
-def _prevalidate(name: str, W: Any, *, definite: bool) -> None:
-    if W is not None:
-        try:
-            M = np.atleast_2d(np.asarray(W, dtype=float))
-        except (TypeError, ValueError, OverflowError):
-            raise DesignError(f"{name}: not a numeric matrix, got {W!r}"[:200]) from None
-        if M.size == 0:
-            raise DesignError(f"{name}: empty weight")
-        if M.ndim != 2:
-            raise DesignError(f"{name}: expected a matrix (or a scalar), got an array of shape {M.shape}")
-        check_weight(name, M, M.shape[0], definite=definite)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -47,7 +34,8 @@ class _Weighted(Part):
 
     def __post_init__(self) -> None:
         for name, definite, _ in self.weights:
-            _prevalidate(name, getattr(self, name), definite=definite)
+            if getattr(self, name) is not None:
+                check_weight(name, getattr(self, name), None, definite=definite)
 
     def _matrices(self, plant: Plant) -> list[np.ndarray]:
         """The weights for ``plant`` (None is the identity, a scalar s is s I)."""

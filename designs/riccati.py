@@ -25,8 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from designs._core import check_int, check_positive, check_range
-from designs._core import DesignResult
+from designs._core import DesignResult, check_int, check_positive, check_range
 from designs._parts import Part, register_estimator
 from plants import Constants, Plant
 

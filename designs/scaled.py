@@ -1,28 +1,17 @@
 """Scalar-constant designs in better coordinates: a diagonal state scaling searched, then undone.
 
-The scalar constants (alpha, rho, beta, gamma) of f depend on the state's coordinates: with
-``x = D x~`` (D diagonal, positive) the plant becomes ::
-
-    x~' = D^-1 A D x~ + D^-1 B u + D^-1 f(D x~),    y = C D x~
-
-and for the flexible-joint robot (``f4 = -3.33 sin x3``) or the pendulum, scaling the velocity by
-1/10 shrinks the Lipschitz constant of ``D^-1 f(D .)`` enough for the corrected Theorem 1 and
-Corollary 1 to become feasible, with gains that stabilize the original plant. The constants of
-the scaled nonlinearity come from the plant's channels ``f = G phi(H x)`` (slopes in [lo, hi]):
-``D^-1 f(D x~) = (D^-1 G) phi((H D) x~)``, so with ``G~ = D^-1 G``, ``H~ = H D`` and
-``delta = max(|lo|, |hi|)``:
+With ``x = D x~`` (D diagonal, positive) the plant becomes ``x~' = D^-1 A D x~ + D^-1 B u + D^-1 f(D x~)``,
+``y = C D x~``, and the constants of its nonlinearity follow from the channels ``f = G phi(H x)`` (slopes
+in [lo, hi]): with ``G~ = D^-1 G``, ``H~ = H D`` and ``delta = max(|lo|, |hi|)``,
 
 - Lipschitz ``alpha~ = delta ||G~|| ||H~||``;
-- OSL ``rho~ = max`` over the vertices ``Delta`` of the slope box of ``lmax(sym(G~ Delta H~))``
-  (the largest eigenvalue is convex in Delta, so its maximum over the box is at a vertex; for
-  more than 10 channels the bound ``alpha~`` is used);
+- OSL ``rho~`` = the largest ``lmax(sym(G~ Delta H~))`` over the vertices Delta of the slope box (lmax is
+  convex in Delta; ``alpha~`` for more than 10 channels);
 - QIB ``(beta~, gamma~) = (alpha~^2, 0)``.
 
-The search is a coordinate descent over the states the channels touch (rows of G, columns of H),
-each on a log grid of ``grid`` values in [0.1, 10]: a scaling whose separated design verifies
-beats every other, and among those the smaller gains (in the original coordinates) win; among
-unverified ones, the better worst-side margin. The chosen inner design then runs on the scaled
-plant, and its gains are mapped back: ``F = F~ D^-1``, ``K = D K~``.
+The search is a coordinate descent over the states the channels touch, each on a log grid in [0.1, 10]:
+a scaling whose separated design verifies beats every other, and among those the smaller gains win;
+among unverified ones, the better worst-side margin. The gains are mapped back: ``F = F~ D^-1``, ``K = D K~``.
 """
 
 from __future__ import annotations
@@ -33,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from bench import lmi
 from bench.registry import DESIGNS, register_design
 from designs._core import Design, DesignResult, check_choice, check_int
 from plants import Channels, Constants, Plant
@@ -41,26 +31,14 @@ __all__ = ["Scaled", "scaled_plant"]
 
 
 def scaled_plant(plant: Plant, d: np.ndarray) -> tuple[Plant, Constants]:
-    """The plant in coordinates ``x = diag(d) x~`` and the constants of its nonlinearity.
-
-    Parameters
-    ----------
-    plant : Plant
-        With channels.
-    d : ndarray (n,)
-        Positive scales.
-
-    Returns
-    -------
-    Plant, Constants
-    """
+    """The plant (with channels) in coordinates ``x = diag(d) x~``, ``d > 0``, and the constants of its nonlinearity."""
     ch = plant.channels
     D, Di = np.diag(d), np.diag(1 / d)
     G, H = Di @ ch.G, ch.H @ D
     delta = float(np.max(np.maximum(np.abs(ch.lo), np.abs(ch.hi))))
     alpha = delta * np.linalg.norm(G, 2) * np.linalg.norm(H, 2)
     if ch.q <= 10:
-        rho = max(float(np.linalg.eigvalsh(_sym(G @ np.diag(v) @ H))[-1])
+        rho = max(float(np.linalg.eigvalsh(lmi.sym(G @ np.diag(v) @ H))[-1])
                   for v in itertools.product(*zip(ch.lo, ch.hi)))
     else:
         rho = alpha
@@ -71,10 +49,6 @@ def scaled_plant(plant: Plant, d: np.ndarray) -> tuple[Plant, Constants]:
                   jacobian=None, x0=plant.x0 / d, x_hat0=plant.x_hat0 / d, bounds=consts, claimed=Constants(),
                   channels=Channels(G=G, H=H, phi=ch.phi, lo=ch.lo, hi=ch.hi, radius=None))
     return new, consts
-
-
-def _sym(M: np.ndarray) -> np.ndarray:
-    return (M + M.T) / 2
 
 
 @register_design("cor1_scaled", "Corrected Corollary 1 (separated) after a searched diagonal state scaling x = D x~ "
@@ -88,13 +62,11 @@ class Scaled(Design):
     Parameters
     ----------
     inner : {"thm1_sep", "cor1_sep", "thm1", "cor1"}
-        The design run on the scaled plant (``thm1_scaled`` and ``cor1_scaled`` use the separated
-        forms, which the search evaluates).
+        The design run on the scaled plant.
     grid : int
         Log-spaced scales per coordinate, in ``[0.1, 10]``.
     sweeps : int
-        Coordinate-descent sweeps (default 1: on every catalog plant a second sweep changed no
-        verdict, rate or chosen scaling of a feasible design, at 2-5 times the cost).
+        Coordinate-descent sweeps.
     """
 
     inner: str = "thm1_sep"

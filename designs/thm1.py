@@ -42,35 +42,27 @@ def osl_qib_eside(d: dict, I: np.ndarray) -> tuple:
 class Thm1(YoungDesign):
     """Theorem 1, corrected convex form (docs/paper.md): the joint 6n LMI, Young weight phi1 searched.
 
-    For ``gamma >= 0`` the OSL multiplier is tied to the QIB one, ``eps1 = gamma eps2`` (so the
-    missing condition ``eta2 = 0`` holds), ``kappa = 1 / (2 eps2)`` and
-    ``beta_eff = beta + gamma rho``; for a fixed Young weight ``phi1`` the 6n x 6n matrix is the
-    Young layout (:func:`designs._separated.young_layout`) with the e-side ::
+    For ``gamma >= 0``: ``eps1 = gamma eps2`` (so ``eta2 = 0``), ``kappa = 1 / (2 eps2)``,
+    ``beta_eff = beta + gamma rho``; for a fixed ``phi1`` the LMI in Q, R, Fh, Kh, kappa, eps3, eps4 is the
+    Young layout (:func:`designs._separated.young_layout`) with the e-side of :func:`osl_qib_eside` and the
+    Schur weight ``kappa / beta_eff`` (no Schur column when ``beta_eff <= 0``).
 
-        [[S22, R + eta3 I], [R + eta3 I, -2 eps4 I]]
-
-    and the Schur weight ``kappa / beta_eff`` (no Schur column when ``beta_eff <= 0``), an LMI in
-    Q, R, Fh, Kh, kappa, eps3, eps4, with ``S22 = A'R + RA - C'Kh - Kh'C + 2(eps3 rho + eps4 beta) I``,
-    ``eta3 = eps4 gamma - eps3``.
-
-    For ``gamma < 0`` the multipliers eps1 >= 0, eps2 > 0 are fixed and the 7n x 7n form with
-    the exact (1,3) block ``I + eta2 Q`` and the Schur column ``Q`` / ``-(1/eta1) I``
-    (``eta1 = 2(eps1 rho + eps2 beta)``, dropped when ``eta1 <= 0``) is used; eps2 is then
-    searched on a log grid jointly with phi1. Gains: ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
+    For ``gamma < 0``: eps1 >= 0, eps2 > 0 fixed, the 7n x 7n form with the exact (1,3) block
+    ``I + eta2 Q`` and the Schur column ``Q`` / ``-(1/eta1) I`` (``eta1 = 2(eps1 rho + eps2 beta)``,
+    dropped when ``eta1 <= 0``); eps2 searched on a log grid jointly with phi1.
+    Gains: ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
 
     Parameters
     ----------
     phi1 : float, optional
         Fixed Young weight; None (default) searches ``phi1_range``.
     phi1_range : tuple of float
-        Search interval for phi1.
     eps1 : float
         OSL multiplier for the ``gamma < 0`` form.
     eps2_range : tuple of float
         Grid (5 log-spaced points) of the QIB multiplier for the ``gamma < 0`` form.
     n_grid, n_refine, cap, method, solver
-        See :class:`designs._young.YoungDesign`; ``method="separated"`` is registered as
-        ``thm1_sep``. For ``gamma < 0`` the separated method falls back to the joint fixed-eps form.
+        :class:`designs._young.YoungDesign`; for ``gamma < 0`` the separated method uses the joint form.
     """
 
     phi1: float | None = None
@@ -228,17 +220,13 @@ class Thm1(YoungDesign):
 class Thm1Printed(Design):
     """Theorem 1 exactly as printed, (12)-(15), with Remark 1; eps1, eps2 fixed on a grid.
 
-    psi = 1/((2 rho - 1) eps1 + (2 beta + gamma) eps2) and zeta = 1/(eps2 gamma - eps1) are
-    reciprocals of the multipliers, so (12) is an LMI only for fixed eps1, eps2. Remark 1
-    replaces ``-Q/phi1`` and ``-phi1 Q`` in S3 by ``-(2 alpha1 - beta1) I`` and ``-beta1 I`` with
-    ``Q > alpha1 I``, ``2 alpha1 - beta1 > 0``, ``beta1 > 0`` (alpha1, beta1 decision scalars).
-
-    The statement needs ``psi > 0`` and ``zeta > 0`` (otherwise a diagonal block of S3 is
-    positive and ``S < 0`` is impossible): ``zeta > 0`` requires ``gamma > eps1 / eps2 > 0``. For
-    ``gamma <= 0`` (the flexible link has gamma = 0) no eps1, eps2 > 0 qualify and the design is
-    reported infeasible with that reason, without calling a solver. For ``gamma > 0`` it searches
-    eps2 on a log grid of ``n_eps2`` points in ``eps2_range`` and eps1 = r gamma eps2 for r in
-    ``ratios``, keeping combinations with psi > 0, and reports the best margin.
+    psi = 1/((2 rho - 1) eps1 + (2 beta + gamma) eps2) and zeta = 1/(eps2 gamma - eps1) make (12) an LMI
+    only for fixed eps1, eps2. Remark 1 replaces ``-Q/phi1`` and ``-phi1 Q`` in S3 by
+    ``-(2 alpha1 - beta1) I`` and ``-beta1 I`` with ``Q > alpha1 I``, ``2 alpha1 - beta1 > 0``, ``beta1 > 0``.
+    The statement needs ``psi > 0`` and ``zeta > 0`` (else a diagonal block of S3 is positive), and
+    ``zeta > 0`` requires ``gamma > eps1 / eps2 > 0``: for ``gamma <= 0`` the design is infeasible without
+    a solve; otherwise eps2 runs over ``n_eps2`` log-spaced points of ``eps2_range`` and eps1 = r gamma eps2
+    for r in ``ratios``.
     """
 
     eps2_range: tuple[float, float] = (1e-2, 1e2)

@@ -267,13 +267,13 @@ def test_bisection_on_a_known_threshold():
 # -- noise --------------------------------------------------------------------------------------
 def test_noise_study_equals_the_harness_and_scales_with_sigma():
     from bench.constants import compute_constants
-    from bench.harness import RunOptions, run_pair
+    from bench.pipeline import RunOptions, evaluate_pair
     from bench.studies.noise import run_noise
 
     res = run_noise(["flexible_link"], ["lqr+lqe"], levels=(1e-3, 1e-2), seed=3, jobs=1)
     by = {r["noise"]: r for r in res.rows}
     plant = PLANTS.create("flexible_link")
-    rec = run_pair(plant, "lqr+lqe", compute_constants(plant, seed=0, n_samples=2000),
+    rec = evaluate_pair(plant, "lqr+lqe", compute_constants(plant, seed=0, n_samples=2000),
                    RunOptions(noise=1e-2, seed=3)).record
     assert by[1e-2]["rms_e"] == pytest.approx(rec["rms_e"], rel=1e-9)
     assert by[1e-2]["final_x"] == pytest.approx(rec["final_x"], rel=1e-9)

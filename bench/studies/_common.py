@@ -1,19 +1,16 @@
 """Helpers shared by the studies: argument checks, plants and gains, random initial conditions,
-markdown tables, and the atomic writer of a study's files.
-
-Every study writes ``STUDY_<name>.md``, ``study_<name>.csv`` (plus, for some, further
-``study_<name>_*.csv``) and ``figures/study_<name>*.png`` into its output folder. The files are
-rendered into a temporary folder next to the destination and moved into place with
-``os.replace`` (the markdown last), so an exception while rendering leaves the previous
-files untouched. ``REPORT.md`` is never touched by a study.
+markdown tables, and the atomic writer of a study's files (``STUDY_<name>.md``, ``study_<name>*.csv``,
+``figures/study_<name>*.png``; :mod:`bench.outdir` publishes them whole, the markdown last).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import platform
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -22,21 +19,13 @@ import numpy as np
 from bench import checks
 from bench.errors import StudyError
 from bench.search import largest_passing
-from bench.report import format_cell as fmt  # one cell formatter for every report
+from bench.report import format_cell as fmt, md_table, pyplot  # noqa: F401 (the studies import them from here)
 
 
 @dataclass
 class StudyResult:
-    """What a study produced; each study's result adds its own fields (with defaults).
-
-    Attributes
-    ----------
-    rows : list of dict
-        One row per plant x design (the study's CSV).
-    settings : dict
-        The settings it ran with (the report's header).
-    wall_s : float
-        Wall-clock seconds.
+    """What a study produced: its ``rows`` (the CSV), the ``settings`` it ran with and ``wall_s``; each
+    study adds its own fields.
     """
 
     rows: list[dict]
@@ -46,86 +35,37 @@ class StudyResult:
 
 # -- argument checks (bench.checks, raising StudyError) --------------------------------------
 def check_box(name: str, value: Any) -> float | None:
-    """A half-width of an initial-condition box: finite and > 0 (None = the plant's default).
-
-    Raises
-    ------
-    StudyError
-        Naming ``name`` when the value is negative, zero or not finite.
-    """
+    """An initial-condition box half-width: finite and > 0 (None: the plant's default)."""
     return None if value is None else checks.real(name, value, lo=0.0, strict=True, error=StudyError)
 
 
-def check_count(name: str, value: Any, lo: int = 1) -> int:
-    """An integer count ``>= lo``.
-
-    Raises
-    ------
-    StudyError
-        Naming ``name``.
-    """
-    return checks.integer(name, value, lo=lo, error=StudyError)
+#: A count ``>= 1``, a bisection's relative tolerance in (0, 1), a horizon (None: each plant's); StudyError if not.
+check_count = functools.partial(checks.integer, lo=1, error=StudyError)
+check_rtol = functools.partial(checks.real, "rtol", lo=0.0, strict=True, hi=1.0, error=StudyError)
+check_horizon = functools.partial(checks.horizon, error=StudyError)
 
 
 def check_levels(name: str, values: Any) -> list[float]:
-    """Noise levels: a non-empty list of finite numbers > 0 (a log grid cannot hold 0).
-
-    Raises
-    ------
-    StudyError
-        Naming ``name`` and the offending entry.
-    """
+    """Noise levels: a non-empty list of finite numbers > 0, sorted and unique."""
     vals = list(values)
     if not vals:
         raise StudyError(name, "at least one level is needed")
-    out = []
-    for v in vals:
-        out.append(checks.real(name, v, lo=0.0, strict=True, error=StudyError))
-    return sorted(set(out))
+    return sorted({checks.real(name, v, lo=0.0, strict=True, error=StudyError) for v in vals})
 
 
-def check_range(name: str, value: Any, *, positive: bool = True) -> tuple[float, float] | None:
-    """Bisection bounds ``(lo, hi)`` with ``lo < hi`` (None = automatic bracketing).
-
-    Raises
-    ------
-    StudyError
-        Naming ``name`` when the bounds are not finite, not positive, or in the wrong order.
-    """
+def check_range(name: str, value: Any) -> tuple[float, float] | None:
+    """Bisection bounds ``(lo, hi)`` with ``0 < lo < hi`` (None: automatic bracketing)."""
     if value is None:
         return None
     try:
         lo, hi = value
     except (TypeError, ValueError):
         raise StudyError(name, f"expected two numbers LO HI, got {value!r}") from None
-    lo = checks.real(name, lo, lo=0.0 if positive else None, strict=True, error=StudyError)
+    lo = checks.real(name, lo, lo=0.0, strict=True, error=StudyError)
     hi = checks.real(name, hi, error=StudyError)
     if not lo < hi:
         raise StudyError(name, f"bounds in the wrong order: LO = {lo:g} must be < HI = {hi:g}")
     return lo, hi
-
-
-def check_rtol(rtol: Any) -> float:
-    """A bisection's relative tolerance: a number in (0, 1).
-
-    Raises
-    ------
-    StudyError
-        Naming ``rtol``.
-    """
-    checks.real("rtol", rtol, lo=0.0, strict=True, hi=1.0, error=StudyError)
-    return rtol
-
-
-def check_horizon(t_final: Any) -> float | None:
-    """A horizon: None (each plant's) or a finite number > 0.
-
-    Raises
-    ------
-    StudyError
-        Naming ``t_final``.
-    """
-    return checks.horizon(t_final, error=StudyError)
 
 
 # -- bisection --------------------------------------------------------------------------------
@@ -137,37 +77,12 @@ def bisect_largest(
     rtol: float = 0.01,
     max_doublings: int = 12,
 ) -> dict:
-    """Largest value at which ``check(value)["ok"]`` holds (:func:`bench.search.largest_passing`: a fixed
-    geometric grid, bracketed by doubling or halving, then bisected).
+    """Largest value at which ``check(value)["ok"]`` holds (:func:`bench.search.largest_passing`).
 
-    Parameters
-    ----------
-    check : callable
-        ``check(value) -> dict`` with a boolean ``"ok"`` and a ``"status"`` string.
-    default : float
-        Starting point of the automatic bracketing (> 0).
-    bounds : (float, float), optional
-        ``(lo, hi)`` with ``0 < lo < hi``: bisect inside them instead of bracketing
-        automatically (``lo`` failing gives "below lo", ``hi`` passing gives "at least hi").
-    rtol : float
-        Stop when ``hi / lo - 1 <= rtol``.
-    max_doublings : int
-        Automatic bracketing gives up after this many doublings (or halvings). Halving also
-        stops at a value whose record has ``status == "invalid"`` (outside the parameter's
-        valid range; ``hi`` then stays the last valid failing value).
-
-    Returns
-    -------
-    dict
-        ``lo`` (largest passing value, NaN if none), ``hi`` (smallest failing value, NaN if
-        none), ``kind`` (``"bracketed"``, ``"below_range"``, ``"above_range"``, or
-        ``"inapplicable"`` when the first evaluation's status says so) and ``evals`` (every
-        evaluation, in order).
-
-    Raises
-    ------
-    StudyError
-        ``bounds`` in the wrong order or not positive, ``rtol`` or ``default`` not > 0.
+    The bracket is found by doubling or halving from ``default`` (at most ``max_doublings`` moves; halving stops
+    at a record with status "invalid"), or is ``bounds``; it is then bisected until ``hi / lo - 1 <= rtol``.
+    Returns ``lo`` (largest passing, NaN if none), ``hi`` (smallest failing, NaN if none), ``kind``
+    ("bracketed", "below_range", "above_range", "inapplicable") and ``evals`` (every record, in order).
     """
     bounds = check_range("bounds", bounds)
     if not (math.isfinite(rtol) and rtol > 0):
@@ -192,8 +107,7 @@ def bisect_largest(
 
 
 class _Probe:
-    """``check`` with every record kept in ``evals`` (a value is checked once); a call returns whether
-    the value passed."""
+    """``check`` memoised, its records kept in ``evals``; a call returns whether the value passed."""
 
     def __init__(self, check: Callable[[float], dict]):
         self.check = check
@@ -216,12 +130,7 @@ def default_box(plant) -> float:
 
 
 def random_ics(plant, n_ics: int, box: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """``n_ics`` seeded initial conditions, x and x_hat independent and uniform in ``[-box, box]^n``.
-
-    Returns
-    -------
-    x0, x_hat0 : ndarray (n, n_ics)
-    """
+    """``n_ics`` seeded initial conditions ``(x0, x_hat0)``, each uniform in ``[-box, box]^n``, shape (n, n_ics)."""
     rng = np.random.default_rng([int(seed), 5])
     n = plant.n
     X = rng.uniform(-box, box, size=(n, n_ics))
@@ -237,12 +146,7 @@ _CONSTANTS: dict[tuple, object] = {}
 
 
 def study_constants(plant, *, seed: int = 0, n_samples: int = STUDY_SAMPLES):
-    """The plant's :class:`bench.constants.ConstantsReport` (computed once per plant and parameters).
-
-    The same function the harness uses (:func:`bench.constants.compute_constants`), with fewer
-    sampled pairs: what certificates trust is the same (analytic constants and channels that no
-    sample disproved).
-    """
+    """The plant's :func:`bench.constants.compute_constants` with fewer samples, memoised per plant."""
     from bench.constants import compute_constants
 
     key = (plant.id, tuple(sorted(plant.params.items())), seed, n_samples)
@@ -252,23 +156,8 @@ def study_constants(plant, *, seed: int = 0, n_samples: int = STUDY_SAMPLES):
 
 
 def evaluate(plant, design_id: str, options=None, *, overrides: dict | None = None, prior=None, scenario=None):
-    """One pair through :func:`bench.pipeline.evaluate_pair`, with the study's constants.
-
-    Parameters
-    ----------
-    plant : Plant
-    design_id : str
-        Registry id of the design.
-    options : bench.pipeline.RunOptions, optional
-    overrides : dict, optional
-        Hyperparameters of the design (e.g. ``{"cap": 100.0}``).
-    prior : PairOutcome, optional
-        Re-use the design and certificate of an earlier evaluation of the pair.
-    scenario : bench.pipeline.Scenario, optional
-
-    Returns
-    -------
-    bench.pipeline.PairOutcome
+    """One pair through :func:`bench.pipeline.evaluate_pair` with the study's constants; ``overrides`` are the
+    design's hyperparameters, ``prior`` an earlier outcome whose design and certificate are re-used.
     """
     from bench.pipeline import RunOptions, evaluate_pair
     from bench.registry import DESIGNS
@@ -278,36 +167,23 @@ def evaluate(plant, design_id: str, options=None, *, overrides: dict | None = No
                          prior=prior, scenario=scenario)
 
 
-def selection(plant_ids, design_ids, default_plants=None, default_designs=None) -> tuple[list[str], list[str]]:
-    """The plant and design ids a study runs: those given, else the defaults (else every registered one)."""
-    from bench.registry import DESIGNS, PLANTS
-
-    def pick(ids, default, registry):
-        return list(ids) if ids else (list(default) if default is not None else registry.ids())
-
-    return pick(plant_ids, default_plants, PLANTS), pick(design_ids, default_designs, DESIGNS)
+def unsimulated_row(pid: str, did: str, outcome, *, need_gains: bool = True) -> dict | None:
+    """The row of a pair that cannot be simulated (no controller, or no fixed gains when ``need_gains``); None when
+    it can."""
+    res, rec = outcome.result, outcome.record
+    if res is None or not res.has_controller:
+        return {"plant": pid, "design": did, "status": rec["status"], "reason": rec["reason"]}
+    if need_gains and not res.has_gains:
+        return {"plant": pid, "design": did, "status": "no fixed gains",
+                "reason": f"estimator {type(res.estimator).__name__}: not a fixed gain K"}
+    return None
 
 
 def map_tasks(ex, fn: Callable, tasks: list[tuple[Any, tuple]], progress: Callable[[int, int, str], None] | None = None,
               describe: Callable[[Any, Any], str] | None = None) -> dict:
-    """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks`` on the executor ``ex``.
+    """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks`` on ``ex``; return ``{key: result}``.
 
-    Parameters
-    ----------
-    ex : concurrent.futures.Executor
-        From :func:`bench.executors.executor`.
-    fn : callable
-        A task (a module-level function of picklable arguments).
-    tasks : list of (key, tuple)
-    progress : callable, optional
-        ``progress(done, total, describe(key, result))`` as each task finishes.
-    describe : callable, optional
-        The progress label of a finished task (needed with ``progress``).
-
-    Returns
-    -------
-    dict
-        ``key -> result``, in the order the tasks finished.
+    ``progress(done, total, describe(key, result))`` is called as each task finishes.
     """
     from concurrent.futures import as_completed
 
@@ -321,43 +197,59 @@ def map_tasks(ex, fn: Callable, tasks: list[tuple[Any, tuple]], progress: Callab
     return out
 
 
-def run_tasks(jobs: int, fn: Callable, tasks: list[tuple[Any, tuple]],
-              progress: Callable[[int, int, str], None] | None = None,
-              describe: Callable[[Any, Any], str] | None = None) -> dict:
-    """:func:`map_tasks` on a fresh :func:`bench.executors.executor` of ``jobs`` workers."""
-    from bench.executors import executor
+@dataclass
+class StudyRun:
+    """The pairs a study runs and how: ``plant_ids``, ``design_ids``, ``jobs`` worker processes and
+    ``progress(done, total, label)``; :meth:`wall_s` counts from its creation."""
 
-    with executor(jobs) as ex:
-        return map_tasks(ex, fn, tasks, progress, describe)
+    plant_ids: list[str]
+    design_ids: list[str]
+    jobs: int = 1
+    progress: Callable[[int, int, str], None] | None = None
+    t_start: float = field(default_factory=time.perf_counter)
+
+    def map(self, fn: Callable, tasks: list[tuple[Any, tuple]], describe: Callable[[Any, Any], str]) -> dict:
+        """:func:`map_tasks` on a fresh :func:`bench.executors.executor` of ``jobs`` workers."""
+        from bench.executors import executor
+
+        with executor(self.jobs) as ex:
+            return map_tasks(ex, fn, tasks, self.progress, describe)
+
+    def wall_s(self) -> float:
+        return time.perf_counter() - self.t_start
+
+
+def study(default_plants=None, default_designs=None):
+    """Decorator making ``fn(run: StudyRun, **options)`` a study's
+    ``fn(plant_ids=None, design_ids=None, *, jobs=1, progress=None, **options)``; without ids, the defaults
+    (None: every registered one)."""
+    def deco(fn):
+        def run(plant_ids=None, design_ids=None, *, jobs: int = 1, progress=None, **options):
+            from bench.registry import DESIGNS, PLANTS
+
+            def pick(ids, default, registry):
+                return list(ids) if ids else (list(default) if default is not None else registry.ids())
+
+            pairs = StudyRun(pick(plant_ids, default_plants, PLANTS), pick(design_ids, default_designs, DESIGNS), jobs,
+                             progress)
+            return fn(pairs, **options)
+
+        functools.update_wrapper(run, fn)
+        del run.__wrapped__  # the signature is the wrapper's; the docstring lists every option
+        return run
+
+    return deco
 
 
 # -- rendering ---------------------------------------------------------------------------------
-def md_table(rows: list[dict], columns: list[str], headers: list[str] | None = None) -> str:
-    """A markdown table of ``rows`` (dicts) restricted to ``columns``."""
-    headers = [h.replace("|", "\\|") for h in (headers or columns)]
-    out = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
-    for r in rows:
-        out.append("| " + " | ".join(fmt(r.get(c)) for c in columns) + " |")
-    return "\n".join(out)
+def bracket_cell(kind: str, lo: float, hi: float) -> str:
+    """A bisection's answer (:func:`bisect_largest`) as a table cell: ``lo``, ``< hi``, ``>= lo`` or ``n/a``."""
+    return {"bracketed": fmt(lo, ".3g"), "below_range": f"< {fmt(hi, '.3g')}", "above_range": f">= {fmt(lo, '.3g')}",
+            "inapplicable": "n/a"}.get(kind, "")
 
 
 def skipped_lines(rows: list[dict], *, heading: str = "Not simulated:", width: int = 250) -> list[str]:
-    """Markdown lines listing the pairs that were not simulated, with their status and reason.
-
-    Parameters
-    ----------
-    rows : list of dict
-        With ``plant``, ``design``, ``status`` and (optionally) ``reason``.
-    heading : str
-        The line above the list.
-    width : int
-        Reasons are cut at this many characters.
-
-    Returns
-    -------
-    list of str
-        The heading, a blank line, one bullet per row and a blank line; empty without rows.
-    """
+    """Markdown lines: ``heading`` and one bullet per pair not simulated, with its status and reason."""
     if not rows:
         return []
     return [heading, "", *(f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r.get('reason', ''))[:width]}"
@@ -365,7 +257,7 @@ def skipped_lines(rows: list[dict], *, heading: str = "Not simulated:", width: i
 
 
 def study_header(title: str, command: str, settings: dict, wall_s: float) -> str:
-    """The first lines of a study's markdown: title, command, settings (seeds) and versions."""
+    """The first lines of a study's markdown: title, command, settings and versions."""
     from bench.report import package_versions
 
     vers = package_versions()
@@ -384,27 +276,18 @@ def study_header(title: str, command: str, settings: dict, wall_s: float) -> str
     ])
 
 
+def save_figure(fig, path) -> None:
+    """Save a study's figure at 100 dpi and close it."""
+    fig.savefig(path, dpi=100)
+    pyplot().close(fig)
+
+
 def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: dict[str, Any],
                 figures: dict[str, Callable[[Path], None]]) -> Path:
-    """Write a study's files atomically and return the markdown's path.
+    """Write a study's files whole or not at all: ``STUDY_<name>.md``, each table (file stem -> DataFrame or
+    row dicts) as CSV and each figure (file stem -> callable drawing into a path) as PNG; return the markdown's path."""
+    import pandas as pd
 
-    Parameters
-    ----------
-    out_dir : path
-        The report folder (created if missing).
-    name : str
-        Study name: files ``STUDY_<name>.md``, ``<table key>.csv``, ``figures/<figure key>.png``.
-    markdown : str
-    tables : dict
-        File stem (e.g. ``"study_noise"``) -> pandas DataFrame, written as CSV.
-    figures : dict
-        File stem (e.g. ``"study_noise"``) -> callable drawing the figure into the given path.
-
-    Returns
-    -------
-    Path
-        ``out_dir / f"STUDY_{name}.md"``.
-    """
     from bench.outdir import publish, staged
 
     out = Path(out_dir)
@@ -414,19 +297,8 @@ def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: di
         (tmp / "figures").mkdir()
         for stem, draw in figures.items():
             draw(tmp / "figures" / f"{stem}.png")
-        for stem, df in tables.items():
-            df.to_csv(tmp / f"{stem}.csv", index=False)
+        for stem, table in tables.items():
+            pd.DataFrame(table).to_csv(tmp / f"{stem}.csv", index=False)
         (tmp / md_name).write_text(markdown.rstrip("\n") + "\n", encoding="utf-8")
-        # whole or not at all (bench.outdir), the markdown last
         publish(out, tmp, [*(f"figures/{stem}.png" for stem in figures), *(f"{stem}.csv" for stem in tables), md_name])
     return out / md_name
-
-
-def pyplot():
-    """matplotlib.pyplot with the Agg backend."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt

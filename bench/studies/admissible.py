@@ -1,32 +1,12 @@
 """Conservatism: the largest admissible scale of the nonlinearity for each LMI / Riccati design.
 
-For a plant with a scale knob (the coefficient ``c`` of f, or the region radius ``r`` of the
-moving object, or ``g/l`` of the pendulum) and a design, the *admissible scale* is the largest
-knob value at which the design is feasible **and** its gains are certified by the analysis LMI
-of :mod:`bench.certify` (at some level of its ladder) with the plant's trusted constants at that
-value, judged by the same pipeline as the main table (:func:`bench.pipeline.evaluate_pair`). It is found
-by geometric bisection to a relative tolerance (1 % by default): the bracket is found by
-doubling (or halving) from the plant's default value, then ``sqrt(lo hi)`` is evaluated until
-``hi / lo - 1 <= rtol``. The answer is reported as ``[lo, hi)``: ``lo`` is the largest value
-verified feasible and certified, ``hi`` the smallest verified failing (with its reason).
-
-Normalisation. Every LMI of the suite maximises a margin t with ``M << -t I``,
-``Q, R >> t I``, ``Q, R << cap I`` and ``t <= 1`` (``cap = 1e3``; :mod:`bench.lmi`), and
-a point counts as feasible only if the rebuilt numeric matrix has its largest eigenvalue below
-``-1e-9 max(1, ||M||)``. The corrected Theorem 1 and Corollary 1 contain constant identity
-blocks (the Young and Schur columns), so they are not homogeneous in (Q, R, Fh, Kh, ...):
-scaling a feasible point does not keep it feasible, and near the admissible boundary the
-feasible set needs ever larger decision variables. A cap therefore cuts the admissible range,
-and the verification tolerance decides where a vanishing margin stops counting. The study
-states the cap and re-runs Theorem 1 and Corollary 1 with other caps to show by how much the
-answer moves.
-
-Compile vs solve. The LMI designs and the certificate keep one compiled cvxpy problem per
-structure (:func:`bench.lmi.cached_program`): the constants (rho, beta, gamma, 1/beta_eff,
-alpha^2) and the searched Young weights are cvxpy Parameters, the knob changes only f, so the
-whole bisection of one (plant, design) pair compiles its problems once and every later knob
-value only sets parameter values. The compile and solve seconds of every evaluation are
-recorded and summed, so the reuse is measured, not assumed.
+For a plant with a scale knob (the coefficient ``c`` of f, the region radius ``r`` of the moving object,
+``g/l`` of the pendulum) and a design, the *admissible scale* is the largest knob value at which the design
+is feasible **and** its gains are certified at some level of the ladder (:mod:`bench.certify`), judged by
+:func:`bench.pipeline.evaluate_pair`. It is found by geometric bisection (:func:`bisect_largest`) and
+reported as ``[lo, hi)``: ``lo`` the largest value verified to pass, ``hi`` the smallest verified to fail.
+The LMIs' normalisation cap cuts the admissible range, so Theorem 1 and Corollary 1 are re-run with other
+caps (:data:`CAP_DESIGNS`).
 """
 
 from __future__ import annotations
@@ -34,12 +14,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, bisect_largest, check_range, check_rtol, fmt, md_table,
-                                   pyplot, run_tasks, selection, study_header, write_study)
+from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_range,
+                                   check_rtol, evaluate, fmt, md_table, pyplot, save_figure, study, study_header,
+                                   write_study)
 from designs import GAIN_STATUSES
 
 __all__ = ["run_admissible", "write_admissible"]
@@ -76,22 +57,13 @@ def _label(overrides: dict) -> str:
     return ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in overrides.items())
 
 
-def hinf_resolvent(M: np.ndarray) -> float:
-    """``sup_w ||(j w I - M)^{-1}||_2`` for a Hurwitz M (log grid of 4000 frequencies plus w = 0,
-    refined by a bounded scalar search around the best grid point); ``inf`` if M is not Hurwitz."""
-    I = np.eye(M.shape[0])
-    return _peak_gain(M, lambda w: float(np.linalg.svd(np.linalg.inv(1j * w * I - M), compute_uv=False)[0]))
-
-
 def small_gain_bound(plant_id: str, knob: str, K: np.ndarray, F: np.ndarray) -> float:
     """Knob value at which the channel small-gain test of fixed gains fails (NaN where it does not apply).
 
-    For a plant with one channel and a symmetric slope sector ``[-r, r]`` (``c0 = 0``) whose half
-    width ``r`` is linear in the knob, the structured certificate with fixed gains exists iff both
-    sides pass the circle criterion (a cascade: Lur'e x-side, Lur'e e-side):
-    ``r ||H (sI - A - BF)^-1 G||_inf < 1`` and ``r ||H (sI - A + KC)^-1 G||_inf < 1``. The bound is
-    the knob value where the larger of the two gains reaches 1, computed on a frequency grid: an
-    independent check on the bisection, which uses the certificate's LMI.
+    For one channel with a symmetric slope sector ``[-r, r]`` whose half-width is linear in the knob, the
+    structured certificate of fixed gains exists iff both sides pass the circle criterion (Khalil,
+    *Nonlinear Systems*, Thm 7.1): ``r ||H (sI - A - BF)^-1 G||_inf < 1`` and ``r ||H (sI - A + KC)^-1 G||_inf < 1``.
+    The bound is where the larger gain reaches 1 (an independent check on the bisection).
     """
     from bench.registry import PLANTS
 
@@ -111,15 +83,14 @@ def small_gain_bound(plant_id: str, knob: str, K: np.ndarray, F: np.ndarray) -> 
 
 
 def _siso_peak(M: np.ndarray, G: np.ndarray, H: np.ndarray) -> float:
-    """``sup_w |H (j w I - M)^-1 G|`` on a log grid refined near its peak (``inf`` if M is not Hurwitz)."""
-    I = np.eye(M.shape[0])
-    return _peak_gain(M, lambda w: float(np.abs(H @ np.linalg.solve(1j * w * I - M, G))[0, 0]))
-
-
-def _peak_gain(M: np.ndarray, gain: Callable[[float], float]) -> float:
-    """``sup_w gain(w)`` over w = 0 and a log grid of 4000 frequencies from 1e-4 to 1e4, refined by a bounded
-    scalar search between the best grid point's neighbours; ``inf`` if M is not Hurwitz."""
+    """``sup_w |H (j w I - M)^-1 G|`` over w = 0 and a log grid on [1e-4, 1e4], refined near the peak; ``inf`` if M
+    is not Hurwitz."""
     from scipy.optimize import minimize_scalar
+
+    I = np.eye(M.shape[0])
+
+    def gain(w: float) -> float:
+        return float(np.abs(H @ np.linalg.solve(1j * w * I - M, G))[0, 0])
 
     if float(np.linalg.eigvals(M).real.max()) >= 0:
         return math.inf
@@ -147,36 +118,18 @@ def knob_of(plant_id: str) -> str | None:
 
 
 def _knob_default(plant_id: str, knob: str) -> float:
-    """The knob's default value in the plant's factory."""
     from bench.registry import PLANTS
 
     return float(PLANTS.create(plant_id).params[knob])
 
 
 def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, overrides: dict | None = None) -> dict:
-    """Design and certify at one knob value (the pipeline, without simulation).
-
-    Parameters
-    ----------
-    plant_id, knob : str
-        The plant is ``PLANTS.create(plant_id, **{knob: value})``.
-    value : float
-    design_id : str
-    overrides : dict, optional
-        Hyperparameters of the design (e.g. ``{"cap": 100.0}``).
-
-    Returns
-    -------
-    dict
-        ``value``, ``ok`` (gains designed - feasible, computed or given - and certified at some level),
-        ``status`` (the design's, or
-        ``invalid`` when the plant cannot be built at that value), ``feasible``, ``certified``,
-        ``cert_level``, ``lmi_margin``, ``cert_margin``, ``compile_s``, ``solve_s``,
-        ``n_solves``, ``design_s``, ``cert_s``, ``reason``.
+    """Design and certify ``design_id`` (with ``overrides``) on ``PLANTS.create(plant_id, **{knob: value})``
+    without simulating: a record with ``value``, ``ok`` (gains designed and certified), ``status`` (``invalid``
+    when the plant cannot be built there), ``feasible``, ``certified``, ``cert_level``, margins, timings, ``reason``.
     """
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from bench.studies._common import evaluate
     from designs import GAIN_STATUSES
     from plants import PlantError
 
@@ -198,7 +151,6 @@ def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, override
 
 
 def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds, rtol: float) -> dict:
-    """Worker: one (plant, design[, overrides]) bisection."""
     from bench.registry import PLANTS
 
     t0 = time.perf_counter()
@@ -244,16 +196,9 @@ class AdmissibleResult(StudyResult):
     evals: list[dict] = field(default_factory=list)
 
 
-def run_admissible(
-    plant_ids: list[str] | None = None,
-    design_ids: list[str] | None = None,
-    *,
-    bounds: tuple[float, float] | None = None,
-    rtol: float = 0.01,
-    caps: tuple[float, ...] = (10.0, 100.0, 1e4),
-    jobs: int = 1,
-    progress: Callable[[int, int, str], None] | None = None,
-) -> AdmissibleResult:
+@study(KNOBS, DEFAULT_DESIGNS)
+def run_admissible(run: StudyRun, *, bounds: tuple[float, float] | None = None, rtol: float = 0.01,
+                   caps: tuple[float, ...] = (10.0, 100.0, 1e4)) -> AdmissibleResult:
     """Bisect the admissible scale of every (plant, design) pair.
 
     Parameters
@@ -261,18 +206,15 @@ def run_admissible(
     plant_ids : list of str, optional
         Plants with a scale knob (default: :data:`KNOBS`).
     design_ids : list of str, optional
-        Designs (default: :data:`DEFAULT_DESIGNS`).
+        Default :data:`DEFAULT_DESIGNS`.
     bounds : (float, float), optional
-        Bisection bounds on the knob for every plant (default: automatic bracketing from each
-        plant's default value).
+        Bisection bounds on the knob (default: bracketing from each plant's default value).
     rtol : float
         Relative tolerance of the bisection.
     caps : tuple of float
         Other normalisation caps for :data:`CAP_DESIGNS` on :data:`CAP_PLANTS` (empty: skip).
-    jobs : int
-        Worker processes (:func:`bench.executors.executor`).
-    progress : callable, optional
-        ``progress(done, total, label)``.
+    jobs, progress
+        Worker processes; ``progress(done, total, label)``.
 
     Returns
     -------
@@ -281,28 +223,25 @@ def run_admissible(
     Raises
     ------
     StudyError
-        A plant without a scale knob, bounds in the wrong order, rtol not > 0, a cap not > 0.
+        A plant without a scale knob, bad bounds, rtol or cap.
     """
-    t_start = time.perf_counter()
     bounds = check_range("bounds", bounds)
     check_rtol(rtol)
     for c in caps:
         if not (math.isfinite(c) and c > 0):
             raise StudyError("caps", f"each cap must be finite and > 0, got {c!r}")
-    plant_ids, design_ids = selection(plant_ids, design_ids, KNOBS, DEFAULT_DESIGNS)
-    tasks = _tasks(plant_ids, design_ids, caps)
-    results = run_tasks(jobs, _pair_task, [((pid, did, _label(ov)), (pid, k, did, ov, bounds, rtol))
-                                           for pid, k, did, ov in tasks], progress, _progress_label)
+    tasks = _tasks(run.plant_ids, run.design_ids, caps)
+    results = run.map(_pair_task, [((pid, did, _label(ov)), (pid, k, did, ov, bounds, rtol))
+                                   for pid, k, did, ov in tasks], _progress_label)
     rows, variant_rows, evals = _gather(tasks, results)
     settings = {"rtol": rtol, "bounds": bounds or "automatic (doubling/halving from the plant's default)",
                 "cap": 1e3, "other caps": tuple(caps),
                 "certificate": "the pipeline's ladder at lam = 0 (strongest level first), trusted constants",
-                "jobs": jobs}
-    return AdmissibleResult(rows, settings, time.perf_counter() - t_start, variant_rows=variant_rows, evals=evals)
+                "jobs": run.jobs}
+    return AdmissibleResult(rows, settings, run.wall_s(), variant_rows=variant_rows, evals=evals)
 
 
 def _progress_label(key: tuple[str, str, str], result: dict) -> str:
-    """``plant x design (variant): [lo, hi)`` of a finished bisection."""
     row = result["row"]
     return f"{key[0]} x {key[1]} ({key[2]}): [{fmt(row['admissible_lo'])}, {fmt(row['failing_hi'])})"
 
@@ -379,17 +318,13 @@ def _draw_plant(pid: str, rows: list[dict], evals: list[dict]):
                title=f"{pid}: feasibility vs {rows[0]['knob']} (black bar: admissible value)")
         ax.grid(True, axis="x", which="both", alpha=0.3)
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        save_figure(fig, path)
 
     return draw
 
 
 def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "Path":  # noqa: F821
-    """Write ``STUDY_admissible.md``, ``study_admissible.csv`` (one row per pair),
-    ``study_admissible_evaluations.csv`` and ``figures/study_admissible_<plant>.png`` atomically."""
-    import pandas as pd
-
+    """Write ``STUDY_admissible.md``, its CSVs and figures atomically; return the markdown's path."""
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
     lines = [
@@ -426,10 +361,9 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
     lines.append("")
     figs = {f"study_admissible_{pid}": _draw_plant(pid, [r for r in rows if r["plant"] == pid], result.evals)
             for pid in plants}
-    tables = {"study_admissible": pd.DataFrame(rows), "study_admissible_evaluations": pd.DataFrame(result.evals)}
-    variants = pd.DataFrame(result.variant_rows)
-    if len(variants):
-        tables["study_admissible_variants"] = variants
+    tables = {"study_admissible": rows, "study_admissible_evaluations": result.evals}
+    if result.variant_rows:
+        tables["study_admissible_variants"] = result.variant_rows
     return write_study(out_dir, "admissible", "\n".join(lines), tables, figs)
 
 
@@ -460,73 +394,51 @@ def _variant_section(result: AdmissibleResult) -> list[str]:
                    "wall s"])
          if result.variant_rows else "(not run: no variant's plant and design selected, or `--caps ''`)"),
         "",
-        _variant_notes(result),
+        "A value that changes with the variant is set by the normalisation or the search, not by the theorem alone.",
         "",
     ]
 
 
 _INTRO = (
     "For each plant with a scale knob on f and each LMI / Riccati design: the largest knob value at which the "
-    "design is **feasible and its gains are certified** (at some level of the certificate ladder, "
-    "`bench.certify`, with the plant's trusted constants and channels at that value, by the same pipeline as "
-    "the main table: `bench.pipeline.evaluate_pair`), by geometric bisection to "
-    "{percent} % relative. `lo` is the largest value verified to pass; the value in "
-    "parentheses is the smallest verified to fail.")
+    "design is **feasible and its gains are certified** (at some level of `bench.certify`'s ladder, by the "
+    "pipeline of the main table), by geometric bisection to {percent} % relative. `lo` is the largest value "
+    "verified to pass; the value in parentheses the smallest verified to fail.")
 
 _NORMALISATION = (
     "Every LMI maximises a margin t with `M << -t I`, `Q, R >> t I`, **`Q, R << 1e3 I`** and `t <= 1` "
-    "(`bench/lmi.py`); a point is feasible only if the rebuilt numeric LMI has largest eigenvalue below "
-    "`-1e-9 max(1, ||M||)`. The corrected Theorem 1 and Corollary 1 contain constant identity blocks (the Young "
-    "term `[I; -phi Q]` and the Schur column `-(kappa/beta) I`, `-(kappa/alpha^2) I`), so they are not "
-    "homogeneous: a feasible point cannot be rescaled at will, and near the boundary the feasible set needs "
-    "larger Q, R. A cap on Q, R therefore cuts the admissible range, and the verification tolerance decides where "
-    "a vanishing margin stops counting. The separated designs cap each side the same way; the observer LMIs "
-    "(Rajamani, Zhang) are homogeneous, so their cap only fixes the scale. The sensitivity table below re-runs "
-    "the joint Theorem 1 and Corollary 1 with other caps. The answer also depends on the designs' own searches: "
-    "the gamma < 0 form of Theorem 1 fixes the QIB multiplier eps2 on a grid (default 1e-2 to 1e2).")
+    "(`bench/lmi.py`). The corrected Theorem 1 and Corollary 1 contain constant identity blocks (the Young term "
+    "and the Schur column), so they are not homogeneous: near the boundary the feasible set needs larger Q, R, and "
+    "the cap cuts the admissible range (the observer LMIs are homogeneous: there the cap only fixes the scale). "
+    "The sensitivity table below re-runs the joint Theorem 1 and Corollary 1 with other caps; the answer also "
+    "depends on the designs' own searches (the gamma < 0 form of Theorem 1 fixes eps2 on a grid).")
 
 _DETAILS_NOTE = (
     "`at default`: the outcome at the plant's default knob value. `fails by`: why the first failing value fails "
-    "(`infeasible`, `undecided` = solver trouble, `not certified` = feasible gains that the analysis LMI does "
-    "not certify). Reasons at the failing value are in `study_admissible.csv` (`fail_reason`). "
-    "`small-gain bound`: for `lqr+lqe` (neither gain depends on the knob) on a plant with one channel and a "
-    "symmetric slope sector `[-r, r]`, the knob value at which `r max(||H (sI - A - BF)^-1 G||_inf, "
-    "||H (sI - A + KC)^-1 G||_inf) = 1`, computed on a frequency grid: an independent check, since the "
-    "structured certificate of fixed gains exists iff both sides pass this circle criterion (a cascade); where "
-    "the pair fails by `not certified`, the bisection's bracket should contain it.")
+    "(`undecided` = solver trouble, `not certified` = feasible gains the ladder does not certify; the reasons are "
+    "in `study_admissible.csv`, `fail_reason`). `small-gain bound`: for `lqr+lqe` on a plant with one channel "
+    "and a symmetric slope sector `[-r, r]`, the knob value at which `r max(||H (sI - A - BF)^-1 G||_inf, "
+    "||H (sI - A + KC)^-1 G||_inf) = 1`: the structured certificate of fixed gains exists iff both sides pass "
+    "this circle criterion, so where the pair fails by `not certified` the bracket should contain it.")
 
 _OSL_INTRO = (
-    "The paper's claim is that the one-sided Lipschitz condition (Theorem 1) is less conservative than the "
-    "Lipschitz one (Corollary 1) when rho is much smaller than alpha. On `moving_object_v1` (knob r, the region "
-    "radius: rho = 0, alpha = 3 r^2, gamma = -3 r^2) and `random_osl_v1` (knob c: rho = 0, alpha = 3c, "
-    "gamma = -3c on ||x|| <= 1), rho = 0 at every scale. On the other plants gamma = 0 and beta = alpha^2, so "
-    "Theorem 1's state-feedback side (Schur block `-(kappa/beta) I`) is Corollary 1's (`-(kappa/alpha^2) I`); "
-    "there the separated designs fail on that side first (`fail_reason`), and the two must agree up to the "
-    "joint designs' phi search.")
+    "The paper claims the one-sided Lipschitz condition (Theorem 1) is less conservative than the Lipschitz one "
+    "(Corollary 1) when rho is much smaller than alpha. On `moving_object_v1` (knob r: rho = 0, alpha = 3 r^2, "
+    "gamma = -3 r^2) and `random_osl_v1` (knob c: rho = 0, alpha = 3c, gamma = -3c) rho = 0 at every scale. On "
+    "the other plants gamma = 0 and beta = alpha^2, so Theorem 1's state-feedback side is Corollary 1's and the "
+    "two must agree up to the joint designs' phi search.")
 
 
 def _matrix(rows: list[dict], plants: list[str]) -> str:
     """The markdown matrix plant x design of the admissible values."""
     designs = list(dict.fromkeys(r["design"] for r in rows))
-    mat = ["| plant (knob, default) | " + " | ".join(designs) + " |", "|---|" + "|".join("---" for _ in designs) + "|"]
+    table = []
     for pid in plants:
         sub = {r["design"]: r for r in rows if r["plant"] == pid}
         first = next(iter(sub.values()))
-        cells = []
-        for d in designs:
-            r = sub.get(d)
-            if r is None:
-                cells.append("")
-            elif r["kind"] == "inapplicable":
-                cells.append("n/a")
-            elif r["kind"] == "below_range":
-                cells.append(f"< {fmt(r['failing_hi'], '.3g')}")
-            elif r["kind"] == "above_range":
-                cells.append(f">= {fmt(r['admissible_lo'], '.3g')}")
-            else:
-                cells.append(fmt(r["admissible_lo"], ".3g"))
-        mat.append(f"| {pid} ({first['knob']}, {fmt(first['default'])}) | " + " | ".join(cells) + " |")
-    return "\n".join(mat)
+        table.append({"plant": f"{pid} ({first['knob']}, {fmt(first['default'])})",
+                      **{d: bracket_cell(r["kind"], r["admissible_lo"], r["failing_hi"]) for d, r in sub.items()}})
+    return md_table(table, ["plant", *designs], ["plant (knob, default)", *designs])
 
 
 def _details_table(rows: list[dict]) -> str:
@@ -562,17 +474,15 @@ def _osl_rows(rows: list[dict], plants: list[str]) -> list[dict]:
 
 
 def _compile_note(rows: list[dict]) -> str:
-    """The compile, solve and certificate seconds summed over every evaluation, and why compiling is rare."""
+    """The compile, solve and certificate seconds summed over every evaluation."""
     compile_total = sum(r["compile_s"] for r in rows)
     solve_total = sum(r["solve_s"] for r in rows)
     cert_total = sum(r["cert_s"] for r in rows)
     n_evals = sum(r["n_evals"] for r in rows)
     return (f"{n_evals} evaluations (design + certificate at one knob value each): compile {compile_total:.2f} s, "
-            f"solve {solve_total:.2f} s (design LMIs), certificate (compile + solve) {cert_total:.2f} s. Each design "
-            "compiles its cvxpy problem once per structure and re-uses it across the bisection: the constants (rho, "
-            "beta, gamma, 1/beta_eff, alpha^2) enter as cvxpy Parameters (parameter x variable, which is DPP), and "
-            "the knob does not change A, B, C; later knob values only set parameter values "
-            "(`bench.lmi.cached_program`; `python -m bench perf` measures the same sweep with and without reuse).")
+            f"solve {solve_total:.2f} s (design LMIs), certificate (compile + solve) {cert_total:.2f} s. Each "
+            "design compiles its cvxpy problem once per structure and re-uses it across the bisection, the knob "
+            "entering as parameter values (`bench.lmi.cached_program`).")
 
 
 def _osl_verdict(osl: list[dict]) -> str:
@@ -591,19 +501,3 @@ def _osl_verdict(osl: list[dict]) -> str:
         else:
             lines.append(f"- {o['plant']} ({tag}), {o['pair']}: Theorem 1 {o['thm']}; Corollary 1 {o['cor']}.")
     return "What the numbers say:\n\n" + "\n".join(lines) if lines else ""
-
-
-def _variant_notes(result: AdmissibleResult) -> str:
-    """Sentences drawn from the sensitivity rows (numbers only from this run)."""
-    out = []
-    by: dict[tuple[str, str], list[dict]] = {}
-    for r in result.variant_rows:
-        by.setdefault((r["plant"], r["design"]), []).append(r)
-    for (pid, did), rs in by.items():
-        vals = [(r["variant"], r["admissible_lo"], r["kind"]) for r in rs]
-        parts = "; ".join(f"{v}: {fmt(lo, '.4g')}{' (or more)' if k == 'above_range' else ''}" for v, lo, k in vals)
-        out.append(f"- {pid} x {did}: {parts}.")
-    if not out:
-        return ""
-    return ("Admissible values by variant (a different value means the answer is set by the normalisation or the "
-            "search, not by the theorem alone):\n\n" + "\n".join(out))

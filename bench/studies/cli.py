@@ -9,6 +9,7 @@ option value: the message names the option).
 from __future__ import annotations
 
 import argparse
+import importlib
 import shlex
 import sys
 import time
@@ -26,14 +27,10 @@ OPTIONS = {
 }
 
 
-def _float(*, lo: float | None = None):
-    """An argparse type: a finite number, ``> lo`` when given (:func:`bench.checks.real`)."""
-    return argtype(checks.real, lo=lo, strict=True)
-
-
-def _int(lo: int):
-    """An argparse type: an integer ``>= lo`` (:func:`bench.checks.integer`)."""
-    return argtype(checks.integer, lo=lo)
+_number = argtype(checks.real)
+_positive = argtype(checks.real, lo=0.0, strict=True)
+_count = argtype(checks.integer, lo=1)
+_seed = argtype(checks.integer, lo=0)
 
 
 def _float_list(*, positive: bool, allow_empty: bool):
@@ -64,8 +61,8 @@ def add_study_parser(sub) -> None:
         p.add_argument("--design", action="append", metavar="GLOB", help="design id or glob (repeatable)")
         p.add_argument("--out", default="reports", metavar="DIR", help="report folder (default: reports)")
         if seed:
-            p.add_argument("--seed", type=_int(0), default=0, help="seed of the random draws (default 0)")
-        p.add_argument("-j", "--jobs", type=_int(1), default=None, metavar="N",
+            p.add_argument("--seed", type=_seed, default=0, help="seed of the random draws (default 0)")
+        p.add_argument("-j", "--jobs", type=_count, default=None, metavar="N",
                        help="local worker processes (default: all cores; 1 = serial)")
         p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
         p.add_argument("--plugin", action="append", metavar="PATH",
@@ -74,31 +71,31 @@ def add_study_parser(sub) -> None:
     a = ss.add_parser("admissible", help="largest scale of f at which each LMI/Riccati design is feasible and "
                                          "certified (bisection)")
     common(a, seed=False)
-    a.add_argument("--range", nargs=2, type=_float(), default=None, metavar=("LO", "HI"),
+    a.add_argument("--range", nargs=2, type=_number, default=None, metavar=("LO", "HI"),
                    help="bisection bounds on the plant's scale knob (default: bracket from its default value)")
-    a.add_argument("--rtol", type=_float(lo=0), default=0.01, help="relative tolerance of the bisection (default 0.01)")
+    a.add_argument("--rtol", type=_positive, default=0.01, help="relative tolerance of the bisection (default 0.01)")
     a.add_argument("--caps", type=_float_list(positive=True, allow_empty=True), default=[10.0, 100.0, 1e4],
                    metavar="CAP,CAP,...", help="other normalisation caps for thm1/cor1 (default 10,100,10000; '' skips)")
 
     s = ss.add_parser("sampling", help="largest sample period of a digital implementation (ZOH, discrete observer)")
     common(s)
-    s.add_argument("--n-ics", type=_int(1), default=20, metavar="N",
+    s.add_argument("--n-ics", type=_count, default=20, metavar="N",
                    help="random initial conditions besides the plant's own (default 20)")
-    s.add_argument("--box", type=_float(lo=0), default=None, metavar="B",
+    s.add_argument("--box", type=_positive, default=None, metavar="B",
                    help="half-width of the initial-condition box (default: the plant's initial-condition scale)")
     s.add_argument("--discretisation", choices=("zoh", "euler"), default="zoh",
                    help="observer discretisation (default zoh)")
-    s.add_argument("--h-range", nargs=2, type=_float(), default=None, metavar=("LO", "HI"),
+    s.add_argument("--h-range", nargs=2, type=_number, default=None, metavar=("LO", "HI"),
                    help="bisection bounds on h in seconds (default: bracket from h_lin / 2)")
-    s.add_argument("--rtol", type=_float(lo=0), default=0.01, help="relative tolerance of the bisection (default 0.01)")
-    s.add_argument("--t-final", type=_float(lo=0), default=None, metavar="SECONDS", help="horizon (default: each plant's)")
+    s.add_argument("--rtol", type=_positive, default=0.01, help="relative tolerance of the bisection (default 0.01)")
+    s.add_argument("--t-final", type=_positive, default=None, metavar="SECONDS", help="horizon (default: each plant's)")
 
     m = ss.add_parser("montecarlo", help="region of convergence: N seeded random initial conditions, one batch ODE")
     common(m)
-    m.add_argument("--n", type=_int(1), default=1000, metavar="N", help="initial conditions per plant (default 1000)")
-    m.add_argument("--box", type=_float(lo=0), default=None, metavar="B",
+    m.add_argument("--n", type=_count, default=1000, metavar="N", help="initial conditions per plant (default 1000)")
+    m.add_argument("--box", type=_positive, default=None, metavar="B",
                    help="half-width of the initial-condition box (default: the plant's initial-condition scale)")
-    m.add_argument("--t-final", type=_float(lo=0), default=None, metavar="SECONDS", help="horizon (default: each plant's)")
+    m.add_argument("--t-final", type=_positive, default=None, metavar="SECONDS", help="horizon (default: each plant's)")
     m.add_argument("--method", default="auto", choices=("auto", "RK45", "DOP853", "RK23", "BDF", "Radau"),
                    help="solve_ivp method of the batch (default auto: DOP853, BDF when the loop is stiff)")
 
@@ -107,12 +104,28 @@ def add_study_parser(sub) -> None:
     n.add_argument("--levels", type=_float_list(positive=True, allow_empty=False), default=None,
                    metavar="SIGMA,SIGMA,...", help="noise standard deviations (default: 7 points from 1e-4 to 1e-1)")
     n.add_argument("--no-matched-ekf", action="store_true", help="skip the EKF with r = sigma^2")
-    n.add_argument("--t-final", type=_float(lo=0), default=None, metavar="SECONDS", help="horizon (default: each plant's)")
+    n.add_argument("--t-final", type=_positive, default=None, metavar="SECONDS", help="horizon (default: each plant's)")
 
 
 def _explicit(patterns: list[str] | None) -> list[str]:
     """The patterns that name one id (no glob characters)."""
     return [p for p in (patterns or []) if not any(ch in p for ch in "*?[]")]
+
+
+def _options(args) -> dict:
+    """The study's own options from the parsed arguments."""
+    if args.study == "admissible":
+        return dict(bounds=tuple(args.range) if args.range else None, rtol=args.rtol, caps=tuple(args.caps))
+    if args.study == "sampling":
+        return dict(required=_explicit(args.design), n_ics=args.n_ics, box=args.box, seed=args.seed,
+                    discretisation=args.discretisation, h_range=tuple(args.h_range) if args.h_range else None,
+                    rtol=args.rtol, t_final=args.t_final)
+    if args.study == "montecarlo":
+        return dict(n=args.n, box=args.box, seed=args.seed, t_final=args.t_final, method=args.method)
+    from bench.studies.noise import DEFAULT_LEVELS
+
+    return dict(levels=tuple(args.levels) if args.levels else DEFAULT_LEVELS, seed=args.seed,
+                matched_ekf=not args.no_matched_ekf, t_final=args.t_final)
 
 
 def run_study(args, argv: list[str]) -> int:
@@ -135,29 +148,9 @@ def run_study(args, argv: list[str]) -> int:
         bar = Progress(desc=f"study {args.study}", delay=1.0)
     t0 = time.perf_counter()
     try:
-        if args.study == "admissible":
-            from bench.studies.admissible import run_admissible as run, write_admissible as write
-
-            result = run(plant_ids, design_ids, bounds=tuple(args.range) if args.range else None, rtol=args.rtol,
-                         caps=tuple(args.caps), jobs=jobs, progress=bar)
-        elif args.study == "sampling":
-            from bench.studies.sampling import run_sampling as run, write_sampling as write
-
-            result = run(plant_ids, design_ids, required=_explicit(args.design), n_ics=args.n_ics, box=args.box,
-                         seed=args.seed, discretisation=args.discretisation,
-                         h_range=tuple(args.h_range) if args.h_range else None, rtol=args.rtol,
-                         t_final=args.t_final, jobs=jobs, progress=bar)
-        elif args.study == "montecarlo":
-            from bench.studies.montecarlo import run_montecarlo as run, write_montecarlo as write
-
-            result = run(plant_ids, design_ids, n=args.n, box=args.box, seed=args.seed, t_final=args.t_final,
-                         method=args.method, jobs=jobs, progress=bar)
-        else:
-            from bench.studies.noise import DEFAULT_LEVELS, run_noise as run, write_noise as write
-
-            result = run(plant_ids, design_ids, levels=tuple(args.levels) if args.levels else DEFAULT_LEVELS,
-                         seed=args.seed, matched_ekf=not args.no_matched_ekf, t_final=args.t_final, jobs=jobs,
-                         progress=bar)
+        module = importlib.import_module(f"bench.studies.{args.study}")
+        run, write = getattr(module, f"run_{args.study}"), getattr(module, f"write_{args.study}")
+        result = run(plant_ids, design_ids, jobs=jobs, progress=bar, **_options(args))
     except StudyError as exc:
         print(f"{prog}: error: {OPTIONS.get(exc.param, exc.param)}: {exc.message}", file=sys.stderr)
         return 2

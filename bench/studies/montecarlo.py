@@ -1,16 +1,10 @@
 """Region of convergence: N seeded random initial conditions per (plant, design), simulated as one batch.
 
-For each plant, ``N`` initial conditions are drawn once (seeded): x and x_hat independent and
-uniform in ``[-box, box]^n`` (default ``box``: the plant's own initial-condition scale,
-``max(||x0||_inf, ||x_hat0||_inf)``), and every design with fixed gains (K, F) is simulated
-from all of them with **one** ``solve_ivp`` call over the whole batch
-(:func:`bench.batch.simulate_batch`: state of size ``2 n N``, f evaluated on the
-``(n, 2N)`` batch). Per design: the fraction converging (final ``||x||`` and ``||e||`` at most
-1e-3 times their peaks, none diverged: the criterion of :mod:`bench.metrics`), the worst final
-``||x||``, and the distribution of the 2 % settling time of ``||x||`` over the converging
-initial conditions. The certificate (:mod:`bench.certify`, valid constants) is shown beside: with
-global constants a certified design must converge from every initial condition; with local
-constants (``||x|| <= r``) only while the trajectories stay in the region.
+Per plant, N initial conditions (x and x_hat uniform in ``[-box, box]^n``) are drawn once; every design with
+fixed gains is simulated from all of them by one ``solve_ivp`` call (:func:`bench.batch.simulate_batch`).
+Per design: the fraction converging (the criterion of :mod:`bench.metrics`), the worst final ``||x||`` and
+the distribution of the 2 % settling time of ``||x||``, beside the certificate (with local constants it
+proves convergence only from its level set).
 """
 
 from __future__ import annotations
@@ -18,12 +12,12 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyResult, check_box, check_count, check_horizon, default_box, fmt, md_table,
-                                   pyplot, random_ics, run_tasks, selection, skipped_lines, study_header, write_study)
+from bench.studies._common import (StudyResult, StudyRun, check_box, check_count, check_horizon, default_box, evaluate,
+                                   fmt, md_table, pyplot, random_ics, save_figure, skipped_lines, study, study_header,
+                                   unsimulated_row, write_study)
 
 __all__ = ["run_montecarlo", "write_montecarlo"]
 
@@ -34,7 +28,6 @@ def _mc_task(plant_id: str, design_id: str, n: int, box: float | None, seed: int
     from bench.batch import BATCH_OPTIONS
     from bench.pipeline import RunOptions, Scenario
     from bench.registry import PLANTS
-    from bench.studies._common import evaluate
 
     t0 = time.perf_counter()
     plant = PLANTS.create(plant_id)
@@ -42,13 +35,9 @@ def _mc_task(plant_id: str, design_id: str, n: int, box: float | None, seed: int
     row = {"plant": plant_id, "design": design_id, "N": n, "box": b, "seed": seed}
     X, XH = random_ics(plant, n, b, seed)
     first = evaluate(plant, design_id, RunOptions(t_final=t_final, simulate=False))
-    rec, res = first.record, first.result
-    if res is None or not res.has_controller:
-        row.update(status=rec["status"], reason=rec["reason"])
-        return {"row": row, "settling": np.array([])}
-    if not res.has_gains:
-        row.update(status="no fixed gains", reason=f"estimator {type(res.estimator).__name__}: not a fixed gain K, "
-                                                   "so it cannot be simulated as one ODE batch")
+    skip = unsimulated_row(plant_id, design_id, first)
+    if skip is not None:
+        row.update(status=skip["status"], reason=skip["reason"])
         return {"row": row, "settling": np.array([])}
     scenario = Scenario(x0=X, x_hat0=XH, options=replace(BATCH_OPTIONS, method=method, rtol=rtol, atol=atol))
     out = evaluate(plant, design_id, RunOptions(t_final=t_final), prior=first, scenario=scenario)
@@ -85,7 +74,6 @@ def _inside_level_set(first, X: np.ndarray, XH: np.ndarray) -> np.ndarray:
 
 
 def _describe(key, r: dict) -> str:
-    """The progress label of a finished pair: its fraction converging."""
     return f"{r['row']['plant']} x {r['row']['design']}: {fmt(r['row'].get('frac_converged', math.nan))}"
 
 
@@ -96,27 +84,16 @@ class MonteCarloResult(StudyResult):
     settling: dict = field(default_factory=dict)
 
 
-def run_montecarlo(
-    plant_ids: list[str] | None = None,
-    design_ids: list[str] | None = None,
-    *,
-    n: int = 1000,
-    box: float | None = None,
-    seed: int = 0,
-    t_final: float | None = None,
-    method: str = "auto",
-    rtol: float = 1e-6,
-    atol: float = 1e-9,
-    jobs: int = 1,
-    progress: Callable[[int, int, str], None] | None = None,
-) -> MonteCarloResult:
+@study()
+def run_montecarlo(run: StudyRun, *, n: int = 1000, box: float | None = None, seed: int = 0,
+                   t_final: float | None = None, method: str = "auto", rtol: float = 1e-6,
+                   atol: float = 1e-9) -> MonteCarloResult:
     """Simulate N seeded random initial conditions per (plant, design) as one vectorised batch.
 
     Parameters
     ----------
     plant_ids, design_ids : list of str, optional
-        Default: every registered plant and design (designs without fixed gains get a row
-        saying so).
+        Default: every registered plant and design (designs without fixed gains get a row saying so).
     n : int
         Initial conditions per plant (>= 1).
     box : float, optional
@@ -126,10 +103,9 @@ def run_montecarlo(
     t_final : float, optional
         Horizon (default: each plant's).
     method, rtol, atol
-        ``solve_ivp`` settings of the batch (``"auto"``: DOP853, or BDF for a stiff loop, see
-        :func:`bench.simulate.choose_method`).
-    jobs : int
-    progress : callable, optional
+        ``solve_ivp`` settings of the batch (``"auto"``: :func:`bench.simulate.choose_method`).
+    jobs, progress
+        Worker processes; ``progress(done, total, label)``.
 
     Returns
     -------
@@ -138,22 +114,19 @@ def run_montecarlo(
     Raises
     ------
     StudyError
-        ``n < 1``, a box that is not finite and > 0, a horizon that is not finite and > 0.
+        Bad ``n``, box or horizon.
     """
-    t_start = time.perf_counter()
-    n = check_count("n", n, 1)
+    n = check_count("n", n)
     box = check_box("box", box)
     check_horizon(t_final)
-    plant_ids, design_ids = selection(plant_ids, design_ids)
-    pairs = [(pid, did) for pid in plant_ids for did in design_ids]
-    out = run_tasks(jobs, _mc_task, [(key, (*key, n, box, seed, t_final, method, rtol, atol)) for key in pairs],
-                    progress, _describe)
+    pairs = [(pid, did) for pid in run.plant_ids for did in run.design_ids]
+    out = run.map(_mc_task, [(key, (*key, n, box, seed, t_final, method, rtol, atol)) for key in pairs], _describe)
     rows = [out[key]["row"] for key in pairs]
     settling = {key: out[key]["settling"] for key in pairs}
     settings = {"N": n, "box": box if box is not None else "plant's initial-condition scale", "seed": seed,
                 "t_final": t_final if t_final is not None else "plant's", "method": method, "rtol": rtol,
-                "atol": atol, "jobs": jobs}
-    return MonteCarloResult(rows, settings, time.perf_counter() - t_start, settling=settling)
+                "atol": atol, "jobs": run.jobs}
+    return MonteCarloResult(rows, settings, run.wall_s(), settling=settling)
 
 
 def _draw(pid: str, rows: list[dict], settling: dict):
@@ -185,17 +158,13 @@ def _draw(pid: str, rows: list[dict], settling: dict):
                title=f"{pid}: {sim[0]['N'] if sim else 0} initial conditions in [-{fmt(sim[0]['box']) if sim else ''}, "
                      f"{fmt(sim[0]['box']) if sim else ''}]^n")
         a2.grid(True, axis="x", alpha=0.3)
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        save_figure(fig, path)
 
     return draw
 
 
 def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
-    """Write ``STUDY_montecarlo.md``, ``study_montecarlo.csv`` and ``figures/study_montecarlo_<plant>.png``
-    atomically; returns the markdown's path."""
-    import pandas as pd
-
+    """Write ``STUDY_montecarlo.md``, its CSV and figures atomically; return the markdown's path."""
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
     sim = [r for r in rows if "frac_converged" in r]
@@ -210,8 +179,8 @@ def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
         "For each plant, N initial conditions (x and x_hat independent, uniform in `[-box, box]^n`, seeded; the same "
         "draws for every design) are simulated for each design with fixed gains as **one** vectorised ODE "
         "(`bench.batch.py`: DOP853, or BDF with the batch's block-diagonal Jacobian sparsity when the loop is "
-        "stiff). Converged within the horizon: final `||x||` and `||e||` at most 1e-3 of their peaks, no "
-        "divergence (a slow but converging member counts as not converged: see the worst final norm). Settling: 2 % settling time of `||x||`, over the converging initial conditions.",
+        "stiff). Converged within the horizon: final `||x||` and `||e||` at most 1e-3 of their peaks (a slow but "
+        "converging member counts as not converged). Settling: 2 % settling time of `||x||`, converging members only.",
         "",
         md_table(sim, cols, heads),
         "",
@@ -227,4 +196,4 @@ def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
     lines.append("")
     figs = {f"study_montecarlo_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid], result.settling)
             for pid in plants if any(r["plant"] == pid for r in sim)}
-    return write_study(out_dir, "montecarlo", "\n".join(lines), {"study_montecarlo": pd.DataFrame(rows)}, figs)
+    return write_study(out_dir, "montecarlo", "\n".join(lines), {"study_montecarlo": rows}, figs)

@@ -1,32 +1,23 @@
 """Measurement noise: RMS estimation error and final state norm vs noise level, Luenberger vs EKF.
 
-For each plant and noise level sigma (a log grid), every design with a controller is simulated
-by the harness's own noisy path (:func:`bench.simulate.simulate_controller`, seeded Gaussian
-noise ``v_k ~ N(0, sigma^2 I)`` on ``y = C x + v``):
-
-- fixed-gain (Luenberger-type) observers: continuous observer and ``u = F x_hat``, the noise held
-  over intervals of ``noise_dt = 0.01 s`` (:class:`bench.harness.RunOptions`' default);
-- the EKF (``lqr+ekf``): continuous-discrete filter at its sample time, ``u_k`` held; besides its
-  default tuning (``r = 1e-4``), an EKF with the measurement variance matched to the noise
-  (``r = sigma^2``) is run as ``lqr+ekf (r = sigma^2)``.
-
-Metrics are :func:`bench.metrics.trajectory_metrics` with ``noisy=True``: ``rms_e`` is the RMS
-of ``||x - x_hat||`` over the second half of the horizon (the steady state) and ``final_x`` the
-final ``||x||``; the numbers equal those of ``python -m bench run --noise SIGMA --seed SEED``.
-The gains are designed once per (plant, design) and reused for every level.
+For each plant and noise level sigma, every design with a controller is simulated by the harness's noisy
+path (:func:`bench.simulate.simulate_controller`, seeded noise ``v ~ N(0, sigma^2 I)`` on ``y = C x + v``);
+the EKF is also run with its measurement variance matched to the noise (``r = sigma^2``, :data:`MATCHED_EKF`).
+The gains are designed once per pair and reused at every level; the numbers equal those of
+``python -m bench run --noise SIGMA --seed SEED``.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, check_horizon, check_levels, fmt, md_table, pyplot,
-                                   run_tasks, selection, skipped_lines, study_header, write_study)
+from bench import checks
+from bench.studies._common import (StudyError, StudyResult, StudyRun, check_horizon, check_levels, evaluate, fmt,
+                                   md_table, pyplot, save_figure, skipped_lines, study, study_header, unsimulated_row,
+                                   write_study)
 
 __all__ = ["run_noise", "write_noise"]
 
@@ -40,7 +31,6 @@ def _noise_task(prior, label: str, sigma: float, seed: int, noise_dt: float, t_f
     """One pair at one noise level: the pipeline with ``noise = sigma``, design and certificate re-used."""
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from bench.studies._common import evaluate
 
     plant = PLANTS.create(prior.record["plant"])
     options = RunOptions(noise=sigma, seed=seed, noise_dt=noise_dt, t_final=t_final, certificate="none")
@@ -58,18 +48,17 @@ def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[
 
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from bench.studies._common import evaluate
 
     skipped, jobs_list = [], []
     for pid in plant_ids:
         plant = PLANTS.create(pid)
         for did in design_ids:
             prior = evaluate(plant, did, RunOptions(simulate=False, t_final=t_final))
-            res = prior.result
-            if res is None or not res.has_controller:
-                skipped.append({"plant": pid, "design": did, "status": prior.record["status"],
-                                "reason": prior.record["reason"]})
+            skip = unsimulated_row(pid, did, prior, need_gains=False)
+            if skip is not None:
+                skipped.append(skip)
                 continue
+            res = prior.result
             prior.plant = None
             for sig in levels:
                 jobs_list.append((prior, did, sig))
@@ -80,7 +69,6 @@ def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[
 
 
 def _describe(key, r: dict) -> str:
-    """The progress label of a finished pair at one level: its RMS estimation error."""
     return f"{r['plant']} x {r['design']} sigma {r['noise']:g}: rms_e {fmt(r['rms_e'])}"
 
 
@@ -91,37 +79,26 @@ class NoiseResult(StudyResult):
     skipped: list[dict] = field(default_factory=list)
 
 
-def run_noise(
-    plant_ids: list[str] | None = None,
-    design_ids: list[str] | None = None,
-    *,
-    levels: tuple[float, ...] = DEFAULT_LEVELS,
-    seed: int = 0,
-    matched_ekf: bool = True,
-    noise_dt: float = 0.01,
-    t_final: float | None = None,
-    jobs: int = 1,
-    progress: Callable[[int, int, str], None] | None = None,
-) -> NoiseResult:
+@study(DEFAULT_PLANTS)
+def run_noise(run: StudyRun, *, levels: tuple[float, ...] = DEFAULT_LEVELS, seed: int = 0, matched_ekf: bool = True,
+              noise_dt: float = 0.01, t_final: float | None = None) -> NoiseResult:
     """RMS estimation error and final state norm vs noise level for every design with a controller.
 
     Parameters
     ----------
-    plant_ids : list of str, optional
-        Default :data:`DEFAULT_PLANTS`.
-    design_ids : list of str, optional
-        Default: every registered design (those infeasible or inapplicable on a plant are listed).
+    plant_ids, design_ids : list of str, optional
+        Default :data:`DEFAULT_PLANTS` and every registered design (those without a controller are listed).
     levels : sequence of float
         Noise standard deviations (each finite and > 0).
     seed : int
         Seed of the noise (the same sequence for every design and level, scaled by sigma).
     matched_ekf : bool
-        Also run the EKF with ``r = sigma^2`` (when ``lqr+ekf`` is selected).
+        Also run the EKF with ``r = sigma^2``.
     noise_dt : float
         Hold interval of the noise for fixed-gain observers.
     t_final : float, optional
-    jobs : int
-    progress : callable, optional
+    jobs, progress
+        Worker processes; ``progress(done, total, label)``.
 
     Returns
     -------
@@ -130,22 +107,19 @@ def run_noise(
     Raises
     ------
     StudyError
-        A noise level that is negative, zero or not finite; a bad ``noise_dt`` or horizon.
+        A bad noise level, ``noise_dt`` or horizon.
     """
-    t_start = time.perf_counter()
     levels = check_levels("levels", levels)
-    if not (isinstance(noise_dt, (int, float)) and math.isfinite(noise_dt) and noise_dt > 0):
-        raise StudyError("noise_dt", f"must be finite and > 0, got {noise_dt!r}")
+    checks.real("noise_dt", noise_dt, lo=0.0, strict=True, error=StudyError)
     check_horizon(t_final)
-    plant_ids, design_ids = selection(plant_ids, design_ids, DEFAULT_PLANTS)
-    skipped, jobs_list = _priors(plant_ids, design_ids, levels, matched_ekf, t_final)
+    skipped, jobs_list = _priors(run.plant_ids, run.design_ids, levels, matched_ekf, t_final)
     tasks = [((prior.record["plant"], label, s), (prior, label, s, seed, noise_dt, t_final))
              for prior, label, s in jobs_list]
-    rows = run_tasks(jobs, _noise_task, tasks, progress, _describe)
+    rows = run.map(_noise_task, tasks, _describe)
     ordered = [rows[(prior.record["plant"], label, s)] for prior, label, s in jobs_list]
     settings = {"levels": ", ".join(f"{v:.3g}" for v in levels), "seed": seed, "noise_dt": noise_dt,
-                "matched EKF": matched_ekf, "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
-    return NoiseResult(ordered, settings, time.perf_counter() - t_start, skipped=skipped)
+                "matched EKF": matched_ekf, "t_final": t_final if t_final is not None else "plant's", "jobs": run.jobs}
+    return NoiseResult(ordered, settings, run.wall_s(), skipped=skipped)
 
 
 def _draw(pid: str, rows: list[dict]):
@@ -167,26 +141,20 @@ def _draw(pid: str, rows: list[dict]):
         for a in (a1, a2):
             a.grid(True, which="both", alpha=0.3)
         a2.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        save_figure(fig, path)
 
     return draw
 
 
 def _plant_section(pid: str, sub: list[dict], levels: list[float]) -> list[str]:
-    """The markdown of one plant: a table per metric (design x level), the best estimator per level, its
-    figure, and the designs whose error at the smallest level is still the transient, not the noise."""
+    """The markdown of one plant: a table per metric, the best estimator per level, its figure, notes."""
     designs = list(dict.fromkeys(r["design"] for r in sub))
     by = {(r["design"], r["noise"]): r for r in sub}
     lines = []
     for metric, title in (("rms_e", "RMS estimation error"), ("final_x", "final ||x||")):
-        lines += [f"## {pid}: {title}", "",
-                  "| design | " + " | ".join(f"sigma {s:.3g}" for s in levels) + " |",
-                  "|---|" + "|".join("---" for _ in levels) + "|"]
-        for did in designs:
-            lines.append(f"| {did} | " + " | ".join(fmt(by[(did, s)][metric]) if (did, s) in by else ""
-                                                    for s in levels) + " |")
-        lines.append("")
+        rows = [{"design": did, **{s: by[(did, s)][metric] for s in levels if (did, s) in by}} for did in designs]
+        heads = ["design", *(f"sigma {s:.3g}" for s in levels)]
+        lines += [f"## {pid}: {title}", "", md_table(rows, ["design", *levels], heads), ""]
     lines += [f"## {pid}: best estimator per level", "",
               md_table(_best_per_level(sub, levels), ["noise", "best", "best_rms_e", "best_luenberger",
                                                       "luenberger_rms_e", "best_ekf", "ekf_rms_e"],
@@ -210,15 +178,14 @@ def _best_per_level(sub: list[dict], levels: list[float]) -> list[dict]:
     best = []
     for s in levels:
         cand = [r for r in sub if r["noise"] == s and math.isfinite(r["rms_e"])]
+        row = {"noise": s}
+        for name, rms, kind in (("best", "best_rms_e", None), ("best_luenberger", "luenberger_rms_e", "fixed K"),
+                                ("best_ekf", "ekf_rms_e", "EKF")):
+            b = min((r for r in cand if kind in (None, r["estimator"])), key=lambda r: r["rms_e"],
+                    default={"design": "", "rms_e": math.nan})
+            row.update({name: b["design"], rms: b["rms_e"]})
         if cand:
-            b = min(cand, key=lambda r: r["rms_e"])
-            luen = [r for r in cand if r["estimator"] == "fixed K"]
-            ekf = [r for r in cand if r["estimator"] == "EKF"]
-            best.append({"noise": s, "best": b["design"], "best_rms_e": b["rms_e"],
-                         "best_luenberger": min(luen, key=lambda r: r["rms_e"])["design"] if luen else "",
-                         "luenberger_rms_e": min(r["rms_e"] for r in luen) if luen else math.nan,
-                         "best_ekf": min(ekf, key=lambda r: r["rms_e"])["design"] if ekf else "",
-                         "ekf_rms_e": min(r["rms_e"] for r in ekf) if ekf else math.nan})
+            best.append(row)
     return best
 
 
@@ -237,9 +204,7 @@ def _transient_dominated(by: dict, designs: list[str], levels: list[float]) -> l
 
 
 def write_noise(result: NoiseResult, out_dir: str, command: str):
-    """Write ``STUDY_noise.md``, ``study_noise.csv`` and ``figures/study_noise_<plant>.png`` atomically."""
-    import pandas as pd
-
+    """Write ``STUDY_noise.md``, its CSV and figures atomically; return the markdown's path."""
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
     levels = sorted({r["noise"] for r in rows})
@@ -258,4 +223,4 @@ def write_noise(result: NoiseResult, out_dir: str, command: str):
         lines += _plant_section(pid, [r for r in rows if r["plant"] == pid], levels)
     lines += skipped_lines(result.skipped, heading="## Not simulated", width=250)
     figs = {f"study_noise_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid]) for pid in plants}
-    return write_study(out_dir, "noise", "\n".join(lines), {"study_noise": pd.DataFrame(rows)}, figs)
+    return write_study(out_dir, "noise", "\n".join(lines), {"study_noise": rows}, figs)

@@ -1,28 +1,12 @@
 """Digital implementation: the largest sample period h at which each design's loop still converges.
 
-The controller and the observer run in discrete time at period h, the plant stays continuous
-(:func:`bench.batch.simulate_digital_batch`): at ``t_k = k h`` the output is sampled,
-``u_k = F x_hat_k`` is held by a zero-order hold, and the observer is advanced by the ``"zoh"``
-discretisation (its model integrated over the period with ``B u_k`` and ``K (y_k - C x_hat_k)``
-held; for a linear plant this is the exact ZOH discretisation) or by forward Euler. The gains
-(K, F) are the continuous-time designs' own, unchanged (emulation design).
-
-For each (plant, design with fixed gains):
-
-- ``h_lin``: the first period at which the sampled loop *linearised at the origin* (A replaced
-  by ``A + df/dx(0)``) loses exponential stability, i.e. the spectral radius of its one-period
-  matrix (:func:`bench.batch.digital_matrix`, from ``scipy.linalg.expm``) reaches 1
-  (log grid from 1e-5 s, then Brent's method);
-- ``h_max``: the largest h (geometric bisection to 1 % relative, bracketed from ``h_lin / 2``)
-  at which the nonlinear sampled loop **converges within the horizon** from the plant's initial
-  conditions and from ``n_ics`` seeded random initial conditions (x and x_hat uniform in a box):
-  every member's final ``||x||`` and ``||e||`` at most 1e-3 times their peaks, none diverged.
-  Convergence within a finite horizon is a stronger demand than ``rho < 1`` (a spectral radius
-  just below 1 decays too slowly), so ``h_max <= h_lin`` is expected;
-- the 2 % settling time of ``||x||`` from the plant's initial conditions at every simulated h,
-  and the continuous loop's (h -> 0, :func:`bench.simulate.simulate`) for reference.
-
-Convergence need not be monotone in h; the bisection reports the first boundary it brackets.
+The controller and the observer run at period h, the plant stays continuous
+(:func:`bench.batch.simulate_digital_batch`): the output is sampled at ``t_k = k h``, ``u_k = F x_hat_k``
+is held, and the observer is advanced by its ``"zoh"`` or forward-Euler discretisation; the gains are the
+continuous designs' own (emulation). Per pair: ``h_lin``, where the loop linearised at the origin loses
+stability (spectral radius of the one-period matrix reaches 1), and ``h_max``, the largest h found by
+bisection at which the nonlinear loop converges within the horizon from the plant's and ``n_ics`` seeded
+random initial conditions (``h_max <= h_lin`` expected), with settling times vs h.
 """
 
 from __future__ import annotations
@@ -30,13 +14,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from bench.studies._common import (StudyError, StudyResult, bisect_largest, check_box, check_count, check_horizon,
-                                   check_range, check_rtol, default_box, fmt, map_tasks, md_table, pyplot, random_ics,
-                                   selection, skipped_lines, study_header, write_study)
+from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_box,
+                                   check_count, check_horizon, check_range, check_rtol, default_box, evaluate, fmt,
+                                   map_tasks, md_table, pyplot, random_ics, save_figure, skipped_lines, study,
+                                   study_header, unsimulated_row, write_study)
 
 __all__ = ["run_sampling", "write_sampling"]
 
@@ -55,23 +39,9 @@ def _jacobian0(plant) -> np.ndarray:
 
 def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1e-5, h_max: float = 10.0,
                    n_grid: int = 400) -> float:
-    """First sample period at which the sampled loop linearised at the origin loses stability.
-
-    Parameters
-    ----------
-    plant : Plant
-    K, F : ndarray
-    discretisation : {"zoh", "euler"}
-    h_min, h_max : float
-        Search interval of the log grid.
-    n_grid : int
-        Grid points; the first crossing of ``rho(Phi(h)) = 1`` is refined by Brent's method.
-
-    Returns
-    -------
-    float
-        The crossing; ``0.0`` if the loop is not stable even at ``h_min`` (e.g. the continuous
-        loop is not exponentially stable), ``inf`` if it is stable on the whole grid.
+    """First sample period at which the sampled loop linearised at the origin loses stability: the first
+    crossing of ``rho(Phi(h)) = 1`` on a log grid of ``n_grid`` points in ``[h_min, h_max]``, refined by Brent's
+    method; ``0.0`` if unstable at ``h_min``, ``inf`` if stable on the whole grid.
     """
     from scipy.optimize import brentq
 
@@ -96,7 +66,6 @@ def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1
 def _check_h(plant, prior, X, XH, h, disc, t_final) -> dict:
     """The digital loop at period ``h`` from every initial condition: the pipeline with a scenario."""
     from bench.pipeline import RunOptions, Scenario
-    from bench.studies._common import evaluate
 
     out = evaluate(plant, prior.record["design"], RunOptions(certificate="none", t_final=t_final), prior=prior,
                    scenario=Scenario(x0=X, x_hat0=XH, sample_period=h, discretisation=disc))
@@ -123,7 +92,6 @@ def _design_task(plant_id: str, design_id: str, t_final: float | None):
 
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from bench.studies._common import evaluate
 
     out = evaluate(PLANTS.create(plant_id), design_id, RunOptions(t_final=t_final))
     return replace(out, trajectory=None, plant=None)
@@ -131,7 +99,7 @@ def _design_task(plant_id: str, design_id: str, t_final: float | None):
 
 def _sampling_task(prior, n_ics: int, box: float | None, seed: int, disc: str, h_range, rtol: float,
                    t_final: float | None) -> dict:
-    """Worker: one (plant, design with fixed gains): h_lin, the bisection of h_max, settling vs h."""
+    """One (plant, design with fixed gains): h_lin, the bisection of h_max, settling vs h."""
     from bench.registry import PLANTS
 
     t0 = time.perf_counter()
@@ -184,21 +152,11 @@ class SamplingResult(StudyResult):
     evals: list[dict] = field(default_factory=list)
 
 
-def run_sampling(
-    plant_ids: list[str] | None = None,
-    design_ids: list[str] | None = None,
-    *,
-    required: list[str] | tuple[str, ...] = (),
-    n_ics: int = 20,
-    box: float | None = None,
-    seed: int = 0,
-    discretisation: str = "zoh",
-    h_range: tuple[float, float] | None = None,
-    rtol: float = 0.01,
-    t_final: float | None = None,
-    jobs: int = 1,
-    progress: Callable[[int, int, str], None] | None = None,
-) -> SamplingResult:
+@study(DEFAULT_PLANTS)
+def run_sampling(run: StudyRun, *, required: list[str] | tuple[str, ...] = (), n_ics: int = 20,
+                 box: float | None = None, seed: int = 0, discretisation: str = "zoh",
+                 h_range: tuple[float, float] | None = None, rtol: float = 0.01,
+                 t_final: float | None = None) -> SamplingResult:
     """Largest sample period per (plant, design with fixed gains).
 
     Parameters
@@ -206,26 +164,21 @@ def run_sampling(
     plant_ids : list of str, optional
         Default :data:`DEFAULT_PLANTS`.
     design_ids : list of str, optional
-        Default: every registered design; designs without fixed gains (the EKF) and designs
-        infeasible on a plant get a row with the reason.
+        Default: every registered design (those without fixed gains get a row with the reason).
     required : sequence of str
-        Designs the caller named explicitly: one of them without fixed gains on a plant raises
-        :class:`StudyError` (parameter ``design``).
+        Designs named explicitly: one without fixed gains raises :class:`StudyError`.
     n_ics : int
         Random initial conditions besides the plant's own (>= 1).
     box : float, optional
         Half-width of the initial-condition box (default: the plant's initial-condition scale).
     seed : int
-        Seed of the random initial conditions.
     discretisation : {"zoh", "euler"}
     h_range : (float, float), optional
         Bisection bounds on h (default: bracketed from ``h_lin / 2``).
     rtol : float
-        Relative tolerance of the bisection.
     t_final : float, optional
-        Horizon (default: each plant's).
-    jobs : int
-    progress : callable, optional
+    jobs, progress
+        Worker processes; ``progress(done, total, label)``.
 
     Returns
     -------
@@ -236,37 +189,31 @@ def run_sampling(
     StudyError
         Bad box, count, bounds, discretisation, or a required design without fixed gains.
     """
-    t_start = time.perf_counter()
     n_ics, box, h_range = _check_args(n_ics, box, h_range, discretisation, rtol, t_final)
-    plant_ids, design_ids = selection(plant_ids, design_ids, DEFAULT_PLANTS)
     args = (n_ics, box, seed, discretisation, h_range, rtol, t_final)
-    ordered, evals = _bisect_pairs(plant_ids, design_ids, required, args, jobs, progress)
-    return SamplingResult(ordered, _settings(*args, jobs), time.perf_counter() - t_start, evals=evals)
+    ordered, evals = _bisect_pairs(run, required, args)
+    return SamplingResult(ordered, _settings(*args, run.jobs), run.wall_s(), evals=evals)
 
 
 def _settings(n_ics, box, seed, discretisation, h_range, rtol, t_final, jobs) -> dict:
-    """The study's settings as its report states them (defaults named, not left blank)."""
     return {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
             "seed": seed, "discretisation": discretisation,
             "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
             "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
 
 
-def _bisect_pairs(plant_ids: list[str], design_ids: list[str], required, args: tuple, jobs: int,
-                  progress) -> tuple[list[dict], list[dict]]:
-    """Design every pair, then bisect h for those with fixed gains: the rows in plant x design order and every
-    evaluation, sorted by pair and h. ``args``: :func:`_sampling_task`'s arguments after the prior (the last
-    is the horizon, also the designs')."""
+def _bisect_pairs(run: StudyRun, required, args: tuple) -> tuple[list[dict], list[dict]]:
+    """Design every pair, then bisect h where there are fixed gains: rows (plant x design order), evaluations."""
     from bench.executors import executor
 
-    t_final = args[-1]
+    t_final, plant_ids, design_ids = args[-1], run.plant_ids, run.design_ids
     pairs = [(pid, did) for pid in plant_ids for did in design_ids]
-    with executor(jobs) as ex:
+    with executor(run.jobs) as ex:
         designed = map_tasks(ex, _design_task, [((pid, did), (pid, did, t_final)) for pid, did in pairs])
         _check_required(designed, required)
-        rows = {key: row for key in pairs if (row := _unsimulated_row(*key, designed[key])) is not None}
+        rows = {key: row for key in pairs if (row := unsimulated_row(*key, designed[key])) is not None}
         tasks = [(key, (designed[key], *args)) for key in pairs if key not in rows]
-        done = map_tasks(ex, _sampling_task, tasks, progress,
+        done = map_tasks(ex, _sampling_task, tasks, run.progress,
                          lambda key, r: f"{key[0]} x {key[1]}: h_max {fmt(r['row']['h_max'])}")
     evals: list[dict] = []
     for key, r in done.items():
@@ -277,10 +224,9 @@ def _bisect_pairs(plant_ids: list[str], design_ids: list[str], required, args: t
 
 
 def _check_args(n_ics, box, h_range, discretisation, rtol, t_final) -> tuple[int, float | None, tuple | None]:
-    """The checked ``n_ics``, ``box`` and ``h_range``; StudyError naming a bad argument."""
     from bench.batch import DISCRETISATIONS
 
-    n_ics = check_count("n_ics", n_ics, 1)
+    n_ics = check_count("n_ics", n_ics)
     box = check_box("box", box)
     h_range = check_range("h_range", h_range)
     if discretisation not in DISCRETISATIONS:
@@ -297,29 +243,6 @@ def _check_required(designed: dict, required) -> None:
         if res is not None and res.has_controller and not res.has_gains and did in required:
             raise StudyError("design", f"{did!r} has no fixed gains (K, F) on {pid!r} (its estimator is "
                                        f"{type(res.estimator).__name__}): a sampling study needs fixed gains")
-
-
-def _unsimulated_row(pid: str, did: str, designed) -> dict | None:
-    """The row of a pair that cannot be simulated (no controller, or no fixed gains); None when it can."""
-    res, rec = designed.result, designed.record
-    if res is None or not res.has_controller:
-        return {"plant": pid, "design": did, "status": rec["status"], "reason": rec["reason"]}
-    if not res.has_gains:
-        return {"plant": pid, "design": did, "status": "no fixed gains",
-                "reason": f"estimator {type(res.estimator).__name__}: not a fixed gain K"}
-    return None
-
-
-def _h_interval(r: dict) -> str:
-    """The largest converging h as a cell (``< h`` or ``>= h`` when not bracketed)."""
-    kind = r.get("kind")
-    if kind == "below_range":
-        return f"< {fmt(r['h_fail'], '.3g')}"
-    if kind == "above_range":
-        return f">= {fmt(r['h_max'], '.3g')}"
-    if kind == "bracketed":
-        return fmt(r["h_max"], ".3g")
-    return ""
 
 
 def _draw(pid: str, rows: list[dict], evals: list[dict]):
@@ -342,20 +265,16 @@ def _draw(pid: str, rows: list[dict], evals: list[dict]):
                title=f"{pid}: settling time vs h (dotted: continuous loop)")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
+        save_figure(fig, path)
 
     return draw
 
 
 def write_sampling(result: SamplingResult, out_dir: str, command: str):
-    """Write ``STUDY_sampling.md``, ``study_sampling.csv``, ``study_sampling_evaluations.csv`` and
-    ``figures/study_sampling_<plant>.png`` atomically; returns the markdown's path."""
-    import pandas as pd
-
+    """Write ``STUDY_sampling.md``, its CSVs and figures atomically; return the markdown's path."""
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
-    trows = [{**r, "h_max_s": _h_interval(r)} for r in rows]
+    trows = [{**r, "h_max_s": bracket_cell(r.get("kind", ""), r.get("h_max"), r.get("h_fail"))} for r in rows]
     cols = ["plant", "design", "status", "h_max_s", "h_fail", "h_lin", "settling_x_cont", "settling_x_at_hmax",
             "settling_x_median_at_hmax", "at_fail", "n_evals", "wall_s"]
     heads = ["plant", "design", "status", "largest converging h [s]", "first failing h", "h_lin (rho = 1)",
@@ -367,20 +286,17 @@ def write_sampling(result: SamplingResult, out_dir: str, command: str):
         study_header("Study: digital implementation (largest sample period)", "python -m bench study sampling"
                      if not command else command, result.settings, result.wall_s),
         "The controller and the observer run at period h, the plant is continuous: at `t_k = k h` the output is "
-        "sampled, `u_k = F x_hat_k` is held (zero-order hold) and the observer is advanced by the "
-        + ("**zoh** discretisation (its model `x_hat' = A x_hat + f(x_hat) + B u_k + K (y_k - C x_hat_k)` "
-           "integrated over the period with the input and the output injection held; exact ZOH for a linear plant)"
-           if disc == "zoh" else "**forward Euler** discretisation of (6)")
-        + ". The gains are the continuous designs' own (emulation). Plant and observer model are integrated between "
-          "samples by fixed-step RK4 on the whole batch of initial conditions.",
+        "sampled, `u_k = F x_hat_k` is held and the observer is advanced by its "
+        + ("**zoh** discretisation (its model integrated over the period, input and output injection held)"
+           if disc == "zoh" else "**forward Euler** discretisation")
+        + "; the gains are the continuous designs' own. The batch is integrated between samples by fixed-step RK4.",
         "",
-        "- **largest converging h**: geometric bisection (1 % relative) of the largest h at which *every* initial "
-        "condition (the plant's own plus the seeded random ones, x and x_hat uniform in the box) converges within the "
-        "horizon (final `||x||` and `||e||` at most 1e-3 of their peaks, no divergence);",
-        "- **h_lin**: the first h at which the loop linearised at the origin loses exponential stability "
-        "(spectral radius of the one-period matrix from `scipy.linalg.expm` reaches 1). Convergence within a finite "
-        "horizon demands more than `rho < 1`, so `h_max <= h_lin` is expected;",
-        "- settling times are 2 % settling of `||x||` at the sample instants, from the plant's initial conditions.",
+        "- **largest converging h**: bisection (1 % relative) of the largest h at which *every* initial condition "
+        "(the plant's and the seeded random ones) converges within the horizon (final `||x||`, `||e||` at most 1e-3 "
+        "of their peaks);",
+        "- **h_lin**: the first h at which the one-period matrix of the loop linearised at the origin reaches "
+        "spectral radius 1 (`h_max <= h_lin` expected);",
+        "- settling times: 2 % settling of `||x||` at the sample instants, from the plant's initial conditions.",
         "",
         "## Largest sample period per design",
         "",
@@ -398,5 +314,5 @@ def write_sampling(result: SamplingResult, out_dir: str, command: str):
     lines.append("")
     figs = {f"study_sampling_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid], result.evals)
             for pid in plants}
-    tables = {"study_sampling": pd.DataFrame(rows), "study_sampling_evaluations": pd.DataFrame(result.evals)}
+    tables = {"study_sampling": rows, "study_sampling_evaluations": result.evals}
     return write_study(out_dir, "sampling", "\n".join(lines), tables, figs)
