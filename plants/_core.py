@@ -138,7 +138,7 @@ class Channels:
             try:
                 arr = _real_array(v)
             except (TypeError, ValueError, OverflowError, np.exceptions.ComplexWarning):
-                raise PlantError(f"channels.{name}: not a real number or array, got {_short(v)}") from None
+                raise PlantError(f"channels.{name}: not a real number or array, got {checks.brief(v)}") from None
             arr = np.broadcast_to(arr, (q,)).copy() if arr.ndim == 0 else arr
             if arr.shape != (q,):
                 raise PlantError(f"channels.{name}: expected a scalar or shape ({q},), got {arr.shape}")
@@ -283,11 +283,6 @@ def _sine_channels(n: int, acts: np.ndarray, reads: np.ndarray, coef: float, sca
     return Channels(G=G, H=H, phi=lambda z: coef * np.sin(z), lo=-abs(coef), hi=abs(coef), narrow=sine_slopes(coef))
 
 
-def _short(value, limit: int = 80) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 def _real_array(value) -> np.ndarray:
     """``np.array(value, dtype=float)``, refusing complex values (numpy would drop the imaginary part)."""
     with warnings.catch_warnings():
@@ -404,7 +399,7 @@ class Plant:
             object.__setattr__(self, "params", dict(self.params))
         except (TypeError, ValueError):
             raise PlantError(f"params: expected a mapping of parameter names to numbers, "
-                             f"got {_short(self.params)}") from None
+                             f"got {checks.brief(self.params)}") from None
         for key, val in self.params.items():
             _finite_scalar(f"params[{key!r}]", val, allow_none=False)
         self._check_f(n)
@@ -430,7 +425,7 @@ class Plant:
                 out = _real_array(raw)
             except Exception as exc:  # None, a string, complex values, ...: not a real array
                 raise PlantError(f"f: {label} is not a real numeric array ({type(exc).__name__}: {exc}); "
-                                 f"got {_short(raw)}") from None
+                                 f"got {checks.brief(raw)}") from None
             if out.shape != shape:
                 raise PlantError(f"f: {label} must have shape {shape}, got {out.shape}")
             if not np.all(np.isfinite(out)):
