@@ -31,17 +31,10 @@ level is certified above it, with a rate no smaller):
   ``z = H dx`` (Acikmese & Corless, Automatica 2011; ``docs/structured.md``), plus the scalar constants
   written in channel coordinates.
 
-Only *trusted* knowledge enters (:meth:`bench.constants.ConstantsReport.knowledge`): analytic
-constants that no sample disproved, declared channels that no sample disproved. Constants that
-were only sampled are lower bounds and never certify.
-
-Decay rates: after ``lam = 0``, the largest certified ``lam`` is searched on the fixed grid of
-:mod:`bench.search` (relative tolerance ``rate_rtol``; a marginal probe counts as failing, and
-the fixed grid makes the answer move by at most one step where a probe's verdict flips); each
-level starts from the rate of the level below (warm start). A local level (constraints on a region
-only) reports the grid point below its largest verified rate: the region its level set proves
-collapses as the rate nears the optimum. The bracket's upper end is the decay rate of the closed loop
-linearised at the origin (no certificate can beat it).
+Only *trusted* knowledge enters (:meth:`bench.constants.ConstantsReport.knowledge`); sampled
+constants are lower bounds and never certify. Decay rates are searched on the grid of
+:mod:`bench.search` (a marginal probe fails), from the rate of the level below up to the rate of
+the loop linearised at the origin, which no certificate can beat.
 """
 
 from __future__ import annotations
@@ -70,13 +63,11 @@ LEVEL_TITLES = {
     "structured": "full P, the declared channel slopes and the scalar constants",
 }
 
-#: Beyond this many states the ladder's SDPs (size 4n or 2n + 2q, interior-point cost growing like
-#: n^6) are not attempted; a design's own certificate, verified by eigenvalues, is kept
-#: (:func:`adopt`, ``docs/certificates.md``).
+#: Beyond this many states the ladder's SDPs are not attempted; a design's own certificate,
+#: verified by eigenvalues, is kept (:func:`adopt`).
 LADDER_MAX_N = 16
 
-#: :func:`adopt` replaces a certified level only when its rate is below this fraction of the
-#: design's own (the two are the same certificate up to the bisection's tolerance otherwise).
+#: :func:`adopt` replaces a certified level only when its rate is below this fraction of the design's own.
 ADOPT_RATIO = 0.9
 
 #: How the reason of a level ruled out by a linear member of its class begins.
@@ -392,9 +383,6 @@ def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
     """Decay rate of the closed loop (6) linearised at the origin, ``-max Re eig`` of
     ``A + Df(0) + B F`` and ``A + Df(0) - K C`` (no certificate can beat it).
 
-    A pair's pipeline computes it once (:func:`bench.checks.closed_loop`) and carries it; this is
-    the same number for a caller without it.
-
     Parameters
     ----------
     plant : Plant
@@ -407,18 +395,6 @@ def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
         Negative when the linearisation is unstable.
     """
     return checks.closed_loop(plant, K, F).linearised_rate
-
-
-def _unstable_admissible(spec: _Spec, know: Knowledge, plant: Plant, K: np.ndarray,
-                         F: np.ndarray) -> witness.Witness | None:
-    """Why no certificate of this level can exist (None if the linear members decide nothing).
-
-    A certificate of the level holds for every f meeting its constraints, in particular for the
-    linear members ``f = L x`` that meet them (:func:`bench.witness.linear_witness`: the channels'
-    slope box, or the scalar constants); a member whose loop has an eigenvalue with ``Re > 0``
-    settles the level as not certified without a solve.
-    """
-    return witness.linear_witness(plant, K, F, know, channels=spec.channels, scalars=spec.scalars)
 
 
 def _radius(spec: _Spec, know: Knowledge) -> float | None:
@@ -579,7 +555,9 @@ def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Kno
     if spec is None:
         return LevelResult(lv, "inapplicable", reason=why)
     K, F = loop.K, loop.F
-    unstable = _unstable_admissible(spec, knowledge, plant, K, F)
+    # a certificate of the level holds for every linear f = L x meeting its constraints: one whose loop
+    # is unstable settles the level without a solve
+    unstable = witness.linear_witness(plant, K, F, knowledge, channels=spec.channels, scalars=spec.scalars)
     if unstable is not None:  # the strongest level's witness (its class is the smallest)
         cert.witnesses = [*[w for w in cert.witnesses if w.kind != unstable.kind], unstable]
         return LevelResult(lv, "not certified", reason=(
@@ -694,16 +672,12 @@ def _region_rows(H: np.ndarray) -> np.ndarray:
     return np.vstack([np.hstack([H, np.zeros_like(H)]), np.hstack([H, -H])])
 
 
-#: The search for a certificate from x0 tries regions ``|H x|, |H x_hat| <= r`` with r growing by
-#: this factor from just above the initial condition's own ``max |H x0|, |H x_hat0|``, for at most
-#: :data:`FROM_X0_STEPS` values, and stops where the slopes no longer narrow; the containment is
-#: imposed with r shrunk by :data:`FROM_X0_SHRINK` (relative) so that a solver's rounding never
-#: lets the verified level set leave the region.
+#: Regions of the from-x0 search: r grows by ``FROM_X0_GROWTH`` from ``max |H x0|, |H x_hat0|``, at
+#: most ``FROM_X0_STEPS`` times; the containment uses r shrunk by ``FROM_X0_SHRINK`` (relative, for the
+#: solver's rounding); after the first region with a certificate, ``FROM_X0_MORE`` larger ones are tried.
 FROM_X0_GROWTH = 1.25
 FROM_X0_STEPS = 12
 FROM_X0_SHRINK = 1e-4
-
-#: After the first region with a certificate, this many larger ones are tried for a better rate.
 FROM_X0_MORE = 2
 
 
@@ -847,8 +821,6 @@ def _contains(P: np.ndarray, z0: np.ndarray, rows: np.ndarray, r: float) -> bool
 
 def _vec(v) -> str:
     return ", ".join(f"{x:.4g}" for x in np.atleast_1d(v))
-
-
 
 
 #: The declarations a design's own certificate at each level rests on (unless it names its own in
