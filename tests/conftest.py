@@ -7,13 +7,29 @@ from bench.registry import PLANTS
 
 
 @pytest.fixture(scope="session")
+def catalog_constants():
+    """``get(pid, seed=0, n_samples=20000, **plant_kw)``: ``compute_constants(PLANTS.create(pid, **plant_kw),
+    seed=seed, n_samples=n_samples)``, computed once per session for each argument set (the sampler is
+    seeded, so a second computation gives the same report). For tests whose subject is not the constants."""
+    reports = {}
+
+    def get(pid, *, seed=0, n_samples=20000, **plant_kw):
+        key = (pid, seed, n_samples, tuple(sorted(plant_kw.items())))
+        if key not in reports:
+            reports[key] = compute_constants(PLANTS.create(pid, **plant_kw), seed=seed, n_samples=n_samples)
+        return reports[key]
+
+    return get
+
+
+@pytest.fixture(scope="session")
 def flex():
     return PLANTS.create("flexible_link")
 
 
 @pytest.fixture(scope="session")
-def flex_constants(flex):
-    return compute_constants(flex, seed=0)
+def flex_constants(catalog_constants):
+    return catalog_constants("flexible_link")
 
 
 @pytest.fixture(scope="session")
