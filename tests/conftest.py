@@ -23,6 +23,30 @@ def catalog_constants():
 
 
 @pytest.fixture(scope="session")
+def paper_gains_report(tmp_path_factory):
+    """``copy_to(folder)``: the report of ``python -m bench run -q -j 1 --no-figures --plant flexible_link
+    --design paper_gains``, run once per session, copied into ``folder/rep`` with its cache beside it
+    (``folder/.bench-cache``); returns ``folder/rep``. For tests that start from a finished run (its report
+    names the folder it was written to, so a test comparing report bytes across runs makes its own)."""
+    import shutil
+
+    from bench.cli import main
+
+    made = []
+
+    def copy_to(folder):
+        if not made:
+            base = tmp_path_factory.mktemp("paper_gains_report")
+            assert main(["run", "-q", "-j", "1", "--no-figures", "--plant", "flexible_link", "--design",
+                         "paper_gains", "--out", str(base / "rep")]) == 0
+            made.append(base)
+        shutil.copytree(made[0], folder, dirs_exist_ok=True)
+        return folder / "rep"
+
+    return copy_to
+
+
+@pytest.fixture(scope="session")
 def flex():
     return PLANTS.create("flexible_link")
 

@@ -299,26 +299,14 @@ def _edit_pair_entries(cache_dir: Path, edit, *, reseal: bool) -> list[Path]:
     return entries
 
 
-@pytest.fixture(scope="module")
-def _first_run(tmp_path_factory):
-    """One run of flexible_link x paper_gains (its report and, beside it, its cache), made once and copied."""
-    base = tmp_path_factory.mktemp("first_run")
-    assert main(["run", "-q", "-j", "1", "--no-figures", "--plant", "flexible_link", "--design", "paper_gains",
-                 "--out", str(base / "rep")]) == 0
-    return base
-
-
 @pytest.mark.parametrize("edit, reseal", [
     (lambda r: r.update(decay_rate="fast"), False),
     (lambda r: r.update(decay_rate="fast"), True),  # the checksum matches: the column's kind is checked
     (lambda r: r.update(certified=not r["certified"], cert_level="none"), False),  # an edited verdict
 ])
 def test_a_damaged_entry_is_a_miss_with_a_warning_and_the_row_is_recomputed(tmp_path, capsys, edit, reseal,
-                                                                          _first_run):
-    import shutil
-
-    shutil.copytree(_first_run, tmp_path, dirs_exist_ok=True)  # the report and its sibling .bench-cache
-    out = tmp_path / "rep"
+                                                                          paper_gains_report):
+    out = paper_gains_report(tmp_path)  # a first run's report and, beside it, its cache
     args = ["run", "-j", "1", "--no-figures", "--plant", "flexible_link", "--design", "paper_gains", "--out", str(out)]
     assert _cache_counts(out) == (0, 1)  # the copied run computed the pair
     first = pd.read_csv(out / "results.csv")
