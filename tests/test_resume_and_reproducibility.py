@@ -161,10 +161,11 @@ def _start(args, mark: Path, pairs: Path, n_cached: int):
     env = {**os.environ, "OSLBENCH_TEST_STUCK": "1", "OSLBENCH_TEST_MARK": str(mark)}
     proc = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.monotonic() + _GUARD_S
+
     def whole():  # entries written whole: a ".tmp-*.npz" is a write still under way
         return [p for p in pairs.glob("*.npz") if not p.name.startswith(".tmp-")]
 
+    deadline = time.monotonic() + _GUARD_S
     while not (mark.exists() and mark.read_text() and len(whole()) >= n_cached):
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() < deadline, "the stuck design never started"
