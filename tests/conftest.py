@@ -7,13 +7,53 @@ from bench.registry import PLANTS
 
 
 @pytest.fixture(scope="session")
+def catalog_constants():
+    """``get(pid, seed=0, n_samples=20000, **plant_kw)``: ``compute_constants(PLANTS.create(pid, **plant_kw),
+    seed=seed, n_samples=n_samples)``, computed once per session for each argument set (the sampler is
+    seeded, so a second computation gives the same report). For tests whose subject is not the constants."""
+    reports = {}
+
+    def get(pid, *, seed=0, n_samples=20000, **plant_kw):
+        key = (pid, seed, n_samples, tuple(sorted(plant_kw.items())))
+        if key not in reports:
+            reports[key] = compute_constants(PLANTS.create(pid, **plant_kw), seed=seed, n_samples=n_samples)
+        return reports[key]
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def paper_gains_report(tmp_path_factory):
+    """``copy_to(folder)``: the report of ``python -m bench run -q -j 1 --no-figures --plant flexible_link
+    --design paper_gains``, run once per session, copied into ``folder/rep`` with its cache beside it
+    (``folder/.bench-cache``); returns ``folder/rep``. For tests that start from a finished run (its report
+    names the folder it was written to, so a test comparing report bytes across runs makes its own)."""
+    import shutil
+
+    from bench.cli import main
+
+    made = []
+
+    def copy_to(folder):
+        if not made:
+            base = tmp_path_factory.mktemp("paper_gains_report")
+            assert main(["run", "-q", "-j", "1", "--no-figures", "--plant", "flexible_link", "--design",
+                         "paper_gains", "--out", str(base / "rep")]) == 0
+            made.append(base)
+        shutil.copytree(made[0], folder, dirs_exist_ok=True)
+        return folder / "rep"
+
+    return copy_to
+
+
+@pytest.fixture(scope="session")
 def flex():
     return PLANTS.create("flexible_link")
 
 
 @pytest.fixture(scope="session")
-def flex_constants(flex):
-    return compute_constants(flex, seed=0)
+def flex_constants(catalog_constants):
+    return catalog_constants("flexible_link")
 
 
 @pytest.fixture(scope="session")

@@ -304,10 +304,11 @@ def _edit_pair_entries(cache_dir: Path, edit, *, reseal: bool) -> list[Path]:
     (lambda r: r.update(decay_rate="fast"), True),  # the checksum matches: the column's kind is checked
     (lambda r: r.update(certified=not r["certified"], cert_level="none"), False),  # an edited verdict
 ])
-def test_a_damaged_entry_is_a_miss_with_a_warning_and_the_row_is_recomputed(tmp_path, capsys, edit, reseal):
-    out = tmp_path / "rep"
+def test_a_damaged_entry_is_a_miss_with_a_warning_and_the_row_is_recomputed(tmp_path, capsys, edit, reseal,
+                                                                          paper_gains_report):
+    out = paper_gains_report(tmp_path)  # a first run's report and, beside it, its cache
     args = ["run", "-j", "1", "--no-figures", "--plant", "flexible_link", "--design", "paper_gains", "--out", str(out)]
-    assert main(args) == 0
+    assert _cache_counts(out) == (0, 1)  # the copied run computed the pair
     first = pd.read_csv(out / "results.csv")
     assert first.loc[0, "certified"] and np.isfinite(first.loc[0, "decay_rate"])
     capsys.readouterr()

@@ -4,7 +4,6 @@ S-procedure and bisected on its eigenvalues; the ladder's rate against a fine bi
 import numpy as np
 import pytest
 
-from bench.constants import compute_constants
 from bench.certify import certify
 from bench.registry import DESIGNS, PLANTS
 from designs._riccati_route import structured_riccati
@@ -50,12 +49,12 @@ def test_reported_rate_is_what_the_certificate_proves(pid):
     assert res.rate != res.lam
 
 
-def test_ladder_rate_within_its_tolerance_of_a_fine_bisection():
+def test_ladder_rate_within_its_tolerance_of_a_fine_bisection(catalog_constants):
     """flexible_link x lqr+lqe, structured level: the default (1 %) search against a 1e-4 one, and above
     0.95 of 0.8367, the rate of the worst straight-line member of the declared class (issue 24)."""
     p = PLANTS.create("flexible_link")
     r = DESIGNS.create("lqr+lqe").design(p, p.bounds)
-    know = compute_constants(p, n_samples=1000).knowledge(p)
+    know = catalog_constants("flexible_link", n_samples=1000).knowledge(p)
     fine = certify(p, r.K, r.F, know, levels=("structured",), rate_rtol=1e-4).decay_rate
     rate = certify(p, r.K, r.F, know, levels=("structured",)).decay_rate
     assert fine / 1.01 <= rate <= fine * (1 + 1e-3)

@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 
-from bench.constants import compute_constants
 from bench.harness import run
 from bench.pipeline import RunOptions, evaluate_pair
 from bench.registry import PLANTS
@@ -79,9 +78,9 @@ def test_studies_and_the_main_table_agree_on_shared_pairs(small_run):
         assert row["horizon_s"] == main["horizon_s"]
 
 
-def test_a_pair_reused_with_prior_keeps_its_design_and_certificate():
+def test_a_pair_reused_with_prior_keeps_its_design_and_certificate(catalog_constants):
     plant = PLANTS.create("flexible_link")
-    rep = compute_constants(plant, n_samples=1000)
+    rep = catalog_constants("flexible_link", n_samples=1000)
     first = evaluate_pair(plant, "thm1_sep", rep, RunOptions(simulate=False))
     again = evaluate_pair(plant, "thm1_sep", rep, RunOptions(noise=1e-3, certificate="none"), prior=first)
     assert again.result is first.result and again.certificate is first.certificate

@@ -55,15 +55,9 @@ def assert_tight(f, closed, pairs):
 
 
 @pytest.fixture(scope="module")
-def reports():
-    cache = {}
-
-    def get(pid):
-        if pid not in cache:
-            cache[pid] = compute_constants(PLANTS.create(pid), seed=0)
-        return cache[pid]
-
-    return get
+def reports(catalog_constants):
+    """``reports(pid)``: ``compute_constants(PLANTS.create(pid), seed=0)``, computed once per session."""
+    return catalog_constants
 
 
 # -- plant 2: flexible-joint robot, unscaled ------------------------------------------------------

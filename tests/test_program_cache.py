@@ -38,7 +38,8 @@ def test_a_bisection_over_the_scale_reuses_one_program_and_matches_a_fresh_build
     first (same A, B, C; only rho, beta, gamma / alpha change) and agree with fresh builds."""
     design = DESIGNS.create(design_id)
     plants = [PLANTS.create("flexible_link", c=c) for c in (0.2, 0.35, 0.2)]
-    fresh = [_fresh(design_id, p) for p in plants]
+    fresh = [_fresh(design_id, p) for p in plants[:2]]
+    fresh.append(fresh[0])  # the same plant as the first: its fresh build is the first's
     _lmi.clear_program_cache()
     reused = []
     for p in plants:

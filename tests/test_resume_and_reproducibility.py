@@ -56,10 +56,9 @@ class _Quick(Design):
         return DesignResult(status="infeasible", reason="nothing to design")
 
 
-def test_ctrl_c_keeps_the_report_and_a_rerun_resumes_from_the_cache(tmp_path, capsys):
-    out = tmp_path / "rep"
+def test_ctrl_c_keeps_the_report_and_a_rerun_resumes_from_the_cache(tmp_path, capsys, paper_gains_report):
+    out = paper_gains_report(tmp_path)  # a finished run of paper_gains, its cache beside it
     base = ["run", "-j", "1", "--no-figures", "--plant", "flexible_link", "--out", str(out)]
-    assert main([*base, "-q", "--design", "paper_gains"]) == 0
     before = _snapshot(out)
     DESIGNS.register("_ctrl_c", _CtrlC, order=99)  # after lqr+lqe (order 50)
     try:
@@ -162,8 +161,12 @@ def _start(args, mark: Path, pairs: Path, n_cached: int):
     env = {**os.environ, "OSLBENCH_TEST_STUCK": "1", "OSLBENCH_TEST_MARK": str(mark)}
     proc = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+    def whole():  # entries written whole: a ".tmp-*.npz" is a write still under way
+        return [p for p in pairs.glob("*.npz") if not p.name.startswith(".tmp-")]
+
     deadline = time.monotonic() + _GUARD_S
-    while not (mark.exists() and mark.read_text() and len(list(pairs.glob("*.npz"))) >= n_cached):
+    while not (mark.exists() and mark.read_text() and len(whole()) >= n_cached):
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() < deadline, "the stuck design never started"
         time.sleep(0.05)
@@ -182,15 +185,14 @@ def _gone_soon(pids: set[int], within: float) -> set[int]:
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
-def test_sigint_and_sigkill_mid_run(tmp_path, monkeypatch, capsys):
+def test_sigint_and_sigkill_mid_run(tmp_path, monkeypatch, capsys, paper_gains_report):
     """Real signals to a real process: the report survives, finished pairs survive, no worker outlives its
     parent (SIGKILL included), a re-run resumes."""
-    out = tmp_path / "rep"
+    out = paper_gains_report(tmp_path)  # a finished run of paper_gains, its cache beside it
     plugin = tmp_path / "stuck.py"
     plugin.write_text(PLUGIN)
     base = ["run", "--no-figures", "--plant", "flexible_link", "--out", str(out)]
     pairs = default_cache_dir(out) / "pairs"
-    assert main([*base, "-q", "-j", "1", "--design", "paper_gains"]) == 0
     before = _snapshot(out)
     stuck = [*base, "--plugin", str(plugin), "--design", "paper_gains", "--design", "lqr+lqe", "--design", "zz_stuck"]
 

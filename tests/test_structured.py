@@ -5,19 +5,25 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.constants import compute_constants
 from bench.pipeline import RunOptions, evaluate_pair
 from bench.registry import DESIGNS, PLANTS
 from designs.scaled import scaled_plant
 
 
-def _row(pid: str, did: str, **overrides) -> dict:
-    plant = PLANTS.create(pid)
-    design = DESIGNS.create(did, **overrides) if overrides else did
-    return evaluate_pair(plant, design, compute_constants(plant, n_samples=1000), RunOptions(), design_id=did).record
+@pytest.fixture(scope="module")
+def _row(catalog_constants):
+    """``_row(pid, did, **overrides)``: the pipeline's record of the pair (the plant's constants computed once)."""
+
+    def row(pid: str, did: str, **overrides) -> dict:
+        plant = PLANTS.create(pid)
+        design = DESIGNS.create(did, **overrides) if overrides else did
+        return evaluate_pair(plant, design, catalog_constants(pid, n_samples=1000), RunOptions(),
+                             design_id=did).record
+
+    return row
 
 
-def test_structured_design_on_the_flexible_link_meets_the_issue_targets():
+def test_structured_design_on_the_flexible_link_meets_the_issue_targets(_row):
     """Issue 11: certified with decay >= 1.0 and peak |u| <= 20 on the flexible link."""
     r = _row("flexible_link", "structured")
     assert r["status"] == "feasible" and r["certified"] and r["cert_level"] == "structured"
@@ -26,7 +32,7 @@ def test_structured_design_on_the_flexible_link_meets_the_issue_targets():
 
 
 @pytest.mark.parametrize("pid", ["pendulum_v1", "flexible_joint_v1"])
-def test_structured_design_certifies_where_every_scalar_design_is_infeasible(pid):
+def test_structured_design_certifies_where_every_scalar_design_is_infeasible(pid, _row):
     r = _row(pid, "structured")
     assert r["certified"] and r["converged"]
     for did in ("thm1", "cor1"):
@@ -49,7 +55,7 @@ def test_structured_gains_respect_the_bound_and_a_looser_bound_buys_a_faster_rat
         assert np.linalg.eigvals(A0 - res.K @ plant.C).real.max() < 0
 
 
-def test_riccati_and_sdp_routes_agree_on_small_plants():
+def test_riccati_and_sdp_routes_agree_on_small_plants(_row):
     """Issue 14: where the SDP route is feasible, the Riccati route's verdict agrees (or the row says why not)."""
     for pid in ("flexible_link", "random_lipschitz_v1", "chain_v1"):
         sdp = _row(pid, "structured", route="sdp")
@@ -73,22 +79,22 @@ def test_scaled_plant_constants_have_the_closed_form():
 
 
 @pytest.mark.parametrize("pid", ["pendulum_v1", "flexible_joint_v1"])
-def test_scaled_theorem1_is_feasible_and_its_gains_work_on_the_original_plant(pid):
+def test_scaled_theorem1_is_feasible_and_its_gains_work_on_the_original_plant(pid, _row):
     r = _row(pid, "thm1_scaled")
     assert r["status"] == "feasible" and r["certified"] and r["converged"]
     assert r["stabilizing"]
 
 
 @pytest.mark.parametrize("did", ["structured", "thm1", "cor1", "thm1_sep", "lqr+zhang_osl"])
-def test_a_sweep_over_the_scale_of_f_designs_what_a_cold_process_designs(did):
+def test_a_sweep_over_the_scale_of_f_designs_what_a_cold_process_designs(did, catalog_constants):
     """A program compiled for one value of the knob must not serve another (the structured design's
     side programs bake the loop data in, so their cache key must hold its values): designing at
     c = 0.34 after c = 0.333 gives the gains of a cold design at c = 0.34."""
     from bench import lmi
 
-    def design(c):
+    def design(c):  # the constants are sampled once per c for all designs: the program cache is what is tested
         p = PLANTS.create("flexible_link", c=c)
-        return DESIGNS.create(did).design(p, compute_constants(p, seed=0, n_samples=2000).used)
+        return DESIGNS.create(did).design(p, catalog_constants("flexible_link", n_samples=2000, c=c).used)
 
     lmi.clear_program_cache()
     cold = design(0.34)

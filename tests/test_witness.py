@@ -180,14 +180,13 @@ def test_findings_split_uncertified_converging_pairs_by_witness():
     assert got["best"]["rate_ratio"] == 0.9
 
 
-def test_pipeline_rows_say_why():
-    from bench.constants import compute_constants
+def test_pipeline_rows_say_why(catalog_constants):
     from bench.pipeline import RunOptions, evaluate_pair
 
     rows = {}
     for pid in ("pendulum_v1", "flexible_joint_v1"):
         plant = PLANTS.create(pid)
-        rows[pid] = evaluate_pair(plant, "lqr+lqe", compute_constants(plant), RunOptions(fail_fast=True)).record
+        rows[pid] = evaluate_pair(plant, "lqr+lqe", catalog_constants(pid), RunOptions(fail_fast=True)).record
     pend, joint = rows["pendulum_v1"], rows["flexible_joint_v1"]
     assert not pend["certified"] and "equilibrium" in pend["witness"] and "linear member" in pend["witness"]
     assert "no global certificate exists" in pend["reason"] and "up to r = " in pend["reason"]
