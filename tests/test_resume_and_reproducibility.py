@@ -166,10 +166,16 @@ def _start(args, mark: Path, pairs: Path, n_cached: int):
         return [p for p in pairs.glob("*.npz") if not p.name.startswith(".tmp-")]
 
     deadline = time.monotonic() + _GUARD_S
-    while not (mark.exists() and mark.read_text() and len(whole()) >= n_cached):
-        assert proc.poll() is None, proc.communicate()
-        assert time.monotonic() < deadline, "the stuck design never started"
-        time.sleep(0.05)
+    try:
+        while not (mark.exists() and mark.read_text() and len(whole()) >= n_cached):
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, (f"the stuck design never started (mark {mark.exists()}, "
+                                                 f"whole entries {len(whole())} of {n_cached})")
+            time.sleep(0.05)
+    except BaseException:  # a failed wait leaves no run behind (the stuck worker sleeps an hour)
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        raise
     return proc
 
 
