@@ -411,12 +411,12 @@ class Plant:
     def _check_f(self, n: int) -> None:
         if not callable(self.f):
             raise PlantError(f"f: must be callable, got {type(self.f).__name__}")
-        checks = (
+        probes = (
             ("f(0)", np.zeros(n), (n,)),
             ("f(x0)", np.array(self.x0), (n,)),
             ("f(batch)", np.stack([self.x0, self.x_hat0, np.zeros(n)], axis=1), (n, 3)),
         )
-        for label, arg, shape in checks:
+        for label, arg, shape in probes:
             try:
                 raw = self.f(arg)
             except Exception as exc:  # the user's f failed: say where

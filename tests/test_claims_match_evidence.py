@@ -58,7 +58,7 @@ def ratios(f, x1, x2):
 
 
 # -- "Disproved bounds still certify" -----------------------------------------------------------------------
-def test_disproved_bounds_never_certify():
+def test_disproved_bounds_never_certify(monkeypatch):
     f = sine_on_x1(10.0)
     wrong = Constants(alpha=0.01, rho=0.005, beta=1e-4, gamma=0.0)
     plant = double_integrator(f, id="wrong_bounds", bounds=wrong)
@@ -68,8 +68,20 @@ def test_disproved_bounds_never_certify():
     assert ratios(f, [d, 0], z)["alpha"] > 9.99 and ratios(f, [d, d], z)["rho"] > 4.99
     # and the loop with the fixed gains is not even locally stable: A + Df(0) + BF has an eigenvalue > 0
     assert np.linalg.eigvals(A2 + jacobian_at_zero(f, 2) + B2 @ F2).real.max() > 0
-    # the old behaviour: trusting the declaration as it is certifies this loop
-    assert certify(plant, K2, F2, Knowledge.trusting(plant), rates=False).certified
+    # trusting the declaration as it is, the LMI alone certifies this loop (the old behaviour) ...
+    import bench.witness
+    with monkeypatch.context() as m:
+        m.setattr(bench.witness, "equilibrium_witness", lambda *a, **k: None)
+        assert certify(plant, K2, F2, Knowledge.trusting(plant), rates=False).certified
+    # ... but the true loop has an equilibrium besides the origin, found before any global LMI: its
+    # right-hand side, recomputed here with the true f in (x, x_hat), vanishes there
+    cert = certify(plant, K2, F2, Knowledge.trusting(plant), rates=False)
+    eq = next(w for w in cert.witnesses if w.kind == "equilibrium")
+    assert not cert.certified
+    x, xh = eq.z[:2], eq.z[:2] - eq.z[2:]
+    dx = A2 @ x + B2 @ (F2 @ xh) + f(x)
+    dxh = A2 @ xh + B2 @ (F2 @ xh) + f(xh) + K2 @ (C2 @ (x - xh))
+    assert np.linalg.norm(eq.z) > 0.1 and np.abs(np.concatenate([dx, dxh])).max() < 1e-8
 
     rep = compute_constants(plant, seed=0, n_samples=2000)
     assert {v.name for v in rep.disproved} == {"alpha", "rho", "beta"}
