@@ -47,7 +47,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from bench import joint, lmi
-from bench.search import RATE_RTOL, largest_passing
+from bench.search import RATE_RTOL
 
 __all__ = ["structured_riccati"]
 
@@ -132,7 +132,7 @@ def _sign_are(a, M, q, *, tol=1e-13, maxit=60):
     n = a.shape[0]
     Z = np.block([[a, -M], [-q, -a.T]])
     I2 = np.eye(2 * n)
-    last = False
+    last, err = False, math.inf
     for it in range(maxit):
         try:
             lu, piv = sla.lu_factor(Z, check_finite=False)
@@ -147,10 +147,12 @@ def _sign_are(a, M, q, *, tol=1e-13, maxit=60):
             return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
         c = math.exp(-logdet / (2 * n)) if it < 8 else 1.0  # determinant scaling while far off
         Zn = 0.5 * (c * Z + Zi / c)
-        err = float(np.abs(Zn - Z).sum(axis=0).max() / max(np.abs(Zn).sum(axis=0).max(), 1e-300))
+        err, prev = float(np.abs(Zn - Z).sum(axis=0).max() / max(np.abs(Zn).sum(axis=0).max(), 1e-300)), err
         Z = Zn
         if err < tol or last:
             break
+        if it >= 12 and err > 0.5 * prev:  # no quadratic convergence: eigenvalues on or near the axis
+            return None, True, f"sign iteration stalled at relative step {err:.2g} (eigenvalues near the imaginary axis)"
         last = err < 1e-7 and it >= 8
     else:
         return None, True, f"sign iteration did not converge in {maxit} steps (eigenvalues near the imaginary axis)"
@@ -342,7 +344,10 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> t
     Returns
     -------
     (SideSolution or None, str)
-        The verified solution (P > 0, ``Mx < 0``) and ``""``, or None and the reason in words.
+        The verified solution (P > 0, ``Mx(lam / (1 + RATE_RTOL)) < 0``, its ``lam`` that rate) and
+        ``""``, or None and the reason in words. At the ARE's solution ``Mx(lam) = -eps I`` on this side
+        but ``-eps R^2`` on the e-side, which rounding can make marginal when R is ill-conditioned;
+        one grid step lower the side matrix has ``-2 lam R`` more, as well conditioned as R.
     """
     A0, B = np.asarray(A0, dtype=float), np.asarray(B, dtype=float)
     lp = _loop(A0, B, None, G, H, r)
@@ -354,6 +359,7 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> t
     if not pmin > 0:
         return None, f"x-side: P is not positive definite (min/max eigenvalue {pmin:.3g})"
     F = -tau * (B.T @ P)
+    lam = lam / (1 + RATE_RTOL)
     Mx = joint.side_matrices(lp, F, np.zeros((n, 0)), P, np.eye(n), s, 1.0, lam)[0]
     return _verified_side("x-side", Mx, P, F, pmin, s, tau, eps, lam, info)
 
@@ -379,6 +385,7 @@ def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign") -> t
     if not rmin > 0:
         return None, f"e-side: R = X^-1 is not positive definite (min/max eigenvalue {rmin:.3g})"
     K = tau * (X @ C.T)
+    lam = lam / (1 + RATE_RTOL)
     Me = joint.side_matrices(lp, np.zeros((0, n)), K, np.eye(n), R, 1.0, t, lam)[1]
     return _verified_side("e-side", Me, R, K, rmin, t, tau, eps, lam, info)
 
@@ -455,58 +462,86 @@ class RiccatiRouteResult:
 
 
 class _Side:
-    """One side's solutions by decay target, the smallest verifying tau on the grid first."""
+    """One side's verified solutions by decay target: the (tau, eps) grid in full at the first target
+    that is solved, then the grid point that verified there."""
 
     def __init__(self, label, solve, taus, epss, max_gain, tries):
         self.label, self.solve, self.taus, self.epss = label, solve, list(taus), list(epss)
         self.max_gain, self.tries, self.found, self.index, self.why = max_gain, tries, {}, {}, "empty grid"
-        self.eps_at, self.eps_from = {}, None
-        self.tau_from = None  # the smallest tau that verified at a lower target (a larger target needs no less)
+        self.tau_from = self.eps_from = None
 
-    def at(self, lam: float) -> SideSolution | None:
-        """The verified solution with the smallest grid tau at ``lam`` (None: none; gains not checked)."""
+    def at(self, lam: float, quick: bool = False) -> SideSolution | None:
+        """The verified solution with the smallest grid tau at ``lam`` (None: none; gains not checked);
+        ``quick``: the first grid point only."""
         if lam in self.found:
             return self.found[lam]
         sol = None
-        # the strictness that passed first is kept once a target passed
-        for eps in (self.epss if self.tau_from is None else [self.eps_from]):
-            # the whole grid until a target passes; then the smallest tau that passed and the next one
-            first = self.tau_from is None
-            span = range(len(self.taus)) if first else range(self.tau_from, min(self.tau_from + 2, len(self.taus)))
-            for i in span:
-                sol, why = self.solve(lam, self.taus[i], eps)
-                self.tries.append((self.label, lam, self.taus[i], eps, why or "ok"))
-                if sol is not None:
-                    self.index[lam], self.eps_at[lam] = i, eps
-                    break
-                self.why = why
+        if quick or self.tau_from is None:
+            grid = [(0, self.epss[0])] if quick else [(i, e) for e in self.epss for i in range(len(self.taus))]
+        else:
+            grid = [(self.tau_from, self.eps_from)]
+        for i, eps in grid:
+            sol, why = self.solve(lam, self.taus[i], eps)
+            self.tries.append((self.label, lam, self.taus[i], eps, why or "ok"))
             if sol is not None:
+                self.index[lam] = i
+                if self.tau_from is None:
+                    self.tau_from, self.eps_from = i, eps
                 break
+            self.why = why
         self.found[lam] = sol
         return sol
 
-    def passes(self, lam: float) -> bool:
-        sol = self.at(lam)
-        if sol is not None and self.tau_from is None:
-            self.tau_from, self.eps_from = self.index[lam], self.eps_at[lam]
-        ok = sol is not None and sol.gain_norm <= self.max_gain
-        if ok:
-            self.tau_from = max(self.tau_from or 0, self.index[lam])
-        return ok
+    def gain(self, lam: float, quick: bool = False) -> float:
+        """``||gain||`` of the solution at ``lam`` (inf: none)."""
+        sol = self.at(lam, quick)
+        return sol.gain_norm if sol is not None else math.inf
 
 
-def _search(side: _Side, lam: float | None, max_decay: float, rtol: float, other: bool = False) -> float | None:
-    """The side's largest passing decay target up to ``max_decay`` (``lam`` fixed: that one), or None when
-    lam = 0 fails; ``other``: ``max_decay`` is the other side's target (tried first)."""
+def _search(side: _Side, lam: float | None, top: float, rtol: float, other: bool = False) -> float | None:
+    """The side's largest decay target in ``[0, top]`` whose gain is within ``side.max_gain``.
+
+    ``lam`` fixed: that one. Otherwise, with ``g(l) = ||gain(l)||`` (increasing in the target l),
+    the point ``g(l) = max_gain`` is found by interpolation: between a passing and a failing target
+    the mean of the linear interpolation of ``g`` and of ``log g`` (``g`` is convex and ``log g``
+    concave in l on the families seen, so the two straddle the root), above the passing ones a
+    log-linear extrapolation (at most a factor 4 up), below a target without a solution a quarter
+    of the way (or half, once a positive target passed). It stops when the failing and the passing
+    targets are within ``1 + rtol``, or the passing gain within ``1 + rtol`` of the bound.
+    ``other``: ``top`` is the other side's target, tried first (first grid point only).
+
+    Returns
+    -------
+    float or None
+        The target found (0 when the gain bound fails already at 0), None when no solution at 0.
+    """
     if lam is not None:
         return lam if side.at(lam) is not None else None
-    if side.at(0.0) is None:
+    if other and side.gain(top, quick=True) <= side.max_gain:
+        return top
+    g_lo = side.gain(0.0)
+    if not math.isfinite(g_lo):
         return None
-    side.tau_from, side.eps_from = side.index[0.0], side.eps_at[0.0]
-    if other and side.passes(max_decay):  # the other side's target: no need to go further
-        return max_decay
-    out = largest_passing(side.passes, rtol=rtol, start=min(0.5, max_decay / 2), hi=max_decay, max_moves=12)
-    return out["lo"] if math.isfinite(out["lo"]) else 0.0
+    lo, up, g_up, prev, x = 0.0, top, math.nan, None, min(0.5, top / 2)
+    target = side.max_gain / math.sqrt(1 + rtol)  # aim inside the accepted band
+    for _ in range(12):
+        if g_lo * (1 + rtol) >= side.max_gain or up <= lo * (1 + rtol) or x in side.found:
+            break
+        g = side.gain(x)
+        if g <= side.max_gain:
+            prev, lo, g_lo = (lo, g_lo), x, g
+        else:
+            up, g_up = x, g
+        if math.isfinite(g_up):  # bracketed by gains
+            lin = (target - g_lo) / (g_up - g_lo)
+            log = math.log(target / g_lo) / math.log(g_up / g_lo)
+            x = lo + (up - lo) * min(max((lin + log) / 2, 0.1), 0.9)
+        elif math.isnan(g_up):  # nothing failed yet: extrapolate log g from the last two passing targets
+            slope = math.log(g_lo / prev[1]) / (lo - prev[0])
+            x = min(top, 4 * lo, lo + math.log(target / g_lo) / slope if slope > 0 else 4 * lo)
+        else:  # no solution at up
+            x = lo + (up - lo) * (0.25 if lo == 0 else 0.5)
+    return lo
 
 
 def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_gain: float = math.inf,
