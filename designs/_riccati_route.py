@@ -507,7 +507,8 @@ def _search(side: _Side, lam: float | None, top: float, rtol: float, other: bool
     concave in l on the families seen, so the two straddle the root), above the passing ones a
     log-linear extrapolation (at most a factor 4 up), below a target without a solution a quarter
     of the way (or half, once a positive target passed). It stops when the failing and the passing
-    targets are within ``1 + rtol``, or the passing gain within ``1 + rtol`` of the bound.
+    targets are within ``1 + rtol``, the passing gain within ``1 + rtol`` of the bound, or the
+    interpolated target within ``1 + rtol / 2`` of the passing one.
     ``other``: ``top`` is the other side's target, tried first (first grid point only).
 
     Returns
@@ -535,7 +536,9 @@ def _search(side: _Side, lam: float | None, top: float, rtol: float, other: bool
         if math.isfinite(g_up):  # bracketed by gains
             lin = (target - g_lo) / (g_up - g_lo)
             log = math.log(target / g_lo) / math.log(g_up / g_lo)
-            x = lo + (up - lo) * min(max((lin + log) / 2, 0.1), 0.9)
+            x = lo + (up - lo) * min(max((lin + log) / 2, 0.01), 0.99)
+            if x <= lo * (1 + rtol / 2):  # the predicted gain is below the tolerance
+                break
         elif math.isnan(g_up):  # nothing failed yet: extrapolate log g from the last two passing targets
             slope = math.log(g_lo / prev[1]) / (lo - prev[0])
             x = min(top, 4 * lo, lo + math.log(target / g_lo) / slope if slope > 0 else 4 * lo)
