@@ -14,12 +14,11 @@ multipliers s, t are redundant (the x-side is invariant under ``(tau, s, eps, P)
 so they are fixed at ``s = ||Dr H|| / ||G||``, ``t = 1 / s``; tau and eps are taken from grids
 relative to the natural scales ``tau0 = sigma / ||B||^2``, ``eps0 = sigma``, ``sigma = ||Dr H|| ||G||``.
 
-The design searches, side by side, the largest decay target lam (on the grid of
-:mod:`bench.search`) at which the side's ARE has a solution that verifies (P > 0 and the side
-matrix negative definite, recomputed from the gain) with a gain norm within ``max_gain``, taking
-for each lam the smallest tau that verifies. Both sides are then solved at the smaller of the two
-targets, and the pair is certified by :func:`bench.joint.certify`, which measures the rate the
-certificate proves.
+The design searches, side by side, the largest decay target lam at which the side's ARE has a
+solution that verifies (P > 0, side matrix negative definite one rate-grid step below lam,
+recomputed from the gain) with ``||gain|| <= max_gain`` (:func:`_search`: the gain interpolated
+in lam); the x-side at the e-side's target first. The pair is certified by
+:func:`bench.joint.certify`, which measures the rate the certificate proves.
 
 AREs (:func:`solve_are`, indefinite ``M``, the stabilizing solution): ``"sign"`` (default) is the
 matrix sign function of the Hamiltonian ``[[a, -M], [-q, -a']]`` (Newton iteration with
@@ -128,7 +127,7 @@ def _schur_are(a, M, q):
 def _sign_are(a, M, q, *, tol=1e-13, maxit=60):
     """The Newton iteration ``Z <- (c Z + Z^-1 / c) / 2`` for the sign of the Hamiltonian, determinant
     scaling ``c = |det Z|^(-1/2n)`` while far off; once the relative step is below 1e-7 (quadratic
-    convergence), one more step. ``Z^-1`` by LU solves against I (LAPACK's getri is slower)."""
+    convergence), one more step; it fails when, after 12 steps, a step no longer halves."""
     n = a.shape[0]
     Z = np.block([[a, -M], [-q, -a.T]])
     I2 = np.eye(2 * n)
@@ -467,7 +466,7 @@ class _Side:
 
     def __init__(self, label, solve, taus, epss, max_gain, tries):
         self.label, self.solve, self.taus, self.epss = label, solve, list(taus), list(epss)
-        self.max_gain, self.tries, self.found, self.index, self.why = max_gain, tries, {}, {}, "empty grid"
+        self.max_gain, self.tries, self.found, self.why = max_gain, tries, {}, "empty grid"
         self.tau_from = self.eps_from = None
 
     def at(self, lam: float, quick: bool = False) -> SideSolution | None:
@@ -484,7 +483,6 @@ class _Side:
             sol, why = self.solve(lam, self.taus[i], eps)
             self.tries.append((self.label, lam, self.taus[i], eps, why or "ok"))
             if sol is not None:
-                self.index[lam] = i
                 if self.tau_from is None:
                     self.tau_from, self.eps_from = i, eps
                 break
@@ -499,22 +497,16 @@ class _Side:
 
 
 def _search(side: _Side, lam: float | None, top: float, rtol: float, other: bool = False) -> float | None:
-    """The side's largest decay target in ``[0, top]`` whose gain is within ``side.max_gain``.
+    """The side's largest decay target in ``[0, top]`` with ``||gain|| <= side.max_gain`` (``lam`` given:
+    that one; ``other``: ``top`` is the other side's target, tried first at the first grid point).
 
-    ``lam`` fixed: that one. Otherwise, with ``g(l) = ||gain(l)||`` (increasing in the target l),
-    the point ``g(l) = max_gain`` is found by interpolation: between a passing and a failing target
-    the mean of the linear interpolation of ``g`` and of ``log g`` (``g`` is convex and ``log g``
-    concave in l on the families seen, so the two straddle the root), above the passing ones a
-    log-linear extrapolation (at most a factor 4 up), below a target without a solution a quarter
-    of the way (or half, once a positive target passed). It stops when the failing and the passing
-    targets are within ``1 + rtol``, the passing gain within ``1 + rtol`` of the bound, or the
-    interpolated target within ``1 + rtol / 2`` of the passing one.
-    ``other``: ``top`` is the other side's target, tried first (first grid point only).
-
-    Returns
-    -------
-    float or None
-        The target found (0 when the gain bound fails already at 0), None when no solution at 0.
+    ``g(l) = ||gain(l)||`` grows with l. Between a passing and a failing target the next one is the
+    mean of the linear interpolations of ``g`` and of ``log g`` to the bound (g is convex and log g
+    concave in l on the families seen, so the two straddle the root); above the passing targets a
+    log-linear extrapolation (at most 4 times up); below a target without a solution a quarter (or
+    half) of the way. It stops when the targets, the passing gain and the bound, or the next target
+    and the passing one are within ``1 + rtol`` (``1 + rtol / 2``). Returns the target (0 when the
+    bound fails at 0), or None when there is no solution at 0.
     """
     if lam is not None:
         return lam if side.at(lam) is not None else None
@@ -568,7 +560,7 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     max_decay : float
         Upper end of the search.
     rtol : float
-        The search's grid (:mod:`bench.search`).
+        Relative tolerance of the search (:func:`_search`).
     taus, eps : sequence of float
         Grids of the gain scale and the strictness relative to their natural scales (module docstring).
     s, t : float, optional
