@@ -22,8 +22,8 @@ in lam); the x-side at the e-side's target first. The pair is certified by
 
 AREs (:func:`solve_are`, indefinite ``M``, the stabilizing solution): ``"sign"`` (default) is the
 matrix sign function of the Hamiltonian ``[[a, -M], [-q, -a']]`` (Newton iteration with
-determinant scaling), ``X`` from ``[W12; W22 + I] X = -[W11 + I; W21]``; ``"schur"`` the ordered
-real Schur form (``X = U21 U11^-1``); ``"scipy"`` ``scipy.linalg.solve_continuous_are``, the
+determinant scaling), ``X`` from ``[W12; W22 + I] X = -[W11 + I; W21]``; ``"scipy"``
+``scipy.linalg.solve_continuous_are`` (the ordered Schur form of the extended pencil), the
 fallback when a solution fails its accuracy checks (residual, symmetry). A solution is used only
 through the side's own Lyapunov test, which also proves the closed loop Hurwitz.
 
@@ -31,8 +31,7 @@ References
 ----------
 J. D. Roberts, "Linear model reduction and solution of the algebraic Riccati equation by use of
 the sign function", Int. J. Control 32(4), 1980. R. Byers, "Solving the algebraic Riccati equation
-with the matrix sign function", Linear Algebra Appl. 85, 1987. A. J. Laub, "A Schur method for
-solving algebraic Riccati equations", IEEE TAC 24(6), 1979.
+with the matrix sign function", Linear Algebra Appl. 85, 1987.
 """
 
 from __future__ import annotations
@@ -98,32 +97,6 @@ def _are_residual(a, M, q, X) -> float:
     return float(np.abs(res).sum(axis=0).max() / max(den, 1e-300))
 
 
-def _schur_are(a, M, q):
-    n = a.shape[0]
-    Ham = np.block([[a, -M], [-q, -a.T]])
-    scale = float(np.abs(Ham).sum(axis=0).max())
-    T, U, sdim = sla.schur(Ham, output="real", sort="lhp", overwrite_a=True, check_finite=False)
-    if sdim != n:
-        return None, math.inf, True, (f"the Hamiltonian has {sdim} eigenvalues with negative real part, not n = {n} "
-                                "(eigenvalues on or near the imaginary axis: no stabilizing solution)")
-    # LAPACK's standardised real Schur form: a 2x2 block has equal diagonal entries (its real part)
-    re = np.diag(T)
-    max_re, min_re_unstable = float(re[:n].max()), float(re[n:].min())
-    if max_re > -1e-10 * scale or min_re_unstable < 1e-10 * scale:
-        return None, max_re, True, (f"Hamiltonian eigenvalues within {1e-10:g} (relative) of the imaginary axis "
-                              f"(closest {min(-max_re, min_re_unstable):.3g}): no reliable stabilizing solution")
-    U11, U21 = U[:n, :n], U[n:, :n]
-    try:
-        lu = sla.lu_factor(U11.T, check_finite=False)
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        return None, max_re, False, f"U11 is singular ({exc})"
-    rcond = sla.lapack.dgecon(lu[0], np.abs(U11).sum(axis=0).max())[0] if n else 1.0
-    if rcond < 1e-14:
-        return None, max_re, False, f"U11 is numerically singular (rcond {rcond:.2g}): the stabilizing solution is unbounded"
-    X = sla.lu_solve(lu, U21.T, check_finite=False).T
-    return X, max_re, False, ""
-
-
 def _sign_are(a, M, q, *, tol=1e-13, maxit=60):
     """The Newton iteration ``Z <- (c Z + Z^-1 / c) / 2`` for the sign of the Hamiltonian, determinant
     scaling ``c = |det Z|^(-1/2n)`` while far off; once the relative step is below 1e-7 (quadratic
@@ -174,10 +147,10 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
         Nonzero diagonal weights of any sign (``R = diag(rr)`` in scipy's notation).
     q : ndarray, shape (n, n)
         Symmetric.
-    method : {"schur", "sign", "scipy"}
+    method : {"sign", "scipy"}
         See the module docstring.
     fallback : bool
-        If the chosen method fails an accuracy check (residual, symmetry, conditioning of U11), try
+        If the chosen method fails an accuracy check (residual, symmetry), try
         ``"scipy"`` (balanced QZ on the extended pencil). Not when the Hamiltonian has eigenvalues
         on (or within rounding of) the imaginary axis: no method has a stabilizing solution then.
     fallback_max_n : int
@@ -197,8 +170,8 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
     b = np.asarray(b, dtype=float)
     rr = np.asarray(rr, dtype=float).reshape(-1)
     q = lmi.sym(np.asarray(q, dtype=float))
-    if method not in ("schur", "sign", "scipy"):
-        raise ValueError(f"method: expected 'schur', 'sign' or 'scipy', got {method!r}")
+    if method not in ("sign", "scipy"):
+        raise ValueError(f"method: expected 'sign' or 'scipy', got {method!r}")
     if np.any(rr == 0) or not np.all(np.isfinite(rr)):
         raise ValueError(f"rr: weights must be finite and nonzero, got {rr.tolist()}")
     M = lmi.sym((b / rr) @ b.T)
@@ -225,9 +198,7 @@ def _solve_by(method: str, a, b, rr, M, q) -> tuple[np.ndarray | None, float, bo
     method has a stabilizing solution), and the reason of a failure."""
     X, max_re, reason, definite = None, math.inf, "", False
     try:
-        if method == "schur":
-            X, max_re, definite, reason = _schur_are(a, M, q)
-        elif method == "sign":
+        if method == "sign":
             X, definite, reason = _sign_are(a, M, q)
             # the side's Lyapunov test (P > 0, side matrix < 0) proves the closed loop Hurwitz; the spectrum
             # is computed only where it is cheap
