@@ -634,8 +634,10 @@ def perf_main(out_dir: str, sizes: list[int], max_joint_n: int, with_run: bool, 
     warm_imports()  # forked measurements must not pay for imports
     PLANTS.ids()
     DESIGNS.ids()
-    routes = route_rows(route_sizes, echo=echo) if route_sizes else []
-    refs = reference_rows(tuple(n for n in (route_sizes or ()) if n >= 1024), echo=echo)
+    routes, refs = [], []
+    for n in route_sizes or ():  # the reference right after its route row: the same load on the machine
+        routes += route_rows((n,), echo=echo)
+        refs += reference_rows((n,) if n >= 1024 else (), echo=echo)
     sims = sim_rows(echo) if with_sims else []
     thm_rows = theorem1_rows(sizes, max_joint_n, echo)
     sweep = _sweep_overhead()

@@ -97,14 +97,15 @@ def _are_residual(a, M, q, X) -> float:
     return float(np.abs(res).sum(axis=0).max() / max(den, 1e-300))
 
 
-def _sign_are(a, M, q, *, tol=1e-13, maxit=60):
+def _sign_are(a, M, q, *, tol=1e-6, maxit=60):
     """The Newton iteration ``Z <- (c Z + Z^-1 / c) / 2`` for the sign of the Hamiltonian, determinant
-    scaling ``c = |det Z|^(-1/2n)`` while far off; once the relative step is below 1e-7 (quadratic
-    convergence), one more step; it fails when, after 12 steps, a step no longer halves."""
+    scaling ``c = |det Z|^(-1/2n)`` in the first 8 steps. It stops when the relative step is below
+    ``tol`` (the convergence is quadratic: the iterate's error is then of the order of its square) and
+    fails when, after 12 steps, a step no longer halves."""
     n = a.shape[0]
     Z = np.block([[a, -M], [-q, -a.T]])
     I2 = np.eye(2 * n)
-    last, err = False, math.inf
+    err = math.inf
     for it in range(maxit):
         try:
             lu, piv = sla.lu_factor(Z, check_finite=False)
@@ -121,11 +122,10 @@ def _sign_are(a, M, q, *, tol=1e-13, maxit=60):
         Zn = 0.5 * (c * Z + Zi / c)
         err, prev = float(np.abs(Zn - Z).sum(axis=0).max() / max(np.abs(Zn).sum(axis=0).max(), 1e-300)), err
         Z = Zn
-        if err < tol or last:
+        if err < tol:
             break
         if it >= 12 and err > 0.5 * prev:  # no quadratic convergence: eigenvalues on or near the axis
             return None, True, f"sign iteration stalled at relative step {err:.2g} (eigenvalues near the imaginary axis)"
-        last = err < 1e-7 and it >= 8
     else:
         return None, True, f"sign iteration did not converge in {maxit} steps (eigenvalues near the imaginary axis)"
     I = np.eye(n)
