@@ -80,12 +80,11 @@ def _norm2(X: np.ndarray) -> float:
 class AREInfo:
     """Diagnostics of one ARE solve (:func:`solve_are`): method, relative residual
     ``||a'X + Xa - XMX + q||_1 / (2 ||a||_1 ||X||_1 + ||M||_1 ||X||_1^2 + ||q||_1)``, largest real part
-    of ``a - M X`` (-inf when not computed), seconds, and the reason of a failure (empty on success)."""
+    of ``a - M X`` (-inf when not computed), and the reason of a failure (empty on success)."""
 
     method: str
     residual: float = math.inf
     closed_loop_max_re: float = math.inf
-    seconds: float = 0.0
     reason: str = ""
 
 
@@ -163,9 +162,8 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
     X : ndarray or None
         Symmetric solution, or None when none passed the checks.
     info : AREInfo
-        Method, residual, closed-loop largest real part, time, and the reason of a failure.
+        Method, residual, closed-loop largest real part, and the reason of a failure.
     """
-    t0 = time.perf_counter()
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     rr = np.asarray(rr, dtype=float).reshape(-1)
@@ -180,14 +178,12 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
     res = math.inf
     if X is not None:
         X, res, reason = _accurate(X, a, M, q, max_re, residual_tol)
-    info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re,
-                   seconds=time.perf_counter() - t0, reason=reason)
+    info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re, reason=reason)
     if X is None and fallback and method != "scipy" and not definite and n <= fallback_max_n:
         X2, info2 = solve_are(a, b, rr, q, method="scipy", fallback=False, residual_tol=residual_tol)
         if X2 is not None:
-            return X2, AREInfo(method="scipy", residual=info2.residual, closed_loop_max_re=info2.closed_loop_max_re,
-                               seconds=time.perf_counter() - t0, reason="")
-        info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re, seconds=time.perf_counter() - t0,
+            return X2, info2
+        info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re,
                        reason=f"{reason}; scipy fallback: {info2.reason}")
     return X, info
 
