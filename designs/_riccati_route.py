@@ -114,13 +114,15 @@ def _sign_are(a, M, q, *, tol=1e-6, maxit=60):
             logdet = float(np.sum(np.log(np.abs(np.diag(lu)))))
         if not math.isfinite(logdet):
             return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
-        Zi = sla.lu_solve((lu, piv), I2, check_finite=False)
-        if not np.all(np.isfinite(Zi)):
-            return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
+        Zn = sla.lu_solve((lu, piv), I2, check_finite=False)
         c = math.exp(-logdet / (2 * n)) if it < 8 else 1.0  # determinant scaling while far off
-        Zn = 0.5 * (c * Z + Zi / c)
-        err, prev = float(np.abs(Zn - Z).sum(axis=0).max() / max(np.abs(Zn).sum(axis=0).max(), 1e-300)), err
+        Zn *= 0.5 / c
+        Zn += (0.5 * c) * Z  # in place: the next iterate, and Z - Zn its step (Frobenius norms)
+        Z -= Zn
+        err, prev = float(np.linalg.norm(Z) / max(np.linalg.norm(Zn), 1e-300)), err
         Z = Zn
+        if not math.isfinite(err):
+            return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
         if err < tol:
             break
         if it >= 12 and err > 0.5 * prev:  # no quadratic convergence: eigenvalues on or near the axis
@@ -241,11 +243,12 @@ class SideSolution:
     gain : ndarray
         F (m x n, x-side) or K (n x p, e-side).
     side_matrix : ndarray (n, n)
-        ``Mx`` or ``Me`` of :mod:`bench.joint` at the side's lam, recomputed from the gain.
+        ``Mx`` or ``Me`` of :mod:`bench.joint` at ``lam``, recomputed from the gain.
     min_eig : float
         Smallest eigenvalue of P (or R) over its largest.
     multiplier, tau, eps, lam : float
-        s (or t), tau (or tau'), eps and the decay target.
+        s (or t), tau (or tau'), eps, and the rate at which the side matrix is verified (the ARE's
+        decay target over ``1 + RATE_RTOL``).
     are : AREInfo
     """
 
