@@ -316,7 +316,7 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> t
         The verified solution (P > 0, ``Mx(lam / (1 + RATE_RTOL)) < 0``, its ``lam`` that rate) and
         ``""``, or None and the reason in words. At the ARE's solution ``Mx(lam) = -eps I`` on this side
         but ``-eps R^2`` on the e-side, which rounding can make marginal when R is ill-conditioned;
-        one grid step lower the side matrix has ``-2 lam R`` more, as well conditioned as R.
+        at the lower rate the side matrix has ``-2 lam RATE_RTOL / (1 + RATE_RTOL) R`` more.
     """
     A0, B = np.asarray(A0, dtype=float), np.asarray(B, dtype=float)
     lp = _loop(A0, B, None, G, H, r)

@@ -259,16 +259,13 @@ def test_target_search_stops_at_the_gain_bound(kappa, wall):
     # target within max_gain = 20 is min(ln(10) / kappa, wall)
     from designs._riccati_route import SideSolution, _Side, _search
 
-    calls = []
-
     def solve(lam, tau, eps):
-        calls.append(lam)
-        if lam > wall:
-            return None, "no solution"
-        return SideSolution(P=np.eye(1), gain=np.array([[2 * math.exp(kappa * lam)]]), side_matrix=-np.eye(1),
-                            min_eig=1.0, multiplier=1.0, tau=tau, eps=eps, are=None, lam=lam), ""
+        sol = SideSolution(P=np.eye(1), gain=np.array([[2 * math.exp(kappa * lam)]]), side_matrix=-np.eye(1),
+                           min_eig=1.0, multiplier=1.0, tau=tau, eps=eps, are=None, lam=lam)
+        return (sol, "") if lam <= wall else (None, "no solution")
 
-    got = _search(_Side("e", solve, [1.0], [1.0], 20.0, []), None, 10.0, 0.05)
+    calls = []
+    got = _search(_Side("e", solve, [1.0], [1.0], 20.0, calls), None, 10.0, 0.05)
     best = min(math.log(10) / kappa, wall)
     assert best / 1.05 <= got <= best
     assert len(calls) <= (12 if math.isfinite(wall) else 8)
