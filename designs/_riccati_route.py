@@ -470,13 +470,13 @@ def _search(side: _Side, lam: float | None, top: float, rtol: float, other: bool
     """The side's largest decay target in ``[0, top]`` with ``||gain|| <= side.max_gain`` (``lam`` given:
     that one; ``other``: ``top`` is the other side's target, tried first at the first grid point).
 
-    ``g(l) = ||gain(l)||`` grows with l. Between a passing and a failing target the next one is the
-    mean of the linear interpolations of ``g`` and of ``log g`` to the bound (g is convex and log g
-    concave in l on the families seen, so the two straddle the root); above the passing targets a
-    log-linear extrapolation (at most 4 times up); below a target without a solution a quarter (or
-    half) of the way. It stops when the targets, the passing gain and the bound, or the next target
-    and the passing one are within ``1 + rtol`` (``1 + rtol / 2``). Returns the target (0 when the
-    bound fails at 0), or None when there is no solution at 0.
+    ``g(l) = ||gain(l)||`` grows with l. After 0 the target ``min(1/8, top/2)`` is tried; then, between
+    a passing and a failing target, the mean of the linear interpolations of ``g`` and of ``log g``
+    to the bound (g is convex and log g concave in l on the families seen, so the two straddle the
+    root); above the passing targets a log-linear extrapolation (at most 4 times up); below a target
+    without a solution a quarter (or half) of the way. It stops when the targets, the passing gain
+    and the bound, or the next target and the passing one are within ``1 + rtol`` (``1 + rtol / 2``).
+    Returns the target (0 when the bound fails at 0), or None when there is no solution at 0.
     """
     if lam is not None:
         return lam if side.at(lam) is not None else None
@@ -485,7 +485,7 @@ def _search(side: _Side, lam: float | None, top: float, rtol: float, other: bool
     g_lo = side.gain(0.0)
     if not math.isfinite(g_lo):
         return None
-    lo, up, g_up, prev, x = 0.0, top, math.nan, None, min(0.5, top / 2)
+    lo, up, g_up, prev, x = 0.0, top, math.nan, None, min(0.125, top / 2)
     target = side.max_gain / math.sqrt(1 + rtol)  # aim inside the accepted band
     for _ in range(12):
         if g_lo * (1 + rtol) >= side.max_gain or up <= lo * (1 + rtol) or x in side.found:
