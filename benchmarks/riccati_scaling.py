@@ -27,7 +27,7 @@ def _args():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[16, 32, 64, 128, 256, 512, 1024],
                     help="state dimensions n (even)")
-    ap.add_argument("--method", default="sign", choices=["schur", "sign", "scipy"])
+    ap.add_argument("--method", default="sign", choices=["sign", "scipy"])
     ap.add_argument("--lam", type=float, default=None, help="a fixed decay target (default: searched)")
     ap.add_argument("--threads", type=int, default=1, help="BLAS threads (default 1, as the suite)")
     ap.add_argument("--no-reference", action="store_true", help="skip the Schur reference")

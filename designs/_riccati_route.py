@@ -14,17 +14,16 @@ multipliers s, t are redundant (the x-side is invariant under ``(tau, s, eps, P)
 so they are fixed at ``s = ||Dr H|| / ||G||``, ``t = 1 / s``; tau and eps are taken from grids
 relative to the natural scales ``tau0 = sigma / ||B||^2``, ``eps0 = sigma``, ``sigma = ||Dr H|| ||G||``.
 
-The design searches, side by side, the largest decay target lam (on the grid of
-:mod:`bench.search`) at which the side's ARE has a solution that verifies (P > 0 and the side
-matrix negative definite, recomputed from the gain) with a gain norm within ``max_gain``, taking
-for each lam the smallest tau that verifies. Both sides are then solved at the smaller of the two
-targets, and the pair is certified by :func:`bench.joint.certify`, which measures the rate the
-certificate proves.
+The design searches, side by side, the largest decay target lam at which the side's ARE has a
+solution that verifies (P > 0, side matrix negative definite one rate-grid step below lam,
+recomputed from the gain) with ``||gain|| <= max_gain`` (:func:`_search`: the gain interpolated
+in lam); the x-side at the e-side's target first. The pair is certified by
+:func:`bench.joint.certify`, which measures the rate the certificate proves.
 
 AREs (:func:`solve_are`, indefinite ``M``, the stabilizing solution): ``"sign"`` (default) is the
 matrix sign function of the Hamiltonian ``[[a, -M], [-q, -a']]`` (Newton iteration with
-determinant scaling), ``X`` from ``[W12; W22 + I] X = -[W11 + I; W21]``; ``"schur"`` the ordered
-real Schur form (``X = U21 U11^-1``); ``"scipy"`` ``scipy.linalg.solve_continuous_are``, the
+determinant scaling), ``X`` from ``[W12; W22 + I] X = -[W11 + I; W21]``; ``"scipy"``
+``scipy.linalg.solve_continuous_are`` (the ordered Schur form of the extended pencil), the
 fallback when a solution fails its accuracy checks (residual, symmetry). A solution is used only
 through the side's own Lyapunov test, which also proves the closed loop Hurwitz.
 
@@ -32,8 +31,7 @@ References
 ----------
 J. D. Roberts, "Linear model reduction and solution of the algebraic Riccati equation by use of
 the sign function", Int. J. Control 32(4), 1980. R. Byers, "Solving the algebraic Riccati equation
-with the matrix sign function", Linear Algebra Appl. 85, 1987. A. J. Laub, "A Schur method for
-solving algebraic Riccati equations", IEEE TAC 24(6), 1979.
+with the matrix sign function", Linear Algebra Appl. 85, 1987.
 """
 
 from __future__ import annotations
@@ -47,7 +45,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from bench import joint, lmi
-from bench.search import RATE_RTOL, largest_passing
+from bench.search import RATE_RTOL
 
 __all__ = ["structured_riccati"]
 
@@ -82,12 +80,11 @@ def _norm2(X: np.ndarray) -> float:
 class AREInfo:
     """Diagnostics of one ARE solve (:func:`solve_are`): method, relative residual
     ``||a'X + Xa - XMX + q||_1 / (2 ||a||_1 ||X||_1 + ||M||_1 ||X||_1^2 + ||q||_1)``, largest real part
-    of ``a - M X`` (-inf when not computed), seconds, and the reason of a failure (empty on success)."""
+    of ``a - M X`` (-inf when not computed), and the reason of a failure (empty on success)."""
 
     method: str
     residual: float = math.inf
     closed_loop_max_re: float = math.inf
-    seconds: float = 0.0
     reason: str = ""
 
 
@@ -99,40 +96,15 @@ def _are_residual(a, M, q, X) -> float:
     return float(np.abs(res).sum(axis=0).max() / max(den, 1e-300))
 
 
-def _schur_are(a, M, q):
-    n = a.shape[0]
-    Ham = np.block([[a, -M], [-q, -a.T]])
-    scale = float(np.abs(Ham).sum(axis=0).max())
-    T, U, sdim = sla.schur(Ham, output="real", sort="lhp", overwrite_a=True, check_finite=False)
-    if sdim != n:
-        return None, math.inf, True, (f"the Hamiltonian has {sdim} eigenvalues with negative real part, not n = {n} "
-                                "(eigenvalues on or near the imaginary axis: no stabilizing solution)")
-    # LAPACK's standardised real Schur form: a 2x2 block has equal diagonal entries (its real part)
-    re = np.diag(T)
-    max_re, min_re_unstable = float(re[:n].max()), float(re[n:].min())
-    if max_re > -1e-10 * scale or min_re_unstable < 1e-10 * scale:
-        return None, max_re, True, (f"Hamiltonian eigenvalues within {1e-10:g} (relative) of the imaginary axis "
-                              f"(closest {min(-max_re, min_re_unstable):.3g}): no reliable stabilizing solution")
-    U11, U21 = U[:n, :n], U[n:, :n]
-    try:
-        lu = sla.lu_factor(U11.T, check_finite=False)
-    except (np.linalg.LinAlgError, ValueError) as exc:
-        return None, max_re, False, f"U11 is singular ({exc})"
-    rcond = sla.lapack.dgecon(lu[0], np.abs(U11).sum(axis=0).max())[0] if n else 1.0
-    if rcond < 1e-14:
-        return None, max_re, False, f"U11 is numerically singular (rcond {rcond:.2g}): the stabilizing solution is unbounded"
-    X = sla.lu_solve(lu, U21.T, check_finite=False).T
-    return X, max_re, False, ""
-
-
-def _sign_are(a, M, q, *, tol=1e-13, maxit=60):
+def _sign_are(a, M, q, *, tol=1e-6, maxit=60):
     """The Newton iteration ``Z <- (c Z + Z^-1 / c) / 2`` for the sign of the Hamiltonian, determinant
-    scaling ``c = |det Z|^(-1/2n)`` while far off; once the relative step is below 1e-7 (quadratic
-    convergence), one more step. ``Z^-1`` by LU solves against I (LAPACK's getri is slower)."""
+    scaling ``c = |det Z|^(-1/2n)`` in the first 8 steps. It stops when the relative step is below
+    ``tol`` (the convergence is quadratic: the iterate's error is then of the order of its square) and
+    fails when, after 12 steps, a step no longer halves."""
     n = a.shape[0]
     Z = np.block([[a, -M], [-q, -a.T]])
     I2 = np.eye(2 * n)
-    last = False
+    err = math.inf
     for it in range(maxit):
         try:
             lu, piv = sla.lu_factor(Z, check_finite=False)
@@ -142,16 +114,19 @@ def _sign_are(a, M, q, *, tol=1e-13, maxit=60):
             logdet = float(np.sum(np.log(np.abs(np.diag(lu)))))
         if not math.isfinite(logdet):
             return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
-        Zi = sla.lu_solve((lu, piv), I2, check_finite=False)
-        if not np.all(np.isfinite(Zi)):
-            return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
+        Zn = sla.lu_solve((lu, piv), I2, check_finite=False)
         c = math.exp(-logdet / (2 * n)) if it < 8 else 1.0  # determinant scaling while far off
-        Zn = 0.5 * (c * Z + Zi / c)
-        err = float(np.abs(Zn - Z).sum(axis=0).max() / max(np.abs(Zn).sum(axis=0).max(), 1e-300))
+        Zn *= 0.5 / c
+        Zn += (0.5 * c) * Z  # in place: the next iterate, and Z - Zn its step (Frobenius norms)
+        Z -= Zn
+        err, prev = float(np.linalg.norm(Z) / max(np.linalg.norm(Zn), 1e-300)), err
         Z = Zn
-        if err < tol or last:
+        if not math.isfinite(err):
+            return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
+        if err < tol:
             break
-        last = err < 1e-7 and it >= 8
+        if it >= 12 and err > 0.5 * prev:  # no quadratic convergence: eigenvalues on or near the axis
+            return None, True, f"sign iteration stalled at relative step {err:.2g} (eigenvalues near the imaginary axis)"
     else:
         return None, True, f"sign iteration did not converge in {maxit} steps (eigenvalues near the imaginary axis)"
     I = np.eye(n)
@@ -173,10 +148,10 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
         Nonzero diagonal weights of any sign (``R = diag(rr)`` in scipy's notation).
     q : ndarray, shape (n, n)
         Symmetric.
-    method : {"schur", "sign", "scipy"}
+    method : {"sign", "scipy"}
         See the module docstring.
     fallback : bool
-        If the chosen method fails an accuracy check (residual, symmetry, conditioning of U11), try
+        If the chosen method fails an accuracy check (residual, symmetry), try
         ``"scipy"`` (balanced QZ on the extended pencil). Not when the Hamiltonian has eigenvalues
         on (or within rounding of) the imaginary axis: no method has a stabilizing solution then.
     fallback_max_n : int
@@ -189,15 +164,14 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
     X : ndarray or None
         Symmetric solution, or None when none passed the checks.
     info : AREInfo
-        Method, residual, closed-loop largest real part, time, and the reason of a failure.
+        Method, residual, closed-loop largest real part, and the reason of a failure.
     """
-    t0 = time.perf_counter()
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     rr = np.asarray(rr, dtype=float).reshape(-1)
     q = lmi.sym(np.asarray(q, dtype=float))
-    if method not in ("schur", "sign", "scipy"):
-        raise ValueError(f"method: expected 'schur', 'sign' or 'scipy', got {method!r}")
+    if method not in ("sign", "scipy"):
+        raise ValueError(f"method: expected 'sign' or 'scipy', got {method!r}")
     if np.any(rr == 0) or not np.all(np.isfinite(rr)):
         raise ValueError(f"rr: weights must be finite and nonzero, got {rr.tolist()}")
     M = lmi.sym((b / rr) @ b.T)
@@ -206,14 +180,12 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
     res = math.inf
     if X is not None:
         X, res, reason = _accurate(X, a, M, q, max_re, residual_tol)
-    info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re,
-                   seconds=time.perf_counter() - t0, reason=reason)
+    info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re, reason=reason)
     if X is None and fallback and method != "scipy" and not definite and n <= fallback_max_n:
         X2, info2 = solve_are(a, b, rr, q, method="scipy", fallback=False, residual_tol=residual_tol)
         if X2 is not None:
-            return X2, AREInfo(method="scipy", residual=info2.residual, closed_loop_max_re=info2.closed_loop_max_re,
-                               seconds=time.perf_counter() - t0, reason="")
-        info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re, seconds=time.perf_counter() - t0,
+            return X2, info2
+        info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re,
                        reason=f"{reason}; scipy fallback: {info2.reason}")
     return X, info
 
@@ -224,9 +196,7 @@ def _solve_by(method: str, a, b, rr, M, q) -> tuple[np.ndarray | None, float, bo
     method has a stabilizing solution), and the reason of a failure."""
     X, max_re, reason, definite = None, math.inf, "", False
     try:
-        if method == "schur":
-            X, max_re, definite, reason = _schur_are(a, M, q)
-        elif method == "sign":
+        if method == "sign":
             X, definite, reason = _sign_are(a, M, q)
             # the side's Lyapunov test (P > 0, side matrix < 0) proves the closed loop Hurwitz; the spectrum
             # is computed only where it is cheap
@@ -273,11 +243,12 @@ class SideSolution:
     gain : ndarray
         F (m x n, x-side) or K (n x p, e-side).
     side_matrix : ndarray (n, n)
-        ``Mx`` or ``Me`` of :mod:`bench.joint` at the side's lam, recomputed from the gain.
+        ``Mx`` or ``Me`` of :mod:`bench.joint` at ``lam``, recomputed from the gain.
     min_eig : float
         Smallest eigenvalue of P (or R) over its largest.
     multiplier, tau, eps, lam : float
-        s (or t), tau (or tau'), eps and the decay target.
+        s (or t), tau (or tau'), eps, and the rate at which the side matrix is verified (the ARE's
+        decay target over ``1 + RATE_RTOL``).
     are : AREInfo
     """
 
@@ -342,7 +313,10 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> t
     Returns
     -------
     (SideSolution or None, str)
-        The verified solution (P > 0, ``Mx < 0``) and ``""``, or None and the reason in words.
+        The verified solution (P > 0, ``Mx(lam / (1 + RATE_RTOL)) < 0``, its ``lam`` that rate) and
+        ``""``, or None and the reason in words. At the ARE's solution ``Mx(lam) = -eps I`` on this side
+        but ``-eps R^2`` on the e-side, which rounding can make marginal when R is ill-conditioned;
+        at the lower rate the side matrix has ``-2 lam RATE_RTOL / (1 + RATE_RTOL) R`` more.
     """
     A0, B = np.asarray(A0, dtype=float), np.asarray(B, dtype=float)
     lp = _loop(A0, B, None, G, H, r)
@@ -354,6 +328,7 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> t
     if not pmin > 0:
         return None, f"x-side: P is not positive definite (min/max eigenvalue {pmin:.3g})"
     F = -tau * (B.T @ P)
+    lam = lam / (1 + RATE_RTOL)
     Mx = joint.side_matrices(lp, F, np.zeros((n, 0)), P, np.eye(n), s, 1.0, lam)[0]
     return _verified_side("x-side", Mx, P, F, pmin, s, tau, eps, lam, info)
 
@@ -379,6 +354,7 @@ def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign") -> t
     if not rmin > 0:
         return None, f"e-side: R = X^-1 is not positive definite (min/max eigenvalue {rmin:.3g})"
     K = tau * (X @ C.T)
+    lam = lam / (1 + RATE_RTOL)
     Me = joint.side_matrices(lp, np.zeros((0, n)), K, np.eye(n), R, 1.0, t, lam)[1]
     return _verified_side("e-side", Me, R, K, rmin, t, tau, eps, lam, info)
 
@@ -455,58 +431,82 @@ class RiccatiRouteResult:
 
 
 class _Side:
-    """One side's solutions by decay target, the smallest verifying tau on the grid first."""
+    """One side's verified solutions by decay target: the (tau, eps) grid in full at the first target
+    that is solved, then the grid point that verified there."""
 
     def __init__(self, label, solve, taus, epss, max_gain, tries):
         self.label, self.solve, self.taus, self.epss = label, solve, list(taus), list(epss)
-        self.max_gain, self.tries, self.found, self.index, self.why = max_gain, tries, {}, {}, "empty grid"
-        self.eps_at, self.eps_from = {}, None
-        self.tau_from = None  # the smallest tau that verified at a lower target (a larger target needs no less)
+        self.max_gain, self.tries, self.found, self.why = max_gain, tries, {}, "empty grid"
+        self.tau_from = self.eps_from = None
 
-    def at(self, lam: float) -> SideSolution | None:
-        """The verified solution with the smallest grid tau at ``lam`` (None: none; gains not checked)."""
+    def at(self, lam: float, quick: bool = False) -> SideSolution | None:
+        """The verified solution with the smallest grid tau at ``lam`` (None: none; gains not checked);
+        ``quick``: the first grid point only."""
         if lam in self.found:
             return self.found[lam]
         sol = None
-        # the strictness that passed first is kept once a target passed
-        for eps in (self.epss if self.tau_from is None else [self.eps_from]):
-            # the whole grid until a target passes; then the smallest tau that passed and the next one
-            first = self.tau_from is None
-            span = range(len(self.taus)) if first else range(self.tau_from, min(self.tau_from + 2, len(self.taus)))
-            for i in span:
-                sol, why = self.solve(lam, self.taus[i], eps)
-                self.tries.append((self.label, lam, self.taus[i], eps, why or "ok"))
-                if sol is not None:
-                    self.index[lam], self.eps_at[lam] = i, eps
-                    break
-                self.why = why
+        if quick or self.tau_from is None:
+            grid = [(0, self.epss[0])] if quick else [(i, e) for e in self.epss for i in range(len(self.taus))]
+        else:
+            grid = [(self.tau_from, self.eps_from)]
+        for i, eps in grid:
+            sol, why = self.solve(lam, self.taus[i], eps)
+            self.tries.append((self.label, lam, self.taus[i], eps, why or "ok"))
             if sol is not None:
+                if self.tau_from is None:
+                    self.tau_from, self.eps_from = i, eps
                 break
+            self.why = why
         self.found[lam] = sol
         return sol
 
-    def passes(self, lam: float) -> bool:
-        sol = self.at(lam)
-        if sol is not None and self.tau_from is None:
-            self.tau_from, self.eps_from = self.index[lam], self.eps_at[lam]
-        ok = sol is not None and sol.gain_norm <= self.max_gain
-        if ok:
-            self.tau_from = max(self.tau_from or 0, self.index[lam])
-        return ok
+    def gain(self, lam: float, quick: bool = False) -> float:
+        """``||gain||`` of the solution at ``lam`` (inf: none)."""
+        sol = self.at(lam, quick)
+        return sol.gain_norm if sol is not None else math.inf
 
 
-def _search(side: _Side, lam: float | None, max_decay: float, rtol: float, other: bool = False) -> float | None:
-    """The side's largest passing decay target up to ``max_decay`` (``lam`` fixed: that one), or None when
-    lam = 0 fails; ``other``: ``max_decay`` is the other side's target (tried first)."""
+def _search(side: _Side, lam: float | None, top: float, rtol: float, other: bool = False) -> float | None:
+    """The side's largest decay target in ``[0, top]`` with ``||gain|| <= side.max_gain`` (``lam`` given:
+    that one; ``other``: ``top`` is the other side's target, tried first at the first grid point).
+
+    ``g(l) = ||gain(l)||`` grows with l. After 0 the target ``min(1/8, top/2)`` is tried; then, between
+    a passing and a failing target, the mean of the linear interpolations of ``g`` and of ``log g``
+    to the bound (g is convex and log g concave in l on the families seen, so the two straddle the
+    root); above the passing targets a log-linear extrapolation (at most 4 times up); below a target
+    without a solution a quarter (or half) of the way. It stops when the targets, the passing gain
+    and the bound, or the next target and the passing one are within ``1 + rtol`` (``1 + rtol / 2``).
+    Returns the target (0 when the bound fails at 0), or None when there is no solution at 0.
+    """
     if lam is not None:
         return lam if side.at(lam) is not None else None
-    if side.at(0.0) is None:
+    if other and side.gain(top, quick=True) <= side.max_gain:
+        return top
+    g_lo = side.gain(0.0)
+    if not math.isfinite(g_lo):
         return None
-    side.tau_from, side.eps_from = side.index[0.0], side.eps_at[0.0]
-    if other and side.passes(max_decay):  # the other side's target: no need to go further
-        return max_decay
-    out = largest_passing(side.passes, rtol=rtol, start=min(0.5, max_decay / 2), hi=max_decay, max_moves=12)
-    return out["lo"] if math.isfinite(out["lo"]) else 0.0
+    lo, up, g_up, prev, x = 0.0, top, math.nan, None, min(0.125, top / 2)
+    target = side.max_gain / math.sqrt(1 + rtol)  # aim inside the accepted band
+    for _ in range(12):
+        if g_lo * (1 + rtol) >= side.max_gain or up <= lo * (1 + rtol) or x in side.found:
+            break
+        g = side.gain(x)
+        if g <= side.max_gain:
+            prev, lo, g_lo = (lo, g_lo), x, g
+        else:
+            up, g_up = x, g
+        if math.isfinite(g_up):  # bracketed by gains
+            lin = (target - g_lo) / (g_up - g_lo)
+            log = math.log(target / g_lo) / math.log(g_up / g_lo)
+            x = lo + (up - lo) * min(max((lin + log) / 2, 0.01), 0.99)
+            if x <= lo * (1 + rtol / 2):  # the predicted gain is below the tolerance
+                break
+        elif math.isnan(g_up):  # nothing failed yet: extrapolate log g from the last two passing targets
+            slope = math.log(g_lo / prev[1]) / (lo - prev[0])
+            x = min(top, 4 * lo, lo + math.log(target / g_lo) / slope if slope > 0 else 4 * lo)
+        else:  # no solution at up
+            x = lo + (up - lo) * (0.25 if lo == 0 else 0.5)
+    return lo
 
 
 def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_gain: float = math.inf,
@@ -530,7 +530,7 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     max_decay : float
         Upper end of the search.
     rtol : float
-        The search's grid (:mod:`bench.search`).
+        Relative tolerance of the search (:func:`_search`).
     taus, eps : sequence of float
         Grids of the gain scale and the strictness relative to their natural scales (module docstring).
     s, t : float, optional

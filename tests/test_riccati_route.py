@@ -76,7 +76,7 @@ def test_scalar_are_closed_form():
     # 2 a x - x^2 / rr b^2 + q = 0, stabilizing root x = rr (a + sqrt(a^2 + b^2 q / rr)) / b^2
     a, b, rr, q = 0.7, 1.3, 0.4, 2.0
     want = rr * (a + math.sqrt(a * a + b * b * q / rr)) / b**2
-    for method in ("schur", "sign", "scipy"):
+    for method in ("sign", "scipy"):
         X, info = solve_are(np.array([[a]]), np.array([[b]]), np.array([rr]), np.array([[q]]), method=method)
         assert X is not None, info.reason
         assert X[0, 0] == pytest.approx(want, rel=1e-12)
@@ -98,13 +98,12 @@ def test_indefinite_are_matches_scipy_and_has_a_small_residual(n):
     q = H.T @ H * 0.2 + 0.01 * np.eye(n)
     Xs = solve_continuous_are(p.A, b, q, np.diag(rr))
     M = b @ np.diag(1 / rr) @ b.T
-    for method in ("schur", "sign"):
-        X, info = solve_are(p.A, b, rr, q, method=method, fallback=False)
-        assert X is not None, info.reason
-        res = p.A.T @ X + X @ p.A - X @ M @ X + q
-        assert np.abs(res).max() <= 1e-10 * max(1.0, np.abs(X).max() ** 2)
-        assert np.linalg.eigvals(p.A - M @ X).real.max() < 0
-        np.testing.assert_allclose(X, Xs, rtol=1e-7, atol=1e-9 * np.abs(Xs).max())
+    X, info = solve_are(p.A, b, rr, q, method="sign", fallback=False)
+    assert X is not None, info.reason
+    res = p.A.T @ X + X @ p.A - X @ M @ X + q
+    assert np.abs(res).max() <= 1e-10 * max(1.0, np.abs(X).max() ** 2)
+    assert np.linalg.eigvals(p.A - M @ X).real.max() < 0
+    np.testing.assert_allclose(X, Xs, rtol=1e-7, atol=1e-9 * np.abs(Xs).max())
 
 
 # -- the sides ----------------------------------------------------------------------------------
@@ -246,12 +245,30 @@ def test_equilibration_keeps_the_inertia():
 
 def test_methods_agree():
     p = PLANTS.create("chain_v1")
-    out = {m: route(p, method=m) for m in ("schur", "sign", "scipy")}
+    out = {m: route(p, method=m) for m in ("sign", "scipy")}
     for m, res in out.items():
         assert res.ok, (m, res.reason)
         assert res.methods == (m, m)
-    np.testing.assert_allclose(out["sign"].F, out["schur"].F, rtol=1e-6)
-    np.testing.assert_allclose(out["scipy"].K, out["schur"].K, rtol=1e-6)
+    np.testing.assert_allclose(out["sign"].F, out["scipy"].F, rtol=1e-6)
+    np.testing.assert_allclose(out["sign"].K, out["scipy"].K, rtol=1e-6)
+
+
+@pytest.mark.parametrize("kappa, wall", [(20.0, math.inf), (3.0, math.inf), (20.0, 0.08), (400.0, math.inf)])
+def test_target_search_stops_at_the_gain_bound(kappa, wall):
+    # a side whose gain is g(l) = 2 exp(kappa l) and which has no solution above `wall`: the largest
+    # target within max_gain = 20 is min(ln(10) / kappa, wall)
+    from designs._riccati_route import SideSolution, _Side, _search
+
+    def solve(lam, tau, eps):
+        sol = SideSolution(P=np.eye(1), gain=np.array([[2 * math.exp(kappa * lam)]]), side_matrix=-np.eye(1),
+                           min_eig=1.0, multiplier=1.0, tau=tau, eps=eps, are=None, lam=lam)
+        return (sol, "") if lam <= wall else (None, "no solution")
+
+    calls = []
+    got = _search(_Side("e", solve, [1.0], [1.0], 20.0, calls), None, 10.0, 0.05)
+    best = min(math.log(10) / kappa, wall)
+    assert best / 1.05 <= got <= best
+    assert len(calls) <= (12 if math.isfinite(wall) else 8)
 
 
 # -- closed loop --------------------------------------------------------------------------------
