@@ -160,7 +160,10 @@ def _start(args, mark: Path, pairs: Path, n_cached: int):
     """Start the CLI in its own session; return once the stuck design runs and ``n_cached`` pairs are cached."""
     env = {**os.environ, "OSLBENCH_TEST_STUCK": "1", "OSLBENCH_TEST_MARK": str(mark)}
     proc = subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            # a shell's background job ignores SIGINT and its children inherit that: a Python
+                            # started so never sees Ctrl-C; the run under test is started as a terminal would
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
     def whole():  # entries written whole: a ".tmp-*.npz" is a write still under way
         return [p for p in pairs.glob("*.npz") if not p.name.startswith(".tmp-")]
