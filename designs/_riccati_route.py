@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -107,7 +108,9 @@ def _sign_are(a, M, q, *, tol=1e-6, maxit=60):
     err = math.inf
     for it in range(maxit):
         try:
-            lu, piv = sla.lu_factor(Z, check_finite=False)
+            with warnings.catch_warnings():  # an exactly singular iterate is reported below, not warned about
+                warnings.simplefilter("ignore", sla.LinAlgWarning)
+                lu, piv = sla.lu_factor(Z, check_finite=False)
         except (np.linalg.LinAlgError, ValueError) as exc:
             return None, True, f"sign iteration: singular iterate ({exc}): eigenvalues on the imaginary axis"
         with np.errstate(divide="ignore"):
