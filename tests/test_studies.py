@@ -381,3 +381,18 @@ def test_bisection_checks_each_value_once():
     out = bisect_largest(check, 1.0, rtol=0.01)
     assert out["lo"] <= 3.0 < out["hi"] and out["hi"] / out["lo"] - 1 <= 0.01
     assert len(calls) == len(set(calls))
+
+
+def test_study_functions_show_their_options_and_refuse_unknown_ones():
+    """A notebook sees each study's options in its signature (tab completion), and a misspelt one is refused."""
+    import inspect
+
+    from bench.studies.noise import run_noise
+    from bench.studies.sampling import run_sampling
+
+    params = inspect.signature(run_noise).parameters
+    assert list(params)[:4] == ["plant_ids", "design_ids", "jobs", "progress"]
+    assert {"levels", "seed", "matched_ekf", "noise_dt", "t_final"} <= set(params)
+    assert "options" not in params and "rtol" in inspect.signature(run_sampling).parameters
+    with pytest.raises(TypeError, match="levelz"):
+        run_noise(["pendulum_v1"], ["lqr+lqe"], levelz=(0.1,))

@@ -6,6 +6,7 @@ markdown tables, and the atomic writer of a study's files (``STUDY_<name>.md``, 
 from __future__ import annotations
 
 import functools
+import inspect
 import math
 import os
 import platform
@@ -235,7 +236,12 @@ def study(default_plants=None, default_designs=None):
             return fn(pairs, **options)
 
         functools.update_wrapper(run, fn)
-        del run.__wrapped__  # the signature is the wrapper's; the docstring lists every option
+        del run.__wrapped__
+        # the signature a notebook shows: the wrapper's ids, jobs and progress, then the study's own options
+        own = inspect.signature(run).parameters
+        options = list(inspect.signature(fn).parameters.values())[1:]
+        run.__signature__ = inspect.Signature([*(v for k, v in own.items() if k != "options"), *options],
+                                              return_annotation=inspect.signature(fn).return_annotation)
         return run
 
     return deco
