@@ -30,3 +30,31 @@ def limit_blas() -> None:
 
 if "numpy" in sys.modules:  # too late for the environment: numpy's BLAS is loaded already
     limit_blas()
+
+
+def cores() -> int:
+    """The CPU cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+#: Below this matrix size :func:`parallel` runs serially: starting threads costs more than the work.
+PARALLEL_FROM_N = 256
+
+
+def parallel(calls: list, n: int = PARALLEL_FROM_N) -> list:
+    """Run zero-argument callables concurrently in threads and return their results in order.
+
+    For independent dense linear algebra on matrices of size ``n``: LAPACK and BLAS release the
+    GIL, and with one BLAS thread each call keeps to its own core, so two calls on two cores take
+    the time of one without BLAS's own threads (which spin and stall when the cores are shared).
+    Serial on one core or below :data:`PARALLEL_FROM_N`. An exception in a call is raised here.
+    """
+    if len(calls) < 2 or cores() < 2 or n < PARALLEL_FROM_N:
+        return [c() for c in calls]
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=min(len(calls), cores())) as pool:
+        return list(pool.map(lambda c: c(), calls))

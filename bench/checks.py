@@ -152,21 +152,20 @@ def closed_loop(plant, K: Any, F: Any, *, optional_K: bool = False) -> ClosedLoo
     """Check ``K``, ``F`` (:func:`gains`) and compute their :class:`ClosedLoop`."""
     import numpy as np
 
+    from bench._env import parallel
     from bench.estimators import numeric_jacobian
 
     K, F = gains(plant, K, F, optional_K=optional_K)
-    eig_x = np.linalg.eigvals(plant.A + plant.B @ F)
     if K is None:
-        return ClosedLoop(K, F, eig_x, np.empty(0, dtype=complex), math.nan)
-    eig_e = np.linalg.eigvals(plant.A - K @ plant.C)
+        return ClosedLoop(K, F, np.linalg.eigvals(plant.A + plant.B @ F), np.empty(0, dtype=complex), math.nan)
     zero = np.zeros(plant.n)
     J = np.asarray(plant.jacobian(zero) if plant.jacobian is not None else numeric_jacobian(plant.f, zero), dtype=float)
+    loops = [plant.A + plant.B @ F, plant.A - K @ plant.C]
     if np.any(J):
-        A = plant.A + J
-        lin = np.concatenate([np.linalg.eigvals(A + plant.B @ F), np.linalg.eigvals(A - K @ plant.C)])
-    else:
-        lin = np.concatenate([eig_x, eig_e])
-    return ClosedLoop(K, F, eig_x, eig_e, float(-lin.real.max()))
+        loops += [plant.A + J + plant.B @ F, plant.A + J - K @ plant.C]
+    eigs = parallel([lambda M=M: np.linalg.eigvals(M) for M in loops], plant.n)
+    lin = np.concatenate(eigs[-2:])
+    return ClosedLoop(K, F, eigs[0], eigs[1], float(-lin.real.max()))
 
 
 def argtype(check: Callable[..., Any], **bounds: Any) -> Callable[[str], Any]:

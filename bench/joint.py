@@ -58,6 +58,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from bench import lmi
+from bench._env import parallel
 from bench.search import RATE_RTOL, grid_floor
 
 __all__ = ["JointCertificate", "Loop", "certify", "loop"]
@@ -280,8 +281,7 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
     n = P.shape[0]
     try:
         Mx, Me = side_matrices(lp, F, K, P, R, s, t)
-        sx = _rate_bound(Mx, P)
-        se = _rate_bound(Me, R)
+        sx, se = parallel([lambda: _rate_bound(Mx, P), lambda: _rate_bound(Me, R)], n)
         target = 0.9 * min(sx, se)
         if not target > 0:
             return JointCertificate("violated", side_rates=(sx, se))
@@ -293,12 +293,12 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
     M0 = np.block([[Mx, -PBF], [-PBF.T, mu * Me]])
     W = np.zeros_like(M0)
     W[:n, :n], W[n:, n:] = P, mu * R
-    out = JointCertificate(verdict(M0), mu=mu, side_rates=(sx, se), P=W)
-    if margin:
-        out.margin = equilibrated_max_eig(M0)
+    status, out_margin, bound = parallel([lambda: verdict(M0), lambda: equilibrated_max_eig(M0) if margin else math.nan,
+                                          lambda: _rate_bound(M0, W)], 2 * n)
+    out = JointCertificate(status, mu=mu, side_rates=(sx, se), P=W, margin=out_margin)
     if not out.verified:
         return out
-    out.bound = _rate_bound(M0, W)
+    out.bound = bound
     out.rate = 0.0
     if out.bound > 0:
         lam = grid_floor(out.bound * (1 - 1e-9), rtol)

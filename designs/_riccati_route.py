@@ -14,44 +14,51 @@ multipliers s, t are redundant (the x-side is invariant under ``(tau, s, eps, P)
 so they are fixed at ``s = ||Dr H|| / ||G||``, ``t = 1 / s``; tau and eps are taken from grids
 relative to the natural scales ``tau0 = sigma / ||B||^2``, ``eps0 = sigma``, ``sigma = ||Dr H|| ||G||``.
 
-The design searches, side by side, the largest decay target lam at which the side's ARE has a
-solution that verifies (P > 0, side matrix negative definite one rate-grid step below lam,
-recomputed from the gain) with ``||gain|| <= max_gain`` (:func:`_search`: the gain interpolated
-in lam); the x-side at the e-side's target first. The pair is certified by
+The design searches the e-side's largest decay target lam whose gain stays within ``max_gain``
+(:func:`_search`), two targets at a time on the two cores (:func:`bench._env.parallel`), then
+solves and verifies both sides there (:func:`_targets`): P > 0 and the side matrix negative
+definite one rate-grid step below lam, recomputed from the gain. The pair is certified by
 :func:`bench.joint.certify`, which measures the rate the certificate proves.
 
 AREs (:func:`solve_are`, indefinite ``M``, the stabilizing solution): ``"sign"`` (default) is the
 matrix sign function of the Hamiltonian ``[[a, -M], [-q, -a']]`` (Newton iteration with
-determinant scaling), ``X`` from ``[W12; W22 + I] X = -[W11 + I; W21]``; ``"scipy"``
-``scipy.linalg.solve_continuous_are`` (the ordered Schur form of the extended pencil), the
-fallback when a solution fails its accuracy checks (residual, symmetry). A solution is used only
-through the side's own Lyapunov test, which also proves the closed loop Hurwitz.
+determinant scaling), ``X`` from ``[W12; W22 + I] X = -[W11 + I; W21]``; from
+:data:`SINGLE_FROM_N` states the iteration runs in single precision and Newton's method for the
+ARE refines its solution (:func:`_newton`, each step a Lyapunov equation by the sign function).
+``"scipy"`` is ``scipy.linalg.solve_continuous_are`` (the ordered Schur form of the extended
+pencil), the fallback when a solution fails its accuracy checks (residual, symmetry). A solution
+is used only through the side's own Lyapunov test, which also proves the closed loop Hurwitz.
 
 References
 ----------
 J. D. Roberts, "Linear model reduction and solution of the algebraic Riccati equation by use of
 the sign function", Int. J. Control 32(4), 1980. R. Byers, "Solving the algebraic Riccati equation
-with the matrix sign function", Linear Algebra Appl. 85, 1987.
+with the matrix sign function", Linear Algebra Appl. 85, 1987. D. Kleinman, "On an iterative
+technique for Riccati equation computations", IEEE Trans. Automat. Control 13(1), 1968.
 """
 
 from __future__ import annotations
 
 import math
 import time
-import warnings
 from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg import lapack
 
 from bench import joint, lmi
+from bench._env import parallel
 from bench.search import RATE_RTOL
 
 __all__ = ["structured_riccati"]
 
 #: Largest relative ARE residual accepted.
 RESIDUAL_TOL = 1e-8
+#: From this n on, the sign iteration starts in single precision (half the time) and Newton steps
+#: refine its solution; the search's gain estimates stay in single precision.
+SINGLE_FROM_N = 256
 #: Default tau grid, relative to the natural scale (smallest gain first).
 TAU_GRID = (1.0, 10.0, 1e2, 1e3, 1e4, 1e5)
 #: Default eps grid, relative to the natural scale.
@@ -97,32 +104,37 @@ def _are_residual(a, M, q, X) -> float:
     return float(np.abs(res).sum(axis=0).max() / max(den, 1e-300))
 
 
-def _sign_are(a, M, q, *, tol=1e-6, maxit=60):
+def _sign_are(a, M, q, *, tol=1e-6, maxit=60, single=False):
     """The Newton iteration ``Z <- (c Z + Z^-1 / c) / 2`` for the sign of the Hamiltonian, determinant
-    scaling ``c = |det Z|^(-1/2n)`` in the first 8 steps. It stops when the relative step is below
-    ``tol`` (the convergence is quadratic: the iterate's error is then of the order of its square) and
-    fails when, after 12 steps, a step no longer halves."""
+    scaling ``c = |det Z|^(-1/2n)`` in the first 8 steps, each inverse by LAPACK's getrf + getrs (getri
+    is faster alone but does not run concurrently with itself in OpenBLAS, and the route solves two
+    sides or two targets at once: :func:`bench._env.parallel`). It stops
+    when the relative step is below ``tol`` (the convergence is quadratic: the iterate's error is then of
+    the order of its square) and fails when, after 12 steps, a step no longer halves. X solves the
+    stacked system ``[W12; W22 + I] X = -[W11 + I; W21]`` of ``W = sign(Z)`` by QR. ``single``: the
+    iteration in single precision (half the time; X to about 1e-4, for the search's gain estimates)."""
     n = a.shape[0]
-    Z = np.block([[a, -M], [-q, -a.T]])
-    I2 = np.eye(2 * n)
+    dtype = np.float32 if single else np.float64
+    getrf, getrs = (lapack.sgetrf, lapack.sgetrs) if single else (lapack.dgetrf, lapack.dgetrs)
+    Z = np.asfortranarray(np.block([[a, -M], [-q, -a.T]]), dtype=dtype)
+    I2 = np.asfortranarray(np.eye(2 * n, dtype=dtype))
     err = math.inf
     for it in range(maxit):
-        try:
-            with warnings.catch_warnings():  # an exactly singular iterate is reported below, not warned about
-                warnings.simplefilter("ignore", sla.LinAlgWarning)
-                lu, piv = sla.lu_factor(Z, check_finite=False)
-        except (np.linalg.LinAlgError, ValueError) as exc:
-            return None, True, f"sign iteration: singular iterate ({exc}): eigenvalues on the imaginary axis"
-        with np.errstate(divide="ignore"):
-            logdet = float(np.sum(np.log(np.abs(np.diag(lu)))))
-        if not math.isfinite(logdet):
+        lu, piv, info = getrf(Z)
+        if info != 0:
             return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
-        Zn = sla.lu_solve((lu, piv), I2, check_finite=False)
+        with np.errstate(divide="ignore"):
+            logdet = float(np.sum(np.log(np.abs(np.diag(lu)), dtype=np.float64)))
+        Zn, info = getrs(lu, piv, I2)
+        if info != 0 or not math.isfinite(logdet):
+            return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
         c = math.exp(-logdet / (2 * n)) if it < 8 else 1.0  # determinant scaling while far off
-        Zn *= 0.5 / c
-        Zn += (0.5 * c) * Z  # in place: the next iterate, and Z - Zn its step (Frobenius norms)
-        Z -= Zn
-        err, prev = float(np.linalg.norm(Z) / max(np.linalg.norm(Zn), 1e-300)), err
+        with np.errstate(over="ignore", invalid="ignore"):
+            Zn *= Zn.dtype.type(0.5 / c)
+            Zn += Zn.dtype.type(0.5 * c) * Z  # in place: the next iterate, and Z - Zn its step (Frobenius norms)
+            Z -= Zn
+        with np.errstate(over="ignore", invalid="ignore"):
+            err, prev = float(np.linalg.norm(Z)) / max(float(np.linalg.norm(Zn)), 1e-300), err
         Z = Zn
         if not math.isfinite(err):
             return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
@@ -132,15 +144,79 @@ def _sign_are(a, M, q, *, tol=1e-6, maxit=60):
             return None, True, f"sign iteration stalled at relative step {err:.2g} (eigenvalues near the imaginary axis)"
     else:
         return None, True, f"sign iteration did not converge in {maxit} steps (eigenvalues near the imaginary axis)"
+    Z = Z.astype(np.float64, copy=False)
     I = np.eye(n)
     lhs = np.vstack([Z[:n, n:], Z[n:, n:] + I])
     rhs = -np.vstack([Z[:n, :n] + I, Z[n:, :n]])
-    X = sla.lstsq(lhs, rhs, check_finite=False, lapack_driver="gelsy")[0]
+    Qf, Rf = sla.qr(lhs, mode="economic", overwrite_a=True, check_finite=False)
+    try:
+        X = sla.solve_triangular(Rf, Qf.T @ rhs, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None, False, "sign iteration: the stacked system for X is singular"
     return X, False, ""
 
 
+def _lyap_sign(A, Q, *, tol=1e-4, maxit=40):
+    """X with ``A' X + X A + Q = 0`` for a Hurwitz A, by the sign iteration in single precision:
+    ``A <- (c A + A^-1 / c) / 2``, ``Q <- (c Q + A^-T Q A^-1 / c) / 2`` (determinant scaling
+    ``c = |det A|^(-1/n)`` in the first 8 steps), ``X = Q_inf / 2`` (Roberts 1980). None unless the
+    iterates of A reach ``-I``."""
+    n = A.shape[0]
+    Ak = np.asfortranarray(A, dtype=np.float32)
+    Qk = np.asarray(Q, dtype=np.float32)
+    I = np.asfortranarray(np.eye(n, dtype=np.float32))
+    for it in range(maxit):
+        lu, piv, info = lapack.sgetrf(Ak)
+        if info != 0:
+            return None
+        Ai, info = lapack.sgetrs(lu, piv, I)
+        with np.errstate(divide="ignore"):
+            logdet = float(np.sum(np.log(np.abs(np.diag(lu)), dtype=np.float64)))
+        if info != 0 or not math.isfinite(logdet):
+            return None
+        c = np.float32(math.exp(-logdet / n) if it < 8 else 1.0)  # |det(c A)| = 1
+        with np.errstate(over="ignore", invalid="ignore"):
+            An = (c * Ak + Ai / c) / 2
+            Qk = (c * Qk + (Ai.T @ Qk @ Ai) / c) / 2
+            err = float(np.linalg.norm(An - Ak)) / max(float(np.linalg.norm(An)), 1e-30)
+        Ak = np.asfortranarray(An)
+        if not math.isfinite(err):
+            return None
+        if err < tol:
+            break
+    if not np.linalg.norm(Ak + I) <= 1e-2 * math.sqrt(n) or not np.all(np.isfinite(Qk)):  # the sign is not -I
+        return None
+    return Qk.astype(np.float64) / 2
+
+
+def _newton(a, M, q, X, residual_tol, steps=5):
+    """Newton (Kleinman) steps ``X <- X + D``, ``(a - M X)' D + D (a - M X) = -(a' X + X a - X M X + q)``
+    from an approximate solution: the residual in double precision, D by :func:`_lyap_sign`. Each
+    step squares the relative error of X until D's own error (about 1e-4 of D) dominates. The steps
+    go on to ``1e-4 residual_tol`` while each cuts the relative residual tenfold; X is returned when
+    it is within ``residual_tol``, else None."""
+    X = lmi.sym(np.asarray(X, dtype=np.float64))
+    res_now = _are_residual(a, M, q, X)
+    for _ in range(steps):
+        if not res_now > 1e-4 * residual_tol:
+            break
+        res = a.T @ X
+        res = res + res.T - X @ M @ X + q
+        D = _lyap_sign(a - M @ X, lmi.sym(res))
+        if D is None:
+            break
+        X_new = X + lmi.sym(D)
+        res_new = _are_residual(a, M, q, X_new)
+        if not res_new < res_now:
+            break
+        X, res_now, cut = X_new, res_new, res_new < 0.1 * res_now
+        if not cut:
+            break
+    return X if res_now <= residual_tol else None
+
+
 def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallback_max_n: int = 512,
-              residual_tol: float = RESIDUAL_TOL) -> tuple[np.ndarray | None, AREInfo]:
+              residual_tol: float = RESIDUAL_TOL, X0=None) -> tuple[np.ndarray | None, AREInfo]:
     """Stabilizing solution of ``a' X + X a - X b diag(rr)^{-1} b' X + q = 0`` (rr may be indefinite).
 
     Parameters
@@ -161,6 +237,9 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
         No fallback above this n.
     residual_tol : float
         Largest relative residual accepted.
+    X0 : ndarray, optional
+        An approximate solution (``"sign"``: refined by Newton steps instead of the single-precision
+        sign iteration).
 
     Returns
     -------
@@ -179,7 +258,7 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
         raise ValueError(f"rr: weights must be finite and nonzero, got {rr.tolist()}")
     M = lmi.sym((b / rr) @ b.T)
     n = a.shape[0]
-    X, max_re, definite, reason = _solve_by(method, a, b, rr, M, q)
+    X, max_re, definite, reason = _solve_by(method, a, b, rr, M, q, X0, residual_tol)
     res = math.inf
     if X is not None:
         X, res, reason = _accurate(X, a, M, q, max_re, residual_tol)
@@ -193,14 +272,20 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
     return X, info
 
 
-def _solve_by(method: str, a, b, rr, M, q) -> tuple[np.ndarray | None, float, bool, str]:
+def _solve_by(method: str, a, b, rr, M, q, X0=None, residual_tol=RESIDUAL_TOL) -> tuple[np.ndarray | None, float, bool, str]:
     """One ARE solve by ``method``: ``X`` (None on failure), the largest real part of ``a - M X``, whether
     the failure is definite (Hamiltonian eigenvalues on, or within rounding of, the imaginary axis: no
-    method has a stabilizing solution), and the reason of a failure."""
+    method has a stabilizing solution), and the reason of a failure. ``"sign"``: the sign iteration in
+    single precision (or ``X0``) refined by Newton steps (:func:`_newton`), else in double precision."""
     X, max_re, reason, definite = None, math.inf, "", False
     try:
         if method == "sign":
-            X, definite, reason = _sign_are(a, M, q)
+            if X0 is None and a.shape[0] >= SINGLE_FROM_N:
+                X0 = _sign_are(a, M, q, tol=1e-2, single=True)[0]
+            if X0 is not None:
+                X = _newton(a, M, q, X0, residual_tol)
+            if X is None:
+                X, definite, reason = _sign_are(a, M, q)
             # the side's Lyapunov test (P > 0, side matrix < 0) proves the closed loop Hurwitz; the spectrum
             # is computed only where it is cheap
             if X is not None and a.shape[0] <= 128:
@@ -285,16 +370,16 @@ def _loop(A0, B, C, G, H, r) -> joint.Loop:
     return joint.loop(A0, B, C, G, H, -r, r)
 
 
-def _side_are(a, inputs, acts, reads, mult, tau, eps, method):
+def _side_are(a, inputs, acts, reads, mult, tau, eps, method, X0=None):
     """One side's ARE: ``b = [inputs, acts]``, ``rr = (1/(2 tau), -1/mult)``, ``q = reads' reads / mult + eps I``."""
     n = a.shape[0]
     bb = np.hstack([inputs, acts])
     rr = np.concatenate([np.full(inputs.shape[1], 1.0 / (2 * tau)), np.full(acts.shape[1], -1.0 / mult)])
     qq = reads.T @ reads / mult + eps * np.eye(n)
-    return solve_are(a, bb, rr, qq, method=method, fallback=False)  # a failing probe is a failed probe
+    return solve_are(a, bb, rr, qq, method=method, fallback=False, X0=X0)  # a failing probe is a failed probe
 
 
-def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> tuple[SideSolution | None, str]:
+def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign", X0=None) -> tuple[SideSolution | None, str]:
     """x-side: ``F = -tau B' P`` from the ARE with ``a = A0 + lam I``, ``b = [B, G]``, ``rr = (1/(2 tau), -1/s)``.
 
     Parameters
@@ -312,6 +397,8 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> t
         Channel multiplier, gain scale, strictness (all > 0).
     method : str
         ARE method (:func:`solve_are`).
+    X0 : ndarray, optional
+        An approximate solution of the ARE (:func:`solve_are`).
 
     Returns
     -------
@@ -324,7 +411,7 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> t
     A0, B = np.asarray(A0, dtype=float), np.asarray(B, dtype=float)
     lp = _loop(A0, B, None, G, H, r)
     n = A0.shape[0]
-    P, info = _side_are(A0 + lam * np.eye(n), B, lp.G, lp.DH, s, tau, eps, method)
+    P, info = _side_are(A0 + lam * np.eye(n), B, lp.G, lp.DH, s, tau, eps, method, X0)
     if P is None:
         return None, f"x-side ARE: {info.reason}"
     pmin = _pos_def(P)
@@ -336,7 +423,7 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign") -> t
     return _verified_side("x-side", Mx, P, F, pmin, s, tau, eps, lam, info)
 
 
-def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign") -> tuple[SideSolution | None, str]:
+def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign", X0=None) -> tuple[SideSolution | None, str]:
     """e-side: ``K = tau' X C'``, ``R = X^-1``, X from the ARE with ``a = (A0 + lam I)'``, ``b = [C', H' Dr]``.
 
     Parameters and returns as :func:`solve_x_side` (``t`` the e-side multiplier; ``SideSolution.P``
@@ -345,7 +432,7 @@ def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign") -> t
     A0, C = np.asarray(A0, dtype=float), np.asarray(C, dtype=float)
     lp = _loop(A0, None, C, G, H, r)
     n = A0.shape[0]
-    X, info = _side_are((A0 + lam * np.eye(n)).T, C.T, lp.DH.T, lp.G.T, t, tau, eps, method)
+    X, info = _side_are((A0 + lam * np.eye(n)).T, C.T, lp.DH.T, lp.G.T, t, tau, eps, method, X0)
     if X is None:
         return None, f"e-side ARE: {info.reason}"
     try:
@@ -401,7 +488,8 @@ class RiccatiRouteResult:
     timings : dict
         Seconds: ``search``, ``certificate``, ``total``.
     tries : list of tuple
-        ``(side, lam, tau, eps, reason or "ok")`` of every ARE solved.
+        ``(side, lam, tau, eps, reason or "ok")`` of every ARE solved, the e-side's first, each side's
+        in the order of its targets; an estimate's reason starts with ``"estimate: "``.
     """
 
     status: str
@@ -434,82 +522,141 @@ class RiccatiRouteResult:
 
 
 class _Side:
-    """One side's verified solutions by decay target: the (tau, eps) grid in full at the first target
-    that is solved, then the grid point that verified there."""
+    """One side of the route by decay target: gain estimates that steer the search (:meth:`estimate`;
+    single precision from :data:`SINGLE_FROM_N` states) and verified solutions of the targets kept
+    (:meth:`solve`), each recorded in :attr:`tries` in the order of its targets.
 
-    def __init__(self, label, solve, taus, epss, max_gain, tries):
-        self.label, self.solve, self.taus, self.epss = label, solve, list(taus), list(epss)
-        self.max_gain, self.tries, self.found, self.why = max_gain, tries, {}, "empty grid"
-        self.tau_from = self.eps_from = None
+    While no (tau, eps) grid point is picked, each target estimated scans the grid until its ARE has a
+    solution; the first point found in a stage (the smallest) is picked, and later estimates use it
+    alone. The verified solves try it first, then the rest of the grid."""
 
-    def at(self, lam: float, quick: bool = False) -> SideSolution | None:
-        """The verified solution with the smallest grid tau at ``lam`` (None: none; gains not checked);
-        ``quick``: the first grid point only."""
+    def __init__(self, label, n, are_data, gain_of, solve, grid, max_gain):
+        self.label, self.n, self.are_data, self.gain_of, self.solve_at = label, n, are_data, gain_of, solve
+        self.grid, self.max_gain = list(grid), max_gain
+        self.pick: int | None = None
+        self.est: dict[float, float] = {}
+        self.start: dict[tuple, np.ndarray] = {}  # (lam, grid index) -> the estimate's solution
+        self.found: dict[float, SideSolution | None] = {}
+        self.tries: list = []
+        self.why = "empty grid"
+
+    def _scan(self, lam: float, first: int, last: int) -> list:
+        """``(i, gain or inf, X, reason)`` along grid points ``first .. last - 1`` up to the first solution."""
+        out = []
+        for i in range(first, last):
+            tau, eps = self.grid[i]
+            a, M, q = self.are_data(lam, tau, eps)
+            single = a.shape[0] >= SINGLE_FROM_N
+            X, _, why = _sign_are(a, M, q, tol=1e-2 if single else 1e-6, single=single)
+            g = self.gain_of(X, tau) if X is not None else math.inf
+            out.append((i, g if math.isfinite(g) else math.inf, X, why))
+            if math.isfinite(g):
+                break
+        return out
+
+    def estimate(self, lams: Sequence[float]) -> None:
+        """Gain estimates ``||gain||`` at ``lams`` (inf: no stabilizing solution at the picked grid point),
+        computed concurrently (:func:`bench._env.parallel`) into :attr:`est`."""
+        new = [lam for lam in dict.fromkeys(lams) if lam not in self.est]
+        if not new:
+            return
+        first, last = (0, len(self.grid)) if self.pick is None else (self.pick, self.pick + 1)
+        runs = parallel([lambda la=la: self._scan(la, first, last) for la in new], self.n)
+        if self.pick is None:  # a scan that went past the smallest point found failed there
+            self.pick = min((run[-1][0] for run in runs if math.isfinite(run[-1][1])), default=None)
+        for lam, run in zip(new, runs):
+            for i, g, X, why in run:
+                tau, eps = self.grid[i]
+                self.tries.append((self.label, lam, tau, eps, f"estimate: {why or 'ok'}"))
+                if math.isfinite(g):
+                    self.start[(lam, i)] = X
+                else:
+                    self.why = f"estimate at decay {lam:g}: {why or 'no finite gain'}"
+            self.est[lam] = next((g for i, g, _, _ in run if i == self.pick), math.inf)
+
+    def solve(self, lam: float) -> SideSolution | None:
+        """The verified solution at ``lam`` (None: none on the grid; the gain bound is not checked)."""
         if lam in self.found:
             return self.found[lam]
+        order = list(range(len(self.grid)))
+        if self.pick is not None:
+            order.remove(self.pick)
+            order.insert(0, self.pick)
         sol = None
-        if quick or self.tau_from is None:
-            grid = [(0, self.epss[0])] if quick else [(i, e) for e in self.epss for i in range(len(self.taus))]
-        else:
-            grid = [(self.tau_from, self.eps_from)]
-        for i, eps in grid:
-            sol, why = self.solve(lam, self.taus[i], eps)
-            self.tries.append((self.label, lam, self.taus[i], eps, why or "ok"))
+        for i in order:
+            tau, eps = self.grid[i]
+            sol, why = self.solve_at(lam, tau, eps, self.start.get((lam, i)))
+            self.tries.append((self.label, lam, tau, eps, why or "ok"))
             if sol is not None:
-                if self.tau_from is None:
-                    self.tau_from, self.eps_from = i, eps
                 break
             self.why = why
         self.found[lam] = sol
         return sol
 
-    def gain(self, lam: float, quick: bool = False) -> float:
-        """``||gain||`` of the solution at ``lam`` (inf: none)."""
-        sol = self.at(lam, quick)
-        return sol.gain_norm if sol is not None else math.inf
+    def within(self, sol: SideSolution | None) -> bool:
+        """A verified solution within the gain bound."""
+        return sol is not None and sol.gain_norm <= self.max_gain
 
 
-def _search(side: _Side, lam: float | None, top: float, rtol: float, other: bool = False) -> float | None:
-    """The side's largest decay target in ``[0, top]`` with ``||gain|| <= side.max_gain`` (``lam`` given:
-    that one; ``other``: ``top`` is the other side's target, tried first at the first grid point).
+def _search(side: _Side, top: float, rtol: float) -> float | None:
+    """The side's largest decay target in ``[0, top]`` whose estimated gain is within ``side.max_gain``.
 
-    ``g(l) = ||gain(l)||`` grows with l. After 0 the target ``min(1/8, top/2)`` is tried; then, between
-    a passing and a failing target, the mean of the linear interpolations of ``g`` and of ``log g``
-    to the bound (g is convex and log g concave in l on the families seen, so the two straddle the
-    root); above the passing targets a log-linear extrapolation (at most 4 times up); below a target
-    without a solution a quarter (or half) of the way. It stops when the targets, the passing gain
-    and the bound, or the next target and the passing one are within ``1 + rtol`` (``1 + rtol / 2``).
-    Returns the target (0 when the bound fails at 0), or None when there is no solution at 0.
+    Targets are estimated two at a time (:meth:`_Side.estimate`), first ``t1 = min(1/8, top/2)`` and
+    ``t1/8``. With a passing target ``lo`` and a failing one ``up`` the next target is where the
+    power law through them, ``g(l) = g(lo) (l / lo)^p``, meets ``max_gain / sqrt(1 + rtol)`` (inside
+    the accepted band), beside it that target times ``1 + rtol`` (the power law's chord lies above a
+    gain that is convex in log-log, so it aims low); above the passing targets the power law of the
+    two largest is extrapolated (at most 8 times up); without a solution at ``up``, the geometric mean;
+    when every target fails, ``min / 8`` and 0. It stops when the passing gain is within ``1 + rtol``
+    of the bound, a failing target within ``1 + rtol`` of the passing one, or the next target within
+    ``1 + rtol / 2`` of it. Returns the target, 0 when the bound fails at 0, or None when there is no
+    solution at 0.
     """
-    if lam is not None:
-        return lam if side.at(lam) is not None else None
-    if other and side.gain(top, quick=True) <= side.max_gain:
-        return top
-    g_lo = side.gain(0.0)
-    if not math.isfinite(g_lo):
-        return None
-    lo, up, g_up, prev, x = 0.0, top, math.nan, None, min(0.125, top / 2)
-    target = side.max_gain / math.sqrt(1 + rtol)  # aim inside the accepted band
+    G = side.max_gain
+    aim = G / math.sqrt(1 + rtol)
+    t1 = min(0.125, top / 2)
+    lams = [t1, t1 / 8]
+    lo = None
     for _ in range(12):
-        if g_lo * (1 + rtol) >= side.max_gain or up <= lo * (1 + rtol) or x in side.found:
-            break
-        g = side.gain(x)
-        if g <= side.max_gain:
-            prev, lo, g_lo = (lo, g_lo), x, g
-        else:
-            up, g_up = x, g
-        if math.isfinite(g_up):  # bracketed by gains
-            lin = (target - g_lo) / (g_up - g_lo)
-            log = math.log(target / g_lo) / math.log(g_up / g_lo)
-            x = lo + (up - lo) * min(max((lin + log) / 2, 0.01), 0.99)
-            if x <= lo * (1 + rtol / 2):  # the predicted gain is below the tolerance
-                break
-        elif math.isnan(g_up):  # nothing failed yet: extrapolate log g from the last two passing targets
-            slope = math.log(g_lo / prev[1]) / (lo - prev[0])
-            x = min(top, 4 * lo, lo + math.log(target / g_lo) / slope if slope > 0 else 4 * lo)
-        else:  # no solution at up
-            x = lo + (up - lo) * (0.25 if lo == 0 else 0.5)
+        side.estimate(lams)
+        est = side.est
+        up = min((la for la, g in est.items() if not g <= G), default=None)
+        lo = max((la for la, g in est.items() if g <= G and (up is None or la < up)), default=None)
+        if lo is None:
+            if 0.0 in est:
+                return 0.0 if math.isfinite(est[0.0]) else None
+            lams = [min(est) / 8, 0.0]
+            continue
+        g_lo = est[lo]
+        if g_lo * (1 + rtol) >= G or lo >= top or (up is not None and up <= lo * (1 + rtol)):
+            return lo
+        x = _next_target(est, lo, up, aim, top)
+        if x <= lo * (1 + rtol / 2):
+            return lo
+        lams = [x, min(x * (1 + rtol), top) if up is None else min(x * (1 + rtol), math.sqrt(x * up))]
     return lo
+
+
+def _next_target(est: dict, lo: float, up: float | None, aim: float, top: float) -> float:
+    """The next target of :func:`_search` (its docstring), in ``(lo, up)``."""
+    g_lo = est[lo]
+    if up is None:
+        below = [la for la in est if la < lo and 0 < est[la] <= g_lo]
+        x = 8 * lo
+        if below and lo > 0:
+            l1 = max(below)
+            p = math.log(g_lo / est[l1]) / math.log(lo / l1)
+            if p > 0:
+                x = min(x, lo * (aim / g_lo) ** (1 / p))
+        return min(x, top)
+    g_up = est[up]
+    if lo == 0:
+        return up / 4 if math.isfinite(g_up) else up / 8
+    if not math.isfinite(g_up) or g_up <= g_lo:
+        return math.sqrt(lo * up)
+    p = math.log(g_up / g_lo) / math.log(up / lo)
+    x = lo * (aim / g_lo) ** (1 / p)
+    return min(max(x, lo), up / (1 + 1e-9))
 
 
 def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_gain: float = math.inf,
@@ -539,7 +686,8 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     s, t : float, optional
         Channel multipliers (default ``s = ||Dr H|| / ||G||``, ``t = 1 / s``).
     method : str
-        ARE method (:func:`solve_are`).
+        ARE method of the verified solves (:func:`solve_are`; the search's estimates use the sign
+        function in single precision).
 
     Returns
     -------
@@ -551,27 +699,68 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     q = _check_shapes(A, B, C, G, H, lo, hi)
     lp = joint.loop(A, B, C, G, H, lo, hi)
     r = np.broadcast_to(np.asarray((np.asarray(hi, float) - np.asarray(lo, float)) / 2), (q,))
-    A0 = lp.A0
+    A0, n = lp.A0, A.shape[0]
     sigma, s, t, tau0_x, tau0_e = _scales(lp, B, C, s, t)
-    tries: list = []
-    res = RiccatiRouteResult(status="infeasible", reason="", s=s, t=t, tries=tries)
-    xs = _Side("x", lambda la, tau, e: solve_x_side(A0, B, G, H, r, la, s, tau * tau0_x, e * sigma, method=method),
-               taus, eps, max_gain, tries)
-    es = _Side("e", lambda la, tau, e: solve_e_side(A0, C, G, H, r, la, t, tau * tau0_e, e * sigma, method=method),
-               taus, eps, max_gain, tries)
-    # the e-side first, then the x-side up to its target (the joint rate is the slower side's)
-    lam_e = _search(es, lam, max_decay, rtol)
-    lam_x = _search(xs, lam, lam_e if lam is None and lam_e else max_decay, rtol, other=bool(lam is None and lam_e))
-    if lam_x is None or lam_e is None:
-        res.reason = "; ".join(f"{side.label}-side infeasible on the grid (last: {side.why})"
-                               for side, found in ((xs, lam_x), (es, lam_e)) if found is None)
+    res = RiccatiRouteResult(status="infeasible", reason="", s=s, t=t)
+    grid = [(tau, e) for e in eps for tau in taus]
+    I = np.eye(n)
+    xs = _Side("x", n, lambda la, tau, e: _are_data(A0 + la * I, B, lp.G, lp.DH, s, tau * tau0_x, e * sigma),
+               lambda X, tau: _norm2(tau * tau0_x * (B.T @ X)),
+               lambda la, tau, e, X0: solve_x_side(A0, B, G, H, r, la, s, tau * tau0_x, e * sigma, method=method, X0=X0),
+               grid, max_gain)
+    es = _Side("e", n, lambda la, tau, e: _are_data((A0 + la * I).T, C.T, lp.DH.T, lp.G.T, t, tau * tau0_e, e * sigma),
+               lambda X, tau: _norm2(tau * tau0_e * (X @ C.T)),
+               lambda la, tau, e, X0: solve_e_side(A0, C, G, H, r, la, t, tau * tau0_e, e * sigma, method=method, X0=X0),
+               grid, max_gain)
+    found = _targets(xs, es, lam, max_decay, rtol)
+    res.tries = es.tries + xs.tries
+    if isinstance(found, str):
+        res.reason = found
         res.timings = {"search": time.perf_counter() - t_start, "total": time.perf_counter() - t_start}
         return res
     t1 = time.perf_counter()
-    _certify_pair(res, lp, xs, es, lam_x, lam_e, s, t)
+    _certify_pair(res, lp, *found, s, t)
     res.timings = {"search": t1 - t_start, "certificate": time.perf_counter() - t1,
                    "total": time.perf_counter() - t_start}
     return res
+
+
+def _are_data(a, inputs, acts, reads, mult, tau, eps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One side's ARE ``a' X + X a - X M X + q = 0``: ``M = b diag(rr)^-1 b'``, ``b = [inputs, acts]``,
+    ``rr = (1/(2 tau), -1/mult)``, ``q = reads' reads / mult + eps I``."""
+    M = 2 * tau * (inputs @ inputs.T) - mult * (acts @ acts.T)
+    q = reads.T @ reads / mult + eps * np.eye(a.shape[0])
+    return a, lmi.sym(M), lmi.sym(q)
+
+
+def _targets(xs: _Side, es: _Side, lam: float | None, top: float, rtol: float) -> tuple | str:
+    """The pair's target and the verified sides there, ``(target, x, e)``, or the reason there are none.
+
+    A fixed ``lam``: both sides there. Searched: the e-side's target (:func:`_search`), both sides
+    solved there concurrently; a side whose verified solution fails (or exceeds the gain bound) steps
+    down to the next lower target estimated to pass (its own search for the x-side), and the other
+    side is solved at the lower target too (the joint rate is the slower side's). At target 0 a
+    solution is kept whatever its gain (the smallest gains found)."""
+    target = lam if lam is not None else _search(es, top, rtol)
+    for _ in range(8):
+        if target is None:
+            return f"e-side: no stabilizing ARE solution at decay 0 on the grid (last: {es.why})"
+        x, e = parallel([lambda: xs.solve(target), lambda: es.solve(target)], xs.n)
+        ok = (lambda side, sol: sol is not None) if target == 0 or lam is not None else _Side.within
+        if not ok(es, e):  # the estimate was optimistic: the next lower target estimated to pass
+            if lam is not None or target == 0:
+                return f"e-side: no verified solution at decay {target:g} on the grid (last: {es.why})"
+            target = max((la for la, g in es.est.items() if la < target and g <= es.max_gain), default=0.0)
+            continue
+        if ok(xs, x):
+            return target, x, e
+        if lam is not None or target == 0:
+            return f"x-side: no verified solution at decay {target:g} on the grid (last: {xs.why})"
+        xs.est[target] = math.inf  # its own search below the target where it failed
+        target = _search(xs, target, rtol)
+        if target is None:
+            return f"x-side: no stabilizing ARE solution at decay 0 on the grid (last: {xs.why})"
+    return "no target verified on both sides in 8 attempts"
 
 
 def _scales(lp: joint.Loop, B: np.ndarray, C: np.ndarray, s: float | None,
@@ -599,12 +788,10 @@ def _check_shapes(A, B, C, G, H, lo, hi) -> int:
     return q
 
 
-def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, xs: _Side, es: _Side, lam_x: float, lam_e: float,
-                  s: float, t: float) -> None:
-    """Fill ``res`` (in place) with the sides' solutions at the slower side's target ``min(lam_x, lam_e)``
-    (a side without one there keeps its own) and the joint certificate of the pair."""
-    res.lam = min(lam_x, lam_e)
-    x, e = xs.at(res.lam) or xs.at(lam_x), es.at(res.lam) or es.at(lam_e)
+def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, lam: float, x: SideSolution, e: SideSolution, s: float,
+                  t: float) -> None:
+    """Fill ``res`` (in place) with the sides' solutions at the target ``lam`` and the joint certificate."""
+    res.lam = lam
     # normalise P and R to a unit largest eigenvalue: (P, s) -> (P/a, s a), (R, t) -> (R/b, t/b) keep both sides
     a_x, a_e = _eig_at(x.P, -1), _eig_at(e.P, -1)
     res.P, res.R, res.s, res.t = x.P / a_x, e.P / a_e, s * a_x, t / a_e

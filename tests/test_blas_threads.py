@@ -34,3 +34,26 @@ def test_numpy_imported_first_still_gets_one_blas_thread():
 def test_a_users_thread_setting_is_kept():
     # OPENBLAS_NUM_THREADS=2 set by the user: numpy starts with 2 threads and bench keeps them
     assert all(t == 2 for t in _blas_threads({"OPENBLAS_NUM_THREADS": "2"}))
+
+
+def test_parallel_keeps_the_order_of_its_calls_and_raises_their_errors():
+    import threading
+
+    import pytest
+
+    from bench._env import parallel
+
+    seen = set()
+
+    def call(i):
+        seen.add(threading.get_ident())
+        return i * i
+
+    assert parallel([lambda i=i: call(i) for i in range(5)], n=10_000) == [0, 1, 4, 9, 16]
+    assert parallel([lambda i=i: call(i) for i in range(3)], n=2) == [0, 1, 4]  # small: serial, same answer
+
+    def boom():
+        raise ValueError("the third call")
+
+    with pytest.raises(ValueError, match="the third call"):
+        parallel([lambda: 1, lambda: 2, boom], n=10_000)

@@ -106,6 +106,57 @@ def test_indefinite_are_matches_scipy_and_has_a_small_residual(n):
     np.testing.assert_allclose(X, Xs, rtol=1e-7, atol=1e-9 * np.abs(Xs).max())
 
 
+def test_lyapunov_by_the_sign_function_matches_scipy():
+    from scipy.linalg import solve_continuous_lyapunov
+
+    from designs._riccati_route import _lyap_sign
+
+    rng = np.random.default_rng(3)
+    n = 40
+    A = rng.standard_normal((n, n)) / math.sqrt(n)
+    A -= (np.linalg.eigvals(A).real.max() + 0.1) * np.eye(n)  # Hurwitz, slowest mode at -0.1
+    Q = rng.standard_normal((n, n))
+    Q = Q + Q.T
+    want = solve_continuous_lyapunov(A.T, -Q)  # A' X + X A + Q = 0
+    got = _lyap_sign(A, Q)
+    assert np.abs(got - want).max() <= 1e-4 * np.abs(want).max()  # single precision
+    assert _lyap_sign(A + 0.2 * np.eye(n), Q) is None  # a mode at +0.1: no sign -I, no answer
+
+
+def test_newton_steps_refine_a_perturbed_solution_to_scipys():
+    from designs._riccati_route import _newton
+
+    p = random_lipschitz_plant(n=20, c=0.2, seed=2)
+    b = np.hstack([p.B, p.channels.G])
+    rr = np.concatenate([np.full(p.m, 0.5), np.full(p.n, -5.0)])
+    q = p.channels.H.T @ p.channels.H * 0.2 + 0.01 * np.eye(p.n)
+    want = solve_continuous_are(p.A, b, q, np.diag(rr))
+    M = b @ np.diag(1 / rr) @ b.T
+    E = np.random.default_rng(0).standard_normal(want.shape)
+    X0 = want + 1e-4 * np.abs(want).max() * (E + E.T)
+    got = _newton(p.A, M, q, X0, 1e-8)
+    assert got is not None
+    np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9 * np.abs(want).max())
+    assert _newton(p.A, M, q, X0, 1e-8, steps=0) is None  # X0 alone is not within 1e-8
+
+
+def test_large_are_single_precision_start_matches_scipy():
+    # from SINGLE_FROM_N states the sign iteration runs in single precision and Newton steps refine it
+    from designs._riccati_route import SINGLE_FROM_N
+
+    p = chain_plant(N=SINGLE_FROM_N // 2)
+    n, G, H = p.n, p.channels.G, p.channels.H
+    b = np.hstack([p.C.T, H.T])
+    rr = np.concatenate([np.full(p.p, 0.5), np.full(H.shape[0], -1.0)])
+    a = (p.A + 0.05 * np.eye(n)).T
+    q = G @ G.T + 0.01 * np.eye(n)
+    want = solve_continuous_are(a, b, q, np.diag(rr))
+    X, info = solve_are(a, b, rr, q, fallback=False)
+    assert X is not None, info.reason
+    assert info.residual <= 1e-8
+    np.testing.assert_allclose(X, want, rtol=1e-6, atol=1e-8 * np.abs(want).max())
+
+
 # -- the sides ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("p", PLANTS_SMALL[:4], ids=IDS[:4])
 def test_side_lmis_in_their_synthesis_form(p):
@@ -253,22 +304,50 @@ def test_methods_agree():
     np.testing.assert_allclose(out["sign"].K, out["scipy"].K, rtol=1e-6)
 
 
-@pytest.mark.parametrize("kappa, wall", [(20.0, math.inf), (3.0, math.inf), (20.0, 0.08), (400.0, math.inf)])
+@pytest.mark.parametrize("kappa, wall", [(20.0, math.inf), (3.0, math.inf), (20.0, 0.08), (400.0, math.inf),
+                                         (60.0, math.inf)])
 def test_target_search_stops_at_the_gain_bound(kappa, wall):
     # a side whose gain is g(l) = 2 exp(kappa l) and which has no solution above `wall`: the largest
     # target within max_gain = 20 is min(ln(10) / kappa, wall)
-    from designs._riccati_route import SideSolution, _Side, _search
+    from designs._riccati_route import _search
 
-    def solve(lam, tau, eps):
-        sol = SideSolution(P=np.eye(1), gain=np.array([[2 * math.exp(kappa * lam)]]), side_matrix=-np.eye(1),
-                           min_eig=1.0, multiplier=1.0, tau=tau, eps=eps, are=None, lam=lam)
-        return (sol, "") if lam <= wall else (None, "no solution")
+    class Side:
+        max_gain = 20.0
 
-    calls = []
-    got = _search(_Side("e", solve, [1.0], [1.0], 20.0, calls), None, 10.0, 0.05)
+        def __init__(self):
+            self.est, self.stages = {}, 0
+
+        def estimate(self, lams):
+            self.stages += 1
+            self.est.update({la: 2 * math.exp(kappa * la) if la <= wall else math.inf for la in lams})
+
+    side = Side()
+    got = _search(side, 10.0, 0.05)
     best = min(math.log(10) / kappa, wall)
     assert best / 1.05 <= got <= best
-    assert len(calls) <= (12 if math.isfinite(wall) else 8)
+    assert side.stages <= (8 if math.isfinite(wall) else 5)
+
+
+def test_target_search_on_a_gain_with_a_flat_start():
+    # g(l) = 2 + 1000 max(0, l - 0.006)^1.4 (flat, then a power law, as the chain's observer side): the
+    # largest target within 20 is 0.006 + (18 / 1000)^(1 / 1.4), found in a few stages
+    from designs._riccati_route import _search
+
+    class Side:
+        max_gain = 20.0
+
+        def __init__(self):
+            self.est, self.stages = {}, 0
+
+        def estimate(self, lams):
+            self.stages += 1
+            self.est.update({la: 2 + 1000 * max(0.0, la - 0.006) ** 1.4 for la in lams})
+
+    side = Side()
+    got = _search(side, 10.0, 0.05)
+    best = 0.006 + (18 / 1000) ** (1 / 1.4)
+    assert best / 1.05 <= got <= best
+    assert side.stages <= 4
 
 
 # -- closed loop --------------------------------------------------------------------------------
