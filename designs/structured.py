@@ -46,6 +46,7 @@ quadratic constraints", Automatica 47(7), 2011. A. Zemouche and M. Boutayeb, Aut
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import partial
 
@@ -187,7 +188,8 @@ class Structured(Design):
         wall = time.perf_counter() - t0
         params = {"decay_target": rr.lam, "rate_bound": rr.rate_bound, "mu": rr.mu, "tau": rr.tau,
                   "tau_e": rr.tau_e, "residual_x": rr.residual_x, "residual_e": rr.residual_e,
-                  "ares": len(rr.tries), "max_gain": self.max_gain}
+                  "ares": len(rr.tries), "max_gain": self.max_gain, "search_s": rr.timings.get("search", math.nan),
+                  "certificate_s": rr.timings.get("certificate", math.nan)}
         if rr.F is not None:
             params["gain_norm"] = max(np.linalg.norm(rr.F, 2), np.linalg.norm(rr.K, 2))
         base = dict(route="riccati", solver=f"{'/'.join(dict.fromkeys(rr.methods)) or 'sign'} (ARE)",
