@@ -370,13 +370,17 @@ def _loop(A0, B, C, G, H, r) -> joint.Loop:
     return joint.loop(A0, B, C, G, H, -r, r)
 
 
-def _side_are(a, inputs, acts, reads, mult, tau, eps, method, X0=None):
-    """One side's ARE: ``b = [inputs, acts]``, ``rr = (1/(2 tau), -1/mult)``, ``q = reads' reads / mult + eps I``."""
-    n = a.shape[0]
-    bb = np.hstack([inputs, acts])
+def _side_terms(inputs, acts, reads, mult, tau, eps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One side's ARE terms: ``b = [inputs, acts]``, ``rr = (1/(2 tau), -1/mult)``, ``q = reads' reads / mult + eps I``."""
+    b = np.hstack([inputs, acts])
     rr = np.concatenate([np.full(inputs.shape[1], 1.0 / (2 * tau)), np.full(acts.shape[1], -1.0 / mult)])
-    qq = reads.T @ reads / mult + eps * np.eye(n)
-    return solve_are(a, bb, rr, qq, method=method, fallback=False, X0=X0)  # a failing probe is a failed probe
+    return b, rr, reads.T @ reads / mult + eps * np.eye(inputs.shape[0])
+
+
+def _side_are(a, inputs, acts, reads, mult, tau, eps, method, X0=None):
+    """One side's ARE (:func:`_side_terms`) by :func:`solve_are`, without its fallback."""
+    b, rr, q = _side_terms(inputs, acts, reads, mult, tau, eps)
+    return solve_are(a, b, rr, q, method=method, fallback=False, X0=X0)  # a failing probe is a failed probe
 
 
 def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign", X0=None) -> tuple[SideSolution | None, str]:
@@ -726,11 +730,9 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
 
 
 def _are_data(a, inputs, acts, reads, mult, tau, eps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One side's ARE ``a' X + X a - X M X + q = 0``: ``M = b diag(rr)^-1 b'``, ``b = [inputs, acts]``,
-    ``rr = (1/(2 tau), -1/mult)``, ``q = reads' reads / mult + eps I``."""
-    M = 2 * tau * (inputs @ inputs.T) - mult * (acts @ acts.T)
-    q = reads.T @ reads / mult + eps * np.eye(a.shape[0])
-    return a, lmi.sym(M), lmi.sym(q)
+    """``(a, M, q)`` of one side's ARE ``a' X + X a - X M X + q = 0``, ``M = b diag(rr)^-1 b'`` (:func:`_side_terms`)."""
+    b, rr, q = _side_terms(inputs, acts, reads, mult, tau, eps)
+    return a, lmi.sym((b / rr) @ b.T), lmi.sym(q)
 
 
 def _targets(xs: _Side, es: _Side, lam: float | None, top: float, rtol: float) -> tuple | str:
@@ -804,72 +806,3 @@ def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, lam: float, x: SideSo
     res.status = {"verified": "feasible", "marginal": "marginal"}.get(cert.status, "infeasible")
     res.reason = (f"joint certificate verified (equilibrated max eigenvalue {cert.margin:.3g}), rate {cert.rate:.4g}"
                   if cert.verified else f"joint certificate {cert.status} (equilibrated max eigenvalue {cert.margin:.3g})")
-
-
-def constants_riccati(A, B, C, *, alpha: float | None = None, rho: float | None = None,
-                      beta: float | None = None, gamma: float | None = None, lam: float = 0.0,
-                      thetas: Sequence[float] = (0.0, 0.1, 0.3, 1.0, 3.0, 10.0), **kwargs) -> tuple[RiccatiRouteResult, dict]:
-    """The Riccati route with the scalar constants of f instead of channels (G = H = I).
-
-    With one multiplier per side only the sum over channels of the S-procedure terms is used, so
-    ``G = H = I`` with ``|dpsi| <= r |dz|`` covers any f with an incremental bound
-    ``|f(a) - f(b) - c0 (a - b)| <= r |a - b|``:
-
-    - Lipschitz alpha: ``c0 = 0``, ``r = alpha`` (Corollary 1's constraint).
-    - OSL rho plus QIB (beta, gamma): ``theta (rho |dx|^2 - <dx, df>) + (beta |dx|^2 + gamma <dx, df>
-      - |df|^2) >= 0`` for a fixed ``theta >= 0`` is ``|df - c0 dx|^2 <= r^2 |dx|^2`` with
-      ``c0 = (gamma - theta) / 2``, ``r^2 = c0^2 + theta rho + beta`` (complete the square); theta is
-      searched on ``thetas`` (Theorem 1's constraints with ``eps3 / eps4 = theta``).
-
-    Parameters
-    ----------
-    A, B, C : array_like
-    alpha, rho, beta, gamma : float, optional
-        Constants; the OSL/QIB form needs beta and gamma (rho optional, thetas > 0 need it), the
-        Lipschitz form alpha. Both are tried when both are given.
-    lam : float
-        Decay target.
-    thetas : sequence of float
-        Ratios eps3/eps4 tried for the OSL/QIB form.
-    **kwargs
-        Passed to :func:`structured_riccati`.
-
-    This is a Riccati analogue of the corrected Theorem 1 / Corollary 1 (``docs/paper.md``), not the
-    same condition: one ball ``(c0, r)`` serves both sides and the joint certificate has the cross
-    term handled by mu, while those LMIs use the QIB pair (``beta_eff = beta + gamma rho``) on
-    the x-side and OSL + QIB with separate multipliers on the e-side. Both are only sufficient.
-
-    Returns
-    -------
-    (RiccatiRouteResult, dict)
-        The best result (feasible first, then the most negative margin) and the constraint used
-        (``{"form": "lipschitz" | "osl_qib", "c0": ..., "r": ..., "theta": ...}``).
-    """
-    A = np.asarray(A, dtype=float)
-    I = np.eye(A.shape[0])
-    best, best_c = None, None
-    for cand in _balls(alpha, rho, beta, gamma, thetas):
-        res = structured_riccati(A, B, C, I, I, cand["c0"] - cand["r"], cand["c0"] + cand["r"], lam=lam, **kwargs)
-        key = (res.ok, -res.margin if np.isfinite(res.margin) else -math.inf)
-        if best is None or key > (best.ok, -best.margin if np.isfinite(best.margin) else -math.inf):
-            best, best_c = res, cand
-    return best, best_c
-
-
-def _balls(alpha, rho, beta, gamma, thetas) -> list[dict]:
-    """The incremental balls ``|df - c0 dx| <= r |dx|`` the constants give (:func:`constants_riccati`), or
-    ValueError when they give none."""
-    cands = []
-    if alpha is not None:
-        cands.append({"form": "lipschitz", "c0": 0.0, "r": float(alpha), "theta": math.nan})
-    if beta is not None and gamma is not None:
-        for th in thetas:
-            if th > 0 and rho is None:
-                continue
-            c0 = (gamma - th) / 2
-            r2 = c0 * c0 + th * (rho or 0.0) + beta
-            if r2 >= 0:
-                cands.append({"form": "osl_qib", "c0": c0, "r": math.sqrt(r2), "theta": float(th)})
-    if not cands:
-        raise ValueError("constants: give alpha, or beta and gamma (and rho for theta > 0)")
-    return cands

@@ -16,7 +16,6 @@ from bench.registry import PLANTS
 from bench import joint
 from bench.joint import equilibrated_max_eig, min_mu
 from designs._riccati_route import (
-    constants_riccati,
     solve_are,
     solve_e_side,
     solve_x_side,
@@ -388,33 +387,6 @@ def test_certified_decay_rate_holds_along_the_trajectory():
     e = x - sol.y[n:]
     V = np.einsum("it,ij,jt->t", x, res.P, x) + res.mu * np.einsum("it,ij,jt->t", e, res.R, e)
     assert np.all(V <= np.exp(-2 * lam * ts) * V[0] * (1 + 1e-6) + 1e-12 * V[0])
-
-
-# -- the constants route ------------------------------------------------------------------------
-def test_constants_route_lipschitz_form():
-    """G = H = I with |dpsi| <= alpha |dx|: the certificate holds for any f with Lipschitz constant alpha."""
-    p = PLANTS.create("flexible_link")
-    alpha = p.bounds.alpha
-    res, used = constants_riccati(p.A, p.B, p.C, alpha=alpha)
-    assert used["form"] == "lipschitz" and res.ok, res.reason
-    n = p.n
-    I = np.eye(n)
-    M = full_joint(p.A, p.B, p.C, I, I, np.full(n, alpha), res.F, res.K, res.P, res.R, res.s, res.t, res.mu, 0.0)
-    assert max_eig(jacobi(M)) < 0
-
-
-def test_constants_route_osl_qib_square():
-    # theta (rho dx^2 - dx df) + beta dx^2 + gamma dx df - df^2 = r^2 dx^2 - (df - c0 dx)^2, checked on numbers
-    p = PLANTS.create("flexible_link")
-    b = p.bounds
-    res, used = constants_riccati(p.A, p.B, p.C, rho=b.rho, beta=b.beta, gamma=b.gamma)
-    assert used["form"] == "osl_qib"
-    th, c0, r = used["theta"], used["c0"], used["r"]
-    rng = np.random.default_rng(0)
-    dx, df = rng.standard_normal(100), rng.standard_normal(100)
-    lhs = th * (b.rho * dx * dx - dx * df) + b.beta * dx * dx + b.gamma * dx * df - df * df
-    np.testing.assert_allclose(lhs, r * r * dx * dx - (df - c0 * dx) ** 2, atol=1e-12)
-    assert res.ok, res.reason
 
 
 def test_min_mu_requires_negative_sides():
