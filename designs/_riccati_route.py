@@ -597,10 +597,6 @@ class _Side:
         self.found[lam] = sol
         return sol
 
-    def within(self, sol: SideSolution | None) -> bool:
-        """A verified solution within the gain bound."""
-        return sol is not None and sol.gain_norm <= self.max_gain
-
 
 def _search(side: _Side, top: float, rtol: float) -> float | None:
     """The side's largest decay target in ``[0, top]`` whose estimated gain is within ``side.max_gain``.
@@ -748,17 +744,21 @@ def _targets(xs: _Side, es: _Side, lam: float | None, top: float, rtol: float) -
         if target is None:
             return f"e-side: no stabilizing ARE solution at decay 0 on the grid (last: {es.why})"
         x, e = parallel([lambda: xs.solve(target), lambda: es.solve(target)], xs.n)
-        ok = (lambda side, sol: sol is not None) if target == 0 or lam is not None else _Side.within
-        if not ok(es, e):  # the estimate was optimistic: the next lower target estimated to pass
-            if lam is not None or target == 0:
+        keep = lam is not None or target == 0  # any verified solution: the smallest gains found
+
+        def fits(side: _Side, sol: SideSolution | None) -> bool:
+            return sol is not None and (keep or sol.gain_norm <= side.max_gain)
+
+        if not fits(es, e):  # the estimate was optimistic: the next lower target estimated to pass
+            if keep:
                 return f"e-side: no verified solution at decay {target:g} on the grid (last: {es.why})"
             target = max((la for la, g in es.est.items() if la < target and g <= es.max_gain), default=0.0)
             continue
-        if ok(xs, x):
+        if fits(xs, x):
             return target, x, e
-        if lam is not None or target == 0:
+        if keep:
             return f"x-side: no verified solution at decay {target:g} on the grid (last: {xs.why})"
-        xs.est[target] = math.inf  # its own search below the target where it failed
+        xs.est[target] = x.gain_norm if x is not None else math.inf  # its own search below the target
         target = _search(xs, target, rtol)
         if target is None:
             return f"x-side: no stabilizing ARE solution at decay 0 on the grid (last: {xs.why})"

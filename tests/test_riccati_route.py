@@ -349,6 +349,31 @@ def test_target_search_on_a_gain_with_a_flat_start():
     assert side.stages <= 4
 
 
+def test_the_slower_side_sets_the_pairs_target():
+    # e-side gain 2 exp(20 l), x-side gain 2 exp(40 l): within max_gain = 20 the e-side alone reaches
+    # ln(10)/20, the pair only ln(10)/40, where both sides are solved
+    from designs._riccati_route import SideSolution, _Side, _targets
+
+    def side(label, kappa):
+        def gain(lam):
+            return 2 * math.exp(kappa * lam)
+
+        def solve(lam, tau, eps, X0):
+            sol = SideSolution(P=np.eye(1), gain=np.array([[gain(lam)]]), side_matrix=-np.eye(1), min_eig=1.0,
+                               multiplier=1.0, tau=tau, eps=eps, are=None, lam=lam)
+            return sol, ""
+
+        sd = _Side(label, 1, None, None, solve, [(1.0, 1.0)], 20.0)
+        sd._scan = lambda lam, first, last: [(0, gain(lam), None, "")]
+        return sd
+
+    xs, es = side("x", 40.0), side("e", 20.0)
+    target, x, e = _targets(xs, es, None, 10.0, 0.05)
+    best = math.log(10) / 40
+    assert best / 1.05 <= target <= best
+    assert x.lam == e.lam == target and max(x.gain_norm, e.gain_norm) <= 20.0
+
+
 # -- closed loop --------------------------------------------------------------------------------
 @pytest.mark.parametrize("p", PLANTS_SMALL[:5], ids=IDS[:5])
 def test_closed_loop_decays(p):
