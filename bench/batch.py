@@ -30,7 +30,7 @@ import numpy as np
 from bench import checks
 from bench.errors import SimulationStopped as _BatchStop
 from bench.metrics import batch_metrics
-from bench.simulate import SimOptions, choose_method, loop_matrix
+from bench.simulate import Budget, SimOptions, choose_method, loop_matrix
 
 __all__ = ["simulate_batch", "simulate_digital_batch"]
 
@@ -175,24 +175,19 @@ def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options:
     return sol.t, sol.y, status, "" if status == "ok" else sol.message, int(sol.nfev)
 
 
-class _BatchRHS:
+class _BatchRHS(Budget):
     """Right-hand side of the batch loop (6), freezing the members above their limit and stopping the
     run past the budgets."""
 
     def __init__(self, plant, K: np.ndarray, F: np.ndarray, N: int, limit: np.ndarray, options: SimOptions):
+        super().__init__(options)
         L = loop_matrix(plant, K, F)  # [x'; x_hat'] = Px x + Ph x_hat
         self.Px, self.Ph = np.ascontiguousarray(L[:, :plant.n]), np.ascontiguousarray(L[:, plant.n:])
         self.f, self.n, self.N, self.limit = plant.f, plant.n, N, limit
         self.fast2 = float(limit.min()) ** 2  # while ||y||^2 <= fast2, no member can exceed its limit
-        self.count, self.max_nfev = 0, options.max_nfev
-        self.wall_end = None if options.max_wall_s is None else time.perf_counter() + options.max_wall_s
 
     def __call__(self, t, y):
-        self.count += 1
-        if self.count > self.max_nfev:
-            raise _BatchStop("budget", f"more than {self.max_nfev} right-hand-side evaluations by t = {t:.4g}")
-        if self.wall_end is not None and time.perf_counter() > self.wall_end:
-            raise _BatchStop("timeout", f"past the wall-time budget at t = {t:.4g}")
+        self.spend(t)
         n, N = self.n, self.N
         Y = y.reshape(n, 2 * N)
         x, xh = Y[:, :N], Y[:, N:]

@@ -56,13 +56,6 @@ __all__ = ["Certificate", "certify", "certify_from_x0", "explain", "level_set"]
 #: The ladder, weakest first.
 LEVELS = ("paper", "full", "structured")
 
-#: What each level assumes, in words (for reports).
-LEVEL_TITLES = {
-    "paper": "the paper's (20): block-diagonal P, OSL and QIB constants",
-    "full": "full P, every scalar constant (Lipschitz, OSL, QIB)",
-    "structured": "full P, the declared channel slopes and the scalar constants",
-}
-
 #: Beyond this many states the ladder's SDPs are not attempted; a design's own certificate,
 #: verified by eigenvalues, is kept (:func:`adopt`).
 LADDER_MAX_N = 16
@@ -164,11 +157,6 @@ class Certificate:
         """The strongest certified level's rate (NaN if none)."""
         b = self.best
         return b.decay_rate if b is not None else float("nan")
-
-    @property
-    def solve_s(self) -> float:
-        """Seconds in all levels."""
-        return sum(r.solve_s for r in self.levels.values())
 
     def reason(self, witnessed: bool = False) -> str:
         """One line on the levels that did not certify (``witnessed``: the levels a witness rules out
@@ -343,15 +331,7 @@ def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
 def _check(prog: lmi.Program, lam: float) -> tuple[str, float]:
     """Solve at ``lam``; ``("verified" | "marginal" | "violated" | solver status, margin)``."""
     prog.solve(lam=lam)
-    if prog.last_status not in ("optimal", "optimal_inaccurate"):
-        return prog.last_status, float("nan")
-    M = prog.numeric_matrix()
-    margin = lmi.max_eig(M)
-    verdict = lmi.classify(margin, M)
-    vals = prog.values()
-    if verdict == "verified" and not all(lmi.is_positive_definite(vals[k]) for k in prog.positive):
-        verdict = "violated"
-    return verdict, margin
+    return prog.verdict()
 
 
 def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float,

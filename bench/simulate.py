@@ -150,22 +150,33 @@ def _loop_operator(plant, K: np.ndarray, F: np.ndarray):
     return loop_matrix(plant, K, F)
 
 
-class _LoopRHS:
-    """The right-hand side of the loop (6) in ``z = (x, x_hat)``, stopping the run past the budgets or
-    at a non-finite state."""
+class Budget:
+    """Counts right-hand sides; :meth:`spend` stops the run past ``options.max_nfev`` of them or
+    ``options.max_wall_s`` seconds."""
 
-    def __init__(self, L, f, n: int, options: SimOptions):
-        self.L, self.f, self.n, self.options = L, f, n, options
-        self.count = 0
+    def __init__(self, options: SimOptions):
+        self.options, self.count = options, 0
         self.wall_end = None if options.max_wall_s is None else time.perf_counter() + options.max_wall_s
 
-    def __call__(self, t, z):
+    def spend(self, t: float) -> None:
         self.count += 1
         options = self.options
         if self.count > options.max_nfev:
             raise _Stop("budget", f"more than {options.max_nfev} right-hand-side evaluations by t = {t:.4g}")
         if self.wall_end is not None and time.perf_counter() > self.wall_end:
             raise _Stop("timeout", f"more than {options.max_wall_s:.3g} s of wall time by t = {t:.4g}")
+
+
+class _LoopRHS(Budget):
+    """The right-hand side of the loop (6) in ``z = (x, x_hat)``, stopping the run past the budgets or
+    at a non-finite state."""
+
+    def __init__(self, L, f, n: int, options: SimOptions):
+        super().__init__(options)
+        self.L, self.f, self.n = L, f, n
+
+    def __call__(self, t, z):
+        self.spend(t)
         if not _all_finite(z):
             raise _Stop("diverged", f"non-finite state at t = {t:.4g}")
         nl = np.asarray(self.f(z.reshape(2, self.n).T), dtype=float).T.ravel()
