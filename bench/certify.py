@@ -360,20 +360,8 @@ def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float,
 
 
 def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
-    """Decay rate of the closed loop (6) linearised at the origin, ``-max Re eig`` of
-    ``A + Df(0) + B F`` and ``A + Df(0) - K C`` (no certificate can beat it).
-
-    Parameters
-    ----------
-    plant : Plant
-        Its Jacobian at 0 (or a central difference of f).
-    K, F : ndarray
-
-    Returns
-    -------
-    float
-        Negative when the linearisation is unstable.
-    """
+    """Decay rate of the loop (6) linearised at the origin, ``-max Re eig`` of ``A + Df(0) + B F`` and
+    ``A + Df(0) - K C``: no certificate can beat it (negative when the linearisation is unstable)."""
     return checks.closed_loop(plant, K, F).linearised_rate
 
 
@@ -697,9 +685,8 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     ch = knowledge.channels
     if ch is None or ch.narrow is None:
         return None, "no certificate from x0 searched: the channels declare no narrowing of their slopes on a region"
-    n, q = plant.n, ch.q
-    if n > LADDER_MAX_N:
-        return None, f"no certificate from x0 searched: n = {n} is beyond LADDER_MAX_N = {LADDER_MAX_N}"
+    if plant.n > LADDER_MAX_N:
+        return None, f"no certificate from x0 searched: n = {plant.n} is beyond LADDER_MAX_N = {LADDER_MAX_N}"
     loop = loop if loop is not None else checks.closed_loop(plant, K, F)
     K, F = loop.K, loop.F
     z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0])
@@ -712,8 +699,8 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
         tried.append(r)
         prog.set(lohi=lo * hi, losum=lo + hi, r2=(r * (1 - FROM_X0_SHRINK)) ** 2)
         verdict, margin = _check(prog, 0.0)
-        if verdict == "verified" and _contains(_full_p(prog, spec), z0, rows, r):
-            found = _rate_in_region(prog, spec, plant, loop, knowledge, z0, rows, r, (lo, hi), margin, rate_rtol)
+        if verdict == "verified" and _contains(_full_p(prog, spec), z0, ch.H, r):
+            found = _rate_in_region(prog, spec, plant, loop, knowledge, z0, r, (lo, hi), margin, rate_rtol)
             if best is None or found.decay_rate > best.decay_rate:
                 best = found
             more -= 1
@@ -771,8 +758,7 @@ def _regions(ch, r0: float, r_max: float | None):
 
 
 def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge,
-                    z0: np.ndarray, rows: np.ndarray, r: float, box: tuple, margin: float,
-                    rate_rtol: float) -> LevelResult:
+                    z0: np.ndarray, r: float, box: tuple, margin: float, rate_rtol: float) -> LevelResult:
     """The certificate from x0 on a region where ``lam = 0`` verified: its rate, searched up to the
     smaller of the linearised rate and the rate ceiling of the narrowed class, kept only while the
     level set through z0 stays in the region."""
@@ -782,7 +768,7 @@ def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.C
     P0, lam, P = _full_p(prog, spec), 0.0, None
     if top > 0:
         lam, P = _rate(prog, spec, 0.0, top, rate_rtol)
-    if P is None or not _contains(P, z0, rows, r):
+    if P is None or not _contains(P, z0, knowledge.channels.H, r):
         lam, P = 0.0, P0
     return LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
                        region_H=knowledge.channels.H, reason=(
@@ -790,13 +776,9 @@ def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.C
                            f"[{_vec(lo)}, {_vec(hi)}]: the level set through z0 stays in that region"))
 
 
-def _contains(P: np.ndarray, z0: np.ndarray, rows: np.ndarray, r: float) -> bool:
-    """True when P is positive definite and ``{V <= V(z0)}`` lies in ``|a' z| <= r`` for every row a
-    (``V(z0) a' P^-1 a <= r^2``, recomputed with numpy)."""
-    if not lmi.is_positive_definite(P):
-        return False
-    Pinv = np.linalg.inv((P + P.T) / 2)
-    return float(z0 @ P @ z0) * float(np.max(np.einsum("ij,jk,ik->i", rows, Pinv, rows))) <= r * r
+def _contains(P: np.ndarray, z0: np.ndarray, H: np.ndarray, r: float) -> bool:
+    """True when P is positive definite and ``{V <= V(z0)}`` lies in ``|Hx|, |Hx_hat| <= r`` (:func:`level_set`)."""
+    return lmi.is_positive_definite(P) and float(z0 @ P @ z0) <= level_set(P, r, H)
 
 
 def _vec(v) -> str:
@@ -809,52 +791,36 @@ LEVEL_USES = {"paper": ("rho", "beta", "gamma"), "full": ("alpha", "rho", "beta"
               "structured": ("channels",)}
 
 
-def adopt(cert: Certificate, candidate: dict | None, knowledge: Knowledge | None = None) -> Certificate:
-    """Keep a design's own verified certificate where the ladder's LMI certifies less.
+def adopt(cert: Certificate, candidate: dict | None, knowledge: Knowledge) -> None:
+    """Keep a design's own verified certificate where the ladder's LMI certifies less (``cert`` updated).
 
-    A design may verify a joint certificate of its own (``DesignResult.certificate``: its level,
-    P, decay rate, margin, radius); it uses that level's knowledge, so it is a certificate at that
-    level (and, by inclusion, at every level above). Where the ladder's own LMI certified clearly
-    less (below :data:`ADOPT_RATIO` of its rate: numerical trouble, or ``n`` beyond
-    :data:`LADDER_MAX_N`), the level takes it, and the levels above inherit it. A certificate that
-    rests on a declaration the ``knowledge`` does not trust (``candidate["uses"]``, default
-    :data:`LEVEL_USES` of its level; e.g. channels whose slopes a sample disproved) is refused: the
-    level is "not certified" and its reason names the declaration.
-
-    Parameters
-    ----------
-    cert : Certificate
-    candidate : dict or None
-        ``level``, ``P``, ``decay_rate``, ``margin``, ``radius``, ``how``, optionally ``uses``.
-    knowledge : Knowledge, optional
-        What is trusted (None: the candidate is taken as verified on trusted declarations).
-
-    Returns
-    -------
-    Certificate
-        ``cert``, updated in place.
+    A design may verify a joint certificate of its own (``DesignResult.certificate``: ``level``, ``P``,
+    ``decay_rate``, ``margin``, ``radius``, ``how``, optionally ``uses``); it uses that level's knowledge,
+    so it is a certificate at that level (and, by inclusion, at every level above). Where the ladder's own
+    LMI certified clearly less (below :data:`ADOPT_RATIO` of its rate: numerical trouble, or ``n`` beyond
+    :data:`LADDER_MAX_N`), the level takes it, and the levels above inherit it. A certificate that rests on
+    a declaration ``knowledge`` does not trust (``uses``, default :data:`LEVEL_USES` of its level; e.g.
+    channels whose slopes a sample disproved) is refused: the level is "not certified" and its reason
+    names the declaration.
     """
     if not candidate or candidate.get("level") not in cert.levels:
-        return cert
+        return
     lv = candidate["level"]
     cur = cert.levels[lv]
-    bad = [knowledge.untrusted[k] for k in candidate.get("uses", LEVEL_USES[lv])
-           if knowledge is not None and k in knowledge.untrusted]
+    bad = [knowledge.untrusted[k] for k in candidate.get("uses", LEVEL_USES[lv]) if k in knowledge.untrusted]
     if bad:
         if not cur.certified:
             cert.levels[lv] = replace(cur, status="not certified", reason=(
                 f"{candidate['how']} is refused: it rests on {'; '.join(bad)}"
                 + (f" (the ladder's own LMI: {cur.status}: {cur.reason})" if cur.reason else "")))
-        return cert
+        return
     if cur.certified and cur.decay_rate >= ADOPT_RATIO * candidate["decay_rate"]:
-        return cert  # the ladder's own P (normalised, usually better conditioned) is kept
+        return  # the ladder's own P (normalised, usually better conditioned) is kept
     own = f"the ladder's own LMI: {cur.status}" + (f", rate {cur.decay_rate:.3g}" if cur.certified else "")
     cert.levels[lv] = LevelResult(lv, "certified", decay_rate=float(candidate["decay_rate"]),
                                   margin=float(candidate["margin"]), reason=f"{candidate['how']} ({own})",
                                   P=candidate["P"], radius=candidate.get("radius"), solve_s=cur.solve_s,
                                   n_solves=cur.n_solves)
-    above = LEVELS[LEVELS.index(lv) + 1:]
-    for up in above:
+    for up in LEVELS[LEVELS.index(lv) + 1:]:
         if up in cert.levels:
             cert.levels[up] = _inherit(cert.levels[up], cert.levels[lv])
-    return cert

@@ -29,6 +29,11 @@ def brief(value: Any, limit: int = 80) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def vector(v, spec: str = ".4g") -> str:
+    """A vector for messages: ``(a, b, ...)``, each entry formatted with ``spec``."""
+    return "(" + ", ".join(format(float(a), spec) for a in v) + ")"
+
+
 def real(name: str, value: Any, *, lo: float | None = None, strict: bool = False, hi: float | None = None,
          error: ErrorFactory = _value_error) -> float:
     """``value`` as a finite float with ``lo <= value`` (``lo < value`` if ``strict``) and ``value < hi``.

@@ -20,6 +20,7 @@ from typing import Callable
 
 import numpy as np
 
+from bench.checks import vector
 from plants import Channels, Constants, Plant, PlantError
 from plants._core import jacobian_mismatch
 
@@ -54,12 +55,8 @@ class Violation:
 
     def describe(self, what: str = "claimed") -> str:
         """One line for reports, e.g. ``"claimed rho = 0.1109 is violated: the pair ... gives 0.1665"``."""
-        return (f"{what} {self.name} = {self.claimed:.4g} is violated: the pair x1 = {_fmt(self.x1)}, "
-                f"x2 = {_fmt(self.x2)} gives {self.sampled:.4g}")
-
-
-def _fmt(v) -> str:
-    return "(" + ", ".join(f"{a:.4g}" for a in v) + ")"
+        return (f"{what} {self.name} = {self.claimed:.4g} is violated: the pair x1 = {vector(self.x1)}, "
+                f"x2 = {vector(self.x2)} gives {self.sampled:.4g}")
 
 
 def _exceeds(value: float, stated: float) -> bool:
@@ -538,7 +535,7 @@ def _channels_along(plant: Plant, ch, X: np.ndarray, XH: np.ndarray) -> dict[str
         if worst.max() > 1e-9:
             j = int(np.argmax(worst))
             return {"channels": f"the declared channels: G phi(H x) differs from f by {err[:, j].max():.3g} at the "
-                                f"simulated state x = {_fmt(P[:, j])}"}
+                                f"simulated state x = {vector(P[:, j])}"}
     for X2 in (XH, np.zeros_like(X)):
         inside = _inside(X, ch.radius) & _inside(X2, ch.radius)
         Z1, Z2 = ch.H @ X[:, inside], ch.H @ X2[:, inside]

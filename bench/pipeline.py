@@ -410,8 +410,7 @@ def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float, H: np.
     k = int(np.flatnonzero(finite)[-1]) if finite.any() else X.shape[1] - 1
     if math.isfinite(radius) and np.any(finite & (size > radius)):
         k = int(np.argmax(finite & (size > radius)))
-    fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
-    return f"t = {t[min(k, t.size - 1)]:.4g} s, x = {fmt(X[:, k])}, x_hat = {fmt(XH[:, k])}"
+    return f"t = {t[min(k, t.size - 1)]:.4g} s, x = {checks.vector(X[:, k])}, x_hat = {checks.vector(XH[:, k])}"
 
 
 def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float, scenario: Scenario,
@@ -448,24 +447,13 @@ def _judge(rec: dict) -> None:
 
 
 def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> list[PairOutcome]:
-    """Drop, from every pair of a plant, the declarations another pair's simulation disproved.
+    """Drop, from every pair of a plant, the declarations another pair's simulation disproved (``outcomes``
+    changed in place and returned; ``reports``: plant id -> constants).
 
     A declaration is true or false for the plant, not for one pair: when the simulation of one pair
     disproves it (``disproved``, :func:`bench.constants.check_trajectory`), every other certified
     pair of that plant whose certificate may rest on it is re-certified without it, and its
     convergence verdict is judged again.
-
-    Parameters
-    ----------
-    outcomes : list of PairOutcome
-        A run's outcomes (changed in place).
-    reports : dict
-        Plant id -> :class:`bench.constants.ConstantsReport`.
-    options : RunOptions
-
-    Returns
-    -------
-    list of PairOutcome
     """
     found: dict[str, dict[str, str]] = {}
     for o in outcomes:
