@@ -638,7 +638,7 @@ def compute_constants(
         alpha=max(best["alpha"][0], 0.0), rho=best["rho"][0], beta=best["beta"][0], gamma=gamma, radius=radius
     )
     unbounded = _unbounded(plant.f, x1, x2, gamma, best) if radius is None else {}
-    disproved = _disproved(analytic, best)
+    disproved = _violations(analytic, best, ("alpha", "rho", "beta"))
     violations = _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine)
     valid, source = _trusted(analytic, sampled, {v.name for v in disproved}, unbounded, gamma, radius)
     return ConstantsReport(
@@ -649,15 +649,15 @@ def compute_constants(
     )
 
 
-def _disproved(analytic: Constants | None, best: dict) -> list[Violation]:
-    """The analytic constants a sampled pair exceeds, with the pair."""
-    disproved = []
-    for name in ("alpha", "rho", "beta"):
-        av = getattr(analytic, name) if analytic is not None else None
+def _violations(stated: Constants | None, best: dict, names: tuple[str, ...]) -> list[Violation]:
+    """The constants ``names`` of ``stated`` that the best sampled pair of each exceeds, with the pair."""
+    out = []
+    for name in names:
+        value = getattr(stated, name) if stated is not None else None
         val, a, b = best[name]
-        if av is not None and _exceeds(val, av):
-            disproved.append(Violation(name, av, val, tuple(a), tuple(b)))
-    return disproved
+        if value is not None and _exceeds(val, value):
+            out.append(Violation(name, value, val, tuple(a), tuple(b)))
+    return out
 
 
 def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded: dict, gamma: float,
@@ -681,7 +681,6 @@ def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded
 
 def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine) -> list[Violation]:
     """Claimed constants a sample violates, checked on the region the source claims them for."""
-    violations: list[Violation] = []
     claimed = plant.claimed
     n = plant.n
     c_radius = claimed.radius
@@ -689,12 +688,7 @@ def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_r
         crng = np.random.default_rng([seed, 1])
         x1, x2 = _random_pairs(crng, n, n_samples, c_radius, sampled_range(plant))
         best = _best_pairs(plant.f, x1, x2, gamma, c_radius, n, n_refine)
-    for name in ("alpha", "rho"):
-        cval = getattr(claimed, name)
-        if cval is not None:
-            val, a, b = best[name]
-            if _exceeds(val, cval):
-                violations.append(Violation(name, cval, val, tuple(a), tuple(b)))
+    violations = _violations(claimed, best, ("alpha", "rho"))
     if claimed.beta is not None:  # checked at the claimed gamma
         if claimed.gamma == gamma:
             val, a, b = best["beta"]
