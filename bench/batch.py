@@ -64,8 +64,10 @@ class BatchTrajectory:
                              diverged=self.diverged, noisy=noisy)
 
 
-def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
-    """The initial states and estimates as (n, N) float arrays, or ValueError naming the bad one."""
+def _check_inputs(plant, K, F, x0, x_hat0, t_final):
+    """Gains, initial conditions (as (n, N) arrays) and horizon of a batch, checked: ``K, F, X, XH, T``; a
+    ValueError names the bad one."""
+    K, F = checks.gains(plant, K, F)
     n = plant.n
     X = np.asarray(x0, dtype=float)
     XH = np.asarray(x_hat0, dtype=float)
@@ -79,13 +81,6 @@ def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"x_hat0: expected shape {X.shape} like x0, got {np.shape(x_hat0)}")
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(XH))):
         raise ValueError("x0, x_hat0: initial conditions must be finite")
-    return X, XH
-
-
-def _check_inputs(plant, K, F, x0, x_hat0, t_final):
-    """Gains, initial conditions and horizon of a batch, checked: ``K, F, X, XH, T``."""
-    K, F = checks.gains(plant, K, F)
-    X, XH = _check_ics(plant, x0, x_hat0)
     return K, F, X, XH, checks.horizon(t_final, default=plant.t_final)
 
 
@@ -207,12 +202,6 @@ class _BatchRHS(Budget):
 DISCRETISATIONS = ("zoh", "euler")
 
 
-def _dt_max(A: np.ndarray) -> float:
-    """The default largest RK4 sub-step: ``min(5e-3, 0.1 / rho(A))``."""
-    rho = float(np.abs(np.linalg.eigvals(A)).max())
-    return min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
-
-
 def simulate_digital_batch(
     plant,
     K: np.ndarray,
@@ -294,11 +283,15 @@ def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, re
 
 
 def _periods(A: np.ndarray, T: float, h, discretisation: str, dt_max) -> tuple[int, int]:
-    """The periods covering the horizon and the RK4 sub-steps per period (checked)."""
+    """The periods covering the horizon and the RK4 sub-steps per period (checked; ``dt_max`` by default
+    ``min(5e-3, 0.1 / rho(A))``)."""
     h = checks.real("h", h, lo=0.0, strict=True)
     if discretisation not in DISCRETISATIONS:
         raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
-    dtm = checks.real("dt_max", _dt_max(A) if dt_max is None else dt_max, lo=0.0, strict=True)
+    if dt_max is None:
+        rho = float(np.abs(np.linalg.eigvals(A)).max())
+        dt_max = min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
+    dtm = checks.real("dt_max", dt_max, lo=0.0, strict=True)
     return max(1, math.ceil(T / h - 1e-9)), max(1, math.ceil(h / dtm - 1e-9))
 
 

@@ -332,20 +332,16 @@ def _best_pairs(f, x1, x2, gamma, radius, n, n_refine) -> dict[str, tuple[float,
     return best
 
 
-def _growth(f, x1, x2, gamma, which: int) -> tuple[float, float]:
-    """Sampled sup of one ratio over pairs inside ``||x|| <= 1`` and over pairs outside ``||x|| >= 10``."""
-    r = _ratios(f, x1, x2, gamma)[which]
-    r = np.where(np.isfinite(r), r, -np.inf)
-    s = np.maximum(np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0))
-    small, large = r[s <= 1.0], r[np.minimum(np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0)) >= 10.0]
-    return (float(small.max()) if small.size else -np.inf, float(large.max()) if large.size else -np.inf)
-
-
-def _unbounded(f, x1, x2, gamma, sampled: dict) -> dict[str, str]:
-    """Constants whose global estimate grows with the sampled radius (see :data:`GROWTH_FACTOR`)."""
+def _unbounded(f, x1, x2, gamma) -> dict[str, str]:
+    """Constants whose global estimate grows with the sampled radius: the sup of the ratio over pairs outside
+    ``||x|| >= 10`` is more than :data:`GROWTH_FACTOR` times the one inside ``||x|| <= 1``."""
     out = {}
-    for which, name in enumerate(("alpha", "rho", "beta")):
-        small, large = _growth(f, x1, x2, gamma, which)
+    s1, s2 = np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0)
+    for name, r in zip(("alpha", "rho", "beta"), _ratios(f, x1, x2, gamma)):
+        r = np.where(np.isfinite(r), r, -np.inf)
+        inside, outside = r[np.maximum(s1, s2) <= 1.0], r[np.minimum(s1, s2) >= 10.0]
+        small = float(inside.max()) if inside.size else -np.inf
+        large = float(outside.max()) if outside.size else -np.inf
         if large > GROWTH_FACTOR * max(small, 1e-12) and large > 1e-9:
             kind = {"alpha": "globally Lipschitz", "rho": "one-sided Lipschitz with any constant",
                     "beta": "quadratically inner-bounded at this gamma"}[name]
@@ -462,8 +458,11 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
     """
     X, XH = _finite_instants(plant.n, X, XH, max_points)
     reach = float(max(np.linalg.norm(X, axis=0).max(initial=0.0), np.linalg.norm(XH, axis=0).max(initial=0.0)))
-    if plant.jacobian is not None and X.shape[1]:
-        _jacobian_along(plant, X, XH)
+    if plant.jacobian is not None and X.shape[1]:  # at 8 simulated states and estimates
+        pts = np.concatenate([X, XH], axis=1)[:, np.linspace(0, 2 * X.shape[1] - 1, 8).astype(int)]
+        why = jacobian_mismatch(plant.f, plant.jacobian, pts)
+        if why:
+            raise PlantError(f"{why} (a state along the simulation)")
     ch, c = know.channels, know.constants
     bad = _channels_along(plant, ch, X, XH) if ch is not None and X.shape[1] else {}
     scalars = {k: getattr(c, k) for k in ("alpha", "rho", "beta") if getattr(c, k) is not None}
@@ -500,14 +499,6 @@ def _sampled_far(plant: Plant, channels: bool, scalars: dict[str, float], gamma:
         for k, v in _scalar_violations(plant.f, x1, x2, gamma, scalars).items():
             bad[k] = "analytic " + v.describe("analytic")
     return bad
-
-
-def _jacobian_along(plant: Plant, X: np.ndarray, XH: np.ndarray) -> None:
-    """PlantError when the declared Jacobian is not the derivative of f at 8 simulated states and estimates."""
-    pts = np.concatenate([X, XH], axis=1)[:, np.linspace(0, 2 * X.shape[1] - 1, 8).astype(int)]
-    why = jacobian_mismatch(plant.f, plant.jacobian, pts)
-    if why:
-        raise PlantError(f"{why} (a state along the simulation)")
 
 
 def _finite_instants(n: int, X, XH, max_points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -637,7 +628,7 @@ def compute_constants(
     sampled = Constants(
         alpha=max(best["alpha"][0], 0.0), rho=best["rho"][0], beta=best["beta"][0], gamma=gamma, radius=radius
     )
-    unbounded = _unbounded(plant.f, x1, x2, gamma, best) if radius is None else {}
+    unbounded = _unbounded(plant.f, x1, x2, gamma) if radius is None else {}
     disproved = _violations(analytic, best, ("alpha", "rho", "beta"))
     violations = _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine)
     valid, source = _trusted(analytic, sampled, {v.name for v in disproved}, unbounded, gamma, radius)

@@ -183,14 +183,6 @@ class _LoopRHS(Budget):
         return self.L @ z + nl
 
 
-def _blowup_event(limit: float):
-    def blow(t, z):
-        return np.linalg.norm(z) - limit
-
-    blow.terminal = True
-    return blow
-
-
 def simulate(
     plant: Plant,
     K: np.ndarray,
@@ -242,11 +234,16 @@ def _integrate(rhs: _LoopRHS, z0: np.ndarray, T: float, method: str, options: Si
     from scipy.integrate import solve_ivp
 
     limit = options.blowup * max(1.0, float(np.linalg.norm(z0)))
+
+    def blowup(t, z):  # a terminal event
+        return np.linalg.norm(z) - limit
+
+    blowup.terminal = True
     t_eval = np.linspace(0.0, T, int(options.n_points))
     status, message, dense = "ok", "", None
     try:
         sol = solve_ivp(rhs, (0.0, T), z0, method=method, t_eval=t_eval, rtol=options.rtol,
-                        atol=options.atol, events=_blowup_event(limit), dense_output=True)
+                        atol=options.atol, events=blowup, dense_output=True)
         t_out, z, dense = sol.t, sol.y, sol.sol
         if sol.status == 1:
             status, message = "diverged", f"||z|| exceeded {limit:.3g} at t = {sol.t_events[0][0]:.4g}"
