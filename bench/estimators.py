@@ -77,16 +77,10 @@ class ContinuousDiscreteEKF:
         """Current covariance."""
         return self._ekf.P.copy()
 
-    def _measurement_jacobian(self, x: np.ndarray) -> np.ndarray:
-        return self._C
-
-    def _measurement(self, x: np.ndarray) -> np.ndarray:
-        return self._C @ x
-
     def update(self, y: np.ndarray) -> None:
         """Measurement update with ``y = C x + v`` (linear measurement: H = C)."""
-        self._ekf.update(np.asarray(y, dtype=float).reshape(-1, 1), HJacobian=self._measurement_jacobian,
-                         Hx=self._measurement)
+        C = self._C
+        self._ekf.update(np.asarray(y, dtype=float).reshape(-1, 1), HJacobian=lambda x: C, Hx=lambda x: C @ x)
 
     #: A simulator may integrate the prediction with the plant and pass it to :meth:`predict`.
     predicts_with_model = True

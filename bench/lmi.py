@@ -426,18 +426,9 @@ def digest(raw) -> str:
 
 
 class Pattern:
-    """A matrix of fixed sparsity pattern in a cvxpy program: a Parameter of its nonzeros, placed.
-
-    ``expr`` (parameter-affine, so the program stays DPP) goes into the LMI blocks; :meth:`set`
-    and :meth:`value` take and give whole matrices.
-
-    Parameters
-    ----------
-    name : str
-        The matrix's name (the Parameter is ``name + ".nz"``).
-    mask : ndarray of bool, shape (r, c)
-        The pattern (at least one True).
-    """
+    """A matrix of fixed sparsity pattern ``mask`` in a cvxpy program: a Parameter ``name + ".nz"`` of its
+    nonzeros, placed. ``expr`` (parameter-affine, so the program stays DPP) goes into the LMI blocks;
+    :meth:`set` and :meth:`value` take and give whole matrices."""
 
     def __init__(self, name: str, mask: np.ndarray) -> None:
         import cvxpy as cp
