@@ -209,14 +209,15 @@ def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
     return _Spec(level, n, know.channels.q, True, scalars, True), ""
 
 
-def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge) -> lmi.Program:
-    """The level's analysis program (compiled once per structure; see :func:`bench.lmi.cached_program`)."""
+def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge, rows: np.ndarray | None = None) -> lmi.Program:
+    """The level's analysis program (compiled once per structure; see :func:`bench.lmi.cached_program`); with
+    ``rows``, that of a certificate from x0 (:func:`_build`)."""
     ch = know.channels if spec.channels else None
     Gw = ch.G if ch is not None else np.eye(spec.n)
     Hc = ch.H if ch is not None else None
     blocks = partial(_blocks, spec, Gw, Hc)
-    key = ("certify", spec, mats.key, lmi.digest(Gw), lmi.digest(Hc))
-    return lmi.cached_program(key, lambda: _build(spec, mats, blocks))
+    key = ("certify" if rows is None else "certify-from-x0", spec, mats.key, lmi.digest(Gw), lmi.digest(Hc))
+    return lmi.cached_program(key, lambda: _build(spec, mats, blocks, rows=rows))
 
 
 def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = None) -> lmi.Program:
@@ -692,7 +693,7 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0])
     rows = _region_rows(ch.H)
     r0 = max(float(np.abs(rows @ z0).max()), 1e-3)
-    prog, spec = _from_x0_program(plant, K, F, ch, z0, rows)
+    prog, spec = _from_x0_program(plant, K, F, knowledge, z0, rows)
     best: LevelResult | None = None
     tried, more = [], FROM_X0_MORE
     for r, lo, hi in _regions(ch, r0, r_max):
@@ -714,14 +715,13 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     return None, _none_from_x0(tried)
 
 
-def _from_x0_program(plant: Plant, K: np.ndarray, F: np.ndarray, ch, z0: np.ndarray,
+def _from_x0_program(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, z0: np.ndarray,
                      rows: np.ndarray) -> tuple[lmi.Program, _Spec]:
     """The structured level's program with the containment rows of the region, set for these gains
     and ``z0`` (no scalar constants: only the channels' narrowed slopes enter)."""
-    spec = _Spec("structured", plant.n, ch.q, True, (), True)
+    spec = _Spec("structured", plant.n, knowledge.channels.q, True, (), True)
     mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
-    key = ("certify-from-x0", spec, mats.key, lmi.digest(ch.G), lmi.digest(ch.H))
-    prog = lmi.cached_program(key, lambda: _build(spec, mats, partial(_blocks, spec, ch.G, ch.H), rows=rows))
+    prog = _program(spec, mats, knowledge, rows)
     prog.set(**mats.settable(), Z0=np.outer(z0, z0), rho=0.0, beta=0.0, gamma=0.0, a2=0.0)
     return prog, spec
 
