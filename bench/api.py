@@ -115,14 +115,6 @@ def _reorder(result, plant_ids: list[str], design_ids: list[str]) -> None:
     result.constants_errors = {p: result.constants_errors[p] for p in plant_ids if p in result.constants_errors}
 
 
-def _progress(progress):
-    if progress is True:
-        from bench.progress import Progress
-
-        return Progress(desc="pairs")
-    return progress or None
-
-
 def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed: int = 0,
         claimed_constants: bool = False, t_final: float | None = None, noise: float = 0.0,
         timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
@@ -182,7 +174,11 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
                          timeout=timeout)
     jobs = min(jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
     store = None if cache is None else Cache(cache)
-    result = _run_in_registry_order(plant_ids, design_ids, options, _progress(progress), jobs, scheduler, store)
+    if progress is True:
+        from bench.progress import Progress
+
+        progress = Progress(desc="pairs")
+    result = _run_in_registry_order(plant_ids, design_ids, options, progress or None, jobs, scheduler, store)
     records = result.frame()
     info = {"plants": plant_ids, "designs": design_ids, "jobs": jobs, "scheduler": scheduler,
             "cache_errors": list(store.errors) if store is not None else []}

@@ -30,7 +30,7 @@ import numpy as np
 from bench import checks
 from bench.errors import SimulationStopped as _BatchStop
 from bench.metrics import batch_metrics
-from bench.simulate import SimOptions, choose_method, loop_matrix
+from bench.simulate import Budget, SimOptions, choose_method, loop_matrix
 
 __all__ = ["simulate_batch", "simulate_digital_batch"]
 
@@ -64,8 +64,10 @@ class BatchTrajectory:
                              diverged=self.diverged, noisy=noisy)
 
 
-def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
-    """The initial states and estimates as (n, N) float arrays, or ValueError naming the bad one."""
+def _check_inputs(plant, K, F, x0, x_hat0, t_final):
+    """Gains, initial conditions (as (n, N) arrays) and horizon of a batch, checked: ``K, F, X, XH, T``; a
+    ValueError names the bad one."""
+    K, F = checks.gains(plant, K, F)
     n = plant.n
     X = np.asarray(x0, dtype=float)
     XH = np.asarray(x_hat0, dtype=float)
@@ -79,13 +81,6 @@ def _check_ics(plant, x0, x_hat0) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"x_hat0: expected shape {X.shape} like x0, got {np.shape(x_hat0)}")
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(XH))):
         raise ValueError("x0, x_hat0: initial conditions must be finite")
-    return X, XH
-
-
-def _check_inputs(plant, K, F, x0, x_hat0, t_final):
-    """Gains, initial conditions and horizon of a batch, checked: ``K, F, X, XH, T``."""
-    K, F = checks.gains(plant, K, F)
-    X, XH = _check_ics(plant, x0, x_hat0)
     return K, F, X, XH, checks.horizon(t_final, default=plant.t_final)
 
 
@@ -175,24 +170,19 @@ def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options:
     return sol.t, sol.y, status, "" if status == "ok" else sol.message, int(sol.nfev)
 
 
-class _BatchRHS:
+class _BatchRHS(Budget):
     """Right-hand side of the batch loop (6), freezing the members above their limit and stopping the
     run past the budgets."""
 
     def __init__(self, plant, K: np.ndarray, F: np.ndarray, N: int, limit: np.ndarray, options: SimOptions):
+        super().__init__(options)
         L = loop_matrix(plant, K, F)  # [x'; x_hat'] = Px x + Ph x_hat
         self.Px, self.Ph = np.ascontiguousarray(L[:, :plant.n]), np.ascontiguousarray(L[:, plant.n:])
         self.f, self.n, self.N, self.limit = plant.f, plant.n, N, limit
         self.fast2 = float(limit.min()) ** 2  # while ||y||^2 <= fast2, no member can exceed its limit
-        self.count, self.max_nfev = 0, options.max_nfev
-        self.wall_end = None if options.max_wall_s is None else time.perf_counter() + options.max_wall_s
 
     def __call__(self, t, y):
-        self.count += 1
-        if self.count > self.max_nfev:
-            raise _BatchStop("budget", f"more than {self.max_nfev} right-hand-side evaluations by t = {t:.4g}")
-        if self.wall_end is not None and time.perf_counter() > self.wall_end:
-            raise _BatchStop("timeout", f"past the wall-time budget at t = {t:.4g}")
+        self.spend(t)
         n, N = self.n, self.N
         Y = y.reshape(n, 2 * N)
         x, xh = Y[:, :N], Y[:, N:]
@@ -210,12 +200,6 @@ class _BatchRHS:
 
 
 DISCRETISATIONS = ("zoh", "euler")
-
-
-def _dt_max(A: np.ndarray) -> float:
-    """The default largest RK4 sub-step: ``min(5e-3, 0.1 / rho(A))``."""
-    rho = float(np.abs(np.linalg.eigvals(A)).max())
-    return min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
 
 
 def simulate_digital_batch(
@@ -299,11 +283,15 @@ def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, re
 
 
 def _periods(A: np.ndarray, T: float, h, discretisation: str, dt_max) -> tuple[int, int]:
-    """The periods covering the horizon and the RK4 sub-steps per period (checked)."""
+    """The periods covering the horizon and the RK4 sub-steps per period (checked; ``dt_max`` by default
+    ``min(5e-3, 0.1 / rho(A))``)."""
     h = checks.real("h", h, lo=0.0, strict=True)
     if discretisation not in DISCRETISATIONS:
         raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
-    dtm = checks.real("dt_max", _dt_max(A) if dt_max is None else dt_max, lo=0.0, strict=True)
+    if dt_max is None:
+        rho = float(np.abs(np.linalg.eigvals(A)).max())
+        dt_max = min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
+    dtm = checks.real("dt_max", dt_max, lo=0.0, strict=True)
     return max(1, math.ceil(T / h - 1e-9)), max(1, math.ceil(h / dtm - 1e-9))
 
 

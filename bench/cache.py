@@ -188,15 +188,15 @@ class Cache:
 
     Attributes
     ----------
-    hits, misses, constants_hits, constants_misses, stored : int
-        Pairs and constants found and not found, entries written.
+    hits, misses, stored : int
+        Pairs found and not found, entries written.
     errors : list of str
         Problems met (a key not computed, an unwritable folder, a damaged entry by its path).
     """
 
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
-        self.hits = self.misses = self.constants_hits = self.constants_misses = self.stored = 0
+        self.hits = self.misses = self.stored = 0
         self.errors: list[str] = []
         self._files: dict[str, str] = {}
         self._project: dict[str, str] | None = None
@@ -365,12 +365,7 @@ class Cache:
         return self._store("constants", key, report)
 
     def load_constants(self, key: str | None):
-        """The cached :class:`bench.constants.ConstantsReport`, or None; counts constants hits/misses."""
+        """The cached :class:`bench.constants.ConstantsReport`, or None."""
         from bench.constants import ConstantsReport
 
-        out = self._load("constants", key, ConstantsReport)
-        if out is None:
-            self.constants_misses += 1
-        else:
-            self.constants_hits += 1
-        return out
+        return self._load("constants", key, ConstantsReport)

@@ -56,13 +56,6 @@ __all__ = ["Certificate", "certify", "certify_from_x0", "explain", "level_set"]
 #: The ladder, weakest first.
 LEVELS = ("paper", "full", "structured")
 
-#: What each level assumes, in words (for reports).
-LEVEL_TITLES = {
-    "paper": "the paper's (20): block-diagonal P, OSL and QIB constants",
-    "full": "full P, every scalar constant (Lipschitz, OSL, QIB)",
-    "structured": "full P, the declared channel slopes and the scalar constants",
-}
-
 #: Beyond this many states the ladder's SDPs are not attempted; a design's own certificate,
 #: verified by eigenvalues, is kept (:func:`adopt`).
 LADDER_MAX_N = 16
@@ -165,11 +158,6 @@ class Certificate:
         b = self.best
         return b.decay_rate if b is not None else float("nan")
 
-    @property
-    def solve_s(self) -> float:
-        """Seconds in all levels."""
-        return sum(r.solve_s for r in self.levels.values())
-
     def reason(self, witnessed: bool = False) -> str:
         """One line on the levels that did not certify (``witnessed``: the levels a witness rules out
         are only named, the witness being stated elsewhere)."""
@@ -221,14 +209,15 @@ def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
     return _Spec(level, n, know.channels.q, True, scalars, True), ""
 
 
-def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge) -> lmi.Program:
-    """The level's analysis program (compiled once per structure; see :func:`bench.lmi.cached_program`)."""
+def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge, rows: np.ndarray | None = None) -> lmi.Program:
+    """The level's analysis program (compiled once per structure; see :func:`bench.lmi.cached_program`); with
+    ``rows``, that of a certificate from x0 (:func:`_build`)."""
     ch = know.channels if spec.channels else None
     Gw = ch.G if ch is not None else np.eye(spec.n)
     Hc = ch.H if ch is not None else None
     blocks = partial(_blocks, spec, Gw, Hc)
-    key = ("certify", spec, mats.key, lmi.digest(Gw), lmi.digest(Hc))
-    return lmi.cached_program(key, lambda: _build(spec, mats, blocks))
+    key = ("certify" if rows is None else "certify-from-x0", spec, mats.key, lmi.digest(Gw), lmi.digest(Hc))
+    return lmi.cached_program(key, lambda: _build(spec, mats, blocks, rows=rows))
 
 
 def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = None) -> lmi.Program:
@@ -343,15 +332,7 @@ def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
 def _check(prog: lmi.Program, lam: float) -> tuple[str, float]:
     """Solve at ``lam``; ``("verified" | "marginal" | "violated" | solver status, margin)``."""
     prog.solve(lam=lam)
-    if prog.last_status not in ("optimal", "optimal_inaccurate"):
-        return prog.last_status, float("nan")
-    M = prog.numeric_matrix()
-    margin = lmi.max_eig(M)
-    verdict = lmi.classify(margin, M)
-    vals = prog.values()
-    if verdict == "verified" and not all(lmi.is_positive_definite(vals[k]) for k in prog.positive):
-        verdict = "violated"
-    return verdict, margin
+    return prog.verdict()
 
 
 def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float,
@@ -380,20 +361,8 @@ def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float,
 
 
 def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
-    """Decay rate of the closed loop (6) linearised at the origin, ``-max Re eig`` of
-    ``A + Df(0) + B F`` and ``A + Df(0) - K C`` (no certificate can beat it).
-
-    Parameters
-    ----------
-    plant : Plant
-        Its Jacobian at 0 (or a central difference of f).
-    K, F : ndarray
-
-    Returns
-    -------
-    float
-        Negative when the linearisation is unstable.
-    """
+    """Decay rate of the loop (6) linearised at the origin, ``-max Re eig`` of ``A + Df(0) + B F`` and
+    ``A + Df(0) - K C``: no certificate can beat it (negative when the linearisation is unstable)."""
     return checks.closed_loop(plant, K, F).linearised_rate
 
 
@@ -717,23 +686,22 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     ch = knowledge.channels
     if ch is None or ch.narrow is None:
         return None, "no certificate from x0 searched: the channels declare no narrowing of their slopes on a region"
-    n, q = plant.n, ch.q
-    if n > LADDER_MAX_N:
-        return None, f"no certificate from x0 searched: n = {n} is beyond LADDER_MAX_N = {LADDER_MAX_N}"
+    if plant.n > LADDER_MAX_N:
+        return None, f"no certificate from x0 searched: n = {plant.n} is beyond LADDER_MAX_N = {LADDER_MAX_N}"
     loop = loop if loop is not None else checks.closed_loop(plant, K, F)
     K, F = loop.K, loop.F
     z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0])
     rows = _region_rows(ch.H)
     r0 = max(float(np.abs(rows @ z0).max()), 1e-3)
-    prog, spec = _from_x0_program(plant, K, F, ch, z0, rows)
+    prog, spec = _from_x0_program(plant, K, F, knowledge, z0, rows)
     best: LevelResult | None = None
     tried, more = [], FROM_X0_MORE
     for r, lo, hi in _regions(ch, r0, r_max):
         tried.append(r)
         prog.set(lohi=lo * hi, losum=lo + hi, r2=(r * (1 - FROM_X0_SHRINK)) ** 2)
         verdict, margin = _check(prog, 0.0)
-        if verdict == "verified" and _contains(_full_p(prog, spec), z0, rows, r):
-            found = _rate_in_region(prog, spec, plant, loop, knowledge, z0, rows, r, (lo, hi), margin, rate_rtol)
+        if verdict == "verified" and _contains(_full_p(prog, spec), z0, ch.H, r):
+            found = _rate_in_region(prog, spec, plant, loop, knowledge, z0, r, (lo, hi), margin, rate_rtol)
             if best is None or found.decay_rate > best.decay_rate:
                 best = found
             more -= 1
@@ -747,14 +715,13 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     return None, _none_from_x0(tried)
 
 
-def _from_x0_program(plant: Plant, K: np.ndarray, F: np.ndarray, ch, z0: np.ndarray,
+def _from_x0_program(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, z0: np.ndarray,
                      rows: np.ndarray) -> tuple[lmi.Program, _Spec]:
     """The structured level's program with the containment rows of the region, set for these gains
     and ``z0`` (no scalar constants: only the channels' narrowed slopes enter)."""
-    spec = _Spec("structured", plant.n, ch.q, True, (), True)
+    spec = _Spec("structured", plant.n, knowledge.channels.q, True, (), True)
     mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
-    key = ("certify-from-x0", spec, mats.key, lmi.digest(ch.G), lmi.digest(ch.H))
-    prog = lmi.cached_program(key, lambda: _build(spec, mats, partial(_blocks, spec, ch.G, ch.H), rows=rows))
+    prog = _program(spec, mats, knowledge, rows)
     prog.set(**mats.settable(), Z0=np.outer(z0, z0), rho=0.0, beta=0.0, gamma=0.0, a2=0.0)
     return prog, spec
 
@@ -791,8 +758,7 @@ def _regions(ch, r0: float, r_max: float | None):
 
 
 def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge,
-                    z0: np.ndarray, rows: np.ndarray, r: float, box: tuple, margin: float,
-                    rate_rtol: float) -> LevelResult:
+                    z0: np.ndarray, r: float, box: tuple, margin: float, rate_rtol: float) -> LevelResult:
     """The certificate from x0 on a region where ``lam = 0`` verified: its rate, searched up to the
     smaller of the linearised rate and the rate ceiling of the narrowed class, kept only while the
     level set through z0 stays in the region."""
@@ -802,7 +768,7 @@ def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.C
     P0, lam, P = _full_p(prog, spec), 0.0, None
     if top > 0:
         lam, P = _rate(prog, spec, 0.0, top, rate_rtol)
-    if P is None or not _contains(P, z0, rows, r):
+    if P is None or not _contains(P, z0, knowledge.channels.H, r):
         lam, P = 0.0, P0
     return LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
                        region_H=knowledge.channels.H, reason=(
@@ -810,13 +776,9 @@ def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.C
                            f"[{_vec(lo)}, {_vec(hi)}]: the level set through z0 stays in that region"))
 
 
-def _contains(P: np.ndarray, z0: np.ndarray, rows: np.ndarray, r: float) -> bool:
-    """True when P is positive definite and ``{V <= V(z0)}`` lies in ``|a' z| <= r`` for every row a
-    (``V(z0) a' P^-1 a <= r^2``, recomputed with numpy)."""
-    if not lmi.is_positive_definite(P):
-        return False
-    Pinv = np.linalg.inv((P + P.T) / 2)
-    return float(z0 @ P @ z0) * float(np.max(np.einsum("ij,jk,ik->i", rows, Pinv, rows))) <= r * r
+def _contains(P: np.ndarray, z0: np.ndarray, H: np.ndarray, r: float) -> bool:
+    """True when P is positive definite and ``{V <= V(z0)}`` lies in ``|Hx|, |Hx_hat| <= r`` (:func:`level_set`)."""
+    return lmi.is_positive_definite(P) and float(z0 @ P @ z0) <= level_set(P, r, H)
 
 
 def _vec(v) -> str:
@@ -829,52 +791,36 @@ LEVEL_USES = {"paper": ("rho", "beta", "gamma"), "full": ("alpha", "rho", "beta"
               "structured": ("channels",)}
 
 
-def adopt(cert: Certificate, candidate: dict | None, knowledge: Knowledge | None = None) -> Certificate:
-    """Keep a design's own verified certificate where the ladder's LMI certifies less.
+def adopt(cert: Certificate, candidate: dict | None, knowledge: Knowledge) -> None:
+    """Keep a design's own verified certificate where the ladder's LMI certifies less (``cert`` updated).
 
-    A design may verify a joint certificate of its own (``DesignResult.certificate``: its level,
-    P, decay rate, margin, radius); it uses that level's knowledge, so it is a certificate at that
-    level (and, by inclusion, at every level above). Where the ladder's own LMI certified clearly
-    less (below :data:`ADOPT_RATIO` of its rate: numerical trouble, or ``n`` beyond
-    :data:`LADDER_MAX_N`), the level takes it, and the levels above inherit it. A certificate that
-    rests on a declaration the ``knowledge`` does not trust (``candidate["uses"]``, default
-    :data:`LEVEL_USES` of its level; e.g. channels whose slopes a sample disproved) is refused: the
-    level is "not certified" and its reason names the declaration.
-
-    Parameters
-    ----------
-    cert : Certificate
-    candidate : dict or None
-        ``level``, ``P``, ``decay_rate``, ``margin``, ``radius``, ``how``, optionally ``uses``.
-    knowledge : Knowledge, optional
-        What is trusted (None: the candidate is taken as verified on trusted declarations).
-
-    Returns
-    -------
-    Certificate
-        ``cert``, updated in place.
+    A design may verify a joint certificate of its own (``DesignResult.certificate``: ``level``, ``P``,
+    ``decay_rate``, ``margin``, ``radius``, ``how``, optionally ``uses``); it uses that level's knowledge,
+    so it is a certificate at that level (and, by inclusion, at every level above). Where the ladder's own
+    LMI certified clearly less (below :data:`ADOPT_RATIO` of its rate: numerical trouble, or ``n`` beyond
+    :data:`LADDER_MAX_N`), the level takes it, and the levels above inherit it. A certificate that rests on
+    a declaration ``knowledge`` does not trust (``uses``, default :data:`LEVEL_USES` of its level; e.g.
+    channels whose slopes a sample disproved) is refused: the level is "not certified" and its reason
+    names the declaration.
     """
     if not candidate or candidate.get("level") not in cert.levels:
-        return cert
+        return
     lv = candidate["level"]
     cur = cert.levels[lv]
-    bad = [knowledge.untrusted[k] for k in candidate.get("uses", LEVEL_USES[lv])
-           if knowledge is not None and k in knowledge.untrusted]
+    bad = [knowledge.untrusted[k] for k in candidate.get("uses", LEVEL_USES[lv]) if k in knowledge.untrusted]
     if bad:
         if not cur.certified:
             cert.levels[lv] = replace(cur, status="not certified", reason=(
                 f"{candidate['how']} is refused: it rests on {'; '.join(bad)}"
                 + (f" (the ladder's own LMI: {cur.status}: {cur.reason})" if cur.reason else "")))
-        return cert
+        return
     if cur.certified and cur.decay_rate >= ADOPT_RATIO * candidate["decay_rate"]:
-        return cert  # the ladder's own P (normalised, usually better conditioned) is kept
+        return  # the ladder's own P (normalised, usually better conditioned) is kept
     own = f"the ladder's own LMI: {cur.status}" + (f", rate {cur.decay_rate:.3g}" if cur.certified else "")
     cert.levels[lv] = LevelResult(lv, "certified", decay_rate=float(candidate["decay_rate"]),
                                   margin=float(candidate["margin"]), reason=f"{candidate['how']} ({own})",
                                   P=candidate["P"], radius=candidate.get("radius"), solve_s=cur.solve_s,
                                   n_solves=cur.n_solves)
-    above = LEVELS[LEVELS.index(lv) + 1:]
-    for up in above:
+    for up in LEVELS[LEVELS.index(lv) + 1:]:
         if up in cert.levels:
             cert.levels[up] = _inherit(cert.levels[up], cert.levels[lv])
-    return cert

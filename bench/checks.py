@@ -29,6 +29,11 @@ def brief(value: Any, limit: int = 80) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def vector(v, spec: str = ".4g") -> str:
+    """A vector for messages: ``(a, b, ...)``, each entry formatted with ``spec``."""
+    return "(" + ", ".join(format(float(a), spec) for a in v) + ")"
+
+
 def real(name: str, value: Any, *, lo: float | None = None, strict: bool = False, hi: float | None = None,
          error: ErrorFactory = _value_error) -> float:
     """``value`` as a finite float with ``lo <= value`` (``lo < value`` if ``strict``) and ``value < hi``.
@@ -153,13 +158,11 @@ def closed_loop(plant, K: Any, F: Any, *, optional_K: bool = False) -> ClosedLoo
     import numpy as np
 
     from bench._env import parallel
-    from bench.estimators import numeric_jacobian
 
     K, F = gains(plant, K, F, optional_K=optional_K)
     if K is None:
         return ClosedLoop(K, F, np.linalg.eigvals(plant.A + plant.B @ F), np.empty(0, dtype=complex), math.nan)
-    zero = np.zeros(plant.n)
-    J = np.asarray(plant.jacobian(zero) if plant.jacobian is not None else numeric_jacobian(plant.f, zero), dtype=float)
+    J = plant.jacobian_at(np.zeros(plant.n))
     loops = [plant.A + plant.B @ F, plant.A - K @ plant.C]
     if np.any(J):
         loops += [plant.A + J + plant.B @ F, plant.A + J - K @ plant.C]

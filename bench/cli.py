@@ -84,7 +84,7 @@ def _build_parser() -> argparse.ArgumentParser:
     pf.add_argument("--out", default="reports", metavar="DIR", help="folder for PERF.md (default: reports)")
     pf.add_argument("--sizes", default="4,8,16,32,64", metavar="N,N,...", help="state dimensions (default 4,8,16,32,64)")
     pf.add_argument("--max-joint-n", type=_positive_int, default=32, metavar="N",
-                    help="largest n for the joint 6n LMI (default 32; n = 50 took ~800 s here)")
+                    help="largest n for the joint 6n LMI (default 32)")
     pf.add_argument("--no-run", action="store_true", help="skip timing the default run with --jobs 1 and 2")
     pf.add_argument("--no-sweeps", action="store_true",
                     help="skip the design-call sweeps (bisection over c, random family; compiled vs rebuilt)")

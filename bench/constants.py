@@ -20,6 +20,7 @@ from typing import Callable
 
 import numpy as np
 
+from bench.checks import vector
 from plants import Channels, Constants, Plant, PlantError
 from plants._core import jacobian_mismatch
 
@@ -54,12 +55,8 @@ class Violation:
 
     def describe(self, what: str = "claimed") -> str:
         """One line for reports, e.g. ``"claimed rho = 0.1109 is violated: the pair ... gives 0.1665"``."""
-        return (f"{what} {self.name} = {self.claimed:.4g} is violated: the pair x1 = {_fmt(self.x1)}, "
-                f"x2 = {_fmt(self.x2)} gives {self.sampled:.4g}")
-
-
-def _fmt(v) -> str:
-    return "(" + ", ".join(f"{a:.4g}" for a in v) + ")"
+        return (f"{what} {self.name} = {self.claimed:.4g} is violated: the pair x1 = {vector(self.x1)}, "
+                f"x2 = {vector(self.x2)} gives {self.sampled:.4g}")
 
 
 def _exceeds(value: float, stated: float) -> bool:
@@ -335,20 +332,16 @@ def _best_pairs(f, x1, x2, gamma, radius, n, n_refine) -> dict[str, tuple[float,
     return best
 
 
-def _growth(f, x1, x2, gamma, which: int) -> tuple[float, float]:
-    """Sampled sup of one ratio over pairs inside ``||x|| <= 1`` and over pairs outside ``||x|| >= 10``."""
-    r = _ratios(f, x1, x2, gamma)[which]
-    r = np.where(np.isfinite(r), r, -np.inf)
-    s = np.maximum(np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0))
-    small, large = r[s <= 1.0], r[np.minimum(np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0)) >= 10.0]
-    return (float(small.max()) if small.size else -np.inf, float(large.max()) if large.size else -np.inf)
-
-
-def _unbounded(f, x1, x2, gamma, sampled: dict) -> dict[str, str]:
-    """Constants whose global estimate grows with the sampled radius (see :data:`GROWTH_FACTOR`)."""
+def _unbounded(f, x1, x2, gamma) -> dict[str, str]:
+    """Constants whose global estimate grows with the sampled radius: the sup of the ratio over pairs outside
+    ``||x|| >= 10`` is more than :data:`GROWTH_FACTOR` times the one inside ``||x|| <= 1``."""
     out = {}
-    for which, name in enumerate(("alpha", "rho", "beta")):
-        small, large = _growth(f, x1, x2, gamma, which)
+    s1, s2 = np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0)
+    for name, r in zip(("alpha", "rho", "beta"), _ratios(f, x1, x2, gamma)):
+        r = np.where(np.isfinite(r), r, -np.inf)
+        inside, outside = r[np.maximum(s1, s2) <= 1.0], r[np.minimum(s1, s2) >= 10.0]
+        small = float(inside.max()) if inside.size else -np.inf
+        large = float(outside.max()) if outside.size else -np.inf
         if large > GROWTH_FACTOR * max(small, 1e-12) and large > 1e-9:
             kind = {"alpha": "globally Lipschitz", "rho": "one-sided Lipschitz with any constant",
                     "beta": "quadratically inner-bounded at this gamma"}[name]
@@ -465,8 +458,11 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
     """
     X, XH = _finite_instants(plant.n, X, XH, max_points)
     reach = float(max(np.linalg.norm(X, axis=0).max(initial=0.0), np.linalg.norm(XH, axis=0).max(initial=0.0)))
-    if plant.jacobian is not None and X.shape[1]:
-        _jacobian_along(plant, X, XH)
+    if plant.jacobian is not None and X.shape[1]:  # at 8 simulated states and estimates
+        pts = np.concatenate([X, XH], axis=1)[:, np.linspace(0, 2 * X.shape[1] - 1, 8).astype(int)]
+        why = jacobian_mismatch(plant.f, plant.jacobian, pts)
+        if why:
+            raise PlantError(f"{why} (a state along the simulation)")
     ch, c = know.channels, know.constants
     bad = _channels_along(plant, ch, X, XH) if ch is not None and X.shape[1] else {}
     scalars = {k: getattr(c, k) for k in ("alpha", "rho", "beta") if getattr(c, k) is not None}
@@ -505,14 +501,6 @@ def _sampled_far(plant: Plant, channels: bool, scalars: dict[str, float], gamma:
     return bad
 
 
-def _jacobian_along(plant: Plant, X: np.ndarray, XH: np.ndarray) -> None:
-    """PlantError when the declared Jacobian is not the derivative of f at 8 simulated states and estimates."""
-    pts = np.concatenate([X, XH], axis=1)[:, np.linspace(0, 2 * X.shape[1] - 1, 8).astype(int)]
-    why = jacobian_mismatch(plant.f, plant.jacobian, pts)
-    if why:
-        raise PlantError(f"{why} (a state along the simulation)")
-
-
 def _finite_instants(n: int, X, XH, max_points: int) -> tuple[np.ndarray, np.ndarray]:
     """The instants of a trajectory where state and estimate are finite, thinned evenly to ``max_points``."""
     X = np.asarray(X, dtype=float).reshape(n, -1)
@@ -538,7 +526,7 @@ def _channels_along(plant: Plant, ch, X: np.ndarray, XH: np.ndarray) -> dict[str
         if worst.max() > 1e-9:
             j = int(np.argmax(worst))
             return {"channels": f"the declared channels: G phi(H x) differs from f by {err[:, j].max():.3g} at the "
-                                f"simulated state x = {_fmt(P[:, j])}"}
+                                f"simulated state x = {vector(P[:, j])}"}
     for X2 in (XH, np.zeros_like(X)):
         inside = _inside(X, ch.radius) & _inside(X2, ch.radius)
         Z1, Z2 = ch.H @ X[:, inside], ch.H @ X2[:, inside]
@@ -640,8 +628,8 @@ def compute_constants(
     sampled = Constants(
         alpha=max(best["alpha"][0], 0.0), rho=best["rho"][0], beta=best["beta"][0], gamma=gamma, radius=radius
     )
-    unbounded = _unbounded(plant.f, x1, x2, gamma, best) if radius is None else {}
-    disproved = _disproved(analytic, best)
+    unbounded = _unbounded(plant.f, x1, x2, gamma) if radius is None else {}
+    disproved = _violations(analytic, best, ("alpha", "rho", "beta"))
     violations = _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine)
     valid, source = _trusted(analytic, sampled, {v.name for v in disproved}, unbounded, gamma, radius)
     return ConstantsReport(
@@ -652,15 +640,15 @@ def compute_constants(
     )
 
 
-def _disproved(analytic: Constants | None, best: dict) -> list[Violation]:
-    """The analytic constants a sampled pair exceeds, with the pair."""
-    disproved = []
-    for name in ("alpha", "rho", "beta"):
-        av = getattr(analytic, name) if analytic is not None else None
+def _violations(stated: Constants | None, best: dict, names: tuple[str, ...]) -> list[Violation]:
+    """The constants ``names`` of ``stated`` that the best sampled pair of each exceeds, with the pair."""
+    out = []
+    for name in names:
+        value = getattr(stated, name) if stated is not None else None
         val, a, b = best[name]
-        if av is not None and _exceeds(val, av):
-            disproved.append(Violation(name, av, val, tuple(a), tuple(b)))
-    return disproved
+        if value is not None and _exceeds(val, value):
+            out.append(Violation(name, value, val, tuple(a), tuple(b)))
+    return out
 
 
 def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded: dict, gamma: float,
@@ -684,7 +672,6 @@ def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded
 
 def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine) -> list[Violation]:
     """Claimed constants a sample violates, checked on the region the source claims them for."""
-    violations: list[Violation] = []
     claimed = plant.claimed
     n = plant.n
     c_radius = claimed.radius
@@ -692,12 +679,7 @@ def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_r
         crng = np.random.default_rng([seed, 1])
         x1, x2 = _random_pairs(crng, n, n_samples, c_radius, sampled_range(plant))
         best = _best_pairs(plant.f, x1, x2, gamma, c_radius, n, n_refine)
-    for name in ("alpha", "rho"):
-        cval = getattr(claimed, name)
-        if cval is not None:
-            val, a, b = best[name]
-            if _exceeds(val, cval):
-                violations.append(Violation(name, cval, val, tuple(a), tuple(b)))
+    violations = _violations(claimed, best, ("alpha", "rho"))
     if claimed.beta is not None:  # checked at the claimed gamma
         if claimed.gamma == gamma:
             val, a, b = best["beta"]

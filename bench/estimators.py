@@ -21,15 +21,6 @@ def runtime_estimator(spec, plant: Plant, x_hat0: np.ndarray, *, t_final: float,
     raise TypeError(f"estimator: no run-time estimator for a {type(spec).__name__}")
 
 
-def numeric_jacobian(f, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
-    """Central finite-difference Jacobian of f at x (batch evaluation, one call)."""
-    n = x.size
-    E = np.eye(n) * h
-    X = np.concatenate([x[:, None] + E, x[:, None] - E], axis=1)
-    FX = np.asarray(f(X), dtype=float)
-    return (FX[:, :n] - FX[:, n:]) / (2 * h)
-
-
 class ContinuousDiscreteEKF:
     """A continuous-discrete EKF on filterpy's ``ExtendedKalmanFilter``: the prediction integrates the
     nonlinear model over one sample, the covariance propagates with ``expm((A + Df) dt)``.
@@ -50,7 +41,6 @@ class ContinuousDiscreteEKF:
 
         n, p = plant.n, plant.p
         A, B, C, f = plant.A, plant.B, plant.C, plant.f
-        jac = plant.jacobian or (lambda x: numeric_jacobian(f, x))
         dt = spec.dt
         self.spec = spec
 
@@ -74,7 +64,7 @@ class ContinuousDiscreteEKF:
         self._ekf.P = spec.p0 * np.eye(n)
         self._ekf.Q = spec.q * dt * np.eye(n)
         self._ekf.R = spec.r * np.eye(p)
-        self._A, self._C, self._jac, self._dt, self._expm = A, C, jac, dt, expm
+        self._A, self._C, self._jac, self._dt, self._expm = A, C, plant.jacobian_at, dt, expm
         self.dt = dt
 
     @property
@@ -87,16 +77,10 @@ class ContinuousDiscreteEKF:
         """Current covariance."""
         return self._ekf.P.copy()
 
-    def _measurement_jacobian(self, x: np.ndarray) -> np.ndarray:
-        return self._C
-
-    def _measurement(self, x: np.ndarray) -> np.ndarray:
-        return self._C @ x
-
     def update(self, y: np.ndarray) -> None:
         """Measurement update with ``y = C x + v`` (linear measurement: H = C)."""
-        self._ekf.update(np.asarray(y, dtype=float).reshape(-1, 1), HJacobian=self._measurement_jacobian,
-                         Hx=self._measurement)
+        C = self._C
+        self._ekf.update(np.asarray(y, dtype=float).reshape(-1, 1), HJacobian=lambda x: C, Hx=lambda x: C @ x)
 
     #: A simulator may integrate the prediction with the plant and pass it to :meth:`predict`.
     predicts_with_model = True
@@ -111,7 +95,7 @@ class ContinuousDiscreteEKF:
         x_next : ndarray (n,), optional
             The estimate's model flow, integrated by the caller (None: here).
         """
-        J = self._A + np.asarray(self._jac(self.x), dtype=float)
+        J = self._A + self._jac(self.x)
         self._ekf.F = self._expm(J * self._dt)
         self._ekf.x_next = x_next
         self._ekf.predict(u=np.asarray(u, dtype=float).reshape(-1, 1))

@@ -80,21 +80,9 @@ def findings(frame, constants: dict) -> dict:
 
 
 def constants_rows(constants: dict, errors: dict) -> list[dict]:
-    """One row per plant and constant: claimed, analytic, sampled, used, and the flags (as data).
-
-    Parameters
-    ----------
-    constants : dict
-        Plant id -> :class:`bench.constants.ConstantsReport`.
-    errors : dict
-        Plant id -> error message for plants whose constants failed.
-
-    Returns
-    -------
-    list of dict
-        Keys ``plant``, ``constant``, ``claimed``, ``analytic``, ``sampled``, ``used``,
-        ``source``, ``region``, ``flag``.
-    """
+    """One row per plant and constant (``constants``: plant id -> report; ``errors``: plant id -> why its
+    constants failed): ``plant``, ``constant``, ``claimed``, ``analytic``, ``sampled``, ``used``,
+    ``source``, ``region`` and the flags in ``flag``."""
     rows = []
     for pid, rep in constants.items():
         for name in ("alpha", "rho", "beta", "gamma"):

@@ -91,12 +91,6 @@ def _affine_system(M: np.ndarray, G: np.ndarray, H: np.ndarray, f, *, signals: t
                          name=name)
 
 
-def _plant_system(plant: Plant, *, state_outputs: bool, name: str):
-    """The plant (1): input u, output y (and x), state x."""
-    return _affine_system(plant.A, plant.B, plant.C, plant.f, signals=("u", "y", "x"), state_outputs=state_outputs,
-                          name=name)
-
-
 def _observer_system(plant: Plant, K: np.ndarray, F: np.ndarray, *, state_outputs: bool, name: str):
     """The controller (6) with ``u = F x_hat`` substituted: input y, output u (and x_hat), state x_hat."""
     M = plant.A + plant.B @ F - K @ plant.C
@@ -115,7 +109,8 @@ def plant_nlsys(plant: Plant):
     control.NonlinearIOSystem
     """
     plant = _check_plant(plant)
-    return _plant_system(plant, state_outputs=False, name=_sysname(plant, ""))
+    return _affine_system(plant.A, plant.B, plant.C, plant.f, signals=("u", "y", "x"), state_outputs=False,
+                          name=_sysname(plant, ""))
 
 
 def observer_nlsys(plant: Plant, K, F):
@@ -169,7 +164,7 @@ def closed_loop_nlsys(plant: Plant, K, F):
     plant, K, F = _check_gains(plant, K, F)
     n, m, p = plant.n, plant.m, plant.p
     pname, oname = _sysname(plant, "plant"), _sysname(plant, "observer")
-    psys = _plant_system(plant, state_outputs=True, name=pname)
+    psys = _affine_system(plant.A, plant.B, plant.C, plant.f, signals=("u", "y", "x"), state_outputs=True, name=pname)
     osys = _observer_system(plant, K, F, state_outputs=True, name=oname)
     connections = ([[f"{pname}.u[{i}]", f"{oname}.u[{i}]"] for i in range(m)]
                    + [[f"{oname}.y[{j}]", f"{pname}.y[{j}]"] for j in range(p)])

@@ -341,15 +341,22 @@ class Program:
         vals.update({k: pat.value() for k, pat in self.patterns.items()})
         return vals
 
+    def verdict(self) -> tuple[str, float]:
+        """The last solution checked: :func:`classify` of the rebuilt LMI (``"violated"`` when a decision
+        matrix is not positive definite; the solver status when unsolved) and its largest eigenvalue."""
+        M = self.numeric_matrix() if self.last_status in ("optimal", "optimal_inaccurate") else None
+        if M is None:
+            return self.last_status, float("nan")
+        margin = max_eig(M)
+        verdict = classify(margin, M)
+        vals = self.values()
+        if verdict == "verified" and not all(is_positive_definite(vals[k]) for k in self.positive):
+            verdict = "violated"
+        return verdict, margin
+
     def verified(self) -> bool:
         """True when :func:`classify` verifies the last solution's LMI and decision matrices."""
-        if self.last_status not in ("optimal", "optimal_inaccurate"):
-            return False
-        M = self.numeric_matrix()
-        if M is None:
-            return False
-        vals = self.values()
-        return classify(max_eig(M), M) == "verified" and all(is_positive_definite(vals[k]) for k in self.positive)
+        return self.verdict()[0] == "verified"
 
     def numeric_matrix(self) -> np.ndarray | None:
         """The LMI matrix rebuilt with numpy from the last solution (None if unsolved)."""
@@ -419,18 +426,9 @@ def digest(raw) -> str:
 
 
 class Pattern:
-    """A matrix of fixed sparsity pattern in a cvxpy program: a Parameter of its nonzeros, placed.
-
-    ``expr`` (parameter-affine, so the program stays DPP) goes into the LMI blocks; :meth:`set`
-    and :meth:`value` take and give whole matrices.
-
-    Parameters
-    ----------
-    name : str
-        The matrix's name (the Parameter is ``name + ".nz"``).
-    mask : ndarray of bool, shape (r, c)
-        The pattern (at least one True).
-    """
+    """A matrix of fixed sparsity pattern ``mask`` in a cvxpy program: a Parameter ``name + ".nz"`` of its
+    nonzeros, placed. ``expr`` (parameter-affine, so the program stays DPP) goes into the LMI blocks;
+    :meth:`set` and :meth:`value` take and give whole matrices."""
 
     def __init__(self, name: str, mask: np.ndarray) -> None:
         import cvxpy as cp
@@ -594,13 +592,9 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
     M = prog.numeric_matrix()
     vals = prog.values()
     slack = float(vals["slack"])
-    out["slack"] = slack
-    out["lmi_size"] = int(M.shape[0])
-    out["margin"] = max_eig(M)
-    out["min_eig"] = {k: min_eig(vals[k]) for k in prog.positive}
-    ok_pos = all(is_positive_definite(vals[k]) for k in prog.positive)
-    verdict = classify(out["margin"], M)
-    if verdict == "verified" and ok_pos:
+    verdict, out["margin"] = prog.verdict()
+    out.update(slack=slack, lmi_size=int(M.shape[0]), min_eig={k: min_eig(vals[k]) for k in prog.positive})
+    if verdict == "verified":
         out.update(status="feasible", reason="")
     elif verdict == "marginal" and slack <= verify_tol(M):
         out.update(status="marginal", reason=(

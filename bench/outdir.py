@@ -113,14 +113,6 @@ def _tmp_prefix(label: str) -> str:
     return f"{TMP_PREFIX}{label}.{os.getpid()}.{_HOST}."
 
 
-def _owner(name: str) -> tuple[int, str] | None:
-    """The (pid, host) recorded in a temporary name, or None when it records none."""
-    parts = name[len(TMP_PREFIX):].split(".")
-    if len(parts) != 4 or not parts[1].isdigit():
-        return None
-    return int(parts[1]), parts[2]
-
-
 def _alive(pid: int) -> bool:
     """Whether a process with this id runs on this host."""
     if pid <= 0:
@@ -135,23 +127,12 @@ def _alive(pid: int) -> bool:
 
 
 def _stale(path: Path) -> bool:
-    """A temporary entry whose owner is dead on this host, or a folder that records no owner."""
-    owner = _owner(path.name)
-    if owner is None:
+    """A temporary entry whose owner (pid and host in its name, :func:`_tmp_prefix`) is dead on this host, or
+    a folder that records no owner."""
+    parts = path.name[len(TMP_PREFIX):].split(".")
+    if len(parts) != 4 or not parts[1].isdigit():
         return path.is_dir() and not path.is_symlink()
-    pid, host = owner
-    return host == _HOST and not _alive(pid)
-
-
-def _remove(path: Path) -> None:
-    """Remove a file or a folder tree, ignoring errors."""
-    try:
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path, ignore_errors=True)
-        else:
-            path.unlink()
-    except OSError:
-        pass
+    return parts[2] == _HOST and not _alive(int(parts[1]))
 
 
 @contextlib.contextmanager
@@ -274,7 +255,11 @@ def recover(out_dir) -> bool:
         rolled = True
     for entry in out.iterdir():
         if entry.name.startswith(TMP_PREFIX) and _stale(entry):
-            _remove(entry)
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
+            else:
+                with contextlib.suppress(OSError):
+                    entry.unlink()
     return rolled
 
 

@@ -219,17 +219,13 @@ def _design(rec: dict, plant: Plant, design: Design, report: ConstantsReport,
     res = design.design(plant, consts)
     rec["design_s"] = time.perf_counter() - t0
     sampled = [k for k in getattr(design, "needs", ()) if report.source.get(k, "").startswith("sampled")]
-    _record_design(rec, res)
-    if sampled and res.status in GAIN_STATUSES:
-        _note(rec, f"designed with sampled {', '.join(sampled)} (lower bounds): the design itself guarantees nothing")
-    return res
-
-
-def _record_design(rec: dict, res: DesignResult) -> None:
     rec.update(status=res.status, reason=res.reason, feasible=res.status == "feasible", route=res.route or "",
                lmi_margin=res.margin, lmi_size=res.lmi_size or math.nan, solver=res.solver or "",
                solver_status=res.solver_status or "", n_solves=res.n_solves, compile_s=res.compile_s,
                solve_s=res.solve_s, params=_jsonable(res.params))
+    if sampled and res.status in GAIN_STATUSES:
+        _note(rec, f"designed with sampled {', '.join(sampled)} (lower bounds): the design itself guarantees nothing")
+    return res
 
 
 def _verify(rec: dict, plant: Plant, res: DesignResult) -> checks.ClosedLoop:
@@ -307,9 +303,8 @@ def _record_horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificat
         T, rule = (options.t_final or plant.t_final), ("fixed" if options.t_final else "plant")
     else:
         best = cert.best if cert is not None else None
-        cond = float(np.linalg.cond(best.P)) if best is not None and best.P is not None else math.nan
         T, rule = simulation_horizon(plant.t_final, fixed=options.t_final, cap_factor=options.horizon_cap,
-                          cert_rate=best.decay_rate if best is not None else math.nan, cond_p=cond,
+                          cert_rate=best.decay_rate if best is not None else math.nan, cond_p=_cond(best),
                           linear_rate=loop.linearised_rate)
     rec.update(horizon_s=T, horizon_rule=rule)
     return T
@@ -369,8 +364,12 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
     applies = best is not None and res.K is not None and res.estimator is None and options.noise == 0 and (
         not batch or (scenario.sample_period is None and rec["cert_scope"] == "global"))
     if applies:
-        cond = float(np.linalg.cond(best.P)) if best.P is not None else math.nan
-        rec["cert_horizon_s"] = certified_horizon(best.decay_rate, cond)
+        rec["cert_horizon_s"] = certified_horizon(best.decay_rate, _cond(best))
+
+
+def _cond(best: LevelResult | None) -> float:
+    """The condition number of a certificate's P (NaN without one)."""
+    return float(np.linalg.cond(best.P)) if best is not None and best.P is not None else math.nan
 
 
 def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, report: ConstantsReport,
@@ -411,8 +410,7 @@ def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float, H: np.
     k = int(np.flatnonzero(finite)[-1]) if finite.any() else X.shape[1] - 1
     if math.isfinite(radius) and np.any(finite & (size > radius)):
         k = int(np.argmax(finite & (size > radius)))
-    fmt = lambda v: "(" + ", ".join(f"{a:.4g}" for a in v) + ")"  # noqa: E731
-    return f"t = {t[min(k, t.size - 1)]:.4g} s, x = {fmt(X[:, k])}, x_hat = {fmt(XH[:, k])}"
+    return f"t = {t[min(k, t.size - 1)]:.4g} s, x = {checks.vector(X[:, k])}, x_hat = {checks.vector(XH[:, k])}"
 
 
 def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float, scenario: Scenario,
@@ -449,24 +447,13 @@ def _judge(rec: dict) -> None:
 
 
 def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> list[PairOutcome]:
-    """Drop, from every pair of a plant, the declarations another pair's simulation disproved.
+    """Drop, from every pair of a plant, the declarations another pair's simulation disproved (``outcomes``
+    changed in place and returned; ``reports``: plant id -> constants).
 
     A declaration is true or false for the plant, not for one pair: when the simulation of one pair
     disproves it (``disproved``, :func:`bench.constants.check_trajectory`), every other certified
     pair of that plant whose certificate may rest on it is re-certified without it, and its
     convergence verdict is judged again.
-
-    Parameters
-    ----------
-    outcomes : list of PairOutcome
-        A run's outcomes (changed in place).
-    reports : dict
-        Plant id -> :class:`bench.constants.ConstantsReport`.
-    options : RunOptions
-
-    Returns
-    -------
-    list of PairOutcome
     """
     found: dict[str, dict[str, str]] = {}
     for o in outcomes:
@@ -495,8 +482,7 @@ def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> 
         o.certificate = _certify(rec, plant, res, reports[pid], options, loop, know=know.without(extra))
         best = o.certificate.best if o.certificate is not None else None
         if math.isfinite(rec["cert_horizon_s"]):
-            rec["cert_horizon_s"] = certified_horizon(best.decay_rate, float(np.linalg.cond(best.P))) \
-                if best is not None and best.P is not None else math.nan
+            rec["cert_horizon_s"] = certified_horizon(best.decay_rate, _cond(best)) if best is not None else math.nan
         if math.isfinite(rec["cert_radius"]):
             rec["in_region"] = bool(rec["max_norm"] <= rec["cert_radius"])
         _judge(rec)

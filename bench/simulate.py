@@ -150,34 +150,37 @@ def _loop_operator(plant, K: np.ndarray, F: np.ndarray):
     return loop_matrix(plant, K, F)
 
 
-class _LoopRHS:
-    """The right-hand side of the loop (6) in ``z = (x, x_hat)``, stopping the run past the budgets or
-    at a non-finite state."""
+class Budget:
+    """Counts right-hand sides; :meth:`spend` stops the run past ``options.max_nfev`` of them or
+    ``options.max_wall_s`` seconds."""
 
-    def __init__(self, L, f, n: int, options: SimOptions):
-        self.L, self.f, self.n, self.options = L, f, n, options
-        self.count = 0
+    def __init__(self, options: SimOptions):
+        self.options, self.count = options, 0
         self.wall_end = None if options.max_wall_s is None else time.perf_counter() + options.max_wall_s
 
-    def __call__(self, t, z):
+    def spend(self, t: float) -> None:
         self.count += 1
         options = self.options
         if self.count > options.max_nfev:
             raise _Stop("budget", f"more than {options.max_nfev} right-hand-side evaluations by t = {t:.4g}")
         if self.wall_end is not None and time.perf_counter() > self.wall_end:
             raise _Stop("timeout", f"more than {options.max_wall_s:.3g} s of wall time by t = {t:.4g}")
+
+
+class _LoopRHS(Budget):
+    """The right-hand side of the loop (6) in ``z = (x, x_hat)``, stopping the run past the budgets or
+    at a non-finite state."""
+
+    def __init__(self, L, f, n: int, options: SimOptions):
+        super().__init__(options)
+        self.L, self.f, self.n = L, f, n
+
+    def __call__(self, t, z):
+        self.spend(t)
         if not _all_finite(z):
             raise _Stop("diverged", f"non-finite state at t = {t:.4g}")
         nl = np.asarray(self.f(z.reshape(2, self.n).T), dtype=float).T.ravel()
         return self.L @ z + nl
-
-
-def _blowup_event(limit: float):
-    def blow(t, z):
-        return np.linalg.norm(z) - limit
-
-    blow.terminal = True
-    return blow
 
 
 def simulate(
@@ -231,11 +234,16 @@ def _integrate(rhs: _LoopRHS, z0: np.ndarray, T: float, method: str, options: Si
     from scipy.integrate import solve_ivp
 
     limit = options.blowup * max(1.0, float(np.linalg.norm(z0)))
+
+    def blowup(t, z):  # a terminal event
+        return np.linalg.norm(z) - limit
+
+    blowup.terminal = True
     t_eval = np.linspace(0.0, T, int(options.n_points))
     status, message, dense = "ok", "", None
     try:
         sol = solve_ivp(rhs, (0.0, T), z0, method=method, t_eval=t_eval, rtol=options.rtol,
-                        atol=options.atol, events=_blowup_event(limit), dense_output=True)
+                        atol=options.atol, events=blowup, dense_output=True)
         t_out, z, dense = sol.t, sol.y, sol.sol
         if sol.status == 1:
             status, message = "diverged", f"||z|| exceeded {limit:.3g} at t = {sol.t_events[0][0]:.4g}"

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench import lmi
+from bench.checks import vector
 
 __all__ = ["Witness", "rate_ceiling"]
 
@@ -103,26 +104,9 @@ def _slope_points(lo: np.ndarray, hi: np.ndarray, seed: int) -> tuple[np.ndarray
 
 def members(plant, know, *, channels: bool, scalars: tuple[str, ...], box: tuple | None = None,
             seed: int = 0) -> tuple[list[tuple[np.ndarray | None, np.ndarray]], str]:
-    """Linear members ``f = L x`` of a class, with their slopes (None outside the channel class).
-
-    Parameters
-    ----------
-    plant : Plant
-    know : bench.constants.Knowledge
-        Trusted constants and channels.
-    channels : bool
-        The class is the channels' slope box (else the scalar constants alone).
-    scalars : tuple of str
-        Scalar constants every member must also meet (:func:`admits`).
-    box : (lo, hi), optional
-        Channel slope bounds to use instead of the declared ones (a narrowed box).
-    seed : int
-
-    Returns
-    -------
-    list of (slopes, L), str
-        The admissible members and how they were chosen.
-    """
+    """The linear members ``(slopes, L)`` of a class (slopes None outside the channel class) and how they
+    were chosen: the slope box of ``know``'s channels (``box`` instead when given) if ``channels``, else
+    multiples of I; kept when they meet the scalar constants ``scalars`` (:func:`admits`)."""
     n, out = plant.n, []
     ch = know.channels
     if ch is not None and (channels or scalars):
@@ -163,17 +147,7 @@ def _scale(plant, K, F) -> float:
 
 def linear_witness(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, scalars: tuple[str, ...],
                    seed: int = 0) -> Witness | None:
-    """The least stable linear member of the class when its loop is unstable (None otherwise).
-
-    Parameters
-    ----------
-    plant, K, F, know, channels, scalars, seed
-        As for :func:`members`.
-
-    Returns
-    -------
-    Witness or None
-    """
+    """The least stable linear member of the class (:func:`members`) when its loop is unstable, else None."""
     cands, how = members(plant, know, channels=channels, scalars=scalars, seed=seed)
     rates, worst = loop_rates(plant, K, F, [L for _, L in cands])
     if not rates.size:
@@ -182,7 +156,7 @@ def linear_witness(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool,
     if worst[i].real <= UNSTABLE_TOL * _scale(plant, K, F):
         return None
     c, L = cands[i]
-    what = ("f = 0" if not np.any(L) else f"phi(s) = c s with slopes c = {_vec(c)}" if c is not None
+    what = ("f = 0" if not np.any(L) else f"phi(s) = c s with slopes c = {vector(c, '.5g')}" if c is not None
             else f"f = {L[0, 0]:.4g} x")
     text = (f"the linear member {what} (in the class; searched: {how}) leaves the loop with the eigenvalue "
             f"{_eig(worst[i])}")
@@ -348,13 +322,9 @@ def equilibrium_witness(plant, K: np.ndarray, F: np.ndarray, know, *, seed: int 
     if best is None:
         return None
     z, res = best
-    text = (f"the closed loop has an equilibrium besides the origin at z = (x, e) = {_vec(z)} (residual "
+    text = (f"the closed loop has an equilibrium besides the origin at z = (x, e) = {vector(z, '.5g')} (residual "
             f"{res:.1e}): it is not globally asymptotically stable")
     return Witness("equilibrium", text, z=z, residual=res)
-
-
-def _vec(v: np.ndarray) -> str:
-    return "(" + ", ".join(f"{x:.5g}" for x in np.asarray(v, float)) + ")"
 
 
 def _eig(w: complex) -> str:

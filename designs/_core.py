@@ -77,26 +77,6 @@ def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> str:
     return value
 
 
-def check_hyperparameter_names(cls: type, args: tuple, kwargs: dict) -> None:
-    """Reject positional arguments and unknown keyword hyperparameters of a dataclass design or part with a
-    :class:`DesignError` naming the parameter and a close match (called from ``__new__``, before the bare
-    ``TypeError`` of the dataclass ``__init__``).
-    """
-    known = [k for k, f in getattr(cls, "__dataclass_fields__", {}).items() if f.init]
-    if args:
-        raise DesignError(f"{cls.__name__}: hyperparameters are keyword-only ({', '.join(known) or 'none'}), "
-                          f"got {len(args)} positional argument(s)")
-    if not hasattr(cls, "__dataclass_fields__"):
-        return
-    for key in kwargs:
-        if key not in known:
-            close = difflib.get_close_matches(str(key), known, n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            shown = key if key.isidentifier() else repr(key)
-            raise DesignError(f"{shown}: unknown hyperparameter of {cls.__name__} "
-                              f"(valid: {', '.join(known) or 'none'}){hint}")
-
-
 @dataclass
 class DesignResult:
     """Gains plus the evidence behind them.
@@ -166,14 +146,6 @@ class DesignResult:
                                                                          self.estimator is not None)
 
 
-def missing_constants(needs, constants: Constants) -> str | None:
-    """None if every constant named in ``needs`` is known, else the reason in words."""
-    missing = [k for k in needs if getattr(constants, k) is None]
-    if missing:
-        return f"needs the constant(s) {', '.join(missing)}, which the plant does not provide"
-    return None
-
-
 @dataclass(frozen=True, kw_only=True)
 class Configurable:
     """Base of designs and design parts: hyperparameters are keyword-only dataclass fields (unknown or
@@ -184,12 +156,25 @@ class Configurable:
     needs = ()
 
     def __new__(cls, *args: Any, **kwargs: Any):
-        check_hyperparameter_names(cls, args, kwargs)
+        # positional and unknown hyperparameters: a DesignError naming the parameter and a close match, before
+        # the bare TypeError of the dataclass __init__
+        known = [k for k, f in cls.__dataclass_fields__.items() if f.init]
+        if args:
+            raise DesignError(f"{cls.__name__}: hyperparameters are keyword-only ({', '.join(known) or 'none'}), "
+                              f"got {len(args)} positional argument(s)")
+        for key in kwargs:
+            if key not in known:
+                close = difflib.get_close_matches(str(key), known, n=1)
+                hint = f"; did you mean {close[0]!r}?" if close else ""
+                shown = key if key.isidentifier() else repr(key)
+                raise DesignError(f"{shown}: unknown hyperparameter of {cls.__name__} "
+                                  f"(valid: {', '.join(known) or 'none'}){hint}")
         return super().__new__(cls)
 
     def applicable(self, plant: Plant, constants: Constants) -> str | None:
-        """None if this applies to ``plant`` with ``constants``, else the reason it does not."""
-        return missing_constants(self.needs, constants)
+        """None if this applies to ``plant`` with ``constants``, else the reason it does not (a constant missing)."""
+        missing = [k for k in self.needs if getattr(constants, k) is None]
+        return f"needs the constant(s) {', '.join(missing)}, which the plant does not provide" if missing else None
 
 
 @dataclass(frozen=True, kw_only=True)

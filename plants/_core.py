@@ -79,11 +79,6 @@ class Constants:
         if (self.beta is None) != (self.gamma is None):
             raise PlantError("constants.beta/gamma: the QIB pair needs both beta and gamma (or neither)")
 
-    @property
-    def has_osl(self) -> bool:
-        """True when rho, beta and gamma are all known (Theorem 1 needs them)."""
-        return self.rho is not None and self.beta is not None and self.gamma is not None
-
     def as_dict(self) -> dict[str, float | None]:
         """The constants as a plain dict (for tables and JSON)."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -586,6 +581,13 @@ class Plant:
         """One line: id, dimensions and source."""
         return f"{self.id}: n={self.n}, m={self.m}, p={self.p}; {self.source}"
 
+    def jacobian_at(self, x: np.ndarray) -> np.ndarray:
+        """``df/dx`` at ``x``: the declared Jacobian, else central differences (step 1e-6, one batch call of f)."""
+        x = np.asarray(x, dtype=float)
+        if self.jacobian is not None:
+            return np.asarray(self.jacobian(x), dtype=float)
+        return _central_differences(self.f, x, 1e-6)
+
 
 def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: float = 1e-4) -> str | None:
     """Where a declared Jacobian disagrees with central differences of ``f`` at the columns of ``X``
@@ -598,10 +600,8 @@ def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: f
     n = X.shape[0]
     for j in range(X.shape[1]):
         x = X[:, j]
-        h = 1e-6 * max(1.0, float(np.linalg.norm(x)))
-        E = np.eye(n) * h
         try:
-            fd = (_real_array(f(x[:, None] + E)) - _real_array(f(x[:, None] - E))) / (2 * h)
+            fd = _central_differences(f, x, 1e-6 * max(1.0, float(np.linalg.norm(x))))
             J = _real_array(jacobian(x.copy()))
         except Exception as exc:  # noqa: BLE001 - the user's code failed: say where
             return f"jacobian: could not be checked at x = {np.round(x, 4).tolist()} ({type(exc).__name__}: {exc})"
@@ -615,6 +615,14 @@ def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: f
             return (f"jacobian: entry [{r}, {c}] at x = {np.round(x, 4).tolist()} is {J[r, c]:.6g}, but finite "
                     f"differences of f give {fd[r, c]:.6g}: the declared Jacobian is not the derivative of f")
     return None
+
+
+def _central_differences(f: Callable, x: np.ndarray, h: float) -> np.ndarray:
+    """``(f(x + h e_j) - f(x - h e_j)) / 2h`` for every j, f evaluated once on the batch of 2n states."""
+    n = x.size
+    E = np.eye(n) * h
+    FX = _real_array(f(np.concatenate([x[:, None] + E, x[:, None] - E], axis=1)))
+    return (FX[:, :n] - FX[:, n:]) / (2 * h)
 
 
 def _zero_f(x: np.ndarray) -> np.ndarray:

@@ -73,20 +73,7 @@ def _masses(name: str, value, N: int, *, allow_empty: bool) -> tuple[int, ...]:
 
 
 def default_masses(N: int, stride: int = 5) -> tuple[int, ...]:
-    """The default layout: masses ``stride // 2, stride // 2 + stride, ...`` (0-based), at least one.
-
-    Parameters
-    ----------
-    N : int
-        Number of masses (>= 1).
-    stride : int
-        Spacing (>= 1).
-
-    Returns
-    -------
-    tuple of int
-        Every ``stride``-th mass from ``min(stride // 2, (N - 1) // 2)``.
-    """
+    """The default layout of N masses: every ``stride``-th mass (0-based) from ``min(stride // 2, (N - 1) // 2)``."""
     N = check_int("N", N, 1, MAX_N)
     stride = check_int("stride", stride, 1, MAX_N)
     return tuple(range(min(stride // 2, (N - 1) // 2), N, stride))

@@ -58,18 +58,8 @@ def _jacobian(x: np.ndarray) -> np.ndarray:
 
 
 def moving_object_bounds(r: float) -> Constants:
-    """Valid, tight constants of ``f(x) = -||x||^2 x`` on the ball ``||x|| <= r``.
-
-    Parameters
-    ----------
-    r : float
-        Region radius, > 0.
-
-    Returns
-    -------
-    Constants
-        ``alpha = 3 r^2``, ``rho = 0``, ``(beta, gamma) = (0, -3 r^2)``, ``radius = r``.
-    """
+    """Valid, tight constants of ``f(x) = -||x||^2 x`` on the ball ``||x|| <= r``, ``r > 0`` (module docstring):
+    ``alpha = 3 r^2``, ``rho = 0``, ``(beta, gamma) = (0, -3 r^2)``."""
     r = check_real("r", r, lo=0.0, strict=True)
     return Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-3 * r**2, radius=r)
 

@@ -3,5 +3,3 @@ scale of the nonlinearity each design certifies), ``sampling`` (the largest samp
 implementation), ``montecarlo`` (region of convergence from random initial conditions) and ``noise`` (estimation
 error vs measurement noise). Each writes ``STUDY_<name>.md``, CSVs and figures atomically into the report folder.
 """
-
-STUDIES = ("admissible", "sampling", "montecarlo", "noise")

@@ -86,41 +86,28 @@ def bisect_largest(
     ("bracketed", "below_range", "above_range", "inapplicable") and ``evals`` (every record, in order).
     """
     bounds = check_range("bounds", bounds)
-    if not (math.isfinite(rtol) and rtol > 0):
-        raise StudyError("rtol", f"must be finite and > 0, got {rtol!r}")
-    if not (math.isfinite(default) and default > 0):
-        raise StudyError("default", f"must be finite and > 0, got {default!r}")
-    ok = _Probe(check)
+    evals, seen = [], {}
+
+    def ok(value: float) -> bool:  # check, memoised; every record kept in evals
+        if value not in seen:
+            seen[value] = check(value)
+            evals.append(seen[value])
+        return bool(seen[value]["ok"])
+
     first = default if bounds is None else bounds[0]
-    if not ok(first) and ok.evals[0].get("status") == "inapplicable":  # no value of the knob changes that
-        return {"lo": math.nan, "hi": math.nan, "kind": "inapplicable", "evals": ok.evals}
+    if not ok(first) and evals[0].get("status") == "inapplicable":  # no value of the knob changes that
+        return {"lo": math.nan, "hi": math.nan, "kind": "inapplicable", "evals": evals}
     if bounds is not None:
         if not ok(bounds[0]):
-            return {"lo": math.nan, "hi": bounds[0], "kind": "below_range", "evals": ok.evals}
+            return {"lo": math.nan, "hi": bounds[0], "kind": "below_range", "evals": evals}
         if ok(bounds[1]):
-            return {"lo": bounds[1], "hi": math.nan, "kind": "above_range", "evals": ok.evals}
+            return {"lo": bounds[1], "hi": math.nan, "kind": "above_range", "evals": evals}
         out = largest_passing(ok, rtol=rtol, lo=bounds[0], hi=bounds[1])
     else:
         known = {"lo": default} if ok(default) else {"hi": default}
         out = largest_passing(ok, rtol=rtol, max_moves=max_doublings,
-                              stop=lambda: ok.evals[-1].get("status") == "invalid", **known)
-    return {**out, "evals": ok.evals}
-
-
-class _Probe:
-    """``check`` memoised, its records kept in ``evals``; a call returns whether the value passed."""
-
-    def __init__(self, check: Callable[[float], dict]):
-        self.check = check
-        self.evals: list[dict] = []
-        self._seen: dict[float, dict] = {}
-
-    def __call__(self, value: float) -> bool:
-        r = self._seen.get(value)
-        if r is None:
-            r = self._seen[value] = self.check(value)
-            self.evals.append(r)
-        return bool(r["ok"])
+                              stop=lambda: evals[-1].get("status") == "invalid", **known)
+    return {**out, "evals": evals}
 
 
 # -- plants, gains, initial conditions --------------------------------------------------------

@@ -19,14 +19,6 @@ from bench.checks import argtype
 
 __all__ = ["add_study_parser", "run_study"]
 
-#: Library parameter -> command-line option, for error messages.
-OPTIONS = {
-    "bounds": "--range", "rtol": "--rtol", "caps": "--caps", "plant": "--plant", "design": "--design",
-    "n_ics": "--n-ics", "box": "--box", "h_range": "--h-range", "discretisation": "--discretisation",
-    "t_final": "--t-final", "n": "--n", "levels": "--levels", "noise_dt": "--noise-dt", "seed": "--seed",
-}
-
-
 _number = argtype(checks.real)
 _positive = argtype(checks.real, lo=0.0, strict=True)
 _count = argtype(checks.integer, lo=1)
@@ -152,7 +144,8 @@ def run_study(args, argv: list[str]) -> int:
         run, write = getattr(module, f"run_{args.study}"), getattr(module, f"write_{args.study}")
         result = run(plant_ids, design_ids, jobs=jobs, progress=bar, **_options(args))
     except StudyError as exc:
-        print(f"{prog}: error: {OPTIONS.get(exc.param, exc.param)}: {exc.message}", file=sys.stderr)
+        option = "--range" if exc.param == "bounds" else "--" + exc.param.replace("_", "-")  # the parameter's option
+        print(f"{prog}: error: {option}: {exc.message}", file=sys.stderr)
         return 2
     finally:
         if bar is not None:

@@ -27,16 +27,6 @@ __all__ = ["run_sampling", "write_sampling"]
 DEFAULT_PLANTS = ("flexible_link", "random_lipschitz_v1", "moving_object_v1")
 
 
-def _jacobian0(plant) -> np.ndarray:
-    """df/dx at the origin (analytic when the plant has it, else central differences)."""
-    from bench.estimators import numeric_jacobian
-
-    z = np.zeros(plant.n)
-    if plant.jacobian is not None:
-        return np.asarray(plant.jacobian(z), dtype=float)
-    return numeric_jacobian(plant.f, z)
-
-
 def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1e-5, h_max: float = 10.0,
                    n_grid: int = 400) -> float:
     """First sample period at which the sampled loop linearised at the origin loses stability: the first
@@ -47,7 +37,7 @@ def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1
 
     from bench.batch import digital_matrix
 
-    Alin = plant.A + _jacobian0(plant)
+    Alin = plant.A + plant.jacobian_at(np.zeros(plant.n))
 
     def rho(h: float) -> float:
         return float(np.abs(np.linalg.eigvals(digital_matrix(Alin, plant.B, plant.C, K, F, h, discretisation))).max())
