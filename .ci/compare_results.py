@@ -20,13 +20,16 @@ VERDICTS = ("status", "feasible", "stabilizing", "certified", "cert_level", "cer
 #: Column -> (rtol, atol). Rates: the rate search's 1 % grid (a probe that flips on the tolerance moves a
 #: rate by one grid step; two steps allowed); the rate ceiling: a seeded search, refined; solver-made
 #: numbers (gains, margins): the solvers' own tolerances; simulated metrics: the integrator's tolerance
-#: (rtol 1e-8) after the gains' differences; final norms are round-off (about 1e-11): absolute.
+#: (rtol 1e-8) after the gains' differences; final norms are round-off (about 1e-11): absolute. Numbers of
+#: a certificate's P (the level sets, V at x0) move with the point the solver picks among the feasible
+#: ones, which differs between CPUs (a CPU with AVX-512 gave V(x0) 1.9 % off for one certificate whose rate
+#: moved 1 %): as the rates' two grid steps, 5 %.
 TOLERANCES = {
     **{c: (0.021, 1e-9) for c in ("decay_rate", "decay_paper", "decay_full", "decay_structured", "rate_ratio")},
     "rate_ceiling": (1e-3, 1e-9),
-    **{c: (1e-3, 1e-6) for c in ("norm_K", "norm_F", "peak_u", "iae_e", "max_norm", "level_x0")},
+    **{c: (1e-3, 1e-6) for c in ("norm_K", "norm_F", "peak_u", "iae_e", "max_norm")},
     **{c: (1e-3, 1e-6) for c in ("settling_x_s", "settling_e_s", "max_re_eig_x", "max_re_eig_e")},
-    **{c: (0.05, 1e-6) for c in ("horizon_s", "cert_horizon_s", "level_set", "cert_radius")},
+    **{c: (0.05, 1e-6) for c in ("horizon_s", "cert_horizon_s", "level_set", "level_x0", "cert_radius")},
     **{c: (0.0, 1e-6) for c in ("final_x", "final_e", "rms_e")},
 }
 

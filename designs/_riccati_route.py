@@ -193,12 +193,12 @@ def _newton(a, M, q, X, residual_tol, steps=5):
     """Newton (Kleinman) steps ``X <- X + D``, ``(a - M X)' D + D (a - M X) = -(a' X + X a - X M X + q)``
     from an approximate solution: the residual in double precision, D by :func:`_lyap_sign`. Each
     step squares the relative error of X until D's own error (about 1e-4 of D) dominates. The steps
-    go on to ``1e-4 residual_tol`` while each cuts the relative residual tenfold; X is returned when
+    go on to ``residual_tol / 100`` while each cuts the relative residual tenfold; X is returned when
     it is within ``residual_tol``, else None."""
     X = lmi.sym(np.asarray(X, dtype=np.float64))
     res_now = _are_residual(a, M, q, X)
     for _ in range(steps):
-        if not res_now > 1e-4 * residual_tol:
+        if not res_now > 1e-2 * residual_tol:
             break
         res = a.T @ X
         res = res + res.T - X @ M @ X + q
@@ -558,15 +558,24 @@ class _Side:
                 break
         return out
 
-    def estimate(self, lams: Sequence[float]) -> None:
-        """Gain estimates ``||gain||`` at ``lams`` (inf: no stabilizing solution at the picked grid point),
-        computed concurrently (:func:`bench._env.parallel`) into :attr:`est`."""
+    def estimate(self, lams: Sequence[float], also: tuple | None = None) -> None:
+        """Gain estimates ``||gain||`` at ``lams`` (inf: no stabilizing solution at the picked grid point)
+        into :attr:`est`, computed concurrently (:func:`bench._env.parallel`) with ``also``'s, a pair
+        ``(other side, its targets)``."""
+        plans = [(side, *side._plan(lams)) for side, lams in [(self, lams), *([also] if also else [])]]
+        runs = iter(parallel([c for _, _, calls in plans for c in calls], self.n))
+        for side, new, calls in plans:
+            side._record(new, [next(runs) for _ in calls])
+
+    def _plan(self, lams: Sequence[float]) -> tuple[list, list]:
+        """The targets not estimated yet and a grid scan (:meth:`_scan`) for each."""
         new = [lam for lam in dict.fromkeys(lams) if lam not in self.est]
-        if not new:
-            return
         first, last = (0, len(self.grid)) if self.pick is None else (self.pick, self.pick + 1)
-        runs = parallel([lambda la=la: self._scan(la, first, last) for la in new], self.n)
-        if self.pick is None:  # a scan that went past the smallest point found failed there
+        return new, [lambda la=la: self._scan(la, first, last) for la in new]
+
+    def _record(self, new: list, runs: list) -> None:
+        """Keep the scans' estimates (and pick the grid point if none is yet)."""
+        if self.pick is None and runs:  # a scan that went past the smallest point found failed there
             self.pick = min((run[-1][0] for run in runs if math.isfinite(run[-1][1])), default=None)
         for lam, run in zip(new, runs):
             for i, g, X, why in run:
@@ -598,34 +607,35 @@ class _Side:
         return sol
 
 
-def _search(side: _Side, top: float, rtol: float) -> float | None:
+def _search(side: _Side, top: float, rtol: float, companion: _Side | None = None) -> float | None:
     """The side's largest decay target in ``[0, top]`` whose estimated gain is within ``side.max_gain``.
 
-    Targets are estimated two at a time (:meth:`_Side.estimate`), first ``t1 = min(1/8, top/2)`` and
-    ``t1/8``. With a passing target ``lo`` and a failing one ``up`` the next target is where the
-    power law through them, ``g(l) = g(lo) (l / lo)^p``, meets ``max_gain / sqrt(1 + rtol)`` (inside
-    the accepted band), beside it that target times ``1 + rtol`` (the power law's chord lies above a
-    gain that is convex in log-log, so it aims low); above the passing targets the power law of the
-    two largest is extrapolated (at most 8 times up); without a solution at ``up``, the geometric mean;
-    when every target fails, ``min / 8`` and 0. It stops when the passing gain is within ``1 + rtol``
-    of the bound, a failing target within ``1 + rtol`` of the passing one, or the next target within
-    ``1 + rtol / 2`` of it. Returns the target, 0 when the bound fails at 0, or None when there is no
-    solution at 0.
+    First ``t1 = min(1/8, top/2)`` and ``t1/8`` are estimated (:meth:`_Side.estimate`, concurrently).
+    With a passing target ``lo`` and a failing one ``up`` the next target is where the power law
+    through them, ``g(l) = g(lo) (l / lo)^p``, meets ``max_gain / sqrt(1 + rtol)`` (inside the
+    accepted band); above the passing targets the power law of the two largest is extrapolated (at
+    most 8 times up); without a solution at ``up``, the geometric mean; when every target fails,
+    ``min / 8`` and 0. Beside each next target, on the other core, the ``companion`` side is estimated
+    there (its solve at the final target then starts from it), or without a companion the target
+    times ``1 + rtol`` (the power law's chord lies above a gain convex in log-log, so it aims low).
+    It stops when the passing gain is within ``1 + rtol`` of the bound, a failing target within
+    ``1 + rtol`` of the passing one, or the next target within ``1 + rtol / 2`` of it. Returns the
+    target, 0 when the bound fails at 0, or None when there is no solution at 0.
     """
     G = side.max_gain
     aim = G / math.sqrt(1 + rtol)
     t1 = min(0.125, top / 2)
-    lams = [t1, t1 / 8]
+    lams, also = [t1, t1 / 8], None
     lo = None
     for _ in range(12):
-        side.estimate(lams)
+        side.estimate(lams, also)
         est = side.est
         up = min((la for la, g in est.items() if not g <= G), default=None)
         lo = max((la for la, g in est.items() if g <= G and (up is None or la < up)), default=None)
         if lo is None:
             if 0.0 in est:
                 return 0.0 if math.isfinite(est[0.0]) else None
-            lams = [min(est) / 8, 0.0]
+            lams, also = [min(est) / 8, 0.0], None
             continue
         g_lo = est[lo]
         if g_lo * (1 + rtol) >= G or lo >= top or (up is not None and up <= lo * (1 + rtol)):
@@ -633,7 +643,10 @@ def _search(side: _Side, top: float, rtol: float) -> float | None:
         x = _next_target(est, lo, up, aim, top)
         if x <= lo * (1 + rtol / 2):
             return lo
-        lams = [x, min(x * (1 + rtol), top) if up is None else min(x * (1 + rtol), math.sqrt(x * up))]
+        if companion is not None:
+            lams, also = [x], (companion, [x])
+        else:
+            lams = [x, min(x * (1 + rtol), top) if up is None else min(x * (1 + rtol), math.sqrt(x * up))]
     return lo
 
 
@@ -739,7 +752,7 @@ def _targets(xs: _Side, es: _Side, lam: float | None, top: float, rtol: float) -
     down to the next lower target estimated to pass (its own search for the x-side), and the other
     side is solved at the lower target too (the joint rate is the slower side's). At target 0 a
     solution is kept whatever its gain (the smallest gains found)."""
-    target = lam if lam is not None else _search(es, top, rtol)
+    target = lam if lam is not None else _search(es, top, rtol, companion=xs)
     for _ in range(8):
         if target is None:
             return f"e-side: no stabilizing ARE solution at decay 0 on the grid (last: {es.why})"

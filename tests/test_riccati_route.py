@@ -316,7 +316,7 @@ def test_target_search_stops_at_the_gain_bound(kappa, wall):
         def __init__(self):
             self.est, self.stages = {}, 0
 
-        def estimate(self, lams):
+        def estimate(self, lams, also=None):
             self.stages += 1
             self.est.update({la: 2 * math.exp(kappa * la) if la <= wall else math.inf for la in lams})
 
@@ -327,9 +327,11 @@ def test_target_search_stops_at_the_gain_bound(kappa, wall):
     assert side.stages <= (8 if math.isfinite(wall) else 5)
 
 
-def test_target_search_on_a_gain_with_a_flat_start():
+@pytest.mark.parametrize("with_companion", [False, True])
+def test_target_search_on_a_gain_with_a_flat_start(with_companion):
     # g(l) = 2 + 1000 max(0, l - 0.006)^1.4 (flat, then a power law, as the chain's observer side): the
-    # largest target within 20 is 0.006 + (18 / 1000)^(1 / 1.4), found in a few stages
+    # largest target within 20 is 0.006 + (18 / 1000)^(1 / 1.4), found in a few stages, with the
+    # other side estimated at each next target (a companion) or a second target beside it
     from designs._riccati_route import _search
 
     class Side:
@@ -338,15 +340,18 @@ def test_target_search_on_a_gain_with_a_flat_start():
         def __init__(self):
             self.est, self.stages = {}, 0
 
-        def estimate(self, lams):
+        def estimate(self, lams, also=None):
             self.stages += 1
             self.est.update({la: 2 + 1000 * max(0.0, la - 0.006) ** 1.4 for la in lams})
+            if also is not None:
+                also[0].est.update({la: 0.0 for la in also[1]})
 
-    side = Side()
-    got = _search(side, 10.0, 0.05)
+    side, other = Side(), Side()
+    got = _search(side, 10.0, 0.05, companion=other if with_companion else None)
     best = 0.006 + (18 / 1000) ** (1 / 1.4)
     assert best / 1.05 <= got <= best
     assert side.stages <= 4
+    assert set(other.est) == (set(side.est) - {0.125, 0.125 / 8} if with_companion else set())
 
 
 def test_the_slower_side_sets_the_pairs_target():
