@@ -303,6 +303,22 @@ def test_methods_agree():
     np.testing.assert_allclose(out["sign"].K, out["scipy"].K, rtol=1e-6)
 
 
+class CurveSide:
+    """A side for :func:`designs._riccati_route._search` whose gain estimate is ``gain(lam)``; it counts the
+    stages and marks the targets a companion side is estimated at."""
+
+    max_gain = 20.0
+
+    def __init__(self, gain):
+        self.gain, self.est, self.stages = gain, {}, 0
+
+    def estimate(self, lams, also=None):
+        self.stages += 1
+        self.est.update({la: self.gain(la) for la in lams})
+        if also is not None:
+            also[0].est.update({la: 0.0 for la in also[1]})
+
+
 @pytest.mark.parametrize("kappa, wall", [(20.0, math.inf), (3.0, math.inf), (20.0, 0.08), (400.0, math.inf),
                                          (60.0, math.inf)])
 def test_target_search_stops_at_the_gain_bound(kappa, wall):
@@ -310,17 +326,7 @@ def test_target_search_stops_at_the_gain_bound(kappa, wall):
     # target within max_gain = 20 is min(ln(10) / kappa, wall)
     from designs._riccati_route import _search
 
-    class Side:
-        max_gain = 20.0
-
-        def __init__(self):
-            self.est, self.stages = {}, 0
-
-        def estimate(self, lams, also=None):
-            self.stages += 1
-            self.est.update({la: 2 * math.exp(kappa * la) if la <= wall else math.inf for la in lams})
-
-    side = Side()
+    side = CurveSide(lambda la: 2 * math.exp(kappa * la) if la <= wall else math.inf)
     got = _search(side, 10.0, 0.05)
     best = min(math.log(10) / kappa, wall)
     assert best / 1.05 <= got <= best
@@ -334,19 +340,10 @@ def test_target_search_on_a_gain_with_a_flat_start(with_companion):
     # other side estimated at each next target (a companion) or a second target beside it
     from designs._riccati_route import _search
 
-    class Side:
-        max_gain = 20.0
+    def gain(la):
+        return 2 + 1000 * max(0.0, la - 0.006) ** 1.4
 
-        def __init__(self):
-            self.est, self.stages = {}, 0
-
-        def estimate(self, lams, also=None):
-            self.stages += 1
-            self.est.update({la: 2 + 1000 * max(0.0, la - 0.006) ** 1.4 for la in lams})
-            if also is not None:
-                also[0].est.update({la: 0.0 for la in also[1]})
-
-    side, other = Side(), Side()
+    side, other = CurveSide(gain), CurveSide(gain)
     got = _search(side, 10.0, 0.05, companion=other if with_companion else None)
     best = 0.006 + (18 / 1000) ** (1 / 1.4)
     assert best / 1.05 <= got <= best
