@@ -293,7 +293,8 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
     n = P.shape[0]
     try:
         Mx, Me = side_matrices(lp, F, K, P, R, s, t)
-        sx, se = _rate_bound(Mx, P), _rate_bound(Me, R)
+        sx = _rate_bound(Mx, P)
+        se = _rate_bound(Me, R)
         target = 0.9 * min(sx, se)
         if not target > 0:
             return JointCertificate("violated", side_rates=(sx, se))
