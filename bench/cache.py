@@ -111,7 +111,7 @@ def _canon(v: Any, modules: set[str]) -> Any:
 
 def _encode(v: Any, arrays: dict[str, np.ndarray]) -> Any:
     """JSON for ``v``: dataclasses by type and init fields, arrays by name in ``arrays``; TypeError
-    for anything else than None, bool, int, float, str, list, tuple and string-keyed dict."""
+    for anything else than None, bool, int, float, complex, str, list, tuple and string-keyed dict."""
     if isinstance(v, np.ndarray) and not v.dtype.hasobject:
         name = f"a{len(arrays)}"
         arrays[name] = v
@@ -129,6 +129,8 @@ def _encode(v: Any, arrays: dict[str, np.ndarray]) -> Any:
         return [_encode(x, arrays) for x in v]
     if v is None or isinstance(v, (bool, int, float, str)):
         return v
+    if isinstance(v, complex):  # an eigenvalue of a witness
+        return {"__complex__": [v.real, v.imag]}
     raise TypeError(f"a {type(v).__name__} cannot be stored without pickling")
 
 
@@ -144,6 +146,8 @@ def _decode(v: Any, arrays: dict[str, np.ndarray]) -> Any:
         return tuple(_decode(x, arrays) for x in v["__tuple__"])
     if "__dict__" in v:
         return {k: _decode(x, arrays) for k, x in v["__dict__"].items()}
+    if "__complex__" in v:
+        return complex(*v["__complex__"])
     mod, qual = v["__dataclass__"].split(":")
     obj: Any = importlib.import_module(mod) if mod.split(".")[0] in _PROJECT else sys.modules[mod]
     for part in qual.split("."):

@@ -341,3 +341,17 @@ def test_entries_round_trip_whole(tmp_path):
         assert back.certificate.levels[lv].status == r.status
     with np.load(tmp_path / "pairs" / f"{key}.npz", allow_pickle=False) as z:
         assert len(str(z["sha256"])) == 64
+
+
+def test_a_pair_with_witnesses_is_stored_and_reads_back(tmp_path):
+    # the loop linearised at the origin has an unstable eigenvalue (a complex scalar in the witness):
+    # the entry is stored, not skipped with a warning, and the witness reads back equal
+    cache = Cache(tmp_path)
+    res = run(["pendulum_v1"], ["lqr+lqe"], FAST, cache=cache)
+    (o,) = res.outcomes
+    key = cache.pair_key(o.plant, "pendulum_v1", DESIGNS.create("lqr+lqe"), "lqr+lqe", FAST)
+    assert cache.errors == [] and (tmp_path / "pairs" / f"{key}.npz").is_file()
+    back = Cache(tmp_path).load_pair(key)
+    assert o.certificate.witnesses and back is not None
+    for w, b in zip(o.certificate.witnesses, back.certificate.witnesses):
+        assert isinstance(b.eig, complex) and (b.eig == w.eig or (np.isnan(b.eig) and np.isnan(w.eig)))
