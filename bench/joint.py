@@ -58,6 +58,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from bench import lmi
+from bench._env import parallel
 from bench.search import RATE_RTOL, grid_floor
 
 __all__ = ["JointCertificate", "Loop", "certify", "loop"]
@@ -134,27 +135,6 @@ def side_matrices(lp: Loop, F, K, P, R, s, t, lam: float = 0.0) -> tuple[np.ndar
     return lmi.sym(Mx), lmi.sym(Me)
 
 
-def joint_matrix(lp: Loop, F, K, P, R, s, t, mu: float, lam: float = 0.0, *, reduced: bool = True) -> np.ndarray:
-    """The joint matrix: reduced (2n x 2n, channels eliminated) or full ((2n + 2q) square, in
-    ``(x, e, psi(Hx), dpsi)``); negative definite iff the loop is certified at rate ``lam``."""
-    PBF = P @ lp.B @ F
-    if reduced:
-        Mx, Me = side_matrices(lp, F, K, P, R, s, t, lam)
-        return np.block([[Mx, -PBF], [-PBF.T, mu * Me]])
-    s, t = _mult(lp, s), _mult(lp, t)
-    n, q = lp.A0.shape[0], lp.G.shape[1]
-    Ax, Ae = lp.A0 + lp.B @ F, lp.A0 - K @ lp.C
-    Xb = Ax.T @ P + P @ Ax + 2 * lam * P + (lp.DH.T / s) @ lp.DH
-    Eb = Ae.T @ R + R @ Ae + 2 * lam * R + (lp.DH.T * t) @ lp.DH
-    Z = np.zeros
-    return lmi.sym(np.block([
-        [Xb, -PBF, P @ lp.G, Z((n, q))],
-        [-PBF.T, mu * Eb, Z((n, q)), mu * R @ lp.G],
-        [(P @ lp.G).T, Z((q, n)), -np.diag(1 / s), Z((q, q))],
-        [Z((q, n)), mu * (R @ lp.G).T, Z((q, q)), -mu * np.diag(t)],
-    ]))
-
-
 def min_mu(B, F, P, Mx, Me) -> float:
     """Smallest mu making ``[[Mx, -P B F], [-(P B F)', mu Me]]`` negative definite (Mx, Me < 0).
 
@@ -176,11 +156,14 @@ def min_mu(B, F, P, Mx, Me) -> float:
     return float(max(np.linalg.eigvalsh(lmi.sym(Wh @ Z @ Wh)).max(initial=0.0), 0.0))
 
 
-def _equilibrate(M: np.ndarray) -> np.ndarray:
+def _equilibrate(M: np.ndarray, sign: float = 1.0) -> np.ndarray:
+    """``sign * D M D``, ``D = diag(|M_ii|^-1/2)``, a new array (LAPACK reads its lower triangle only)."""
     d = np.abs(np.diag(M))
     d = np.maximum(d, 1e-300 * max(float(d.max(initial=0.0)), 1e-300))
     s = 1.0 / np.sqrt(d)
-    return lmi.sym(M * s[:, None] * s[None, :])
+    E = M * (sign * s)[:, None]
+    E *= s[None, :]
+    return E
 
 
 def equilibrated_max_eig(M: np.ndarray) -> float:
@@ -199,20 +182,19 @@ def verdict(M: np.ndarray, *, clear: float = 1.0) -> str:
     the equilibrated matrix ``E = D M D``: verified when ``E + clear * VERIFY_TOL I < 0``, marginal when
     not but ``E - VERIFY_TOL I < 0`` (every eigenvalue within the tolerance of zero or below), violated
     otherwise."""
-    E = _equilibrate(np.asarray(M, dtype=float))
-    if not np.all(np.isfinite(E)):
+    N = _equilibrate(np.asarray(M, dtype=float), -1.0)  # -E
+    if not np.all(np.isfinite(N)):
         return "violated"
-    I = np.eye(E.shape[0])
-    try:
-        sla.cholesky(-E - clear * lmi.VERIFY_TOL * I, lower=True, check_finite=False)
-        return "verified"
-    except np.linalg.LinAlgError:
-        pass
-    try:
-        sla.cholesky(-E + lmi.VERIFY_TOL * I, lower=True, check_finite=False)
-        return "marginal"
-    except np.linalg.LinAlgError:
-        return "violated"
+    diag = np.diag(N).copy()
+    for shift, found in ((-clear * lmi.VERIFY_TOL, "verified"), (lmi.VERIFY_TOL, "marginal")):
+        A = N.copy()
+        np.fill_diagonal(A, diag + shift)
+        try:
+            sla.cholesky(A, lower=True, overwrite_a=True, check_finite=False)
+            return found
+        except np.linalg.LinAlgError:
+            pass
+    return "violated"
 
 
 def _rate_bound(M0: np.ndarray, *blocks: np.ndarray) -> float:
@@ -293,8 +275,7 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
     n = P.shape[0]
     try:
         Mx, Me = side_matrices(lp, F, K, P, R, s, t)
-        sx = _rate_bound(Mx, P)
-        se = _rate_bound(Me, R)
+        sx, se = parallel([lambda: _rate_bound(Mx, P), lambda: _rate_bound(Me, R)], n)
         target = 0.9 * min(sx, se)
         if not target > 0:
             return JointCertificate("violated", side_rates=(sx, se))
@@ -307,11 +288,14 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
     W = np.zeros_like(M0)
     W[:n, :n], W[n:, n:] = P, mu * R
     out = JointCertificate(verdict(M0), mu=mu, side_rates=(sx, se), P=W)
+    # the margin and the rate bound are independent eigenvalue problems of size 2n: side by side
+    calls = [lambda: _rate_bound(M0, P, mu * R)] if out.verified else []
+    found = parallel(calls + ([lambda: equilibrated_max_eig(M0)] if margin else []), 2 * n)
     if margin:
-        out.margin = equilibrated_max_eig(M0)
+        out.margin = found[-1]
     if not out.verified:
         return out
-    out.bound = _rate_bound(M0, P, mu * R)
+    out.bound = found[0]
     out.rate = 0.0
     if out.bound > 0:
         lam = grid_floor(out.bound * (1 - 1e-9), rtol)

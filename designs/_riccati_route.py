@@ -193,8 +193,8 @@ def _newton(a, M, q, X, residual_tol, steps=5):
     """Newton (Kleinman) steps ``X <- X + D``, ``(a - M X)' D + D (a - M X) = -(a' X + X a - X M X + q)``
     from an approximate solution: the residual in double precision, D by :func:`_lyap_sign`. Each
     step squares the relative error of X until D's own error (about 1e-4 of D) dominates. The steps
-    go on to ``residual_tol / 100`` while each cuts the relative residual tenfold; X is returned when
-    it is within ``residual_tol``, else None."""
+    go on to ``residual_tol / 100`` while each cuts the relative residual tenfold. Returns X (None unless
+    it is within ``residual_tol``) and its relative residual."""
     X = lmi.sym(np.asarray(X, dtype=np.float64))
     res_now = _are_residual(a, M, q, X)
     for _ in range(steps):
@@ -212,7 +212,7 @@ def _newton(a, M, q, X, residual_tol, steps=5):
         X, res_now, cut = X_new, res_new, res_new < 0.1 * res_now
         if not cut:
             break
-    return X if res_now <= residual_tol else None
+    return (X if res_now <= residual_tol else None), res_now
 
 
 def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallback_max_n: int = 512,
@@ -258,10 +258,9 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
         raise ValueError(f"rr: weights must be finite and nonzero, got {rr.tolist()}")
     M = lmi.sym((b / rr) @ b.T)
     n = a.shape[0]
-    X, max_re, definite, reason = _solve_by(method, a, b, rr, M, q, X0, residual_tol)
-    res = math.inf
+    X, max_re, definite, reason, res = _solve_by(method, a, b, rr, M, q, X0, residual_tol)
     if X is not None:
-        X, res, reason = _accurate(X, a, M, q, max_re, residual_tol)
+        X, res, reason = _accurate(X, a, M, q, max_re, residual_tol, res)
     info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re, reason=reason)
     if X is None and fallback and method != "scipy" and not definite and n <= fallback_max_n:
         X2, info2 = solve_are(a, b, rr, q, method="scipy", fallback=False, residual_tol=residual_tol)
@@ -272,20 +271,22 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
     return X, info
 
 
-def _solve_by(method: str, a, b, rr, M, q, X0=None, residual_tol=RESIDUAL_TOL) -> tuple[np.ndarray | None, float, bool, str]:
+def _solve_by(method: str, a, b, rr, M, q, X0=None,
+              residual_tol=RESIDUAL_TOL) -> tuple[np.ndarray | None, float, bool, str, float | None]:
     """One ARE solve by ``method``: ``X`` (None on failure), the largest real part of ``a - M X``, whether
     the failure is definite (Hamiltonian eigenvalues on, or within rounding of, the imaginary axis: no
-    method has a stabilizing solution), and the reason of a failure. ``"sign"``: the sign iteration in
-    single precision (or ``X0``) refined by Newton steps (:func:`_newton`), else in double precision."""
-    X, max_re, reason, definite = None, math.inf, "", False
+    method has a stabilizing solution), the reason of a failure and X's relative residual when known.
+    ``"sign"``: the sign iteration in single precision (or ``X0``) refined by Newton steps
+    (:func:`_newton`), else in double precision."""
+    X, max_re, reason, definite, res = None, math.inf, "", False, None
     try:
         if method == "sign":
             if X0 is None and a.shape[0] >= SINGLE_FROM_N:
                 X0 = _sign_are(a, M, q, tol=1e-2, single=True)[0]
             if X0 is not None:
-                X = _newton(a, M, q, X0, residual_tol)
+                X, res = _newton(a, M, q, X0, residual_tol)
             if X is None:
-                X, definite, reason = _sign_are(a, M, q)
+                (X, definite, reason), res = _sign_are(a, M, q), None
             # the side's Lyapunov test (P > 0, side matrix < 0) proves the closed loop Hurwitz; the spectrum
             # is computed only where it is cheap
             if X is not None and a.shape[0] <= 128:
@@ -297,18 +298,19 @@ def _solve_by(method: str, a, b, rr, M, q, X0=None, residual_tol=RESIDUAL_TOL) -
             max_re = float(np.linalg.eigvals(a - M @ X).real.max())
     except (np.linalg.LinAlgError, ValueError) as exc:
         X, reason = None, f"{method}: {str(exc).splitlines()[0]}"
-    return X, max_re, definite, reason
+    return X, max_re, definite, reason, res
 
 
-def _accurate(X: np.ndarray, a, M, q, max_re: float, residual_tol: float) -> tuple[np.ndarray | None, float, str]:
+def _accurate(X: np.ndarray, a, M, q, max_re: float, residual_tol: float,
+              res: float | None = None) -> tuple[np.ndarray | None, float, str]:
     """The accuracy checks of a solution: finite, symmetric (relative asymmetry <= 1e-6), relative residual
-    within ``residual_tol``, ``a - M X`` Hurwitz. Returns the symmetrised X (None when a check fails), the
-    residual and the reason of a failure."""
+    (``res`` when the caller has it) within ``residual_tol``, ``a - M X`` Hurwitz. Returns the symmetrised X
+    (None when a check fails), the residual and the reason of a failure."""
     if not np.all(np.isfinite(X)):
         return None, math.inf, "non-finite solution"
     asym = float(np.abs(X - X.T).max() / max(np.abs(X).max(), 1e-300))
     X = lmi.sym(X)
-    res = _are_residual(a, M, q, X)
+    res = _are_residual(a, M, q, X) if res is None else res
     reason = ""
     if asym > 1e-6:
         reason = f"solution not symmetric (relative asymmetry {asym:.2g})"
@@ -334,6 +336,8 @@ class SideSolution:
         ``Mx`` or ``Me`` of :mod:`bench.joint` at ``lam``, recomputed from the gain.
     min_eig : float
         Smallest eigenvalue of P (or R) over its largest.
+    max_eig : float
+        Largest eigenvalue of P (or R).
     multiplier, tau, eps, lam : float
         s (or t), tau (or tau'), eps, and the rate at which the side matrix is verified (the ARE's
         decay target over ``1 + RATE_RTOL``).
@@ -349,6 +353,7 @@ class SideSolution:
     eps: float
     are: AREInfo
     lam: float = 0.0
+    max_eig: float = 1.0
 
     @property
     def gain_norm(self) -> float:
@@ -356,10 +361,13 @@ class SideSolution:
         return _norm2(self.gain)
 
 
-def _pos_def(P: np.ndarray) -> float:
-    """Smallest over largest eigenvalue of a symmetric P (negative or 0: not positive definite)."""
-    lo, hi = _eig_at(P, 0), _eig_at(P, -1)
-    return lo / hi if hi > 0 else -math.inf
+def _pos_def(P: np.ndarray) -> tuple[float, float]:
+    """Smallest over largest eigenvalue of a symmetric P (negative or 0: not positive definite), and the largest."""
+    try:
+        w = sla.eigh(P, eigvals_only=True, check_finite=False)
+    except (np.linalg.LinAlgError, ValueError):
+        return -math.inf, math.nan
+    return (w[0] / w[-1] if w[-1] > 0 else -math.inf), float(w[-1])
 
 
 def _loop(A0, B, C, G, H, r) -> joint.Loop:
@@ -418,13 +426,13 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign", X0=N
     P, info = _side_are(A0 + lam * np.eye(n), B, lp.G, lp.DH, s, tau, eps, method, X0)
     if P is None:
         return None, f"x-side ARE: {info.reason}"
-    pmin = _pos_def(P)
+    pmin, pmax = _pos_def(P)
     if not pmin > 0:
         return None, f"x-side: P is not positive definite (min/max eigenvalue {pmin:.3g})"
     F = -tau * (B.T @ P)
     lam = lam / (1 + RATE_RTOL)
     Mx = joint.side_matrices(lp, F, np.zeros((n, 0)), P, np.eye(n), s, 1.0, lam)[0]
-    return _verified_side("x-side", Mx, P, F, pmin, s, tau, eps, lam, info)
+    return _verified_side("x-side", Mx, P, F, (pmin, pmax), s, tau, eps, lam, info)
 
 
 def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign", X0=None) -> tuple[SideSolution | None, str]:
@@ -442,23 +450,23 @@ def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign", X0=N
     try:
         cf = sla.cho_factor(X, lower=True, check_finite=False)
     except np.linalg.LinAlgError:
-        return None, f"e-side: X is not positive definite (min/max eigenvalue {_pos_def(X):.3g})"
+        return None, f"e-side: X is not positive definite (min/max eigenvalue {_pos_def(X)[0]:.3g})"
     R = lmi.sym(sla.cho_solve(cf, np.eye(n), check_finite=False))
-    rmin = _pos_def(R)
+    rmin, rmax = _pos_def(R)
     if not rmin > 0:
         return None, f"e-side: R = X^-1 is not positive definite (min/max eigenvalue {rmin:.3g})"
     K = tau * (X @ C.T)
     lam = lam / (1 + RATE_RTOL)
     Me = joint.side_matrices(lp, np.zeros((0, n)), K, np.eye(n), R, 1.0, t, lam)[1]
-    return _verified_side("e-side", Me, R, K, rmin, t, tau, eps, lam, info)
+    return _verified_side("e-side", Me, R, K, (rmin, rmax), t, tau, eps, lam, info)
 
 
-def _verified_side(side, M, P, gain, pmin, mult, tau, eps, lam, info) -> tuple[SideSolution | None, str]:
+def _verified_side(side, M, P, gain, eigs, mult, tau, eps, lam, info) -> tuple[SideSolution | None, str]:
     """The side's solution when its matrix is verified negative definite (:func:`bench.joint.verdict`)."""
     v = joint.verdict(M)
     if v != "verified":
         return None, f"{side} matrix not verified negative definite ({v})"
-    return SideSolution(P=P, gain=gain, side_matrix=M, min_eig=pmin, multiplier=mult, tau=tau,
+    return SideSolution(P=P, gain=gain, side_matrix=M, min_eig=eigs[0], max_eig=eigs[1], multiplier=mult, tau=tau,
                         eps=eps, are=info, lam=lam), ""
 
 
@@ -808,7 +816,7 @@ def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, lam: float, x: SideSo
     """Fill ``res`` (in place) with the sides' solutions at the target ``lam`` and the joint certificate."""
     res.lam = lam
     # normalise P and R to a unit largest eigenvalue: (P, s) -> (P/a, s a), (R, t) -> (R/b, t/b) keep both sides
-    a_x, a_e = _eig_at(x.P, -1), _eig_at(e.P, -1)
+    a_x, a_e = x.max_eig, e.max_eig
     res.P, res.R, res.s, res.t = x.P / a_x, e.P / a_e, s * a_x, t / a_e
     res.F, res.K = x.gain, e.gain
     res.tau, res.eps_x, res.tau_e, res.eps_e = x.tau, x.eps, e.tau, e.eps

@@ -60,9 +60,26 @@ IDS = [f"{p.id}" for p in PLANTS_SMALL]
 
 
 def joint_matrix(A0, B, C, F, K, P, R, G, H, r, *, s, t, mu, lam=0.0, reduced=True):
-    """bench.joint's matrix for the loop data given as A0 and the half widths r (centre 0)."""
+    """The joint matrix for the loop data A0 and half widths r (centre 0): reduced by bench.joint's side
+    matrices, or full ((2n + 2q) square in (x, e, psi(Hx), dpsi)) written out here from its definition
+    (bench.joint's module docstring), for the Schur-complement checks."""
     lp = joint.loop(A0, B, C, G, H, -np.asarray(r, float), np.asarray(r, float))
-    return joint.joint_matrix(lp, F, K, P, R, s, t, mu, lam, reduced=reduced)
+    PBF = P @ B @ F
+    if reduced:
+        Mx, Me = joint.side_matrices(lp, F, K, P, R, s, t, lam)
+        return np.block([[Mx, -PBF], [-PBF.T, mu * Me]])
+    q = lp.G.shape[1]
+    s, t = np.broadcast_to(np.asarray(s, float), (q,)), np.broadcast_to(np.asarray(t, float), (q,))
+    Ax, Ae = A0 + B @ F, A0 - K @ C
+    Xb = Ax.T @ P + P @ Ax + 2 * lam * P + lp.DH.T @ np.diag(1 / s) @ lp.DH
+    Eb = Ae.T @ R + R @ Ae + 2 * lam * R + lp.DH.T @ np.diag(t) @ lp.DH
+    Z = np.zeros
+    n = A0.shape[0]
+    M = np.block([[Xb, -PBF, P @ lp.G, Z((n, q))],
+                  [-PBF.T, mu * Eb, Z((n, q)), mu * R @ lp.G],
+                  [(P @ lp.G).T, Z((q, n)), -np.diag(1 / s), Z((q, q))],
+                  [Z((q, n)), mu * (R @ lp.G).T, Z((q, q)), -mu * np.diag(t)]])
+    return (M + M.T) / 2
 
 
 def route(p, **kw):
@@ -133,10 +150,10 @@ def test_newton_steps_refine_a_perturbed_solution_to_scipys():
     M = b @ np.diag(1 / rr) @ b.T
     E = np.random.default_rng(0).standard_normal(want.shape)
     X0 = want + 1e-4 * np.abs(want).max() * (E + E.T)
-    got = _newton(p.A, M, q, X0, 1e-8)
+    got, _ = _newton(p.A, M, q, X0, 1e-8)
     assert got is not None
     np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9 * np.abs(want).max())
-    assert _newton(p.A, M, q, X0, 1e-8, steps=0) is None  # X0 alone is not within 1e-8
+    assert _newton(p.A, M, q, X0, 1e-8, steps=0)[0] is None  # X0 alone is not within 1e-8
 
 
 def test_single_precision_start_refined_by_newton_matches_scipy(monkeypatch):
@@ -155,7 +172,7 @@ def test_single_precision_start_refined_by_newton_matches_scipy(monkeypatch):
     M = b @ np.diag(1 / rr) @ b.T
     X32 = route._sign_are(a, M, q, tol=1e-2, single=True)[0]
     assert 1e-12 < np.abs(X32 - want).max() / np.abs(want).max() < 1e-3  # single precision alone
-    refined = route._newton(a, M, q, X32, 1e-8)  # the path solve_are takes (its fallback would hide a failure)
+    refined, _ = route._newton(a, M, q, X32, 1e-8)  # the path solve_are takes (its fallback would hide a failure)
     assert refined is not None
     np.testing.assert_allclose(refined, want, rtol=1e-7, atol=1e-9 * np.abs(want).max())
     X, info = solve_are(a, b, rr, q, fallback=False)
