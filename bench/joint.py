@@ -255,7 +255,8 @@ class JointCertificate:
         return self.status == "verified"
 
 
-def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool = True) -> JointCertificate:
+def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool = True,
+            sides: tuple | None = None) -> JointCertificate:
     """Choose mu, verify the joint matrix and measure the rate it proves (see the module docstring).
 
     Parameters
@@ -267,6 +268,8 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
         The rate grid (:mod:`bench.search`).
     margin : bool
         Also compute the equilibrated max eigenvalue at rate 0 (one more eigenvalue problem).
+    sides : (ndarray, ndarray), optional
+        ``side_matrices(lp, F, K, P, R, s, t)`` when the caller has them.
 
     Returns
     -------
@@ -274,7 +277,7 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
     """
     n = P.shape[0]
     try:
-        Mx, Me = side_matrices(lp, F, K, P, R, s, t)
+        Mx, Me = side_matrices(lp, F, K, P, R, s, t) if sides is None else sides
         sx, se = parallel([lambda: _rate_bound(Mx, P), lambda: _rate_bound(Me, R)], n)
         target = 0.9 * min(sx, se)
         if not target > 0:

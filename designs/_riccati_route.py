@@ -822,7 +822,9 @@ def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, lam: float, x: SideSo
     res.tau, res.eps_x, res.tau_e, res.eps_e = x.tau, x.eps, e.tau, e.eps
     res.residual_x, res.residual_e = x.are.residual, e.are.residual
     res.methods = (x.are.method, e.are.method)
-    cert = joint.certify(lp, res.F, res.K, res.P, res.R, res.s, res.t)
+    # the sides' matrices at their verified rates, moved to rate 0 and normalised as P and R
+    sides = ((x.side_matrix - 2 * x.lam * x.P) / a_x, (e.side_matrix - 2 * e.lam * e.P) / a_e)
+    cert = joint.certify(lp, res.F, res.K, res.P, res.R, res.s, res.t, sides=sides)
     res.mu, res.margin, res.rate, res.rate_bound = cert.mu, cert.margin, cert.rate, cert.bound
     res.status = {"verified": "feasible", "marginal": "marginal"}.get(cert.status, "infeasible")
     res.reason = (f"joint certificate verified (equilibrated max eigenvalue {cert.margin:.3g}), rate {cert.rate:.4g}"
