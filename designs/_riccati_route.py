@@ -485,8 +485,8 @@ class RiccatiRouteResult:
         Side Lyapunov matrices (largest eigenvalue 1); ``V = x'Px + mu e'Re``.
     s, t, mu : float
         Multipliers (``1/s`` x channels, ``mu t`` e channels) and the e-side weight.
-    tau, tau_e, eps_x, eps_e : float
-        The grid point used on each side.
+    tau, tau_e : float
+        The gain scales used on each side (:attr:`tries` has each side's grid point).
     lam : float
         The decay target the sides were designed for.
     rate : float
@@ -515,8 +515,6 @@ class RiccatiRouteResult:
     mu: float = math.nan
     tau: float = math.nan
     tau_e: float = math.nan
-    eps_x: float = math.nan
-    eps_e: float = math.nan
     lam: float = 0.0
     rate: float = math.nan
     rate_bound: float = math.nan
@@ -819,7 +817,7 @@ def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, lam: float, x: SideSo
     a_x, a_e = x.max_eig, e.max_eig
     res.P, res.R, res.s, res.t = x.P / a_x, e.P / a_e, s * a_x, t / a_e
     res.F, res.K = x.gain, e.gain
-    res.tau, res.eps_x, res.tau_e, res.eps_e = x.tau, x.eps, e.tau, e.eps
+    res.tau, res.tau_e = x.tau, e.tau
     res.residual_x, res.residual_e = x.are.residual, e.are.residual
     res.methods = (x.are.method, e.are.method)
     # the sides' matrices at their verified rates, moved to rate 0 and normalised as P and R
