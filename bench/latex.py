@@ -89,9 +89,9 @@ def _is_missing(value) -> bool:
     return pd.api.types.is_scalar(value) and bool(pd.isna(value))
 
 
-def format_cell(value) -> str:
-    """One table cell as escaped LaTeX text: blank for None/NaN/``pd.NA``, yes/no for a bool, an integer in
-    full, another real like ``.3g``, anything else with ``str``.
+def plain_cell(value, spec: str = ".3g") -> str:
+    """One table cell as plain text: blank for None/NaN/``pd.NA``, yes/no for a bool, an integer in full,
+    another real formatted with ``spec``, anything else with ``str``.
     """
     if _is_missing(value):
         return ""
@@ -100,8 +100,13 @@ def format_cell(value) -> str:
     if isinstance(value, numbers.Integral):
         return str(int(value))
     if isinstance(value, numbers.Real):
-        return escape_tex(f"{float(value):.3g}")
-    return escape_tex(value)
+        return format(float(value), spec)
+    return str(value)
+
+
+def format_cell(value) -> str:
+    """One table cell as escaped LaTeX text (:func:`plain_cell`)."""
+    return escape_tex(plain_cell(value))
 
 
 def _short(status, words: dict[str, str]) -> str:
