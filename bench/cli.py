@@ -25,13 +25,6 @@ from bench.selection import check_selection
 __all__ = ["main"]
 
 
-class _Parser(argparse.ArgumentParser):
-    """An argparse parser whose errors exit 2 with the usage and one line."""
-    def error(self, message: str):
-        self.print_usage(sys.stderr)
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 _positive_float = argtype(checks.real, lo=0.0, strict=True)
 _nonneg_float = argtype(checks.real, lo=0.0)
 _positive_int = argtype(checks.integer, lo=1)
@@ -48,8 +41,8 @@ def _scheduler_address(text: str) -> str:
 
 
 def _build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m bench", description="oslbench: observer-based control of OSL/Lipschitz systems")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    p = argparse.ArgumentParser(prog="python -m bench", description="oslbench: observer-based control of OSL/Lipschitz systems")
+    sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run (plant, design) pairs and write the report")
     r.add_argument("--plant", action="append", metavar="GLOB", help="plant id or glob (repeatable; default all)")
     r.add_argument("--design", action="append", metavar="GLOB", help="design id or glob (repeatable; default all)")
