@@ -164,14 +164,11 @@ class _Run:
         return self.pair_tasks([pid])
 
     # -- pairs ----------------------------------------------------------------------------------
-    def _pair_key(self, pid: str, did: str) -> str | None:
-        try:
-            return self.cache.pair_key(self.plants[pid], pid, DESIGNS.create(did), did, self.options)
-        except Exception:  # noqa: BLE001 - a design that cannot be built errors in the pipeline; no key
-            return None
-
     def _from_cache(self, pid: str, did: str) -> bool:
-        key = self._pair_key(pid, did)
+        try:
+            key = self.cache.pair_key(self.plants[pid], pid, DESIGNS.create(did), did, self.options)
+        except Exception:  # noqa: BLE001 - a design that cannot be built errors in the pipeline; no key
+            key = None
         cached = self.cache.load_pair(key) if key else None
         if cached is not None:
             self.results[(pid, did)] = cached

@@ -56,15 +56,13 @@ _NO_LOCKING = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
 _log = logging.getLogger(__name__)
 
 
-def check_out_dir(path, *, option: str = "--out") -> Path:
+def check_out_dir(path) -> Path:
     """Check that ``path`` is a folder this process can write into (create it if missing).
 
     Parameters
     ----------
     path : str or path-like
-        The output folder.
-    option : str
-        The name shown in messages (the command-line option).
+        The output folder (``--out``, as the messages name it).
 
     Returns
     -------
@@ -76,29 +74,25 @@ def check_out_dir(path, *, option: str = "--out") -> Path:
         The path is empty, a file, cannot be created, or is not writable (the message names it).
     """
     try:
-        text = os.fspath(path)
+        text = os.fsdecode(path)
     except TypeError:
-        raise OutDirError(f"{option}: expected a folder path, got {path!r}") from None
-    if isinstance(text, bytes):
-        text = os.fsdecode(text)
+        raise OutDirError(f"--out: expected a folder path, got {path!r}") from None
     if text == "":
-        raise OutDirError(f"{option}: an empty path is not a folder")
+        raise OutDirError("--out: an empty path is not a folder")
     folder = Path(text)
+    if folder.exists() and not folder.is_dir():
+        kind = "is a file, not a folder" if folder.is_file() else "exists and is not a folder"
+        raise OutDirError(f"--out {text!r}: {kind}")
     try:
-        if folder.exists() and not folder.is_dir():
-            kind = "is a file, not a folder" if folder.is_file() else "exists and is not a folder"
-            raise OutDirError(f"{option} {text!r}: {kind}")
         folder.mkdir(parents=True, exist_ok=True)
-    except OutDirError:
-        raise
     except (OSError, ValueError) as exc:  # a parent that is a file, no permission, a NUL byte
-        raise OutDirError(f"{option} {text!r}: cannot create the folder ({_why(exc)})") from None
+        raise OutDirError(f"--out {text!r}: cannot create the folder ({_why(exc)})") from None
     try:
-        fd, probe = tempfile.mkstemp(prefix=f"{_tmp_prefix('probe')}", dir=folder)
+        fd, probe = tempfile.mkstemp(prefix=_tmp_prefix("probe"), dir=folder)
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
-        raise OutDirError(f"{option} {text!r}: the folder is not writable ({_why(exc)})") from None
+        raise OutDirError(f"--out {text!r}: the folder is not writable ({_why(exc)})") from None
     return folder
 
 
