@@ -33,8 +33,7 @@ class SerialExecutor(Executor):
 
 
 def _worker_init(parent: int) -> None:
-    """Set up a local worker: SIGINT ignored (the parent handles Ctrl-C), and death with the parent
-    (``prctl(PR_SET_PDEATHSIG)`` on Linux, and a thread watching the parent's process id)."""
+    """Set up a local worker: SIGINT ignored (the parent handles Ctrl-C), and death with the parent."""
     import ctypes
     import signal
     import threading

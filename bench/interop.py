@@ -71,8 +71,7 @@ def controller_ss(plant: Plant, K, F):
 
 def _affine_system(M: np.ndarray, G: np.ndarray, H: np.ndarray, f, *, signals: tuple[str, str, str],
                    state_outputs: bool, name: str):
-    """``s' = M s + G w + f(s)``, output ``H s`` (then ``s`` when ``state_outputs``), as a
-    ``control.NonlinearIOSystem`` with the input, output and state signal prefixes ``signals``."""
+    """``s' = M s + G w + f(s)``, output ``H s`` (and ``s``), as a NonlinearIOSystem named by ``signals``."""
     import control
 
     k = G.shape[1]
