@@ -234,19 +234,15 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     parts = [_preamble_comment(text_width_pt)]
     if "status" in frame.columns:
         parts.append(_feasibility_tables(frame, caption_prefix, f"{label_prefix}feasibility", text_width_pt))
-    table = _decay_tables(frame, caption_prefix, f"{label_prefix}decay", int(max_rows))
-    if table:
-        parts.append(table)
+    parts.append(_decay_tables(frame, caption_prefix, f"{label_prefix}decay", int(max_rows)))
     for columns, caption, key in (
         (_CONVERGENCE_COLUMNS, "Convergence of the closed loop (settling times of the state x and of the "
                                "estimation error e).", "convergence"),
         (_TIMING_COLUMNS, "Wall-clock time of the design, the certificate and the simulation.", "timing"),
     ):
-        table = _row_table(frame, columns, caption_prefix + escape_tex(caption), f"{label_prefix}{key}",
-                           max_rows=int(max_rows))
-        if table:
-            parts.append(table)
-    return "\n\n".join(parts) + "\n"
+        parts.append(_row_table(frame, columns, caption_prefix + escape_tex(caption), f"{label_prefix}{key}",
+                                max_rows=int(max_rows)))
+    return "\n\n".join(p for p in parts if p) + "\n"
 
 
 def _decay_tables(frame, caption_prefix: str, label: str, max_rows: int) -> str:

@@ -502,8 +502,7 @@ def _run_json(result: RunResult, run_info: dict) -> dict:
 
 def _formats(figure_format) -> tuple[str, ...]:
     fmts = (figure_format,) if isinstance(figure_format, str) else tuple(figure_format)
-    bad = [f for f in fmts if f not in ("png", "pdf")]
-    if bad or not fmts:
+    if not fmts or any(f not in ("png", "pdf") for f in fmts):
         raise ValueError(f"figure_format: each format must be 'png' or 'pdf', got {figure_format!r}")
     return fmts
 
