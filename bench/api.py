@@ -94,7 +94,6 @@ def _register_objects(items, registry, kind: str) -> list[str]:
                 return obj
 
             factory._bench_object = it
-            factory.__doc__ = f"{kind} passed to bench.run"
             registry.register(obj_id, factory, f"{kind} passed to bench.run", order=200)
         out.append(obj_id)
     return out

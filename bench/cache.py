@@ -65,9 +65,7 @@ def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-@functools.lru_cache(maxsize=None)
-def _realpath(path: str) -> str:
-    return os.path.realpath(path)
+_realpath = functools.lru_cache(maxsize=None)(os.path.realpath)
 
 
 def _outside_file(module: str) -> str | None:
@@ -82,8 +80,7 @@ def _outside_file(module: str) -> str | None:
 
 
 def _canon(v: Any, modules: set[str]) -> Any:
-    """A JSON-able, exact description of a value (arrays by hash, floats by repr); the modules of
-    the types and functions met are added to ``modules``."""
+    """A JSON-able, exact description of a value (arrays by hash); adds the modules it meets to ``modules``."""
     if dataclasses.is_dataclass(v) and not isinstance(v, type):
         modules.add(type(v).__module__)
         return {"__type__": f"{type(v).__module__}.{type(v).__qualname__}",
@@ -110,8 +107,7 @@ def _canon(v: Any, modules: set[str]) -> Any:
 
 
 def _encode(v: Any, arrays: dict[str, np.ndarray]) -> Any:
-    """JSON for ``v``: dataclasses by type and init fields, arrays by name in ``arrays``; TypeError
-    for anything else than None, bool, int, float, complex, str, list, tuple and string-keyed dict."""
+    """JSON for ``v`` (dataclasses by init fields, arrays by name in ``arrays``); TypeError for other types."""
     if isinstance(v, np.ndarray) and not v.dtype.hasobject:
         name = f"a{len(arrays)}"
         arrays[name] = v
@@ -167,8 +163,7 @@ def _checksum(meta: str, arrays: dict[str, np.ndarray]) -> str:
 
 
 def _check_record(rec: Any) -> None:
-    """ValueError unless ``rec`` has the columns of a record, each of the kind its blank value has
-    (text for text, a flag or None for flags, a real number or None for numbers)."""
+    """ValueError unless ``rec`` has the record's columns, each of the kind of its blank value."""
     from bench.pipeline import COLUMNS, blank_record
 
     if not isinstance(rec, dict) or list(rec) != list(COLUMNS):
@@ -358,10 +353,8 @@ class Cache:
         from bench.pipeline import PairOutcome
 
         out = self._load("pairs", key, PairOutcome, lambda o: _check_record(o.record))
-        if out is None:
-            self.misses += 1
-        else:
-            self.hits += 1
+        self.hits += out is not None
+        self.misses += out is None
         return out
 
     def store_constants(self, key: str | None, report) -> bool:

@@ -14,6 +14,7 @@ import shlex
 import sys
 import time
 from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
 from typing import Iterator
 
@@ -23,13 +24,6 @@ from bench.registry import DESIGNS, PLANTS
 from bench.selection import check_selection
 
 __all__ = ["main"]
-
-
-class _Parser(argparse.ArgumentParser):
-    """An argparse parser whose errors exit 2 with the usage and one line."""
-    def error(self, message: str):
-        self.print_usage(sys.stderr)
-        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 _positive_float = argtype(checks.real, lo=0.0, strict=True)
@@ -48,8 +42,8 @@ def _scheduler_address(text: str) -> str:
 
 
 def _build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="python -m bench", description="oslbench: observer-based control of OSL/Lipschitz systems")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    p = argparse.ArgumentParser(prog="python -m bench", description="oslbench: observer-based control of OSL/Lipschitz systems")
+    sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run (plant, design) pairs and write the report")
     r.add_argument("--plant", action="append", metavar="GLOB", help="plant id or glob (repeatable; default all)")
     r.add_argument("--design", action="append", metavar="GLOB", help="design id or glob (repeatable; default all)")
@@ -82,13 +76,15 @@ def _build_parser() -> argparse.ArgumentParser:
                         help="a Python file registering your own plants or designs (repeatable)")
     pf = sub.add_parser("perf", help="measure design time vs n, joint vs separated, and the parallel speed-up")
     pf.add_argument("--out", default="reports", metavar="DIR", help="folder for PERF.md (default: reports)")
-    pf.add_argument("--sizes", default="4,8,16,32,64", metavar="N,N,...", help="state dimensions (default 4,8,16,32,64)")
+    pf.add_argument("--sizes", type=_sizes, default="4,8,16,32,64", metavar="N,N,...",
+                    help="state dimensions (default 4,8,16,32,64)")
     pf.add_argument("--max-joint-n", type=_positive_int, default=32, metavar="N",
                     help="largest n for the joint 6n LMI (default 32)")
     pf.add_argument("--no-run", action="store_true", help="skip timing the default run with --jobs 1 and 2")
     pf.add_argument("--no-sweeps", action="store_true",
                     help="skip the design-call sweeps (bisection over c, random family; compiled vs rebuilt)")
-    pf.add_argument("--route-sizes", default="16,32,64,128,256,512,1024", metavar="N,N,...",
+    pf.add_argument("--route-sizes", type=partial(_sizes, allow_empty=True), default="16,32,64,128,256,512,1024",
+                    metavar="N,N,...",
                     help="chain sizes n for the structured design's Riccati and SDP routes ('' skips)")
     pf.add_argument("--no-sims", action="store_true", help="skip the n = 1000 trajectory and n = 100 batch")
     pf.add_argument("--repeats", type=_positive_int, default=3, metavar="K",
@@ -223,14 +219,14 @@ def _sigint_deferred(message: str) -> Iterator[None]:
         raise KeyboardInterrupt
 
 
-def _sizes(text: str, option: str, *, allow_empty: bool) -> list[int]:
-    """Comma-separated state dimensions (each >= 2), or ValueError naming the option."""
+def _sizes(text: str, *, allow_empty: bool = False) -> list[int]:
+    """An argparse type: comma-separated state dimensions, each >= 2."""
     try:
         sizes = [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise ValueError(f"{option}: expected integers like 4,8,16, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected integers like 4,8,16, got {text!r}") from None
     if (not sizes and not allow_empty) or any(n < 2 for n in sizes):
-        raise ValueError(f"{option}: each n must be >= 2, got {text!r}")
+        raise argparse.ArgumentTypeError(f"each n must be >= 2, got {text!r}")
     return sizes
 
 
@@ -245,19 +241,13 @@ def _cmd_perf(args) -> int:
         print("python -m bench perf: error: perf is a developer command, run from a checkout of oslbench "
               f"(no {_BENCHMARKS_DIR / 'perf_report.py'} beside this bench package)", file=sys.stderr)
         return 2
-    try:
-        sizes = _sizes(args.sizes, "--sizes", allow_empty=False)
-        route_sizes = _sizes(args.route_sizes, "--route-sizes", allow_empty=True)
-    except ValueError as exc:
-        print(f"python -m bench perf: error: {exc}", file=sys.stderr)
-        return 2
     if str(_BENCHMARKS_DIR) not in sys.path:
         sys.path.insert(0, str(_BENCHMARKS_DIR))
     from perf_report import perf_main
 
-    path = perf_main(args.out, sizes, args.max_joint_n, not args.no_run,
+    path = perf_main(args.out, args.sizes, args.max_joint_n, not args.no_run,
                      echo=lambda line: print(line, file=sys.stderr, flush=True), with_sweeps=not args.no_sweeps,
-                     route_sizes=route_sizes, with_sims=not args.no_sims, repeats=args.repeats)
+                     route_sizes=args.route_sizes, with_sims=not args.no_sims, repeats=args.repeats)
     print(f"wrote {path}", file=sys.stderr)
     return 0
 

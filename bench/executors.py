@@ -10,17 +10,14 @@ from concurrent.futures import Executor, Future
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
+from bench._env import cores
 from bench.errors import ExecutorError
 
 __all__ = ["default_jobs", "executor"]
 
 
-def default_jobs() -> int:
-    """All cores available to this process."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - non-Linux
-        return max(1, os.cpu_count() or 1)
+#: All cores available to this process (the default number of local workers).
+default_jobs = cores
 
 
 class SerialExecutor(Executor):
@@ -36,8 +33,7 @@ class SerialExecutor(Executor):
 
 
 def _worker_init(parent: int) -> None:
-    """Set up a local worker: SIGINT ignored (the parent handles Ctrl-C), and death with the parent
-    (``prctl(PR_SET_PDEATHSIG)`` on Linux, and a thread watching the parent's process id)."""
+    """Set up a local worker: SIGINT ignored (the parent handles Ctrl-C), and death with the parent."""
     import ctypes
     import signal
     import threading

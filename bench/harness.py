@@ -8,6 +8,7 @@ time limits (a pair over ``RunOptions.timeout`` is a ``timeout`` row; a plant's 
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -81,16 +82,12 @@ def expected_cost(plant: Plant | None, design_id: str) -> float:
 def _stop_workers(ex) -> None:
     """Terminate a process pool's workers after a Ctrl-C, so shutting it down does not wait for them."""
     for proc in list((getattr(ex, "_processes", None) or {}).values()):
-        try:
+        with contextlib.suppress(Exception):  # already gone
             proc.terminate()
-        except Exception:  # noqa: BLE001 - already gone
-            pass
 
 
 def _drain(ex, tasks, finish) -> None:
-    """Submit ``(fn, args, tag)`` tasks and call ``finish(future, tag)`` as each completes, submitting the
-    tasks it returns at once; a future done on submit (the serial executor) is finished at once.
-    """
+    """Submit ``(fn, args, tag)`` tasks, and the tasks ``finish(future, tag)`` returns as each completes."""
     from concurrent.futures import FIRST_COMPLETED, wait
 
     pending = {}
@@ -124,10 +121,8 @@ class _Run:
         self.total = len(plant_ids) * (1 + len(design_ids))
         self.plants: dict[str, Plant] = {}
         for pid in plant_ids:  # the parent's own plant objects: for the report and the cache keys
-            try:
+            with contextlib.suppress(Exception):  # the constants task reports it
                 self.plants[pid] = PLANTS.create(pid)
-            except Exception:  # noqa: BLE001 - the constants task reports it
-                pass
 
     def tick(self, label: str) -> None:
         self.done += 1
@@ -169,14 +164,11 @@ class _Run:
         return self.pair_tasks([pid])
 
     # -- pairs ----------------------------------------------------------------------------------
-    def _pair_key(self, pid: str, did: str) -> str | None:
-        try:
-            return self.cache.pair_key(self.plants[pid], pid, DESIGNS.create(did), did, self.options)
-        except Exception:  # noqa: BLE001 - a design that cannot be built errors in the pipeline; no key
-            return None
-
     def _from_cache(self, pid: str, did: str) -> bool:
-        key = self._pair_key(pid, did)
+        try:
+            key = self.cache.pair_key(self.plants[pid], pid, DESIGNS.create(did), did, self.options)
+        except Exception:  # noqa: BLE001 - a design that cannot be built errors in the pipeline; no key
+            key = None
         cached = self.cache.load_pair(key) if key else None
         if cached is not None:
             self.results[(pid, did)] = cached

@@ -71,8 +71,7 @@ def controller_ss(plant: Plant, K, F):
 
 def _affine_system(M: np.ndarray, G: np.ndarray, H: np.ndarray, f, *, signals: tuple[str, str, str],
                    state_outputs: bool, name: str):
-    """``s' = M s + G w + f(s)``, output ``H s`` (then ``s`` when ``state_outputs``), as a
-    ``control.NonlinearIOSystem`` with the input, output and state signal prefixes ``signals``."""
+    """``s' = M s + G w + f(s)``, output ``H s`` (and ``s``), as a NonlinearIOSystem named by ``signals``."""
     import control
 
     k = G.shape[1]
@@ -162,16 +161,12 @@ def closed_loop_nlsys(plant: Plant, K, F):
     import control
 
     plant, K, F = _check_gains(plant, K, F)
-    n, m, p = plant.n, plant.m, plant.p
-    pname, oname = _sysname(plant, "plant"), _sysname(plant, "observer")
-    psys = _affine_system(plant.A, plant.B, plant.C, plant.f, signals=("u", "y", "x"), state_outputs=True, name=pname)
-    osys = _observer_system(plant, K, F, state_outputs=True, name=oname)
-    connections = ([[f"{pname}.u[{i}]", f"{oname}.u[{i}]"] for i in range(m)]
-                   + [[f"{oname}.y[{j}]", f"{pname}.y[{j}]"] for j in range(p)])
-    outlist = ([f"{pname}.x[{i}]" for i in range(n)] + [f"{oname}.xhat[{i}]" for i in range(n)]
-               + [f"{oname}.u[{i}]" for i in range(m)])
-    return control.interconnect(
-        [psys, osys], connections=connections, inplist=[], outlist=outlist, inputs=0,
+    n, m = plant.n, plant.m
+    psys = _affine_system(plant.A, plant.B, plant.C, plant.f, signals=("u", "y", "x"), state_outputs=True,
+                          name=_sysname(plant, "plant"))
+    osys = _observer_system(plant, K, F, state_outputs=True, name=_sysname(plant, "observer"))
+    return control.interconnect(  # u and y connected by their names
+        [psys, osys], inplist=[], outlist=["x", "xhat", "u"], inputs=0,
         outputs=_names("x", n) + _names("xhat", n) + _names("u", m),
         states=_names("x", n) + _names("xhat", n), name=_sysname(plant, "closed_loop"),
         check_unused=False)

@@ -9,7 +9,6 @@ fragment in a document ``pdflatex`` compiles as it is.
 from __future__ import annotations
 
 import numbers
-import re
 
 import numpy as np
 
@@ -45,7 +44,7 @@ PACKAGES = ("booktabs",)
 #: (:func:`minimal_document`) give 483 and 500 pt.
 TEXT_WIDTH_PT = 460.0
 
-_ESCAPES = {
+_ESCAPES = str.maketrans({
     "\\": r"\textbackslash{}",
     "&": r"\&",
     "%": r"\%",
@@ -59,8 +58,7 @@ _ESCAPES = {
     "<": r"\textless{}",
     ">": r"\textgreater{}",
     "|": r"\textbar{}",
-}
-_ESCAPE_RE = re.compile("|".join(re.escape(c) for c in _ESCAPES))
+})
 
 # (column, header) of the three row tables, in display order; a "\n" in a header breaks its line
 _DECAY_COLUMNS = (("decay_paper", "paper"), ("decay_full", "full"), ("decay_structured", "structured"),
@@ -79,7 +77,7 @@ _COLSEP_PT = 12.0
 
 def escape_tex(text) -> str:
     """Escape LaTeX's special characters (``\\ & % $ # _ { } ~ ^ < > |``) in ``str(text)``, in one pass."""
-    return _ESCAPE_RE.sub(lambda m: _ESCAPES[m.group(0)], str(text))
+    return str(text).translate(_ESCAPES)
 
 
 def _is_missing(value) -> bool:
@@ -89,9 +87,9 @@ def _is_missing(value) -> bool:
     return pd.api.types.is_scalar(value) and bool(pd.isna(value))
 
 
-def format_cell(value) -> str:
-    """One table cell as escaped LaTeX text: blank for None/NaN/``pd.NA``, yes/no for a bool, an integer in
-    full, another real like ``.3g``, anything else with ``str``.
+def plain_cell(value, spec: str = ".3g") -> str:
+    """One table cell as plain text: blank for None/NaN/``pd.NA``, yes/no for a bool, an integer in full,
+    another real formatted with ``spec``, anything else with ``str``.
     """
     if _is_missing(value):
         return ""
@@ -100,8 +98,13 @@ def format_cell(value) -> str:
     if isinstance(value, numbers.Integral):
         return str(int(value))
     if isinstance(value, numbers.Real):
-        return escape_tex(f"{float(value):.3g}")
-    return escape_tex(value)
+        return format(float(value), spec)
+    return str(value)
+
+
+def format_cell(value) -> str:
+    """One table cell as escaped LaTeX text (:func:`plain_cell`)."""
+    return escape_tex(plain_cell(value))
 
 
 def _short(status, words: dict[str, str]) -> str:
@@ -148,9 +151,8 @@ def _table(tabular: str, caption: str, label: str | None) -> str:
 
 def _cert_cell(rec: dict, col: str) -> str:
     """A decay cell: the rate where the level certified, else its status in short (:data:`CERT_SHORT`)."""
-    level = col[len("decay_"):] if col.startswith("decay_") else None
-    status = rec.get(f"cert_{level}") if level else None
-    if level is None or _is_missing(status) or status in ("", "certified"):
+    status = rec.get(f"cert_{col.removeprefix('decay_')}") if col.startswith("decay_") else None
+    if _is_missing(status) or status in ("", "certified"):
         return format_cell(rec[col])
     return _short(status, CERT_SHORT)
 
@@ -232,19 +234,15 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     parts = [_preamble_comment(text_width_pt)]
     if "status" in frame.columns:
         parts.append(_feasibility_tables(frame, caption_prefix, f"{label_prefix}feasibility", text_width_pt))
-    table = _decay_tables(frame, caption_prefix, f"{label_prefix}decay", int(max_rows))
-    if table:
-        parts.append(table)
+    parts.append(_decay_tables(frame, caption_prefix, f"{label_prefix}decay", int(max_rows)))
     for columns, caption, key in (
         (_CONVERGENCE_COLUMNS, "Convergence of the closed loop (settling times of the state x and of the "
                                "estimation error e).", "convergence"),
         (_TIMING_COLUMNS, "Wall-clock time of the design, the certificate and the simulation.", "timing"),
     ):
-        table = _row_table(frame, columns, caption_prefix + escape_tex(caption), f"{label_prefix}{key}",
-                           max_rows=int(max_rows))
-        if table:
-            parts.append(table)
-    return "\n\n".join(parts) + "\n"
+        parts.append(_row_table(frame, columns, caption_prefix + escape_tex(caption), f"{label_prefix}{key}",
+                                max_rows=int(max_rows)))
+    return "\n\n".join(p for p in parts if p) + "\n"
 
 
 def _decay_tables(frame, caption_prefix: str, label: str, max_rows: int) -> str:

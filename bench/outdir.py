@@ -56,15 +56,13 @@ _NO_LOCKING = {errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL}
 _log = logging.getLogger(__name__)
 
 
-def check_out_dir(path, *, option: str = "--out") -> Path:
+def check_out_dir(path) -> Path:
     """Check that ``path`` is a folder this process can write into (create it if missing).
 
     Parameters
     ----------
     path : str or path-like
-        The output folder.
-    option : str
-        The name shown in messages (the command-line option).
+        The output folder (``--out``, as the messages name it).
 
     Returns
     -------
@@ -76,29 +74,25 @@ def check_out_dir(path, *, option: str = "--out") -> Path:
         The path is empty, a file, cannot be created, or is not writable (the message names it).
     """
     try:
-        text = os.fspath(path)
+        text = os.fsdecode(path)
     except TypeError:
-        raise OutDirError(f"{option}: expected a folder path, got {path!r}") from None
-    if isinstance(text, bytes):
-        text = os.fsdecode(text)
+        raise OutDirError(f"--out: expected a folder path, got {path!r}") from None
     if text == "":
-        raise OutDirError(f"{option}: an empty path is not a folder")
+        raise OutDirError("--out: an empty path is not a folder")
     folder = Path(text)
+    if folder.exists() and not folder.is_dir():
+        kind = "is a file, not a folder" if folder.is_file() else "exists and is not a folder"
+        raise OutDirError(f"--out {text!r}: {kind}")
     try:
-        if folder.exists() and not folder.is_dir():
-            kind = "is a file, not a folder" if folder.is_file() else "exists and is not a folder"
-            raise OutDirError(f"{option} {text!r}: {kind}")
         folder.mkdir(parents=True, exist_ok=True)
-    except OutDirError:
-        raise
     except (OSError, ValueError) as exc:  # a parent that is a file, no permission, a NUL byte
-        raise OutDirError(f"{option} {text!r}: cannot create the folder ({_why(exc)})") from None
+        raise OutDirError(f"--out {text!r}: cannot create the folder ({_why(exc)})") from None
     try:
-        fd, probe = tempfile.mkstemp(prefix=f"{_tmp_prefix('probe')}", dir=folder)
+        fd, probe = tempfile.mkstemp(prefix=_tmp_prefix("probe"), dir=folder)
         os.close(fd)
         os.unlink(probe)
     except OSError as exc:
-        raise OutDirError(f"{option} {text!r}: the folder is not writable ({_why(exc)})") from None
+        raise OutDirError(f"--out {text!r}: the folder is not writable ({_why(exc)})") from None
     return folder
 
 
@@ -121,14 +115,13 @@ def _alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except OSError:  # EPERM: alive, another user's
-        return True
+    except PermissionError:  # alive, another user's
+        pass
     return True
 
 
 def _stale(path: Path) -> bool:
-    """A temporary entry whose owner (pid and host in its name, :func:`_tmp_prefix`) is dead on this host, or
-    a folder that records no owner."""
+    """A temporary entry whose owner (:func:`_tmp_prefix`) is dead on this host, or a folder naming no owner."""
     parts = path.name[len(TMP_PREFIX):].split(".")
     if len(parts) != 4 or not parts[1].isdigit():
         return path.is_dir() and not path.is_symlink()
@@ -272,16 +265,12 @@ def _relpath(rel: str) -> str:
 
 
 def _keep_old(src: Path, dst: Path, *, move: bool) -> None:
-    """Keep the previous version ``src`` at ``dst``: moved (``move``), else hard-linked (``src`` stays
-    readable until replaced), or moved where links are not supported."""
+    """Keep the previous version ``src`` at ``dst``: moved, or hard-linked (readable until replaced) unless ``move``."""
     dst.parent.mkdir(parents=True, exist_ok=True)
-    if not move:
-        try:
-            if src.is_file() and not src.is_symlink():
-                os.link(src, dst)
-                return
-        except OSError:
-            pass  # no hard links here (EXDEV, EPERM, ...): move it
+    if not move and src.is_file() and not src.is_symlink():
+        with contextlib.suppress(OSError):  # no hard links here (EXDEV, EPERM, ...): move it
+            os.link(src, dst)
+            return
     os.replace(src, dst)
 
 
@@ -367,8 +356,7 @@ def sha_file(path) -> str | None:
 
 
 def _update_manifest(out: Path, stage: Path, files: list[str], writer: str) -> list[str]:
-    """Write the new manifest into ``stage`` and return ``writer``'s stale files (none when the manifest
-    is unreadable)."""
+    """Write the new manifest into ``stage``; return ``writer``'s stale files (none if the manifest is unreadable)."""
     try:
         writers = dict(json.loads((out / MANIFEST_NAME).read_text(encoding="utf-8"))["writers"])
     except (OSError, ValueError, KeyError, TypeError):
@@ -409,8 +397,6 @@ def _swap(out: Path, stage: Path, doc: dict, backup: Path) -> None:
                 f"{out}: writing failed ({type(exc).__name__}: {exc}) and the previous files could not "
                 f"all be restored ({'; '.join(problems[:3])}); they are in {backup.name}, and the next "
                 "run restores them first") from exc
-        try:
+        with contextlib.suppress(OSError):
             (out / JOURNAL_NAME).unlink()
-        except OSError:
-            pass
         raise

@@ -190,14 +190,10 @@ def _note(rec: dict, text: str) -> None:
 
 
 def _jsonable(d: dict) -> str:
-    def conv(v):
-        if isinstance(v, (np.floating, float)):
-            return None if not math.isfinite(float(v)) else float(v)
-        if isinstance(v, np.integer):
-            return int(v)
-        return v
-
-    return json.dumps({k: conv(v) for k, v in d.items()}, sort_keys=True)
+    """``d`` as sorted JSON: numpy scalars as Python ones, a non-finite float as null."""
+    d = {k: v.item() if isinstance(v, np.generic) else v for k, v in d.items()}
+    return json.dumps({k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in d.items()},
+                      sort_keys=True)
 
 
 # -- the steps ---------------------------------------------------------------------------------
@@ -241,8 +237,7 @@ def _verify(rec: dict, plant: Plant, res: DesignResult) -> checks.ClosedLoop:
 
 def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport, options: RunOptions,
              loop: checks.ClosedLoop, know: Knowledge | None = None) -> Certificate | None:
-    """The certificate ladder (or its verdict only) of the checked gains ``loop`` on the trusted
-    knowledge (default ``report.knowledge(plant)``), recorded level by level."""
+    """The certificate ladder (or what ``options.certificate`` asks) of ``loop``'s gains, recorded level by level."""
     if options.certificate == "none":
         return None
     if res.K is None:
@@ -311,8 +306,7 @@ def _record_horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificat
 
 
 def _sim_options(options: RunOptions, T: float, t_plant: float) -> SimOptions:
-    """``options.sim`` with an output grid as dense as over the plant's horizon and a wall-clock
-    budget of what is left of the pair's time limit."""
+    """``options.sim`` with the plant horizon's grid density and what is left of the pair's time limit."""
     sim = options.sim
     if T > t_plant:
         sim = replace(sim, n_points=int(min(20 * sim.n_points, math.ceil(sim.n_points * T / t_plant))))
@@ -325,9 +319,7 @@ def _sim_options(options: RunOptions, T: float, t_plant: float) -> SimOptions:
 
 def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
               scenario: Scenario | None, report: ConstantsReport) -> None:
-    """Simulate (one trajectory, or the scenario's batch), record the metrics, check the declarations
-    the certificate used along the simulation (re-certifying without any it disproved), and record
-    what the certificate predicts for this simulation."""
+    """Simulate (one trajectory or the scenario's batch), record the metrics, check the declarations."""
     rec = out.record
     T = _record_horizon(rec, plant, res, cert, options, out.loop)
     sim = _sim_options(options, T, plant.t_final)
@@ -374,8 +366,7 @@ def _cond(best: LevelResult | None) -> float:
 
 def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, report: ConstantsReport,
                         options: RunOptions, X: np.ndarray, XH: np.ndarray) -> None:
-    """The declarations the certificate used, checked along the simulation
-    (:func:`bench.constants.check_trajectory`); any it disproves is dropped and the pair re-certified."""
+    """Check the certificate's declarations along the simulation; re-certify without any disproved."""
     rec = out.record
     if out.certificate is None:  # nothing certified uses a declaration: the Jacobian alone (the EKF uses it)
         know = Knowledge()
@@ -393,9 +384,7 @@ def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, repor
 
 
 def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float, H: np.ndarray | None = None) -> str:
-    """Time and state that show a run's outcome: the first state outside the certified region
-    (``||x||, ||x_hat|| <= radius``, or ``|Hx|, |Hx_hat| <= radius`` when H is given; NaN: none),
-    else the last finite state (a batch: of the member farthest from the origin)."""
+    """Time and state of the first exit from the certified region, else of the last finite state."""
     if X.ndim == 3:  # (n, N, T): the member with the largest last finite state
         last = np.nan_to_num(np.linalg.norm(X[:, :, -1], axis=0), nan=np.inf)
         j = int(np.argmax(last))
@@ -440,12 +429,6 @@ def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float,
     return {"converged": bool(np.all(m["converged"])), **worst}
 
 
-def _judge(rec: dict) -> None:
-    """The verdicts that read the whole record."""
-    if rec["sim_status"]:
-        _note(rec, convergence_note(rec))
-
-
 def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> list[PairOutcome]:
     """Drop, from every pair of a plant, the declarations another pair's simulation disproved (``outcomes``
     changed in place and returned; ``reports``: plant id -> constants).
@@ -485,7 +468,8 @@ def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> 
             rec["cert_horizon_s"] = certified_horizon(best.decay_rate, _cond(best)) if best is not None else math.nan
         if math.isfinite(rec["cert_radius"]):
             rec["in_region"] = bool(rec["max_norm"] <= rec["cert_radius"])
-        _judge(rec)
+        if rec["sim_status"]:
+            _note(rec, convergence_note(rec))
     return outcomes
 
 
@@ -583,7 +567,8 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
         if options.simulate:
             phase = "simulation"
             _simulate(out, plant, result, out.certificate, options, scenario, report)
-        _judge(rec)
+        if rec["sim_status"]:
+            _note(rec, convergence_note(rec))
     except DeadlineExceeded as exc:  # --timeout: a row, never a claim
         if options.timeout is None:
             raise

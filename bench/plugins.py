@@ -9,6 +9,7 @@ the registries as they were.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import re
 import sys
@@ -70,95 +71,78 @@ def load_plugin(path) -> list[str]:
         raise PluginError(f"plugin {shown}: no such file")
     if not p.is_file():
         raise PluginError(f"plugin {shown}: not a file")
+    p = p.resolve()
     # built-in plants and designs first, so that a clash is reported against them
-    loading = _Loading(shown, p.resolve())
-    loading.import_module()
-    plants, designs = loading.new_ids()
-    if not plants and not designs:
-        sys.modules.pop(loading.name, None)
-        raise PluginError(
-            f"plugin {shown}: registers no plant or design (decorate a keyword-only factory with "
-            "@register_plant(\"my_plant\") from bench.registry)"
-        )
-    for pid in plants:
-        loading.check_plant(pid)
-    for did in designs:
-        loading.build("design", DESIGNS, did)
-    return plants + designs
+    before = set(PLANTS.ids()), set(DESIGNS.ids())
+    name = _module_name(p)
 
+    def new_ids() -> tuple[list[str], list[str]]:
+        return [i for i in PLANTS.ids() if i not in before[0]], [i for i in DESIGNS.ids() if i not in before[1]]
 
-class _Loading:
-    """One plugin file being loaded: its module name, the ids before it, and the undo of a failure."""
-
-    def __init__(self, shown: str, path: Path):
-        self.shown, self.path = shown, path
-        self.plants_before, self.designs_before = set(PLANTS.ids()), set(DESIGNS.ids())
-        self.name = _module_name(path)
-
-    def new_ids(self) -> tuple[list[str], list[str]]:
-        return ([i for i in PLANTS.ids() if i not in self.plants_before],
-                [i for i in DESIGNS.ids() if i not in self.designs_before])
-
-    def undo(self) -> None:
-        """Unregister what the file registered and forget its module."""
-        plants, designs = self.new_ids()
+    try:
+        _execute(p, name)
+        plants, designs = new_ids()
+        if not plants and not designs:
+            raise PluginError("registers no plant or design (decorate a keyword-only factory with "
+                              "@register_plant(\"my_plant\") from bench.registry)")
+        for pid in plants:
+            _check_plant(pid, p)
+        for did in designs:
+            _build("design", DESIGNS, did, p)
+    except PluginError as exc:  # undo: unregister what the file registered and forget its module
+        plants, designs = new_ids()
         for i in plants:
             PLANTS.unregister(i)
         for i in designs:
             DESIGNS.unregister(i)
-        sys.modules.pop(self.name, None)
+        sys.modules.pop(name, None)
+        raise PluginError(f"plugin {shown}: {exc}") from None
+    return plants + designs
 
-    def fail(self, message: str) -> PluginError:
-        """Undo, and the error to raise: ``plugin <path>: <message>``."""
-        self.undo()
-        return PluginError(f"plugin {self.shown}: {message}")
 
-    def import_module(self) -> None:
-        """Execute the file as a module (helper modules beside it importable); a failure is undone."""
-        shown, p, name = self.shown, self.path, self.name
+def _execute(p: Path, name: str) -> None:
+    """Execute the file as the module ``name``, helper modules beside it importable; PluginError on a failure."""
+    try:
+        spec = importlib.util.spec_from_file_location(name, p)
+        if spec is None or spec.loader is None:
+            raise PluginError("cannot be imported as a Python module (is it a .py file?)")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        sys.path.insert(0, str(p.parent))
         try:
-            spec = importlib.util.spec_from_file_location(name, p)
-            if spec is None or spec.loader is None:
-                raise PluginError(f"plugin {shown}: cannot be imported as a Python module (is it a .py file?)")
-            module = importlib.util.module_from_spec(spec)
-            sys.modules[name] = module
-            # the plugin may import helper modules that sit next to it
-            sys.path.insert(0, str(p.parent))
-            try:
-                spec.loader.exec_module(module)
-            finally:
-                try:
-                    sys.path.remove(str(p.parent))
-                except ValueError:
-                    pass
-        except PluginError:
-            self.undo()
-            raise
-        except SyntaxError as exc:
-            raise self.fail(f"syntax error{_where(exc, p)}: {exc.msg}") from None
-        except Exception as exc:  # ImportError, RegistryError (duplicate id), anything the file raises
-            raise self.fail(f"failed to import{_where(exc, p)}: {type(exc).__name__}: {exc}") from None
-        except SystemExit as exc:  # a plugin calling sys.exit() must not end the run silently
-            raise self.fail(f"called sys.exit({exc.code!r}) while being imported") from None
+            spec.loader.exec_module(module)
+        finally:
+            with contextlib.suppress(ValueError):
+                sys.path.remove(str(p.parent))
+    except PluginError:
+        raise
+    except SyntaxError as exc:
+        raise PluginError(f"syntax error{_where(exc, p)}: {exc.msg}") from None
+    except Exception as exc:  # ImportError, RegistryError (duplicate id), anything the file raises
+        raise PluginError(f"failed to import{_where(exc, p)}: {type(exc).__name__}: {exc}") from None
+    except SystemExit as exc:  # a plugin calling sys.exit() must not end the run silently
+        raise PluginError(f"called sys.exit({exc.code!r}) while being imported") from None
 
-    def build(self, kind: str, registry, rid: str):
-        """``registry.create(rid)`` with the factory's defaults; a failure is undone and named."""
-        try:
-            return registry.create(rid)
-        except Exception as exc:
-            raise self.fail(f"{kind} {rid!r} cannot be built with its defaults{_where(exc, self.path)}: "
-                            f"{type(exc).__name__}: {exc}") from None
 
-    def check_plant(self, pid: str) -> None:
-        """The plant builds, is a :class:`plants.Plant` and has the id it was registered under."""
-        from plants import Plant
+def _build(kind: str, registry, rid: str, p: Path):
+    """``registry.create(rid)`` with the factory's defaults; PluginError naming the failure."""
+    try:
+        return registry.create(rid)
+    except Exception as exc:
+        raise PluginError(f"{kind} {rid!r} cannot be built with its defaults{_where(exc, p)}: "
+                          f"{type(exc).__name__}: {exc}") from None
 
-        plant = self.build("plant", PLANTS, pid)
-        if not isinstance(plant, Plant):
-            raise self.fail(f"the factory of plant {pid!r} returned a {type(plant).__name__}, not a plants.Plant")
-        if plant.id != pid:
-            raise self.fail(f"plant registered as {pid!r} has id {plant.id!r}; "
-                            "use the same id in @register_plant and Plant(id=...)")
+
+def _check_plant(pid: str, p: Path) -> None:
+    """The plant builds, is a :class:`plants.Plant` and has the id it was registered under."""
+    from plants import Plant
+
+    plant = _build("plant", PLANTS, pid, p)
+    if not isinstance(plant, Plant):
+        raise PluginError(f"the factory of plant {pid!r} returned a {type(plant).__name__}, not a plants.Plant")
+    if plant.id != pid:
+        raise PluginError(f"plant registered as {pid!r} has id {plant.id!r}; "
+                          "use the same id in @register_plant and Plant(id=...)")
 
 
 def load_plugins(paths) -> list[str]:

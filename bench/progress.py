@@ -48,9 +48,8 @@ class Progress:
     def _make(self):
         from tqdm.auto import tqdm
 
-        kwargs = {"unit": "task", "dynamic_ncols": True}
-        kwargs.update(self.tqdm_kwargs)
-        return tqdm(total=self.total, desc=self.desc or None, file=self.file, disable=self.disable, **kwargs)
+        return tqdm(total=self.total, desc=self.desc or None, file=self.file, disable=self.disable,
+                    **{"unit": "task", "dynamic_ncols": True, **self.tqdm_kwargs})
 
     def _short(self, label) -> str:
         text = " ".join(str(label).split())  # one line
@@ -70,7 +69,7 @@ class Progress:
         if self._bar is None:
             self._bar = self._make()
         bar = self._bar
-        if self.total is not None and bar.total != self.total:
+        if self.total is not None:
             bar.total = self.total
         self.label = self._short(label)
         bar.set_postfix_str(self.label, refresh=False)
@@ -87,11 +86,9 @@ class Progress:
 
     def close(self) -> None:
         """Finish the bar (safe to call twice)."""
-        if self._closed:
-            return
-        self._closed = True
-        if self._bar is not None:
+        if self._bar is not None and not self._closed:
             self._bar.close()
+        self._closed = True
 
     def __enter__(self) -> "Progress":
         return self

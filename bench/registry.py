@@ -31,10 +31,6 @@ class Entry:
     module: str
     order: int = 100
 
-    def create(self, **overrides: Any) -> Any:
-        """Call the factory (keyword-only overrides)."""
-        return self.factory(**overrides)
-
 
 #: The characters an id may hold: ids become parts of file names (``figures/<plant>__<design>.png``)
 #: and command-line globs, so no path separator, blank, glob or shell character.
@@ -58,11 +54,6 @@ def check_id(id: Any, kind: str = "id") -> str:
     return id
 
 
-def _first_line(obj: Any) -> str:
-    doc = (getattr(obj, "__doc__", None) or "").strip()
-    return doc.splitlines()[0].strip() if doc else ""
-
-
 class Registry:
     """An ordered mapping from id to :class:`Entry`, filled by ``package``'s modules."""
 
@@ -79,7 +70,8 @@ class Registry:
             other = self._entries[id].module
             raise RegistryError(f"duplicate {self.kind} id {id!r} (already registered by {other})")
         module = getattr(factory, "__module__", "?")
-        self._entries[id] = Entry(id, factory, summary or _first_line(factory), module, order)
+        first_line = (getattr(factory, "__doc__", None) or "").strip().partition("\n")[0].strip()
+        self._entries[id] = Entry(id, factory, summary or first_line, module, order)
 
     def unregister(self, id: str) -> None:
         """Remove an id (used by plugin loading on failure and by tests)."""
@@ -142,7 +134,7 @@ class Registry:
 
     def create(self, id: str, **overrides: Any) -> Any:
         """Build the registered object ``id``."""
-        return self[id].create(**overrides)
+        return self[id].factory(**overrides)
 
 
 PLANTS = Registry("plant", "plants")

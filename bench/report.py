@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.harness import RunResult
+from bench.latex import plain_cell
 
 __all__ = ["draw_figures", "results_table", "write_report"]
 
@@ -66,24 +67,9 @@ def git_revision() -> dict[str, object]:
 
 
 def format_cell(v, spec: str = ".3g") -> str:
-    """A markdown cell: floats with ``spec`` (blank if NaN), bools as yes/no, text with ``|`` escaped."""
-    if v is None:
-        return ""
-    if isinstance(v, (bool, np.bool_)):
-        return "yes" if v else "no"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        v = float(v)
-        if math.isnan(v):
-            return ""
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return format(v, spec)
-    return str(v).replace("|", "\\|").replace("\n", " ")
+    """A markdown cell: :func:`bench.latex.plain_cell` on one line, with ``|`` escaped."""
+    return plain_cell(v, spec).replace("|", "\\|").replace("\n", " ")
 
-
-_fmt = format_cell
 
 #: The longest ``reason`` cell of :func:`results_table` (the full text is in ``details``).
 REASON_CHARS = 120
@@ -107,11 +93,9 @@ def short_reason(text, limit: int = REASON_CHARS) -> str:
         if depth <= 0 and text.startswith("; ", i):
             head = text[:i]
             break
-    while True:  # innermost asides first, so nested parentheses go too
-        shorter = re.sub(r" ?\([^()]{30,}\)", "", head)
-        if shorter == head:
-            break
-        head = shorter
+    removed = 1
+    while removed:  # innermost asides first, so nested parentheses go too
+        head, removed = re.subn(r" ?\([^()]{30,}\)", "", head)
     if len(head) <= limit:
         return head
     cut = head[: limit - 3]
@@ -135,7 +119,7 @@ def md_table(rows, columns: list, headers: list[str] | None = None) -> str:
     """A markdown table of ``rows`` (dicts) restricted to ``columns``, each cell by :func:`format_cell`."""
     headers = [str(h).replace("|", "\\|") for h in (headers or columns)]
     out = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
-    out += ["| " + " | ".join(_fmt(r.get(c)) for c in columns) + " |" for r in rows]
+    out += ["| " + " | ".join(format_cell(r.get(c)) for c in columns) + " |" for r in rows]
     return "\n".join(out)
 
 
@@ -185,11 +169,11 @@ def _ladder(df) -> str:
     def rate(r, lv):
         st = r[f"cert_{lv}"]
         if st == "certified":
-            return _fmt(r[f"decay_{lv}"])
+            return format_cell(r[f"decay_{lv}"])
         return CERT_SHORT.get(st, st)
 
     rows = [{"plant": r["plant"], "design": r["design"], **{lv: rate(r, lv) for lv in LEVELS},
-             "head": f"{_fmt(r['decay_rate'])} ({r['cert_level']})" if r["certified"] else "not certified",
+             "head": f"{format_cell(r['decay_rate'])} ({r['cert_level']})" if r["certified"] else "not certified",
              "scope": r["cert_scope"]} for r in sub.to_dict("records")]
     return md_table(rows, ["plant", "design", *LEVELS, "head", "scope"],
                     ["plant", "design", *LEVELS, "headline (strongest level)", "scope"])
@@ -336,7 +320,7 @@ def draw_figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png"
 
 def _summary(found: dict) -> str:
     """The report's first screen: what the run found (from :func:`bench.findings.findings`)."""
-    lines = [f"- **INCONSISTENT** on {r['plant']} x {r['design']}: {_fmt(r['reason'])}"
+    lines = [f"- **INCONSISTENT** on {r['plant']} x {r['design']}: {format_cell(r['reason'])}"
              for r in found["inconsistent"]]
     for pid, f in found["plants"].items():
         b = f["best"]
@@ -344,10 +328,10 @@ def _summary(found: dict) -> str:
             best = "no design certified"
         else:
             ratio = b.get("rate_ratio", math.nan)
-            best = (f"best certified: **{b['design']}**, decay {_fmt(b['decay_rate'])} at the {b['level']} level"
+            best = (f"best certified: **{b['design']}**, decay {format_cell(b['decay_rate'])} at the {b['level']} level"
                     f"{' (local)' if b['scope'] == 'local' else ' (from x0)' if b['scope'] == 'from x0' else ''}"
-                    + (f", {_fmt(ratio)} of the class's rate ceiling" if math.isfinite(ratio) else "")
-                    + f", peak |u| {_fmt(b['peak_u'])}")
+                    + (f", {format_cell(ratio)} of the class's rate ceiling" if math.isfinite(ratio) else "")
+                    + f", peak |u| {format_cell(b['peak_u'])}")
         can_not = f.get("no_certificate_can_exist", [])
         not_found = f.get("no_certificate_found", f["uncertified_converging"])
         split = [f"{what}: {', '.join(ds)}" for what, ds in (("no certificate can exist (witness)", can_not),
@@ -364,8 +348,8 @@ def _summary(found: dict) -> str:
     for did, rows in by_design.items():
         plants = ", ".join(x["plant"] for x in rows)
         alike = len({x["reason"] for x in rows}) == 1
-        why = (f": {_fmt(rows[0]['reason'])[:300]}" if alike else
-               f"; on {rows[0]['plant']}: {_fmt(rows[0]['reason'])[:240]} (each plant's reason: \"Reasons, per plant\" below)")
+        why = (f": {format_cell(rows[0]['reason'])[:300]}" if alike else
+               f"; on {rows[0]['plant']}: {format_cell(rows[0]['reason'])[:240]} (each plant's reason: \"Reasons, per plant\" below)")
         lines.append(f"- {did} (as printed) is infeasible on {plants}{why}")
     return "\n".join(lines)
 
@@ -456,7 +440,7 @@ def _reasons(df) -> list[str]:
     parts = []
     for pid in dict.fromkeys(reasons["plant"]):
         parts += [f"### {pid}", ""]
-        parts += [f"- **{r.design}** ({r.status}): {_fmt(r.reason)}" for r in reasons[reasons["plant"] == pid].itertuples()]
+        parts += [f"- **{r.design}** ({r.status}): {format_cell(r.reason)}" for r in reasons[reasons["plant"] == pid].itertuples()]
         parts.append("")
     return parts
 
@@ -518,8 +502,7 @@ def _run_json(result: RunResult, run_info: dict) -> dict:
 
 def _formats(figure_format) -> tuple[str, ...]:
     fmts = (figure_format,) if isinstance(figure_format, str) else tuple(figure_format)
-    bad = [f for f in fmts if f not in ("png", "pdf")]
-    if bad or not fmts:
+    if not fmts or any(f not in ("png", "pdf") for f in fmts):
         raise ValueError(f"figure_format: each format must be 'png' or 'pdf', got {figure_format!r}")
     return fmts
 
