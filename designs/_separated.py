@@ -108,27 +108,12 @@ class YoungForm:
     e_scalars: tuple[str, ...]
     constants: dict
 
-    def _parameters(self, mats: lmi.Matrices) -> dict:
-        return {**mats.parameters(), **lmi.scalar_parameters(*self.constants)}
-
     def joint_program(self, plant, *, cap: float, phi_name: str) -> lmi.Program:
         """The joint program (compiled once per shape), plant and constants set; ``phi`` left to the caller."""
-        import cvxpy as cp
-
-        n, m, p = plant.n, plant.m, plant.p
-        mats = lmi.plant_matrices(plant)
         scalars = ("kappa", *self.e_scalars)
-
-        def build():
-            v = synthesis_variables(n, m, p, scalars)
-            prm = {"phi": cp.Parameter(nonneg=True, name=phi_name),
-                   "iphi": cp.Parameter(nonneg=True, name=f"inv_{phi_name}"), **self._parameters(mats)}
-            return lmi.margin_program(self.blocks[0], v, prm, ("Q", "R"), lambda d: [d[k] >= 0 for k in scalars],
-                                      cap=cap)
-
-        prog = lmi.cached_program((*self.key, "joint", n, m, p, float(cap), mats.key), build)
-        prog.set(**mats.settable(), **self.constants)
-        return prog
+        return joint_program(plant, (*self.key, "joint"), self.blocks[0], scalars,
+                             {"phi": phi_name, "iphi": f"inv_{phi_name}"}, self.constants,
+                             lambda d: [d[k] >= 0 for k in scalars], cap=cap)
 
     def side_program(self, plant, side: str, *, cap: float, scale_free: bool = False) -> lmi.Program:
         """The x-side or e-side program, compiled once per shape; ``scale_free`` adds ``I << Q`` (``I << R``)."""
@@ -151,7 +136,8 @@ class YoungForm:
             def extra(d):
                 return [d[k] >= 0 for k in scalars] + ([d[X] >> np.eye(n)] if scale_free else [])
 
-            return lmi.margin_program(blocks, v, self._parameters(mats), (X,), extra, cap=cap)
+            prm = {**mats.parameters(), **lmi.scalar_parameters(*self.constants)}
+            return lmi.margin_program(blocks, v, prm, (X,), extra, cap=cap)
 
         shape = (n, m, p, tuple(self.constants), float(cap), mats.key)
         prog = lmi.cached_program((*self.key, side, "scale-free" if scale_free else "capped", *shape), build)
@@ -361,6 +347,26 @@ def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...]) -> dic
     for s in scalars:
         v[s] = cp.Variable(name=s)
     return v
+
+
+def joint_program(plant, key: tuple, blocks, scalars: tuple[str, ...], nonneg: dict[str, str], constants: dict,
+                  extra, *, cap: float, signed: tuple[str, ...] = ()) -> lmi.Program:
+    """A program over :func:`synthesis_variables` with ``scalars``, ``Q`` and ``R`` positive (compiled once per
+    ``key`` and shape), the plant and ``constants`` set; the Parameters ``nonneg`` (key -> cvxpy name,
+    nonnegative) and ``signed`` are left to the caller."""
+    import cvxpy as cp
+
+    n, m, p = plant.n, plant.m, plant.p
+    mats = lmi.plant_matrices(plant)
+
+    def build():
+        prm = {k: cp.Parameter(nonneg=True, name=name) for k, name in nonneg.items()}
+        prm.update({**mats.parameters(), **lmi.scalar_parameters(*signed, *constants)})
+        return lmi.margin_program(blocks, synthesis_variables(n, m, p, scalars), prm, ("Q", "R"), extra, cap=cap)
+
+    prog = lmi.cached_program((*key, n, m, p, float(cap), mats.key), build)
+    prog.set(**mats.settable(), **constants)
+    return prog
 
 
 def paper_gains_from(vals: dict) -> tuple[np.ndarray, np.ndarray]:
