@@ -381,14 +381,16 @@ def scalar(vals: dict, k: str) -> float:
     return float(v) if v is not None else float("nan")
 
 
-def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.0, 0.0, 0)) -> DesignResult:
-    """The :class:`DesignResult` of a concluded joint program, with ``cost`` of other solves added."""
+def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.0, 0.0, 0), *,
+                 gains: tuple | None = None, log: str = "") -> DesignResult:
+    """The :class:`DesignResult` of a concluded program, with ``cost`` of other solves added; when feasible, the
+    gains ``(K, F)`` (default: :func:`paper_gains_from`); ``log``: the solvers tried (:func:`bench.lmi.solve_side`)."""
     K = F = None
     if concl["status"] == "feasible":
-        K, F = paper_gains_from(prog.values())
+        K, F = gains or paper_gains_from(prog.values())
     return DesignResult(
         status=concl["status"], reason=concl["reason"], route="sdp", K=K, F=F, solver=prog.solver,
-        solver_status=concl["solver_status"], compile_s=prog.compile_s + cost[0], solve_s=prog.solve_s + cost[1],
+        solver_status=log or concl["solver_status"], compile_s=prog.compile_s + cost[0], solve_s=prog.solve_s + cost[1],
         n_solves=prog.n_solves + cost[2], margin=concl["margin"], lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
         params={**params, "slack": concl.get("slack", float("nan"))},
     )
