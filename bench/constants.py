@@ -15,6 +15,7 @@ declarations along a simulation.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
@@ -223,8 +224,6 @@ class ConstantsReport:
 
 def _values(f: Callable, X: np.ndarray) -> np.ndarray:
     """``f(X)`` for a batch as real numbers; PlantError naming the state at a complex or non-finite value."""
-    import warnings
-
     raw = np.asarray(f(X.copy()))
     if np.iscomplexobj(raw):
         bad = np.flatnonzero(np.any(raw.imag != 0, axis=0)) if raw.shape == X.shape else []

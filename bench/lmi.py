@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple
@@ -109,8 +110,6 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     """
     import cvxpy as cp
 
-    import warnings
-
     check_deadline("before an SDP solve")
     granted = remaining_time()
     if granted is not None and solver.upper() in _TIME_LIMIT_OPTION:
@@ -136,9 +135,8 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     own = min(float(getattr(stats, "solve_time", None) or 0.0), wall - comp)
     out = SolveOutcome(status, comp, wall - comp, err, float(val) if val is not None else float("nan"), own)
     _tally["n"] += 1
-    _tally["compile_s"] += out.compile_s
-    _tally["solve_s"] += out.solve_s
-    _tally["solver_s"] += out.solver_s
+    for k in ("compile_s", "solve_s", "solver_s"):
+        _tally[k] += getattr(out, k)
     return out
 
 
@@ -165,8 +163,7 @@ def log_search(
     n_grid: int = 9,
     n_refine: int = 5,
 ) -> tuple[float, float]:
-    """Maximise ``objective`` over ``[lo, hi]`` on a log grid, then golden-section refine; return the
-    best point tried and its value (NaN counts as ``-inf``)."""
+    """The best ``(x, objective(x))`` tried on a log grid of ``[lo, hi]``, golden-section refined (NaN: ``-inf``)."""
     points: list[tuple[float, float]] = []
 
     def ev(x: float) -> float:
@@ -207,8 +204,7 @@ def assemble(blocks_fn: Callable[[dict], list], values: dict, *, numeric: bool):
 
 
 class BestPoint(NamedTuple):
-    """The best solution a :class:`Program` has seen: objective, variable and parameter values by
-    name, the solver's status."""
+    """The best solution a :class:`Program` has seen: objective, variable and parameter values, status."""
 
     value: float
     variables: dict
@@ -426,9 +422,7 @@ def digest(raw) -> str:
 
 
 class Pattern:
-    """A matrix of fixed sparsity pattern ``mask`` in a cvxpy program: a Parameter ``name + ".nz"`` of its
-    nonzeros, placed. ``expr`` (parameter-affine, so the program stays DPP) goes into the LMI blocks;
-    :meth:`set` and :meth:`value` take and give whole matrices."""
+    """A matrix of sparsity pattern ``mask`` in a program: ``expr``, its nonzeros' Parameter placed (DPP)."""
 
     def __init__(self, name: str, mask: np.ndarray) -> None:
         import cvxpy as cp

@@ -195,10 +195,7 @@ def recombine(
     lx, le = lmi.max_eig(X), lmi.max_eig(E)
     out.update(x_margin=lx, e_margin=le)
     failed = _failed_sides(xprog, eprog, X, E, lx, le, decide)
-    if failed is not None:
-        out.update(failed)
-        return out
-    out.update(_joint_verdict(B, xv, ev, e_keys, joint_blocks, lx, le))
+    out.update(failed if failed is not None else _joint_verdict(B, xv, ev, e_keys, joint_blocks, lx, le))
     return out
 
 

@@ -74,8 +74,7 @@ class Cor1(YoungDesign):
         return {"phi2": phi, **self._multipliers(vals, constants), "cap": self.cap}
 
     def separated_params(self, vals: dict, constants: Constants) -> dict:
-        m = self._multipliers(vals, constants)
-        return {"kappa": m["kappa"], "mu2": m["mu2"], "alpha": constants.alpha, "mu1": m["mu1"]}
+        return self._multipliers(vals, constants)
 
     @staticmethod
     def _multipliers(vals: dict, constants: Constants) -> dict:
