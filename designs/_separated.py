@@ -117,21 +117,13 @@ class YoungForm:
 
     def side_program(self, plant, side: str, *, cap: float, scale_free: bool = False) -> lmi.Program:
         """The x-side or e-side program, compiled once per shape; ``scale_free`` adds ``I << Q`` (``I << R``)."""
-        import cvxpy as cp
-
         n, m, p = plant.n, plant.m, plant.p
         mats = lmi.plant_matrices(plant)
         X = SIDE_MATRIX[side]
+        scalars, blocks = (("kappa",), self.blocks[1]) if side == "x-side" else (self.e_scalars, self.blocks[2])
 
         def build():
-            if side == "x-side":
-                v = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
-                     "slack": cp.Variable()}
-                scalars, blocks = ("kappa",), self.blocks[1]
-            else:
-                v = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "slack": cp.Variable()}
-                v.update({k: cp.Variable() for k in self.e_scalars})
-                scalars, blocks = self.e_scalars, self.blocks[2]
+            v = synthesis_variables(n, m, p, scalars, (X, "Fh" if side == "x-side" else "Kh"))
 
             def extra(d):
                 return [d[k] >= 0 for k in scalars] + ([d[X] >> np.eye(n)] if scale_free else [])
@@ -330,19 +322,15 @@ def settle_joint(plant, form: YoungForm, concl: dict, *, cap: float, solver: str
 
 
 # -- helpers shared by the corrected Theorem 1 and Corollary 1 ---------------------------------
-def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...]) -> dict:
-    """cvxpy variables Q, R (symmetric), Fh (n x m), Kh (p x n), the margin ``slack`` and ``scalars``."""
+def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...],
+                        matrices: tuple[str, ...] = ("Q", "R", "Fh", "Kh")) -> dict:
+    """cvxpy variables ``matrices`` among Q, R (symmetric), Fh (n x m), Kh (p x n), the margin ``slack`` and
+    ``scalars``."""
     import cvxpy as cp
 
-    v = {
-        "Q": cp.Variable((n, n), symmetric=True, name="Q"),
-        "R": cp.Variable((n, n), symmetric=True, name="R"),
-        "Fh": cp.Variable((n, m), name="Fhat"),
-        "Kh": cp.Variable((p, n), name="Khat"),
-        "slack": cp.Variable(name="slack"),
-    }
-    for s in scalars:
-        v[s] = cp.Variable(name=s)
+    shapes = {"Q": (n, n), "R": (n, n), "Fh": (n, m), "Kh": (p, n)}
+    v = {k: cp.Variable(shapes[k], symmetric=k in SIDE_MATRIX.values(), name=k) for k in matrices}
+    v.update({s: cp.Variable(name=s) for s in ("slack", *scalars)})
     return v
 
 
