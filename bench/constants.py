@@ -301,8 +301,7 @@ def _local_max(f, which: int, gamma: float, x1, x2, radius, n):
     # globally a box keeps an unbounded ratio (a cubic f's) from running to overflow
     box = None if radius is not None else [(-b, b) for b in [1e3 * max(1.0, float(np.abs(z0).max()))] * (2 * n)]
     try:
-        res = minimize(neg, z0, method="L-BFGS-B", bounds=box, options={"maxiter": 200})
-        z = res.x
+        z = minimize(neg, z0, method="L-BFGS-B", bounds=box, options={"maxiter": 200}).x
     except Exception:  # a user f that fails away from the samples: keep the sample
         z = z0
     a, b = unpack(z)
@@ -317,8 +316,7 @@ def _best_pairs(f, x1, x2, gamma, radius, n, n_refine) -> dict[str, tuple[float,
         r = np.where(np.isfinite(ratios[which]), ratios[which], -np.inf)
         order = np.argsort(r)[::-1][:max(n_refine, 1)]
         top = (float(r[order[0]]), x1[:, order[0]], x2[:, order[0]])
-        order = order[:n_refine]
-        for k in order:
+        for k in order[:n_refine]:
             a, b, val = _local_max(f, which, gamma, x1[:, k], x2[:, k], radius, n)
             if val > top[0]:
                 top = (float(val), a, b)

@@ -468,13 +468,8 @@ class Matrices:
 
     @property
     def key(self) -> tuple:
-        out = []
-        for k, M in self.values.items():
-            if k in self.dense:
-                out.append((k, "parameter", M.shape))
-            else:
-                out.append((k, "pattern", M.shape, digest(M != 0)))
-        return tuple(out)
+        return tuple((k, "parameter", M.shape) if k in self.dense else (k, "pattern", M.shape, digest(M != 0))
+                     for k, M in self.values.items())
 
     def parameters(self) -> dict:
         """A Parameter, :class:`Pattern` or (all zero) the array itself, by name."""
