@@ -128,8 +128,7 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     if granted is not None and wall >= 0.9 * granted:
         raise DeadlineExceeded(f"an SDP solve ({solver}, {wall:.3g} s of the {granted:.3g} s left)")
     check_deadline(f"an SDP solve ({solver}, {wall:.3g} s)")
-    comp = float(getattr(problem, "compilation_time", None) or 0.0)
-    comp = min(comp, wall)
+    comp = min(float(getattr(problem, "compilation_time", None) or 0.0), wall)
     val = problem.value if status in ("optimal", "optimal_inaccurate") else float("nan")
     stats = getattr(problem, "solver_stats", None) if status != "solver_error" else None
     own = min(float(getattr(stats, "solve_time", None) or 0.0), wall - comp)

@@ -141,12 +141,8 @@ class Cor1Printed(Design):
         a2 = constants.alpha**2
         prog = joint_program(plant, ("cor1.printed",), blocks, ("mu1", "mu2", "alpha2", "beta2"),
                              {"xi_a2": "xi_over_alpha2", "mu1_max": "mu1_max"}, {"a2": a2}, extra, cap=self.cap)
-
-        def obj(xi):
-            return prog.solve(xi_a2=xi / a2, mu1_max=min(1.0, 1.0 / xi))
-
-        vals = [(obj(float(x)), float(x)) for x in self.xis]
-        best_xi = max(vals, key=lambda vx: np.nan_to_num(vx[0], nan=-np.inf))[1]
+        best_xi = max(map(float, self.xis),
+                      key=lambda xi: np.nan_to_num(prog.solve(xi_a2=xi / a2, mu1_max=min(1.0, 1.0 / xi)), nan=-np.inf))
         prog.restore_best()
         concl = lmi.conclude(prog, what="Corollary 1 as printed (Remarks 2-3)",
                               normalisation=f"the normalisation Q, R << {self.cap:g} I, slack <= 1",

@@ -156,7 +156,7 @@ class Thm1(YoungDesign):
         """The fixed-eps form (gamma < 0): eps2 on a log grid, phi1 searched at each."""
         progs: dict[bool, lmi.Program] = {}
         eps1 = float(self.eps1)
-        best = (-np.inf, None, None, None)
+        best = (-np.inf, None, None, None, None)
         for eps2 in np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), 5):
             eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
             schur = eta1 > 0
@@ -171,10 +171,9 @@ class Thm1(YoungDesign):
                 return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi, **fixed)
 
             phi, val, _ = self._search_phi(obj, n_grid=7, n_refine=3)
-            if val > best[0] or best[3] is None:
-                best = (val, eps2, phi, prog)
-        _, eps2, phi, prog = best
-        eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
+            if val > best[0] or best[4] is None:
+                best = (val, eps2, eta1, phi, prog)
+        _, eps2, eta1, phi, prog = best
         prog.restore_best()
         prog.compile_s = sum(p.compile_s for p in progs.values())
         prog.solve_s = sum(p.solve_s for p in progs.values())
