@@ -80,10 +80,8 @@ class Knowledge:
         """This knowledge with the declarations named in ``untrusted`` (name -> why) removed."""
         if not untrusted:
             return self
-        c = self.constants
-        qib = not ({"beta", "gamma"} & set(untrusted))
-        consts = Constants(alpha=None if "alpha" in untrusted else c.alpha, rho=None if "rho" in untrusted else c.rho,
-                           beta=c.beta if qib else None, gamma=c.gamma if qib else None, radius=c.radius)
+        qib = {"beta", "gamma"} if {"beta", "gamma"} & set(untrusted) else set()  # both or neither
+        consts = replace(self.constants, **dict.fromkeys({"alpha", "rho"} & set(untrusted) | qib))
         ch = None if "channels" in untrusted else self.channels
         notes = self.notes + tuple(f"{why}: not used by certificates" for why in untrusted.values())
         return Knowledge(consts, ch, notes, {**self.untrusted, **untrusted})
@@ -187,13 +185,10 @@ class ConstantsReport:
         bad = {v.name for v in self.disproved}
         notes = [v.describe("analytic") + ": not used by certificates" for v in self.disproved]
         untrusted = {v.name: "analytic " + v.describe("analytic") for v in self.disproved}
-        kept = {k: getattr(an, k) for k in ("alpha", "rho") if k not in bad}
-        qib_ok = "beta" not in bad and an.beta is not None
         sampled_only = [k for k in ("alpha", "rho", "beta") if self.source.get(k, "").startswith("sampled")]
         if sampled_only:
             notes.append(f"{', '.join(sampled_only)} only sampled (lower bounds): never used by certificates")
-        consts = Constants(**kept, beta=an.beta if qib_ok else None, gamma=an.gamma if qib_ok else None,
-                           radius=an.radius)
+        consts = replace(an, **dict.fromkeys(bad | ({"gamma"} if "beta" in bad else set())))
         narrowing = [v for v in self.channel_violations if NARROWED in v.name]
         slopes = [v for v in self.channel_violations if NARROWED not in v.name]
         ch = plant.channels if not slopes else None
