@@ -458,13 +458,11 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
             for k, v in _scalar_violations(plant.f, X[:, inside], X2[:, inside], c.gamma, scalars).items():
                 bad.setdefault(k, "analytic " + v.describe("analytic") + " (along the simulation)")
     far = REACH_FACTOR * reach
-    glob = [k for k in ("channels", *scalars) if k not in bad and
-            (ch.radius if k == "channels" and ch is not None else c.radius) is None
-            and (k != "channels" or ch is not None)]
+    glob = {k: v for k, v in scalars.items() if k not in bad and c.radius is None}
+    glob_channels = ch is not None and ch.radius is None and "channels" not in bad
     checked = f"along the simulation (||x||, ||x_hat|| <= {reach:.3g})"
-    if glob and (checked_on is None or far > checked_on):
-        bad.update(_sampled_far(plant, "channels" in glob, {k: scalars[k] for k in glob if k != "channels"},
-                                c.gamma, far, seed))
+    if (glob or glob_channels) and (checked_on is None or far > checked_on):
+        bad.update(_sampled_far(plant, glob_channels, glob, c.gamma, far, seed))
         checked += f" and sampled on ||x|| <= {far:.3g}"
     return bad, checked
 

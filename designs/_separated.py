@@ -220,14 +220,10 @@ def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, e_keys: tuple[str, ...], j
     qmin = lmi.min_eig(xv["Q"])
     Q, Fh = xv["Q"], xv["Fh"]
     BF = B @ np.linalg.solve(Q, Fh).T  # B Fh' Q^{-1}
-    G = BF @ Q @ BF.T  # = B Fh' Q^{-1} Fh B'
-    gmax = lmi.max_eig(G)
+    gmax = lmi.max_eig(BF @ Q @ BF.T)  # lmax(B Fh' Q^{-1} Fh B')
     phi = 0.5 * abs(lx) / gmax if gmax > 0 else 1.0
     s = 2.0 / (phi * qmin * abs(le))
-    vals = {**xv, **ev}
-    for k in e_keys:
-        vals[k] = ev[k] * s
-    vals.update(phi=phi, iphi=1.0 / phi)
+    vals = {**xv, **ev, **{k: ev[k] * s for k in e_keys}, "phi": phi, "iphi": 1.0 / phi}
     M = lmi.assemble(joint_blocks, vals, numeric=True)
     M = (M + M.T) / 2
     diag = np.diag(M)
