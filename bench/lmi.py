@@ -428,7 +428,7 @@ class Pattern:
         import scipy.sparse as sp
 
         mask = np.asarray(mask, dtype=bool)
-        self.name, self.shape = name, mask.shape
+        self.name, self.shape, self.mask = name, mask.shape, mask
         self.rows, self.cols = np.nonzero(mask)
         nnz = self.rows.size
         r = mask.shape[0]
@@ -441,9 +441,7 @@ class Pattern:
         M = np.asarray(M, dtype=float)
         if M.shape != self.shape:
             raise ValueError(f"{self.name}: expected shape {self.shape}, got {M.shape}")
-        outside = M.copy()
-        outside[self.rows, self.cols] = 0.0
-        if np.any(outside != 0.0):
+        if np.any(M[~self.mask] != 0.0):
             raise ValueError(f"{self.name}: nonzero entries outside the sparsity pattern the program was built for")
         self.param.value = M[self.rows, self.cols]
 
@@ -474,13 +472,8 @@ class Matrices:
         """A Parameter, :class:`Pattern` or (all zero) the array itself, by name."""
         import cvxpy as cp
 
-        out = {}
-        for k, M in self.values.items():
-            if k in self.dense:
-                out[k] = cp.Parameter(M.shape, name=k)
-            else:
-                out[k] = Pattern(k, M != 0) if np.any(M != 0) else M
-        return out
+        return {k: cp.Parameter(M.shape, name=k) if k in self.dense else Pattern(k, M != 0) if np.any(M != 0) else M
+                for k, M in self.values.items()}
 
     def settable(self) -> dict:
         """Values for :meth:`Program.set` (every matrix that is not all zero)."""
