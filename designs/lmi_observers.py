@@ -43,10 +43,7 @@ class _ObserverLMI(Part):
 
 def _solve_observer(part: "Part", key: tuple, blocks, variables, mats: lmi.Matrices, constants: dict,
                     nonneg: tuple[str, ...], *, what: str, n: int, searched: str) -> tuple[lmi.Program, dict, str]:
-    """Solve the observer LMI ``blocks`` over ``variables()`` (``P``, ``slack``, and ``nonneg`` >= 0) under
-    ``P << cap I``; a marginal verdict is decided again under the scale-free ``I << P << cap I`` (as
-    :mod:`designs._separated` does for its sides).
-    """
+    """Solve the LMI ``blocks`` under ``P << cap I``, a marginal verdict again under ``I << P << cap I``."""
     def build(scale_free: bool):
         prm = {**mats.parameters(), **lmi.scalar_parameters(*constants)}
 
