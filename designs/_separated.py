@@ -118,23 +118,11 @@ class YoungForm:
     def side_program(self, plant, side: str, *, cap: float, scale_free: bool = False) -> lmi.Program:
         """The x-side or e-side program, compiled once per shape; ``scale_free`` adds ``I << Q`` (``I << R``)."""
         n, m, p = plant.n, plant.m, plant.p
-        mats = lmi.plant_matrices(plant)
         X = SIDE_MATRIX[side]
         scalars, blocks = (("kappa",), self.blocks[1]) if side == "x-side" else (self.e_scalars, self.blocks[2])
-
-        def build():
-            v = synthesis_variables(n, m, p, scalars, (X, "Fh" if side == "x-side" else "Kh"))
-
-            def extra(d):
-                return [d[k] >= 0 for k in scalars] + ([d[X] >> np.eye(n)] if scale_free else [])
-
-            prm = {**mats.parameters(), **lmi.scalar_parameters(*self.constants)}
-            return lmi.margin_program(blocks, v, prm, (X,), extra, cap=cap)
-
-        shape = (n, m, p, tuple(self.constants), float(cap), mats.key)
-        prog = lmi.cached_program((*self.key, side, "scale-free" if scale_free else "capped", *shape), build)
-        prog.set(**mats.settable(), **self.constants)
-        return prog
+        return side_program((*self.key, side, n, m, p, tuple(self.constants)), blocks,
+                            lambda: synthesis_variables(n, m, p, scalars, (X, "Fh" if side == "x-side" else "Kh")),
+                            lmi.plant_matrices(plant), self.constants, scalars, X, cap=cap, scale_free=scale_free)
 
     def decide_side(self, plant, side: str, *, cap: float, solver: str) -> dict:
         """Decide a side that is not strictly feasible under the capped normalisation by its scale-free solve:
@@ -346,6 +334,22 @@ def joint_program(plant, key: tuple, blocks, scalars: tuple[str, ...], nonneg: d
         return lmi.margin_program(blocks, synthesis_variables(n, m, p, scalars), prm, ("Q", "R"), extra, cap=cap)
 
     prog = lmi.cached_program((*key, n, m, p, float(cap), mats.key), build)
+    prog.set(**mats.settable(), **constants)
+    return prog
+
+
+def side_program(key: tuple, blocks, variables, mats: lmi.Matrices, constants: dict, nonneg: tuple[str, ...],
+                 X: str, *, cap: float, scale_free: bool) -> lmi.Program:
+    """The program ``max slack`` over ``variables()`` with ``nonneg`` >= 0 and ``X << cap I`` (and ``I << X`` when
+    ``scale_free``), compiled once per ``key``, ``mats`` and ``constants`` set."""
+    def build():
+        def extra(d):
+            return [d[k] >= 0 for k in nonneg] + ([d[X] >> np.eye(d[X].shape[0])] if scale_free else [])
+
+        prm = {**mats.parameters(), **lmi.scalar_parameters(*constants)}
+        return lmi.margin_program(blocks, variables(), prm, (X,), extra, cap=cap)
+
+    prog = lmi.cached_program((*key, "scale-free" if scale_free else "capped", float(cap), mats.key), build)
     prog.set(**mats.settable(), **constants)
     return prog
 

@@ -21,7 +21,7 @@ import numpy as np
 from bench import lmi
 from designs._core import DesignResult, check_choice, check_positive
 from designs._parts import Part, register_estimator
-from designs._separated import joint_result, scalar
+from designs._separated import joint_result, scalar, side_program
 from plants import Constants, Plant
 
 __all__ = ["RajamaniLMI", "ZhangOSL"]
@@ -44,23 +44,12 @@ class _ObserverLMI(Part):
 def _solve_observer(part: "Part", key: tuple, blocks, variables, mats: lmi.Matrices, constants: dict,
                     nonneg: tuple[str, ...], *, what: str, n: int, searched: str) -> tuple[lmi.Program, dict, str]:
     """Solve the LMI ``blocks`` under ``P << cap I``, a marginal verdict again under ``I << P << cap I``."""
-    def build(scale_free: bool):
-        prm = {**mats.parameters(), **lmi.scalar_parameters(*constants)}
-
-        def extra(d):
-            return [d[k] >= 0 for k in nonneg] + ([d["P"] >> np.eye(n)] if scale_free else [])
-
-        return lmi.margin_program(blocks, variables(), prm, ("P",), extra, cap=part.cap)
-
-    key = (*key, float(part.cap), mats.key)
-    prog = lmi.cached_program((*key, "capped"), lambda: build(False))
-    prog.set(**mats.settable(), **constants)
+    prog = side_program(key, blocks, variables, mats, constants, nonneg, "P", cap=part.cap, scale_free=False)
     log = lmi.solve_side(prog, part.solver, n)
     concl = lmi.conclude(prog, what=what, normalisation=f"P << {part.cap:g} I, slack <= 1", searched=searched)
     if concl["status"] != "marginal":
         return prog, concl, log
-    sf = lmi.cached_program((*key, "scale-free"), lambda: build(True))
-    sf.set(**mats.settable(), **constants)
+    sf = side_program(key, blocks, variables, mats, constants, nonneg, "P", cap=part.cap, scale_free=True)
     sf.solve(solver="CLARABEL" if part.solver == "auto" else part.solver,
              solver_opts=lmi.SCS_OPTS if part.solver == "SCS" else None)
     norm = f"I << P << {part.cap:g} I"
