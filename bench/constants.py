@@ -15,6 +15,7 @@ declarations along a simulation.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
@@ -79,10 +80,8 @@ class Knowledge:
         """This knowledge with the declarations named in ``untrusted`` (name -> why) removed."""
         if not untrusted:
             return self
-        c = self.constants
-        qib = not ({"beta", "gamma"} & set(untrusted))
-        consts = Constants(alpha=None if "alpha" in untrusted else c.alpha, rho=None if "rho" in untrusted else c.rho,
-                           beta=c.beta if qib else None, gamma=c.gamma if qib else None, radius=c.radius)
+        qib = {"beta", "gamma"} if {"beta", "gamma"} & set(untrusted) else set()  # both or neither
+        consts = replace(self.constants, **dict.fromkeys({"alpha", "rho"} & set(untrusted) | qib))
         ch = None if "channels" in untrusted else self.channels
         notes = self.notes + tuple(f"{why}: not used by certificates" for why in untrusted.values())
         return Knowledge(consts, ch, notes, {**self.untrusted, **untrusted})
@@ -186,13 +185,10 @@ class ConstantsReport:
         bad = {v.name for v in self.disproved}
         notes = [v.describe("analytic") + ": not used by certificates" for v in self.disproved]
         untrusted = {v.name: "analytic " + v.describe("analytic") for v in self.disproved}
-        kept = {k: getattr(an, k) for k in ("alpha", "rho") if k not in bad}
-        qib_ok = "beta" not in bad and an.beta is not None
         sampled_only = [k for k in ("alpha", "rho", "beta") if self.source.get(k, "").startswith("sampled")]
         if sampled_only:
             notes.append(f"{', '.join(sampled_only)} only sampled (lower bounds): never used by certificates")
-        consts = Constants(**kept, beta=an.beta if qib_ok else None, gamma=an.gamma if qib_ok else None,
-                           radius=an.radius)
+        consts = replace(an, **dict.fromkeys(bad | ({"gamma"} if "beta" in bad else set())))
         narrowing = [v for v in self.channel_violations if NARROWED in v.name]
         slopes = [v for v in self.channel_violations if NARROWED not in v.name]
         ch = plant.channels if not slopes else None
@@ -209,16 +205,11 @@ class ConstantsReport:
     @property
     def trust(self) -> str:
         """One phrase for a results row: where the constants came from and what certificates may use."""
-        parts = []
-        by: dict[str, list[str]] = {}
-        for k in ("alpha", "rho", "beta"):
-            by.setdefault(self.source.get(k, "none"), []).append(k)
-        for src in ("analytic", "sampled", "sampled (analytic disproved)", "unbounded", "none"):
-            if src in by:
-                label = {"sampled": "sampled (lower bounds, not certifying)",
-                         "sampled (analytic disproved)": "analytic DISPROVED by a sample (not certifying)",
-                         "none": "unknown"}.get(src, src)
-                parts.append(f"{'/'.join(by[src])} {label}")
+        labels = {"analytic": "analytic", "sampled": "sampled (lower bounds, not certifying)",
+                  "sampled (analytic disproved)": "analytic DISPROVED by a sample (not certifying)",
+                  "unbounded": "unbounded", "none": "unknown"}
+        by = {src: [k for k in ("alpha", "rho", "beta") if self.source.get(k, "none") == src] for src in labels}
+        parts = [f"{'/'.join(ks)} {labels[src]}" for src, ks in by.items() if ks]
         if self.channel_violations:
             parts.append("channels DISPROVED by a sample (not certifying)")
         if self.used.radius is not None:
@@ -228,8 +219,6 @@ class ConstantsReport:
 
 def _values(f: Callable, X: np.ndarray) -> np.ndarray:
     """``f(X)`` for a batch as real numbers; PlantError naming the state at a complex or non-finite value."""
-    import warnings
-
     raw = np.asarray(f(X.copy()))
     if np.iscomplexobj(raw):
         bad = np.flatnonzero(np.any(raw.imag != 0, axis=0)) if raw.shape == X.shape else []
@@ -307,8 +296,7 @@ def _local_max(f, which: int, gamma: float, x1, x2, radius, n):
     # globally a box keeps an unbounded ratio (a cubic f's) from running to overflow
     box = None if radius is not None else [(-b, b) for b in [1e3 * max(1.0, float(np.abs(z0).max()))] * (2 * n)]
     try:
-        res = minimize(neg, z0, method="L-BFGS-B", bounds=box, options={"maxiter": 200})
-        z = res.x
+        z = minimize(neg, z0, method="L-BFGS-B", bounds=box, options={"maxiter": 200}).x
     except Exception:  # a user f that fails away from the samples: keep the sample
         z = z0
     a, b = unpack(z)
@@ -323,8 +311,7 @@ def _best_pairs(f, x1, x2, gamma, radius, n, n_refine) -> dict[str, tuple[float,
         r = np.where(np.isfinite(ratios[which]), ratios[which], -np.inf)
         order = np.argsort(r)[::-1][:max(n_refine, 1)]
         top = (float(r[order[0]]), x1[:, order[0]], x2[:, order[0]])
-        order = order[:n_refine]
-        for k in order:
+        for k in order[:n_refine]:
             a, b, val = _local_max(f, which, gamma, x1[:, k], x2[:, k], radius, n)
             if val > top[0]:
                 top = (float(val), a, b)
@@ -333,8 +320,7 @@ def _best_pairs(f, x1, x2, gamma, radius, n, n_refine) -> dict[str, tuple[float,
 
 
 def _unbounded(f, x1, x2, gamma) -> dict[str, str]:
-    """Constants whose global estimate grows with the sampled radius: the sup of the ratio over pairs outside
-    ``||x|| >= 10`` is more than :data:`GROWTH_FACTOR` times the one inside ``||x|| <= 1``."""
+    """Constants whose sampled sup at ``||x|| >= 10`` exceeds :data:`GROWTH_FACTOR` times the one at ``||x|| <= 1``."""
     out = {}
     s1, s2 = np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0)
     for name, r in zip(("alpha", "rho", "beta"), _ratios(f, x1, x2, gamma)):
@@ -385,8 +371,7 @@ NARROWED = "narrowed"
 
 
 def _narrowing_check(ch: Channels, rng: np.random.Generator, n_pairs: int, far: float) -> list[Violation]:
-    """Sampled slopes of each channel on ``|z_i| <= r`` against ``Channels.slopes_on(r)``, r on a
-    geometric grid up to the channel's range."""
+    """Sampled slopes of each channel on ``|z_i| <= r`` against ``Channels.slopes_on(r)`` (r up to its range)."""
     if ch.narrow is None:
         return []
     out = []
@@ -403,8 +388,7 @@ def _narrowing_check(ch: Channels, rng: np.random.Generator, n_pairs: int, far: 
 
 def _slope_violations(ch: Channels, i: int, p1: np.ndarray, p2: np.ndarray, Z1: np.ndarray,
                       Z2: np.ndarray) -> list[Violation]:
-    """Channel ``i``'s slopes over the pairs of inputs ``Z1``, ``Z2`` (q, N) against its bounds: a
-    :class:`Violation` per bound broken, with the worst pair."""
+    """Channel ``i``'s slopes over the input pairs ``Z1``, ``Z2`` (q, N): a :class:`Violation` per bound broken."""
     a, b = Z1[i], Z2[i]
     dz = a - b
     with np.errstate(invalid="ignore", divide="ignore"):  # pairs closer than round-off can resolve say nothing
@@ -474,13 +458,11 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
             for k, v in _scalar_violations(plant.f, X[:, inside], X2[:, inside], c.gamma, scalars).items():
                 bad.setdefault(k, "analytic " + v.describe("analytic") + " (along the simulation)")
     far = REACH_FACTOR * reach
-    glob = [k for k in ("channels", *scalars) if k not in bad and
-            (ch.radius if k == "channels" and ch is not None else c.radius) is None
-            and (k != "channels" or ch is not None)]
+    glob = {k: v for k, v in scalars.items() if k not in bad and c.radius is None}
+    glob_channels = ch is not None and ch.radius is None and "channels" not in bad
     checked = f"along the simulation (||x||, ||x_hat|| <= {reach:.3g})"
-    if glob and (checked_on is None or far > checked_on):
-        bad.update(_sampled_far(plant, "channels" in glob, {k: scalars[k] for k in glob if k != "channels"},
-                                c.gamma, far, seed))
+    if (glob or glob_channels) and (checked_on is None or far > checked_on):
+        bad.update(_sampled_far(plant, glob_channels, glob, c.gamma, far, seed))
         checked += f" and sampled on ||x|| <= {far:.3g}"
     return bad, checked
 
@@ -514,14 +496,14 @@ def _finite_instants(n: int, X, XH, max_points: int) -> tuple[np.ndarray, np.nda
 
 
 def _channels_along(plant: Plant, ch, X: np.ndarray, XH: np.ndarray) -> dict[str, str]:
-    """The channels along a trajectory: ``f = G phi(H x)`` at the states and estimates, then the slopes
-    between ``H x`` and ``H x_hat`` and 0; ``{"channels": why}`` when disproved."""
+    """``{"channels": why}`` when ``f = G phi(H x)`` or the slopes (to ``H x_hat`` and 0) fail along a trajectory."""
     P = np.concatenate([X, XH], axis=1)
     P = P[:, _inside(P, ch.radius)]
     if P.shape[1]:
+        fP = _values(plant.f, P)
         with np.errstate(all="ignore"):
-            err = np.abs(ch.apply(P) - _values(plant.f, P))
-        scale = np.maximum(1.0, np.abs(_values(plant.f, P)))
+            err = np.abs(ch.apply(P) - fP)
+        scale = np.maximum(1.0, np.abs(fP))
         worst = np.max(err / scale, axis=0)
         if worst.max() > 1e-9:
             j = int(np.argmax(worst))
@@ -644,7 +626,7 @@ def _violations(stated: Constants | None, best: dict, names: tuple[str, ...]) ->
     """The constants ``names`` of ``stated`` that the best sampled pair of each exceeds, with the pair."""
     out = []
     for name in names:
-        value = getattr(stated, name) if stated is not None else None
+        value = getattr(stated, name, None)
         val, a, b = best[name]
         if value is not None and _exceeds(val, value):
             out.append(Violation(name, value, val, tuple(a), tuple(b)))
@@ -656,7 +638,7 @@ def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded
     """The used constants and their sources (:attr:`ConstantsReport.used`)."""
     valid_kw, source = {}, {}
     for name in ("alpha", "rho", "beta"):
-        av = getattr(analytic, name) if analytic is not None else None
+        av = getattr(analytic, name, None)
         if av is not None and name not in bad:
             valid_kw[name], source[name] = av, "analytic"
         elif av is not None:
@@ -665,9 +647,7 @@ def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded
             valid_kw[name], source[name] = None, "unbounded"
         else:
             valid_kw[name], source[name] = getattr(sampled, name), "sampled"
-    if valid_kw["beta"] is None:
-        return Constants(**valid_kw, radius=radius), source
-    return Constants(**valid_kw, gamma=gamma, radius=radius), source
+    return Constants(**valid_kw, gamma=None if valid_kw["beta"] is None else gamma, radius=radius), source
 
 
 def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine) -> list[Violation]:
@@ -679,18 +659,12 @@ def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_r
         crng = np.random.default_rng([seed, 1])
         x1, x2 = _random_pairs(crng, n, n_samples, c_radius, sampled_range(plant))
         best = _best_pairs(plant.f, x1, x2, gamma, c_radius, n, n_refine)
-    violations = _violations(claimed, best, ("alpha", "rho"))
-    if claimed.beta is not None:  # checked at the claimed gamma
-        if claimed.gamma == gamma:
-            val, a, b = best["beta"]
-        else:
-            r = _ratios(plant.f, x1, x2, claimed.gamma)[2]
-            r = np.where(np.isfinite(r), r, -np.inf)
-            k = int(np.argmax(r))
-            a, b, val = _local_max(plant.f, 2, claimed.gamma, x1[:, k], x2[:, k], c_radius, n)
-        if _exceeds(val, claimed.beta):
-            violations.append(Violation("beta", claimed.beta, val, tuple(a), tuple(b)))
-    return violations
+    if claimed.beta is not None and claimed.gamma != gamma:  # beta is checked at the claimed gamma
+        r = _ratios(plant.f, x1, x2, claimed.gamma)[2]
+        k = int(np.argmax(np.where(np.isfinite(r), r, -np.inf)))
+        a, b, val = _local_max(plant.f, 2, claimed.gamma, x1[:, k], x2[:, k], c_radius, n)
+        best = {**best, "beta": (val, a, b)}
+    return _violations(claimed, best, ("alpha", "rho", "beta"))
 
 
 def resolve_constants(report: ConstantsReport, *, use_claimed: bool = False) -> Constants:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Callable, NamedTuple
@@ -109,8 +110,6 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     """
     import cvxpy as cp
 
-    import warnings
-
     check_deadline("before an SDP solve")
     granted = remaining_time()
     if granted is not None and solver.upper() in _TIME_LIMIT_OPTION:
@@ -129,16 +128,14 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     if granted is not None and wall >= 0.9 * granted:
         raise DeadlineExceeded(f"an SDP solve ({solver}, {wall:.3g} s of the {granted:.3g} s left)")
     check_deadline(f"an SDP solve ({solver}, {wall:.3g} s)")
-    comp = float(getattr(problem, "compilation_time", None) or 0.0)
-    comp = min(comp, wall)
+    comp = min(float(getattr(problem, "compilation_time", None) or 0.0), wall)
     val = problem.value if status in ("optimal", "optimal_inaccurate") else float("nan")
     stats = getattr(problem, "solver_stats", None) if status != "solver_error" else None
     own = min(float(getattr(stats, "solve_time", None) or 0.0), wall - comp)
     out = SolveOutcome(status, comp, wall - comp, err, float(val) if val is not None else float("nan"), own)
     _tally["n"] += 1
-    _tally["compile_s"] += out.compile_s
-    _tally["solve_s"] += out.solve_s
-    _tally["solver_s"] += out.solver_s
+    for k in ("compile_s", "solve_s", "solver_s"):
+        _tally[k] += getattr(out, k)
     return out
 
 
@@ -165,8 +162,7 @@ def log_search(
     n_grid: int = 9,
     n_refine: int = 5,
 ) -> tuple[float, float]:
-    """Maximise ``objective`` over ``[lo, hi]`` on a log grid, then golden-section refine; return the
-    best point tried and its value (NaN counts as ``-inf``)."""
+    """The best ``(x, objective(x))`` tried on a log grid of ``[lo, hi]``, golden-section refined (NaN: ``-inf``)."""
     points: list[tuple[float, float]] = []
 
     def ev(x: float) -> float:
@@ -207,8 +203,7 @@ def assemble(blocks_fn: Callable[[dict], list], values: dict, *, numeric: bool):
 
 
 class BestPoint(NamedTuple):
-    """The best solution a :class:`Program` has seen: objective, variable and parameter values by
-    name, the solver's status."""
+    """The best solution a :class:`Program` has seen: objective, variable and parameter values, status."""
 
     value: float
     variables: dict
@@ -426,16 +421,14 @@ def digest(raw) -> str:
 
 
 class Pattern:
-    """A matrix of fixed sparsity pattern ``mask`` in a cvxpy program: a Parameter ``name + ".nz"`` of its
-    nonzeros, placed. ``expr`` (parameter-affine, so the program stays DPP) goes into the LMI blocks;
-    :meth:`set` and :meth:`value` take and give whole matrices."""
+    """A matrix of sparsity pattern ``mask`` in a program: ``expr``, its nonzeros' Parameter placed (DPP)."""
 
     def __init__(self, name: str, mask: np.ndarray) -> None:
         import cvxpy as cp
         import scipy.sparse as sp
 
         mask = np.asarray(mask, dtype=bool)
-        self.name, self.shape = name, mask.shape
+        self.name, self.shape, self.mask = name, mask.shape, mask
         self.rows, self.cols = np.nonzero(mask)
         nnz = self.rows.size
         r = mask.shape[0]
@@ -448,9 +441,7 @@ class Pattern:
         M = np.asarray(M, dtype=float)
         if M.shape != self.shape:
             raise ValueError(f"{self.name}: expected shape {self.shape}, got {M.shape}")
-        outside = M.copy()
-        outside[self.rows, self.cols] = 0.0
-        if np.any(outside != 0.0):
+        if np.any(M[~self.mask] != 0.0):
             raise ValueError(f"{self.name}: nonzero entries outside the sparsity pattern the program was built for")
         self.param.value = M[self.rows, self.cols]
 
@@ -474,25 +465,15 @@ class Matrices:
 
     @property
     def key(self) -> tuple:
-        out = []
-        for k, M in self.values.items():
-            if k in self.dense:
-                out.append((k, "parameter", M.shape))
-            else:
-                out.append((k, "pattern", M.shape, digest(M != 0)))
-        return tuple(out)
+        return tuple((k, "parameter", M.shape) if k in self.dense else (k, "pattern", M.shape, digest(M != 0))
+                     for k, M in self.values.items())
 
     def parameters(self) -> dict:
         """A Parameter, :class:`Pattern` or (all zero) the array itself, by name."""
         import cvxpy as cp
 
-        out = {}
-        for k, M in self.values.items():
-            if k in self.dense:
-                out[k] = cp.Parameter(M.shape, name=k)
-            else:
-                out[k] = Pattern(k, M != 0) if np.any(M != 0) else M
-        return out
+        return {k: cp.Parameter(M.shape, name=k) if k in self.dense else Pattern(k, M != 0) if np.any(M != 0) else M
+                for k, M in self.values.items()}
 
     def settable(self) -> dict:
         """Values for :meth:`Program.set` (every matrix that is not all zero)."""

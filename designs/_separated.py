@@ -108,55 +108,21 @@ class YoungForm:
     e_scalars: tuple[str, ...]
     constants: dict
 
-    def _parameters(self, mats: lmi.Matrices) -> dict:
-        return {**mats.parameters(), **lmi.scalar_parameters(*self.constants)}
-
     def joint_program(self, plant, *, cap: float, phi_name: str) -> lmi.Program:
         """The joint program (compiled once per shape), plant and constants set; ``phi`` left to the caller."""
-        import cvxpy as cp
-
-        n, m, p = plant.n, plant.m, plant.p
-        mats = lmi.plant_matrices(plant)
         scalars = ("kappa", *self.e_scalars)
-
-        def build():
-            v = synthesis_variables(n, m, p, scalars)
-            prm = {"phi": cp.Parameter(nonneg=True, name=phi_name),
-                   "iphi": cp.Parameter(nonneg=True, name=f"inv_{phi_name}"), **self._parameters(mats)}
-            return lmi.margin_program(self.blocks[0], v, prm, ("Q", "R"), lambda d: [d[k] >= 0 for k in scalars],
-                                      cap=cap)
-
-        prog = lmi.cached_program((*self.key, "joint", n, m, p, float(cap), mats.key), build)
-        prog.set(**mats.settable(), **self.constants)
-        return prog
+        return joint_program(plant, (*self.key, "joint"), self.blocks[0], scalars,
+                             {"phi": phi_name, "iphi": f"inv_{phi_name}"}, self.constants,
+                             lambda d: [d[k] >= 0 for k in scalars], cap=cap)
 
     def side_program(self, plant, side: str, *, cap: float, scale_free: bool = False) -> lmi.Program:
         """The x-side or e-side program, compiled once per shape; ``scale_free`` adds ``I << Q`` (``I << R``)."""
-        import cvxpy as cp
-
         n, m, p = plant.n, plant.m, plant.p
-        mats = lmi.plant_matrices(plant)
         X = SIDE_MATRIX[side]
-
-        def build():
-            if side == "x-side":
-                v = {"Q": cp.Variable((n, n), symmetric=True), "Fh": cp.Variable((n, m)), "kappa": cp.Variable(),
-                     "slack": cp.Variable()}
-                scalars, blocks = ("kappa",), self.blocks[1]
-            else:
-                v = {"R": cp.Variable((n, n), symmetric=True), "Kh": cp.Variable((p, n)), "slack": cp.Variable()}
-                v.update({k: cp.Variable() for k in self.e_scalars})
-                scalars, blocks = self.e_scalars, self.blocks[2]
-
-            def extra(d):
-                return [d[k] >= 0 for k in scalars] + ([d[X] >> np.eye(n)] if scale_free else [])
-
-            return lmi.margin_program(blocks, v, self._parameters(mats), (X,), extra, cap=cap)
-
-        shape = (n, m, p, tuple(self.constants), float(cap), mats.key)
-        prog = lmi.cached_program((*self.key, side, "scale-free" if scale_free else "capped", *shape), build)
-        prog.set(**mats.settable(), **self.constants)
-        return prog
+        scalars, blocks = (("kappa",), self.blocks[1]) if side == "x-side" else (self.e_scalars, self.blocks[2])
+        return side_program((*self.key, side, n, m, p, tuple(self.constants)), blocks,
+                            lambda: synthesis_variables(n, m, p, scalars, (X, "Fh" if side == "x-side" else "Kh")),
+                            lmi.plant_matrices(plant), self.constants, scalars, X, cap=cap, scale_free=scale_free)
 
     def decide_side(self, plant, side: str, *, cap: float, solver: str) -> dict:
         """Decide a side that is not strictly feasible under the capped normalisation by its scale-free solve:
@@ -209,10 +175,7 @@ def recombine(
     lx, le = lmi.max_eig(X), lmi.max_eig(E)
     out.update(x_margin=lx, e_margin=le)
     failed = _failed_sides(xprog, eprog, X, E, lx, le, decide)
-    if failed is not None:
-        out.update(failed)
-        return out
-    out.update(_joint_verdict(B, xv, ev, e_keys, joint_blocks, lx, le))
+    out.update(failed if failed is not None else _joint_verdict(B, xv, ev, e_keys, joint_blocks, lx, le))
     return out
 
 
@@ -245,14 +208,10 @@ def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, e_keys: tuple[str, ...], j
     qmin = lmi.min_eig(xv["Q"])
     Q, Fh = xv["Q"], xv["Fh"]
     BF = B @ np.linalg.solve(Q, Fh).T  # B Fh' Q^{-1}
-    G = BF @ Q @ BF.T  # = B Fh' Q^{-1} Fh B'
-    gmax = lmi.max_eig(G)
+    gmax = lmi.max_eig(BF @ Q @ BF.T)  # lmax(B Fh' Q^{-1} Fh B')
     phi = 0.5 * abs(lx) / gmax if gmax > 0 else 1.0
     s = 2.0 / (phi * qmin * abs(le))
-    vals = {**xv, **ev}
-    for k in e_keys:
-        vals[k] = ev[k] * s
-    vals.update(phi=phi, iphi=1.0 / phi)
+    vals = {**xv, **ev, **{k: ev[k] * s for k in e_keys}, "phi": phi, "iphi": 1.0 / phi}
     M = lmi.assemble(joint_blocks, vals, numeric=True)
     M = (M + M.T) / 2
     diag = np.diag(M)
@@ -347,20 +306,52 @@ def settle_joint(plant, form: YoungForm, concl: dict, *, cap: float, solver: str
 
 
 # -- helpers shared by the corrected Theorem 1 and Corollary 1 ---------------------------------
-def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...]) -> dict:
-    """cvxpy variables Q, R (symmetric), Fh (n x m), Kh (p x n), the margin ``slack`` and ``scalars``."""
+def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...],
+                        matrices: tuple[str, ...] = ("Q", "R", "Fh", "Kh")) -> dict:
+    """cvxpy variables ``matrices`` among Q, R (symmetric), Fh (n x m), Kh (p x n), the margin ``slack`` and
+    ``scalars``."""
     import cvxpy as cp
 
-    v = {
-        "Q": cp.Variable((n, n), symmetric=True, name="Q"),
-        "R": cp.Variable((n, n), symmetric=True, name="R"),
-        "Fh": cp.Variable((n, m), name="Fhat"),
-        "Kh": cp.Variable((p, n), name="Khat"),
-        "slack": cp.Variable(name="slack"),
-    }
-    for s in scalars:
-        v[s] = cp.Variable(name=s)
+    shapes = {"Q": (n, n), "R": (n, n), "Fh": (n, m), "Kh": (p, n)}
+    v = {k: cp.Variable(shapes[k], symmetric=k in SIDE_MATRIX.values(), name=k) for k in matrices}
+    v.update({s: cp.Variable(name=s) for s in ("slack", *scalars)})
     return v
+
+
+def joint_program(plant, key: tuple, blocks, scalars: tuple[str, ...], nonneg: dict[str, str], constants: dict,
+                  extra, *, cap: float, signed: tuple[str, ...] = ()) -> lmi.Program:
+    """A program over :func:`synthesis_variables` with ``scalars``, ``Q`` and ``R`` positive (compiled once per
+    ``key`` and shape), the plant and ``constants`` set; the Parameters ``nonneg`` (key -> cvxpy name,
+    nonnegative) and ``signed`` are left to the caller."""
+    import cvxpy as cp
+
+    n, m, p = plant.n, plant.m, plant.p
+    mats = lmi.plant_matrices(plant)
+
+    def build():
+        prm = {k: cp.Parameter(nonneg=True, name=name) for k, name in nonneg.items()}
+        prm.update({**mats.parameters(), **lmi.scalar_parameters(*signed, *constants)})
+        return lmi.margin_program(blocks, synthesis_variables(n, m, p, scalars), prm, ("Q", "R"), extra, cap=cap)
+
+    prog = lmi.cached_program((*key, n, m, p, float(cap), mats.key), build)
+    prog.set(**mats.settable(), **constants)
+    return prog
+
+
+def side_program(key: tuple, blocks, variables, mats: lmi.Matrices, constants: dict, nonneg: tuple[str, ...],
+                 X: str, *, cap: float, scale_free: bool) -> lmi.Program:
+    """The program ``max slack`` over ``variables()`` with ``nonneg`` >= 0 and ``X << cap I`` (and ``I << X`` when
+    ``scale_free``), compiled once per ``key``, ``mats`` and ``constants`` set."""
+    def build():
+        def extra(d):
+            return [d[k] >= 0 for k in nonneg] + ([d[X] >> np.eye(d[X].shape[0])] if scale_free else [])
+
+        prm = {**mats.parameters(), **lmi.scalar_parameters(*constants)}
+        return lmi.margin_program(blocks, variables(), prm, (X,), extra, cap=cap)
+
+    prog = lmi.cached_program((*key, "scale-free" if scale_free else "capped", float(cap), mats.key), build)
+    prog.set(**mats.settable(), **constants)
+    return prog
 
 
 def paper_gains_from(vals: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -375,14 +366,16 @@ def scalar(vals: dict, k: str) -> float:
     return float(v) if v is not None else float("nan")
 
 
-def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.0, 0.0, 0)) -> DesignResult:
-    """The :class:`DesignResult` of a concluded joint program, with ``cost`` of other solves added."""
+def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.0, 0.0, 0), *,
+                 gains: tuple | None = None, log: str = "") -> DesignResult:
+    """The :class:`DesignResult` of a concluded program, with ``cost`` of other solves added; when feasible, the
+    gains ``(K, F)`` (default: :func:`paper_gains_from`); ``log``: the solvers tried (:func:`bench.lmi.solve_side`)."""
     K = F = None
     if concl["status"] == "feasible":
-        K, F = paper_gains_from(prog.values())
+        K, F = gains or paper_gains_from(prog.values())
     return DesignResult(
         status=concl["status"], reason=concl["reason"], route="sdp", K=K, F=F, solver=prog.solver,
-        solver_status=concl["solver_status"], compile_s=prog.compile_s + cost[0], solve_s=prog.solve_s + cost[1],
+        solver_status=log or concl["solver_status"], compile_s=prog.compile_s + cost[0], solve_s=prog.solve_s + cost[1],
         n_solves=prog.n_solves + cost[2], margin=concl["margin"], lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
         params={**params, "slack": concl.get("slack", float("nan"))},
     )

@@ -15,7 +15,7 @@ import numpy as np
 from bench import lmi
 from bench.registry import register_design
 from designs._core import Design, DesignResult, check_positive, check_values_in
-from designs._separated import YoungForm, joint_result, scalar, synthesis_variables, young_layout
+from designs._separated import YoungForm, joint_program, joint_result, scalar, young_layout
 from designs._young import YoungDesign
 from plants import Constants, Plant
 
@@ -74,8 +74,7 @@ class Cor1(YoungDesign):
         return {"phi2": phi, **self._multipliers(vals, constants), "cap": self.cap}
 
     def separated_params(self, vals: dict, constants: Constants) -> dict:
-        m = self._multipliers(vals, constants)
-        return {"kappa": m["kappa"], "mu2": m["mu2"], "alpha": constants.alpha, "mu1": m["mu1"]}
+        return self._multipliers(vals, constants)
 
     @staticmethod
     def _multipliers(vals: dict, constants: Constants) -> dict:
@@ -113,12 +112,7 @@ class Cor1Printed(Design):
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve Corollary 1 as printed for each xi; report the best margin."""
-        import cvxpy as cp
-
-        n, m, p = plant.n, plant.m, plant.p
-        I, Z = np.eye(n), np.zeros((n, n))
-        a2 = constants.alpha**2
-        mats = lmi.plant_matrices(plant)
+        I, Z = np.eye(plant.n), np.zeros((plant.n, plant.n))
 
         def blocks(d):
             A, B = d["A"], d["B"]
@@ -138,28 +132,17 @@ class Cor1Printed(Design):
                 [Z, I, Z, Z, Z, Z, -d["beta2"] * I],
             ]
 
-        def build():
-            v = synthesis_variables(n, m, p, ("mu1", "mu2", "alpha2", "beta2"))
-            prm = {"xi_a2": cp.Parameter(nonneg=True, name="xi_over_alpha2"),
-                   "mu1_max": cp.Parameter(nonneg=True, name="mu1_max"),
-                   **mats.parameters(), **lmi.scalar_parameters("a2")}
+        def extra(d):
+            slack = d["slack"]
+            return [d["Q"] >> d["alpha2"] * I, d["alpha2"] >= slack, d["beta2"] >= slack,
+                    2 * d["alpha2"] - d["beta2"] >= slack, d["mu1"] >= slack, d["mu1"] <= d["mu1_max"] - slack,
+                    d["mu2"] >= slack]
 
-            def extra(d):
-                slack = d["slack"]
-                return [d["Q"] >> d["alpha2"] * I, d["alpha2"] >= slack, d["beta2"] >= slack,
-                        2 * d["alpha2"] - d["beta2"] >= slack, d["mu1"] >= slack, d["mu1"] <= d["mu1_max"] - slack,
-                        d["mu2"] >= slack]
-
-            return lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
-
-        prog = lmi.cached_program(("cor1.printed", n, m, p, float(self.cap), mats.key), build)
-        prog.set(**mats.settable(), a2=a2)
-
-        def obj(xi):
-            return prog.solve(xi_a2=xi / a2, mu1_max=min(1.0, 1.0 / xi))
-
-        vals = [(obj(float(x)), float(x)) for x in self.xis]
-        best_xi = max(vals, key=lambda vx: np.nan_to_num(vx[0], nan=-np.inf))[1]
+        a2 = constants.alpha**2
+        prog = joint_program(plant, ("cor1.printed",), blocks, ("mu1", "mu2", "alpha2", "beta2"),
+                             {"xi_a2": "xi_over_alpha2", "mu1_max": "mu1_max"}, {"a2": a2}, extra, cap=self.cap)
+        best_xi = max(map(float, self.xis),
+                      key=lambda xi: np.nan_to_num(prog.solve(xi_a2=xi / a2, mu1_max=min(1.0, 1.0 / xi)), nan=-np.inf))
         prog.restore_best()
         concl = lmi.conclude(prog, what="Corollary 1 as printed (Remarks 2-3)",
                               normalisation=f"the normalisation Q, R << {self.cap:g} I, slack <= 1",

@@ -21,7 +21,7 @@ import numpy as np
 from bench import lmi
 from designs._core import DesignResult, check_choice, check_positive
 from designs._parts import Part, register_estimator
-from designs._separated import scalar
+from designs._separated import joint_result, scalar, side_program
 from plants import Constants, Plant
 
 __all__ = ["RajamaniLMI", "ZhangOSL"]
@@ -41,19 +41,15 @@ class _ObserverLMI(Part):
         check_choice("solver", self.solver, ("auto", "CLARABEL", "SCS"))
 
 
-def _solve_observer(part: "Part", key: tuple, build, settable: dict, *, what: str, n: int,
-                    searched: str) -> tuple[lmi.Program, dict, str]:
-    """Solve an observer LMI built by ``build(scale_free)`` under ``P << cap I``; a marginal verdict is decided
-    again under the scale-free ``I << P << cap I`` (as :mod:`designs._separated` does for its sides).
-    """
-    prog = lmi.cached_program((*key, "capped"), lambda: build(False))
-    prog.set(**settable)
+def _solve_observer(part: "Part", key: tuple, blocks, variables, mats: lmi.Matrices, constants: dict,
+                    nonneg: tuple[str, ...], *, what: str, n: int, searched: str) -> tuple[lmi.Program, dict, str]:
+    """Solve the LMI ``blocks`` under ``P << cap I``, a marginal verdict again under ``I << P << cap I``."""
+    prog = side_program(key, blocks, variables, mats, constants, nonneg, "P", cap=part.cap, scale_free=False)
     log = lmi.solve_side(prog, part.solver, n)
     concl = lmi.conclude(prog, what=what, normalisation=f"P << {part.cap:g} I, slack <= 1", searched=searched)
     if concl["status"] != "marginal":
         return prog, concl, log
-    sf = lmi.cached_program((*key, "scale-free"), lambda: build(True))
-    sf.set(**settable)
+    sf = side_program(key, blocks, variables, mats, constants, nonneg, "P", cap=part.cap, scale_free=True)
     sf.solve(solver="CLARABEL" if part.solver == "auto" else part.solver,
              solver_opts=lmi.SCS_OPTS if part.solver == "SCS" else None)
     norm = f"I << P << {part.cap:g} I"
@@ -64,15 +60,6 @@ def _solve_observer(part: "Part", key: tuple, build, settable: dict, *, what: st
             f"cond(P) > {part.cap:g} (under P << {part.cap:g} I alone the best margin shrinks to 0 with the "
             f"variables: max eig {concl['margin']:.3g})")}
     return prog, concl, log
-
-
-def _part_from(prog: lmi.Program, concl: dict, K, params: dict, log: str = "") -> DesignResult:
-    return DesignResult(status=concl["status"], reason=concl["reason"], route="sdp",
-                        K=K if concl["status"] == "feasible" else None,
-                        solver=prog.solver, solver_status=log or concl["solver_status"], compile_s=prog.compile_s,
-                        solve_s=prog.solve_s, n_solves=prog.n_solves, margin=concl["margin"],
-                        lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
-                        params={**params, "slack": concl.get("slack", float("nan"))})
 
 
 @register_estimator("rajamani")
@@ -99,20 +86,17 @@ class RajamaniLMI(_ObserverLMI):
             S = A.T @ P + P @ A - C.T @ W.T - W @ C + d["eps"] * d["a2"] * I + 2 * lam * P
             return [[S, P], [P, -d["eps"] * I]]
 
-        def build(scale_free: bool):
-            v = {"P": cp.Variable((n, n), symmetric=True), "W": cp.Variable((n, p)), "eps": cp.Variable(),
-                 "slack": cp.Variable()}
-            prm = {**mats.parameters(), **lmi.scalar_parameters("a2")}
-            return lmi.margin_program(blocks, v, prm, ("P",),
-                                      lambda d: [d["eps"] >= 0] + ([d["P"] >> I] if scale_free else []), cap=self.cap)
+        def variables():
+            return {"P": cp.Variable((n, n), symmetric=True), "W": cp.Variable((n, p)), "eps": cp.Variable(),
+                    "slack": cp.Variable()}
 
         mats = lmi.matrices(A=plant.A, C=plant.C)
-        prog, concl, log = _solve_observer(self, ("rajamani", n, p, lam, float(self.cap), mats.key), build,
-                                           {**mats.settable(), "a2": a2}, what="Rajamani LMI observer", n=n,
-                                           searched=f"with decay {lam:g}")
+        prog, concl, log = _solve_observer(self, ("rajamani", n, p, lam), blocks, variables, mats, {"a2": a2}, ("eps",),
+                                           what="Rajamani LMI observer", n=n, searched=f"with decay {lam:g}")
         vals = prog.values()
         K = np.linalg.solve(vals["P"], vals["W"]) if concl["status"] == "feasible" else None
-        return _part_from(prog, concl, K, {"alpha": constants.alpha, "decay": lam, "eps": scalar(vals, "eps")}, log)
+        return joint_result(prog, concl, {"alpha": constants.alpha, "decay": lam, "eps": scalar(vals, "eps")},
+                            gains=(K, None), log=log)
 
 
 @register_estimator("zhang_osl")
@@ -148,23 +132,19 @@ class ZhangOSL(_ObserverLMI):
             X = P + ((d["gamma"] * d["eps2"] - d["eps1"]) / 2) * I
             return [[S, X], [X.T, -d["eps2"] * I]]
 
-        def build(scale_free: bool):
-            v = {"P": cp.Variable((n, n), symmetric=True), "sigma": cp.Variable(), "eps1": cp.Variable(),
-                 "eps2": cp.Variable(), "slack": cp.Variable()}
-            # C'C is one parameter: sigma * (C' C) with C a parameter would not be DPP
-            prm = {**mats.parameters(), **lmi.scalar_parameters("rho", "beta", "gamma")}
-            return lmi.margin_program(
-                blocks, v, prm, ("P",),
-                lambda d: [d["sigma"] >= 0, d["eps1"] >= 0, d["eps2"] >= 0] + ([d["P"] >> I] if scale_free else []),
-                cap=self.cap)
+        def variables():
+            return {"P": cp.Variable((n, n), symmetric=True), "sigma": cp.Variable(), "eps1": cp.Variable(),
+                    "eps2": cp.Variable(), "slack": cp.Variable()}
 
+        # C'C is one parameter: sigma * (C' C) with C a parameter would not be DPP
         mats = lmi.matrices(A=plant.A, CtC=C.T @ C)
-        prog, concl, log = _solve_observer(self, ("zhang_osl", n, lam, float(self.cap), mats.key), build,
-                                           {**mats.settable(), "rho": rho, "beta": beta, "gamma": gamma},
+        prog, concl, log = _solve_observer(self, ("zhang_osl", n, lam), blocks, variables, mats,
+                                           {"rho": rho, "beta": beta, "gamma": gamma}, ("sigma", "eps1", "eps2"),
                                            what="Zhang OSL LMI observer", n=n, searched=f"with decay {lam:g}")
         vals = prog.values()
         K = None
         if concl["status"] == "feasible":
             K = (float(vals["sigma"]) / 2) * np.linalg.solve(vals["P"], C.T)
         sc = {k: scalar(vals, k) for k in ("sigma", "eps1", "eps2")}
-        return _part_from(prog, concl, K, {"rho": rho, "beta": beta, "gamma": gamma, "decay": lam, **sc}, log)
+        return joint_result(prog, concl, {"rho": rho, "beta": beta, "gamma": gamma, "decay": lam, **sc},
+                            gains=(K, None), log=log)

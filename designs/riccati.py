@@ -34,14 +34,11 @@ __all__ = ["RHRiccati"]
 
 def rh_solve(A: np.ndarray, C: np.ndarray, alpha: float, eps: float) -> tuple[np.ndarray | None, str]:
     """Solve the Raghavan-Hedrick ARE for one eps; returns (P, "") or (None, why)."""
-    from scipy.linalg import solve_continuous_are
+    from scipy.linalg import block_diag, solve_continuous_are
 
     n, p = A.shape[0], C.shape[0]
     Bb = np.hstack([C.T, np.eye(n)]) if alpha > 0 else C.T
-    if alpha > 0:
-        R = np.block([[eps * np.eye(p), np.zeros((p, n))], [np.zeros((n, p)), -np.eye(n) / alpha**2]])
-    else:
-        R = eps * np.eye(p)
+    R = block_diag(eps * np.eye(p), -np.eye(n) / alpha**2) if alpha > 0 else eps * np.eye(p)
     try:
         P = solve_continuous_are(A.T, Bb, (1 + eps) * np.eye(n), R)
     except (np.linalg.LinAlgError, ValueError) as exc:

@@ -15,8 +15,8 @@ import numpy as np
 from bench import lmi
 from bench.registry import register_design
 from designs._core import Design, DesignError, DesignResult, check_int, check_positive, check_range, check_values_in
-from designs._separated import (YoungForm, append_schur_column, joint_result, scalar, state_feedback_block,
-                                synthesis_variables, young_layout)
+from designs._separated import (YoungForm, append_schur_column, joint_program, joint_result, scalar,
+                                state_feedback_block, young_layout)
 from designs._young import YoungDesign
 from plants import Constants, Plant
 
@@ -128,11 +128,7 @@ class Thm1(YoungDesign):
     def _program_fixed_eps(self, plant: Plant, c: Constants, schur: bool) -> lmi.Program:
         """The fixed-eps program for gamma < 0 (compiled once per shape and Schur flag), plant and
         constants set; phi1, eta2, two_eps2 (and inv_eta1) are left to the caller."""
-        import cvxpy as cp
-
-        n, m, p = plant.n, plant.m, plant.p
-        I, Z = np.eye(n), np.zeros((n, n))
-        mats = lmi.plant_matrices(plant)
+        I, Z = np.eye(plant.n), np.zeros((plant.n, plant.n))
 
         def blocks(d):
             B, Q, Fh = d["B"], d["Q"], d["Fh"]
@@ -149,33 +145,18 @@ class Thm1(YoungDesign):
             # eta1 Q Q with eta1 > 0; for eta1 <= 0 the term is <= 0 and is dropped
             return append_schur_column(rows, Q, -d["inv_eta1"] * I) if schur else rows
 
-        def build():
-            v = synthesis_variables(n, m, p, ("eps3", "eps4"))
-            prm = {
-                "phi": cp.Parameter(nonneg=True, name="phi1"),
-                "iphi": cp.Parameter(nonneg=True, name="inv_phi1"),
-                "eta2": cp.Parameter(name="eta2"),
-                "two_eps2": cp.Parameter(nonneg=True, name="two_eps2"),
-                **mats.parameters(),
-                **lmi.scalar_parameters("rho", "beta", "gamma"),
-            }
-            if schur:
-                prm["inv_eta1"] = cp.Parameter(nonneg=True, name="inv_eta1")
-
-            def extra(d):
-                return [d["eps3"] >= 0, d["eps4"] >= 0]
-
-            return lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
-
-        prog = lmi.cached_program(("thm1.fixed_eps", n, m, p, schur, float(self.cap), mats.key), build)
-        prog.set(**mats.settable(), rho=c.rho, beta=c.beta, gamma=c.gamma)
-        return prog
+        nonneg = {"phi": "phi1", "iphi": "inv_phi1", "two_eps2": "two_eps2"}
+        if schur:
+            nonneg["inv_eta1"] = "inv_eta1"
+        return joint_program(plant, ("thm1.fixed_eps", schur), blocks, ("eps3", "eps4"), nonneg,
+                             {"rho": c.rho, "beta": c.beta, "gamma": c.gamma},
+                             lambda d: [d["eps3"] >= 0, d["eps4"] >= 0], cap=self.cap, signed=("eta2",))
 
     def _design_fixed_eps(self, plant: Plant, c: Constants) -> DesignResult:
         """The fixed-eps form (gamma < 0): eps2 on a log grid, phi1 searched at each."""
         progs: dict[bool, lmi.Program] = {}
         eps1 = float(self.eps1)
-        best = (-np.inf, None, None, None)
+        best = (-np.inf, None, None, None, None)
         for eps2 in np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), 5):
             eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
             schur = eta1 > 0
@@ -190,10 +171,9 @@ class Thm1(YoungDesign):
                 return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi, **fixed)
 
             phi, val, _ = self._search_phi(obj, n_grid=7, n_refine=3)
-            if val > best[0] or best[3] is None:
-                best = (val, eps2, phi, prog)
-        _, eps2, phi, prog = best
-        eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
+            if val > best[0] or best[4] is None:
+                best = (val, eps2, eta1, phi, prog)
+        _, eps2, eta1, phi, prog = best
         prog.restore_best()
         prog.compile_s = sum(p.compile_s for p in progs.values())
         prog.solve_s = sum(p.solve_s for p in progs.values())
@@ -245,11 +225,7 @@ class Thm1Printed(Design):
     def _program(self, plant: Plant, c: Constants) -> lmi.Program:
         """The printed program (compiled once per shape), plant and constants set; psi, zeta and
         two_eps2 are left to the caller."""
-        import cvxpy as cp
-
-        n, m, p = plant.n, plant.m, plant.p
-        I, Z = np.eye(n), np.zeros((n, n))
-        mats = lmi.plant_matrices(plant)
+        I, Z = np.eye(plant.n), np.zeros((plant.n, plant.n))
 
         def blocks(d):
             A, B = d["A"], d["B"]
@@ -270,22 +246,14 @@ class Thm1Printed(Design):
                 [Z, Z, I, Z, Z, Z, Z, -d["zeta"] * I],
             ]
 
-        def build():
-            v = synthesis_variables(n, m, p, ("eps3", "eps4", "alpha1", "beta1"))
-            prm = {"psi": cp.Parameter(nonneg=True, name="psi"), "zeta": cp.Parameter(nonneg=True, name="zeta"),
-                   "two_eps2": cp.Parameter(nonneg=True, name="two_eps2"),
-                   **mats.parameters(), **lmi.scalar_parameters("rho", "beta", "gamma")}
+        def extra(d):
+            slack = d["slack"]
+            return [d["Q"] >> d["alpha1"] * I, d["alpha1"] >= slack, d["beta1"] >= slack,
+                    2 * d["alpha1"] - d["beta1"] >= slack, d["eps3"] >= 0, d["eps4"] >= 0]
 
-            def extra(d):
-                slack = d["slack"]
-                return [d["Q"] >> d["alpha1"] * I, d["alpha1"] >= slack, d["beta1"] >= slack,
-                        2 * d["alpha1"] - d["beta1"] >= slack, d["eps3"] >= 0, d["eps4"] >= 0]
-
-            return lmi.margin_program(blocks, v, prm, ("Q", "R"), extra, cap=self.cap)
-
-        prog = lmi.cached_program(("thm1.printed", n, m, p, float(self.cap), mats.key), build)
-        prog.set(**mats.settable(), rho=c.rho, beta=c.beta, gamma=c.gamma)
-        return prog
+        return joint_program(plant, ("thm1.printed",), blocks, ("eps3", "eps4", "alpha1", "beta1"),
+                             {"psi": "psi", "zeta": "zeta", "two_eps2": "two_eps2"},
+                             {"rho": c.rho, "beta": c.beta, "gamma": c.gamma}, extra, cap=self.cap)
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve Theorem 1 as printed, or explain why it cannot be satisfied."""
