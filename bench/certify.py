@@ -322,19 +322,14 @@ def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
     return np.block([[vals["P1"], np.zeros((n, n))], [np.zeros((n, n)), vals["P2"]]])
 
 
-def _check(prog: lmi.Program, lam: float) -> tuple[str, float]:
-    """Solve at ``lam``; ``("verified" | "marginal" | "violated" | solver status, margin)``."""
-    prog.solve(lam=lam)
-    return prog.verdict()
-
-
 def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float,
           local: bool = False) -> tuple[float, np.ndarray]:
     """Largest verified grid rate in ``[lam0, hi)`` from a verified solve at ``lam0`` (``local``: a step lower)."""
     found = {lam0: _full_p(prog, spec)}
 
     def passes(lam: float) -> bool:
-        ok = _check(prog, lam)[0] == "verified"
+        prog.solve(lam=lam)
+        ok = prog.verified()
         if ok:
             found[lam] = _full_p(prog, spec)
         return ok
@@ -381,20 +376,19 @@ def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: flo
         prog.set(lohi=know.channels.lo * know.channels.hi, losum=know.channels.lo + know.channels.hi)
     radius = _radius(spec, know)
     lam0 = start if 0 < start < hi else 0.0
-    verdict, margin = _check(prog, lam0)
+    prog.solve(lam=lam0)
+    verdict, margin = prog.verdict()
     if verdict != "verified" and lam0 > 0:
         lam0 = 0.0
-        verdict, margin = _check(prog, 0.0)
+        prog.solve(lam=0.0)
+        verdict, margin = prog.verdict()
     out = LevelResult(spec.level, "not certified", margin=margin, radius=radius)
     if verdict == "verified":
-        out.status = "certified"
+        out.status, out.P, out.decay_rate = "certified", _full_p(prog, spec), 0.0
         if lam0 > 0:  # the margin at lam = 0 of the same solution: M(0) = M(lam0) - 2 lam0 diag(P, 0)
             M = prog.numeric_matrix()
-            P = _full_p(prog, spec)
-            M[: P.shape[0], : P.shape[0]] -= 2 * lam0 * P
+            M[: out.P.shape[0], : out.P.shape[0]] -= 2 * lam0 * out.P
             out.margin = lmi.max_eig(M)
-        out.P = _full_p(prog, spec)
-        out.decay_rate = 0.0
         if rates and hi > 0:
             out.decay_rate, out.P = _rate(prog, spec, lam0, hi, rtol, local=radius is not None)
     elif verdict == "marginal":
@@ -681,7 +675,8 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     for r, lo, hi in _regions(ch, r0, r_max):
         tried.append(r)
         prog.set(lohi=lo * hi, losum=lo + hi, r2=(r * (1 - FROM_X0_SHRINK)) ** 2)
-        verdict, margin = _check(prog, 0.0)
+        prog.solve(lam=0.0)
+        verdict, margin = prog.verdict()
         if verdict == "verified" and _contains(_full_p(prog, spec), z0, ch.H, r):
             found = _rate_in_region(prog, spec, plant, loop, knowledge, z0, r, (lo, hi), margin, rate_rtol)
             if best is None or found.decay_rate > best.decay_rate:
@@ -732,10 +727,9 @@ def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.C
     lo, hi = box
     ceiling, _ = witness.rate_ceiling(plant, loop.K, loop.F, knowledge, channels=True, scalars=(), box=(lo, hi))
     top = min(loop.linearised_rate, ceiling)
-    P0, lam, P = _full_p(prog, spec), 0.0, None
-    if top > 0:
-        lam, P = _rate(prog, spec, 0.0, top, rate_rtol)
-    if P is None or not _contains(P, z0, knowledge.channels.H, r):
+    P0 = _full_p(prog, spec)
+    lam, P = _rate(prog, spec, 0.0, top, rate_rtol) if top > 0 else (0.0, P0)
+    if not _contains(P, z0, knowledge.channels.H, r):
         lam, P = 0.0, P0
     return LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
                        region_H=knowledge.channels.H, reason=(
