@@ -45,6 +45,7 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from bench import checks, lmi, witness
 from bench.constants import Knowledge
@@ -316,10 +317,7 @@ def _times(a, b):
 
 def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
     vals = prog.values()
-    if spec.full_p:
-        return np.array(vals["P"])
-    n = spec.n
-    return np.block([[vals["P1"], np.zeros((n, n))], [np.zeros((n, n)), vals["P2"]]])
+    return np.array(vals["P"]) if spec.full_p else block_diag(vals["P1"], vals["P2"])
 
 
 def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float,
@@ -602,9 +600,7 @@ def level_set(P: np.ndarray, radius: float, H: np.ndarray | None = None) -> floa
     if H is not None:
         rows = _region_rows(H)
         return radius**2 / float(np.max(np.einsum("ij,jk,ik->i", rows, Pinv, rows)))
-    n = P.shape[0] // 2
-    Tx = np.hstack([np.eye(n), np.zeros((n, n))])
-    Th = np.hstack([np.eye(n), -np.eye(n)])
+    Tx, Th = np.split(_region_rows(np.eye(P.shape[0] // 2)), 2)  # x = Tx z, x_hat = Th z
     worst = max(float(np.linalg.eigvalsh(T @ Pinv @ T.T)[-1]) for T in (Tx, Th))
     return radius**2 / worst
 

@@ -107,7 +107,6 @@ def members(plant, know, *, channels: bool, scalars: tuple[str, ...],
     """The linear members ``(slopes, L)`` of a class (slopes None outside the channel class) and how they
     were chosen: the slope box of ``know``'s channels (``box`` instead when given) if ``channels``, else
     multiples of I; kept when they meet the scalar constants ``scalars`` (:func:`admits`)."""
-    n, out = plant.n, []
     ch = know.channels
     if ch is not None and (channels or scalars):
         lo, hi = box if box is not None else (ch.lo, ch.hi)
@@ -119,7 +118,7 @@ def members(plant, know, *, channels: bool, scalars: tuple[str, ...],
         a = know.constants.alpha
         span = a if a is not None else max(abs(know.constants.rho or 0.0), math.sqrt(abs(know.constants.beta or 0.0)),
                                            abs(know.constants.gamma or 0.0))
-        out = [(None, s * np.eye(n)) for s in np.linspace(-span, span, GRID[1])]
+        out = [(None, s * np.eye(plant.n)) for s in np.linspace(-span, span, GRID[1])]
         how = f"L = s I for {GRID[1]} values of s in [-{span:.3g}, {span:.3g}] meeting the constants"
     if scalars:
         out = [(c, L) for c, L in out if admits(L, scalars, know.constants)]
