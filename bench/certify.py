@@ -45,6 +45,7 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from bench import checks, lmi, witness
 from bench.constants import Knowledge
@@ -170,9 +171,8 @@ class Certificate:
                 ruled.setdefault(by, []).append(r.level)
             else:
                 out.append(f"{r.level}: {r.reason}")
-        for k, lvs in reversed(ruled.items()):
-            out.insert(0, f"{', '.join(lvs)}: ruled out without a solve by the {k}")
-        return "; ".join(out)
+        head = [f"{', '.join(lvs)}: ruled out without a solve by the {k}" for k, lvs in ruled.items()]
+        return "; ".join(head + out)
 
 
 # -- the constraints of a level ---------------------------------------------------------------
@@ -210,8 +210,7 @@ def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
 
 
 def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge, rows: np.ndarray | None = None) -> lmi.Program:
-    """The level's analysis program (compiled once per structure; see :func:`bench.lmi.cached_program`); with
-    ``rows``, that of a certificate from x0 (:func:`_build`)."""
+    """The level's analysis program, compiled once per structure (with ``rows``: of a certificate from x0)."""
     ch = know.channels if spec.channels else None
     Gw = ch.G if ch is not None else np.eye(spec.n)
     Hc = ch.H if ch is not None else None
@@ -221,13 +220,8 @@ def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge, rows: np.ndarray 
 
 
 def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = None) -> lmi.Program:
-    """Variables, parameters and constraints of a level: maximise ``slack`` with ``M << -slack I``,
-    ``P >> slack I``, ``trace(P) = 1`` and nonnegative multipliers.
-
-    With ``rows`` (vectors ``a_k`` on ``z``), the normalisation is instead the containment of a
-    certificate from x0: ``z0' P z0 <= 1`` (parameter ``Z0 = z0 z0'``) and
-    ``[[P, a_k], [a_k', r2]] >= 0`` for each row, so that ``{V <= V(z0)}`` lies in
-    ``|a_k' z| <= sqrt(r2)`` (Schur complement of ``a_k' P^-1 a_k <= r2``), and ``slack <= 1``."""
+    """A level's program: max ``slack``, ``M << -slack I``, ``P >> slack I``, ``trace(P) = 1``, multipliers >= 0;
+    with ``rows`` ``a_k``, ``z0' P z0 <= 1``, ``[[P, a_k], [a_k', r2]] >= 0`` (Schur) and ``slack <= 1`` instead."""
     import cvxpy as cp
 
     n, nw = spec.n, spec.nw
@@ -323,28 +317,17 @@ def _times(a, b):
 
 def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
     vals = prog.values()
-    if spec.full_p:
-        return np.array(vals["P"])
-    n = spec.n
-    return np.block([[vals["P1"], np.zeros((n, n))], [np.zeros((n, n)), vals["P2"]]])
-
-
-def _check(prog: lmi.Program, lam: float) -> tuple[str, float]:
-    """Solve at ``lam``; ``("verified" | "marginal" | "violated" | solver status, margin)``."""
-    prog.solve(lam=lam)
-    return prog.verdict()
+    return np.array(vals["P"]) if spec.full_p else block_diag(vals["P1"], vals["P2"])
 
 
 def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float,
           local: bool = False) -> tuple[float, np.ndarray]:
-    """Largest rate in ``[lam0, hi)`` on the grid of :func:`bench.search.largest_passing` whose LMI is
-    verified, from a verified solve at ``lam0`` (held by ``prog``); 0 when none above 0 does. A marginal
-    probe counts as failing. ``local``: the constraints hold on a region only, whose largest level set
-    collapses as the rate nears its optimum; the grid point below the largest verified one is reported."""
+    """Largest verified grid rate in ``[lam0, hi)`` from a verified solve at ``lam0`` (``local``: a step lower)."""
     found = {lam0: _full_p(prog, spec)}
 
     def passes(lam: float) -> bool:
-        ok = _check(prog, lam)[0] == "verified"
+        prog.solve(lam=lam)
+        ok = prog.verified()
         if ok:
             found[lam] = _full_p(prog, spec)
         return ok
@@ -374,34 +357,36 @@ def _radius(spec: _Spec, know: Knowledge) -> float | None:
     return min((r for r in held if r is not None), default=None)
 
 
+def _set_program(spec: _Spec, plant: Plant, K, F, know: Knowledge, rows: np.ndarray | None = None) -> lmi.Program:
+    """The level's program (:func:`_program`) set for the gains K, F and the trusted scalar constants."""
+    mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
+    prog = _program(spec, mats, know, rows)
+    c = know.constants
+    prog.set(**mats.settable(), rho=c.rho or 0.0, beta=c.beta or 0.0, gamma=c.gamma or 0.0, a2=(c.alpha or 0.0) ** 2)
+    return prog
+
+
 def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: float, hi: float, rates: bool,
                  rtol: float) -> LevelResult:
     """One level's program: certified at ``start`` (else at 0), then its rate."""
-    mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
-    prog = _program(spec, mats, know)
-    c = know.constants
-    values = {**mats.settable(), "rho": c.rho or 0.0, "beta": c.beta or 0.0, "gamma": c.gamma or 0.0,
-              "a2": (c.alpha or 0.0) ** 2}
+    prog = _set_program(spec, plant, K, F, know)
     if spec.channels:
-        ch = know.channels
-        values.update(lohi=ch.lo * ch.hi, losum=ch.lo + ch.hi)
+        prog.set(lohi=know.channels.lo * know.channels.hi, losum=know.channels.lo + know.channels.hi)
     radius = _radius(spec, know)
-    prog.set(**values)
     lam0 = start if 0 < start < hi else 0.0
-    verdict, margin = _check(prog, lam0)
+    prog.solve(lam=lam0)
+    verdict, margin = prog.verdict()
     if verdict != "verified" and lam0 > 0:
         lam0 = 0.0
-        verdict, margin = _check(prog, 0.0)
+        prog.solve(lam=0.0)
+        verdict, margin = prog.verdict()
     out = LevelResult(spec.level, "not certified", margin=margin, radius=radius)
     if verdict == "verified":
-        out.status = "certified"
+        out.status, out.P, out.decay_rate = "certified", _full_p(prog, spec), 0.0
         if lam0 > 0:  # the margin at lam = 0 of the same solution: M(0) = M(lam0) - 2 lam0 diag(P, 0)
             M = prog.numeric_matrix()
-            P = _full_p(prog, spec)
-            M[: P.shape[0], : P.shape[0]] -= 2 * lam0 * P
+            M[: out.P.shape[0], : out.P.shape[0]] -= 2 * lam0 * out.P
             out.margin = lmi.max_eig(M)
-        out.P = _full_p(prog, spec)
-        out.decay_rate = 0.0
         if rates and hi > 0:
             out.decay_rate, out.P = _rate(prog, spec, lam0, hi, rtol, local=radius is not None)
     elif verdict == "marginal":
@@ -416,9 +401,7 @@ def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: flo
 
 
 def _level(spec: _Spec, plant: Plant, K, F, know: Knowledge, **kw) -> LevelResult:
-    """One level; when the solver fails on channels with scalar constants (redundant constraints
-    can make the interior-point solver fail), the channels alone are tried (a subset of the
-    constraints: still a valid certificate at this level)."""
+    """One level; where the solver fails on channels with scalar constants, on the channels alone (still valid)."""
     out = _solve_level(spec, plant, K, F, know, **kw)
     if out.status == "undecided" and spec.channels and spec.scalars:
         alt = _solve_level(replace(spec, scalars=()), plant, K, F, know, **kw)
@@ -432,8 +415,7 @@ def _level(spec: _Spec, plant: Plant, K, F, know: Knowledge, **kw) -> LevelResul
 
 
 def _inherit(out: LevelResult, prev: LevelResult | None) -> LevelResult:
-    """A level's knowledge contains the level below's, so the lower certificate holds here too:
-    keep the better of this level's own result and the one below (monotone by construction)."""
+    """The better of a level's own result and the certificate of the level below (which holds here too)."""
     if prev is None or not prev.certified or (out.certified and out.decay_rate >= prev.decay_rate):
         return out
     own = f"its own LMI: {out.status}" + (f", rate {out.decay_rate:.3g}" if out.certified else "")
@@ -501,10 +483,7 @@ def certify(
 
 
 def _search_equilibria(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, know: Knowledge):
-    """The equilibrium witness of the true loop (searched once per certificate), or None.
-
-    Skipped when the channel class proves the origin is the only equilibrium
-    (:func:`bench.witness.no_equilibrium`)."""
+    """The equilibrium witness of the true loop (searched once per certificate, unless none can exist), or None."""
     if not cert.equilibria_searched:
         cert.equilibria_searched = True
         eq = None if witness.no_equilibrium(plant, K, F, know) else witness.equilibrium_witness(plant, K, F, know)
@@ -515,9 +494,7 @@ def _search_equilibria(cert: Certificate, plant: Plant, K: np.ndarray, F: np.nda
 
 def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge, prev: LevelResult | None,
                   cert: Certificate, *, rates: bool, rtol: float, inherit: bool) -> LevelResult:
-    """One level of :func:`certify` above ``prev``: inapplicable; ruled out by a linear member of its
-    class (whose witness replaces the linear one in ``cert.witnesses``) or, for a global level, by an
-    equilibrium of the true loop; else its program solved from the rate ``prev`` certified."""
+    """One level of :func:`certify` above ``prev``: inapplicable, ruled out by a witness, or solved."""
     spec, why = _spec(lv, plant.n, knowledge)
     if spec is not None and plant.n > LADDER_MAX_N:
         spec, why = None, f"n = {plant.n} is beyond the SDP certificate's reach (LADDER_MAX_N = {LADDER_MAX_N})"
@@ -541,7 +518,7 @@ def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Kno
 
 
 def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *,
-            rate_rtol: float = RATE_RTOL, local: bool = True, loop: checks.ClosedLoop | None = None) -> Certificate:
+            loop: checks.ClosedLoop | None = None) -> Certificate:
     """Complete a ladder's outcome with why it is what it is: witnesses, and a certificate from x0.
 
     Where no level certified globally and a linear member already rules the ladder out, or no level
@@ -556,9 +533,6 @@ def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
     cert : Certificate
         From :func:`certify` (updated in place: ``witnesses``, ``local``, ``local_note``).
     plant, K, F, knowledge
-    rate_rtol : float
-    local : bool
-        Also search a certificate from x0.
     loop : ClosedLoop, optional
         The checked gains and their spectra (:func:`bench.checks.closed_loop`), when the caller has them.
 
@@ -572,12 +546,11 @@ def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
     if any(r.radius is None and r.region_H is None for r in ladder):
         return cert
     eq = _search_equilibria(cert, plant, K, F, knowledge) if cert.witnesses or not ladder else None
-    if not ladder and local:
+    if not ladder:
         r_eq = None
         if eq is not None and knowledge.channels is not None:
             r_eq = float(np.abs(_region_rows(knowledge.channels.H) @ eq.z).max())
-        cert.local, cert.local_note = certify_from_x0(plant, K, F, knowledge, rate_rtol=rate_rtol, r_max=r_eq,
-                                                      loop=loop)
+        cert.local, cert.local_note = certify_from_x0(plant, K, F, knowledge, r_max=r_eq, loop=loop)
         if r_eq is not None and cert.local is None:
             cert.local_note += f" (regions stop below r = {r_eq:.4g}, where the loop has an equilibrium)"
     return cert
@@ -595,7 +568,6 @@ def ceiling(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
     best = cert.best
     if best is None:
         return float("nan"), ""
-    K, F = np.asarray(K, dtype=float), np.asarray(F, dtype=float)
     if best.region_H is not None:
         box = knowledge.channels.slopes_on(best.radius)
         return witness.rate_ceiling(plant, K, F, knowledge, channels=True, scalars=(), box=box)
@@ -628,9 +600,7 @@ def level_set(P: np.ndarray, radius: float, H: np.ndarray | None = None) -> floa
     if H is not None:
         rows = _region_rows(H)
         return radius**2 / float(np.max(np.einsum("ij,jk,ik->i", rows, Pinv, rows)))
-    n = P.shape[0] // 2
-    Tx = np.hstack([np.eye(n), np.zeros((n, n))])
-    Th = np.hstack([np.eye(n), -np.eye(n)])
+    Tx, Th = np.split(_region_rows(np.eye(P.shape[0] // 2)), 2)  # x = Tx z, x_hat = Th z
     worst = max(float(np.linalg.eigvalsh(T @ Pinv @ T.T)[-1]) for T in (Tx, Th))
     return radius**2 / worst
 
@@ -693,13 +663,16 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0])
     rows = _region_rows(ch.H)
     r0 = max(float(np.abs(rows @ z0).max()), 1e-3)
-    prog, spec = _from_x0_program(plant, K, F, knowledge, z0, rows)
+    spec = _Spec("structured", plant.n, ch.q, True, (), True)  # the channels' narrowed slopes only
+    prog = _set_program(spec, plant, K, F, knowledge, rows)
+    prog.set(Z0=np.outer(z0, z0))
     best: LevelResult | None = None
     tried, more = [], FROM_X0_MORE
     for r, lo, hi in _regions(ch, r0, r_max):
         tried.append(r)
         prog.set(lohi=lo * hi, losum=lo + hi, r2=(r * (1 - FROM_X0_SHRINK)) ** 2)
-        verdict, margin = _check(prog, 0.0)
+        prog.solve(lam=0.0)
+        verdict, margin = prog.verdict()
         if verdict == "verified" and _contains(_full_p(prog, spec), z0, ch.H, r):
             found = _rate_in_region(prog, spec, plant, loop, knowledge, z0, r, (lo, hi), margin, rate_rtol)
             if best is None or found.decay_rate > best.decay_rate:
@@ -715,17 +688,6 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     return None, _none_from_x0(tried)
 
 
-def _from_x0_program(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, z0: np.ndarray,
-                     rows: np.ndarray) -> tuple[lmi.Program, _Spec]:
-    """The structured level's program with the containment rows of the region, set for these gains
-    and ``z0`` (no scalar constants: only the channels' narrowed slopes enter)."""
-    spec = _Spec("structured", plant.n, knowledge.channels.q, True, (), True)
-    mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
-    prog = _program(spec, mats, knowledge, rows)
-    prog.set(**mats.settable(), Z0=np.outer(z0, z0), rho=0.0, beta=0.0, gamma=0.0, a2=0.0)
-    return prog, spec
-
-
 def _none_from_x0(tried: list) -> str:
     """The sentence for a from-x0 search that found nothing, naming the regions it tried."""
     if not tried:
@@ -735,9 +697,7 @@ def _none_from_x0(tried: list) -> str:
 
 
 def _regions(ch, r0: float, r_max: float | None):
-    """The regions ``|Hx|, |Hx_hat| <= r`` the from-x0 search tries, in order, with the slopes on each:
-    r grows by :data:`FROM_X0_GROWTH` from ``r0``, stops where the slopes no longer narrow (that
-    region is the last one), and stays below ``r_max`` (one region between z0 and it at most)."""
+    """The regions ``r`` (growing from ``r0``, below ``r_max``) the from-x0 search tries, with their slopes."""
     last, r = None, r0
     for _ in range(FROM_X0_STEPS):
         r *= FROM_X0_GROWTH
@@ -759,16 +719,13 @@ def _regions(ch, r0: float, r_max: float | None):
 
 def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge,
                     z0: np.ndarray, r: float, box: tuple, margin: float, rate_rtol: float) -> LevelResult:
-    """The certificate from x0 on a region where ``lam = 0`` verified: its rate, searched up to the
-    smaller of the linearised rate and the rate ceiling of the narrowed class, kept only while the
-    level set through z0 stays in the region."""
+    """The certificate from x0 on a region where ``lam = 0`` verified, with the best rate whose set holds z0."""
     lo, hi = box
     ceiling, _ = witness.rate_ceiling(plant, loop.K, loop.F, knowledge, channels=True, scalars=(), box=(lo, hi))
     top = min(loop.linearised_rate, ceiling)
-    P0, lam, P = _full_p(prog, spec), 0.0, None
-    if top > 0:
-        lam, P = _rate(prog, spec, 0.0, top, rate_rtol)
-    if P is None or not _contains(P, z0, knowledge.channels.H, r):
+    P0 = _full_p(prog, spec)
+    lam, P = _rate(prog, spec, 0.0, top, rate_rtol) if top > 0 else (0.0, P0)
+    if not _contains(P, z0, knowledge.channels.H, r):
         lam, P = 0.0, P0
     return LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
                        region_H=knowledge.channels.H, reason=(

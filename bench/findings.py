@@ -47,20 +47,19 @@ def findings(frame, constants: dict) -> dict:
     for pid in dict.fromkeys(frame["plant"]):
         sub = frame[frame["plant"] == pid]
         conv_uncert = sub[sub["converged"].astype(bool) & ~sub["certified"].astype(bool)]
-        witnessed = conv_uncert["witness"].fillna("").astype(str).ne("") if "witness" in sub else None
+        witnessed = (conv_uncert["witness"].fillna("").astype(str).ne("") if "witness" in sub
+                     else conv_uncert["design"].isna())  # no witness column: none witnessed
         plants[pid] = {"best": _best(sub), "uncertified_converging": list(conv_uncert["design"]),
-                       "no_certificate_can_exist": list(conv_uncert["design"][witnessed]) if witnessed is not None else [],
-                       "no_certificate_found": list(conv_uncert["design"][~witnessed]) if witnessed is not None
-                       else list(conv_uncert["design"]),
+                       "no_certificate_can_exist": list(conv_uncert["design"][witnessed]),
+                       "no_certificate_found": list(conv_uncert["design"][~witnessed]),
                        "certified_pairs": int(sub["certified"].astype(bool).sum()), "pairs": int(len(sub))}
     violated, disproved = [], []
     for pid, rep in constants.items():
         violated += [{"plant": pid, "constant": v.name, "claimed": v.claimed, "sampled": v.sampled,
                       "text": v.describe("claimed")} for v in rep.violations]
-        disproved += [{"plant": pid, "constant": v.name, "stated": v.claimed, "sampled": v.sampled,
-                       "text": v.describe("analytic")} for v in rep.disproved]
-        disproved += [{"plant": pid, "constant": v.name, "stated": v.claimed, "sampled": v.sampled,
-                       "text": v.describe("declared")} for v in rep.channel_violations]
+        for found, what in ((rep.disproved, "analytic"), (rep.channel_violations, "declared")):
+            disproved += [{"plant": pid, "constant": v.name, "stated": v.claimed, "sampled": v.sampled,
+                           "text": v.describe(what)} for v in found]
     if "disproved" in frame:
         import json
 
@@ -95,22 +94,22 @@ def constants_rows(constants: dict, errors: dict) -> list[dict]:
                 flags.append(f"ANALYTIC BOUND DISPROVED: {d.describe('analytic')}")
             if name in rep.unbounded:
                 flags.append(rep.unbounded[name])
-            rows.append({
-                "plant": pid, "constant": name, "claimed": getattr(rep.claimed, name),
-                "analytic": getattr(rep.analytic, name) if rep.analytic is not None else None,
-                "sampled": getattr(rep.sampled, name), "used": getattr(rep.used, name),
-                "source": rep.source.get(name, "fixed" if name == "gamma" else ""),
-                "region": rep.region,
-                "flag": "; ".join(flags),
-            })
+            rows.append(_row(
+                pid, name, "; ".join(flags), claimed=getattr(rep.claimed, name),
+                analytic=getattr(rep.analytic, name) if rep.analytic is not None else None,
+                sampled=getattr(rep.sampled, name), used=getattr(rep.used, name),
+                source=rep.source.get(name, "fixed" if name == "gamma" else ""),
+                region=rep.region,
+            ))
         for v in rep.channel_violations:
-            rows.append({"plant": pid, "constant": v.name, "claimed": None, "analytic": v.claimed,
-                         "sampled": v.sampled, "used": None, "source": "declared channels", "region": rep.region,
-                         "flag": f"CHANNEL SLOPE DISPROVED: {v.describe('declared')}"})
-        for msg in rep.prechecks:
-            rows.append({"plant": pid, "constant": "(A, B, C)", "claimed": None, "analytic": None, "sampled": None,
-                         "used": None, "source": "", "region": "", "flag": msg})
-    for pid, err in errors.items():
-        rows.append({"plant": pid, "constant": "(error)", "claimed": None, "analytic": None, "sampled": None,
-                     "used": None, "source": "", "region": "", "flag": err})
+            rows.append(_row(pid, v.name, f"CHANNEL SLOPE DISPROVED: {v.describe('declared')}", analytic=v.claimed,
+                             sampled=v.sampled, source="declared channels", region=rep.region))
+        rows += [_row(pid, "(A, B, C)", msg) for msg in rep.prechecks]
+    rows += [_row(pid, "(error)", err) for pid, err in errors.items()]
     return rows
+
+
+def _row(pid: str, constant: str, flag: str, **values) -> dict:
+    """A row of :func:`constants_rows`; the values not given are None (``source``, ``region``: empty)."""
+    return {"plant": pid, "constant": constant, "claimed": None, "analytic": None, "sampled": None, "used": None,
+            "source": "", "region": "", **values, "flag": flag}

@@ -78,15 +78,12 @@ def hard_stop(seconds: float | None) -> Iterator[None]:
     import signal
     import threading
 
-    if seconds is None:
-        yield
-        return
-    if threading.current_thread() is not threading.main_thread():
+    if seconds is not None and threading.current_thread() is not threading.main_thread():
         with _thread_stop(seconds):
             yield
         return
-    usable = (hasattr(signal, "setitimer") and signal.getsignal(signal.SIGALRM) in (signal.SIG_DFL, None)
-              and signal.getitimer(signal.ITIMER_REAL)[0] == 0)
+    usable = seconds is not None and hasattr(signal, "setitimer") and (
+        signal.getsignal(signal.SIGALRM) in (signal.SIG_DFL, None) and signal.getitimer(signal.ITIMER_REAL)[0] == 0)
     if not usable:
         yield
         return

@@ -78,10 +78,7 @@ def batch_metrics(t, x, x_hat, u=None, *, finished=True, diverged=None, noisy: b
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
     xh = np.asarray(x_hat, dtype=float)
-    e = x - xh
-    nx = np.sqrt(np.einsum("ijk,ijk->jk", x, x))
-    ne = np.sqrt(np.einsum("ijk,ijk->jk", e, e))
-    nh = np.sqrt(np.einsum("ijk,ijk->jk", xh, xh))
+    nx, ne, nh = (np.sqrt(np.einsum("ijk,ijk->jk", v, v)) for v in (x, x - xh, xh))
     nz = np.sqrt(nx**2 + ne**2)
     N = nx.shape[0]
     finite = np.all(np.isfinite(nz), axis=1)
@@ -97,14 +94,11 @@ def batch_metrics(t, x, x_hat, u=None, *, finished=True, diverged=None, noisy: b
         conv = ok & np.isfinite(sx) & np.isfinite(se)
     else:
         conv = ok & (fx <= scale) & (fe <= scale)
-    dt = np.diff(t)
-    iae = np.sum((ne[:, 1:] + ne[:, :-1]) * dt, axis=1) / 2 if t.size > 1 else np.zeros(N)
+    iae = np.sum((ne[:, 1:] + ne[:, :-1]) * np.diff(t), axis=1) / 2 if t.size > 1 else np.zeros(N)
     tail = t >= t[0] + (t[-1] - t[0]) / 2
     rms = np.where(ok, np.sqrt(np.mean(ne[:, tail] ** 2, axis=1)), np.nan)
-    if u is None or np.size(u) == 0:
-        pu = np.full(N, np.nan)
-    else:
-        pu = np.max(np.abs(np.asarray(u, dtype=float)), axis=(0, 2))
+    no_u = u is None or np.size(u) == 0
+    pu = np.full(N, np.nan) if no_u else np.max(np.abs(np.asarray(u, dtype=float)), axis=(0, 2))
     return {
         "converged": conv, "settling_x_s": sx, "settling_e_s": se, "final_x": fx, "final_e": fe, "iae_e": iae,
         "rms_e": rms, "peak_u": pu, "peak_x": np.max(nx, axis=1), "peak_e": np.max(ne, axis=1),
@@ -159,18 +153,11 @@ def dense_metrics(dense, n: int, t0: float, t1: float, fraction: float = SETTLIN
     iae = float(np.sum(h * (ne_nodes.reshape(-1, _GL_NODES.size) @ _GL_WEIGHTS)))
     out = {"iae_e": iae}
     for key, s, which in (("settling_x_s", nx, 0), ("settling_e_s", ne, 1)):
-        peak = float(np.max(s)) if s.size else math.nan
-        level = fraction * peak
-        above = np.flatnonzero(s > level)
-        if not math.isfinite(peak) or peak == 0:
-            out[key] = 0.0 if peak == 0 else math.nan
-        elif above.size == 0:
-            out[key] = float(grid[0])
-        elif above[-1] == grid.size - 1:
-            out[key] = math.nan
-        else:
-            k = int(above[-1])
+        b = out[key] = float(batch_settling_time(grid, s, fraction)[0])  # on the grid
+        k = int(np.searchsorted(grid, b)) - 1  # the last grid point above the level, when b follows one
+        if math.isfinite(b) and k >= 0:
+            level = fraction * float(np.max(s))
             g = lambda tt: norms(np.asarray(dense(tt), dtype=float)[:, None])[which][0] - level  # noqa: E731
-            a, b = float(grid[k]), float(grid[k + 1])
+            a = float(grid[k])
             out[key] = brentq(g, a, b, xtol=1e-12 * max(1.0, abs(b)), rtol=1e-12) if g(b) <= 0 < g(a) else b
     return out

@@ -91,51 +91,45 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
     if start is None and lo is None and hi is None:
         raise ValueError("largest_passing: give start, lo or hi")
     moves = max(1, round(math.log(factor) / _step(rtol)))
-    kl = kh = None  # grid indices known to pass / fail
-    lo_val = lo
-    if lo is not None:
-        kl = _index(lo, rtol, up=False)
-    if hi is not None:
-        kh = _index(hi, rtol, up=True)
+    kl = None if lo is None else _index(lo, rtol, up=False)  # grid indices known to pass / fail
+    kh = None if hi is None else _index(hi, rtol, up=True)
+
+    def probe(k: int) -> bool:
+        nonlocal kl, kh
+        ok = passes(_point(k, rtol))
+        if ok:
+            kl = k
+        else:
+            kh = k
+        return ok
+
     if kl is None and start is not None and (kh is None or _index(start, rtol, up=False) < kh):
-        k = _index(start, rtol, up=False)
-        if passes(_point(k, rtol)):
-            kl, lo_val = k, _point(k, rtol)
-        else:
-            kh = k
+        probe(_index(start, rtol, up=False))
     if kl is not None and kh is not None and kh <= kl:  # an upper bound at or below a passing value
-        return {"lo": lo_val, "hi": hi, "kind": "bracketed"}
+        return {"lo": _value(kl, lo, rtol, up=False), "hi": hi, "kind": "bracketed"}
     for _ in range(max_moves if kh is None else 0):
-        k = kl + moves
-        if passes(_point(k, rtol)):
-            kl, lo_val = k, _point(k, rtol)
-        else:
-            kh = k
+        if not probe(kl + moves):
             break
     if kh is None:
-        return {"lo": lo_val, "hi": math.nan, "kind": "above_range"}
+        return {"lo": _value(kl, lo, rtol, up=False), "hi": math.nan, "kind": "above_range"}
     for _ in range(max_moves if kl is None else 0):
         k = kh - moves
         x = _point(k, rtol)
         if x < down_until:
             break
         if passes(x):
-            kl, lo_val = k, x
+            kl = k
             break
         if stop is not None and stop():  # the probe lay outside the valid range: hi stays the last valid one
             break
         kh = k
     if kl is None:
-        return {"lo": math.nan, "hi": _value(kh, hi, rtol), "kind": "below_range"}
+        return {"lo": math.nan, "hi": _value(kh, hi, rtol, up=True), "kind": "below_range"}
     while kh - kl > 1:
-        k = (kl + kh) // 2
-        if passes(_point(k, rtol)):
-            kl, lo_val = k, _point(k, rtol)
-        else:
-            kh = k
-    return {"lo": lo_val, "hi": _value(kh, hi, rtol), "kind": "bracketed"}
+        probe((kl + kh) // 2)
+    return {"lo": _value(kl, lo, rtol, up=False), "hi": _value(kh, hi, rtol, up=True), "kind": "bracketed"}
 
 
-def _value(k: int, given: float | None, rtol: float) -> float:
+def _value(k: int, given: float | None, rtol: float, up: bool) -> float:
     """The value of grid index k, or the given bound it was taken from."""
-    return given if given is not None and k == _index(given, rtol, up=True) else _point(k, rtol)
+    return given if given is not None and k == _index(given, rtol, up) else _point(k, rtol)

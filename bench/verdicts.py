@@ -49,12 +49,11 @@ def simulation_horizon(t_plant: float, *, fixed: float | None, cap_factor: float
     """
     if fixed is not None:
         return float(fixed), "fixed"
-    e_folds = math.log(1.0 / CONVERGED_RATIO)  # e-foldings to decay by CONVERGED_RATIO
     need, rule = None, "plant"
     if math.isfinite(cert_rate) and cert_rate > 0:
         need, rule = certified_horizon(cert_rate, cond_p), "certified rate"
     elif math.isfinite(linear_rate) and linear_rate > 0:
-        need, rule = LINEAR_FACTOR * e_folds / linear_rate, "linearised rate"
+        need, rule = LINEAR_FACTOR * math.log(1.0 / CONVERGED_RATIO) / linear_rate, "linearised rate"
     if need is None or need <= t_plant:
         return float(t_plant), "plant"
     cap = cap_factor * t_plant

@@ -88,30 +88,29 @@ def admits(L: np.ndarray, scalars: tuple[str, ...], constants) -> bool:
     return all(ok[k]() for k in scalars)
 
 
-def _slope_points(lo: np.ndarray, hi: np.ndarray, seed: int) -> tuple[np.ndarray, str]:
+def _slope_points(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, str]:
     """Slope vectors in the box ``[lo, hi]``, shape (N, q), and how they were chosen."""
     q = lo.size
     if q in GRID:
         axes = [np.unique(np.linspace(a, b, GRID[q])) for a, b in zip(lo, hi)]
         pts = np.array(list(itertools.product(*axes)), dtype=float)
         return pts, f"the box's vertices and a grid of {GRID[q]} slopes per channel ({len(pts)} members)"
-    rng = np.random.default_rng([seed, 24])
+    rng = np.random.default_rng([0, 24])
     corners = np.where(rng.random((SAMPLES // 2, q)) < 0.5, lo, hi)
     inside = lo + (hi - lo) * rng.random((SAMPLES - SAMPLES // 2, q))
     pts = np.vstack([(lo + hi)[None] / 2, corners, inside])
     return pts, f"{len(pts)} seeded members (random vertices and interior points of the box, q = {q})"
 
 
-def members(plant, know, *, channels: bool, scalars: tuple[str, ...], box: tuple | None = None,
-            seed: int = 0) -> tuple[list[tuple[np.ndarray | None, np.ndarray]], str]:
+def members(plant, know, *, channels: bool, scalars: tuple[str, ...],
+            box: tuple | None = None) -> tuple[list[tuple[np.ndarray | None, np.ndarray]], str]:
     """The linear members ``(slopes, L)`` of a class (slopes None outside the channel class) and how they
     were chosen: the slope box of ``know``'s channels (``box`` instead when given) if ``channels``, else
     multiples of I; kept when they meet the scalar constants ``scalars`` (:func:`admits`)."""
-    n, out = plant.n, []
     ch = know.channels
     if ch is not None and (channels or scalars):
         lo, hi = box if box is not None else (ch.lo, ch.hi)
-        pts, how = _slope_points(np.asarray(lo, float), np.asarray(hi, float), seed)
+        pts, how = _slope_points(np.asarray(lo, float), np.asarray(hi, float))
         out = [(c, ch.G @ (c[:, None] * ch.H)) for c in pts]
         if not channels:
             how = f"channel members meeting the scalar constants, among {how}"
@@ -119,7 +118,7 @@ def members(plant, know, *, channels: bool, scalars: tuple[str, ...], box: tuple
         a = know.constants.alpha
         span = a if a is not None else max(abs(know.constants.rho or 0.0), math.sqrt(abs(know.constants.beta or 0.0)),
                                            abs(know.constants.gamma or 0.0))
-        out = [(None, s * np.eye(n)) for s in np.linspace(-span, span, GRID[1])]
+        out = [(None, s * np.eye(plant.n)) for s in np.linspace(-span, span, GRID[1])]
         how = f"L = s I for {GRID[1]} values of s in [-{span:.3g}, {span:.3g}] meeting the constants"
     if scalars:
         out = [(c, L) for c, L in out if admits(L, scalars, know.constants)]
@@ -145,10 +144,10 @@ def _scale(plant, K, F) -> float:
     return max(1.0, *(float(np.abs(M).max(initial=0.0)) for M in (plant.A, plant.B @ F, K @ plant.C)))
 
 
-def linear_witness(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, scalars: tuple[str, ...],
-                   seed: int = 0) -> Witness | None:
+def linear_witness(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool,
+                   scalars: tuple[str, ...]) -> Witness | None:
     """The least stable linear member of the class (:func:`members`) when its loop is unstable, else None."""
-    cands, how = members(plant, know, channels=channels, scalars=scalars, seed=seed)
+    cands, how = members(plant, know, channels=channels, scalars=scalars)
     rates, worst = loop_rates(plant, K, F, [L for _, L in cands])
     if not rates.size:
         return None
@@ -164,7 +163,7 @@ def linear_witness(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool,
 
 
 def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, scalars: tuple[str, ...],
-                 box: tuple | None = None, seed: int = 0) -> tuple[float, str]:
+                 box: tuple | None = None) -> tuple[float, str]:
     """The smallest decay rate over the class's linear members: no certificate over the class proves more.
 
     The members of :func:`members`; for a channel box the best is refined by a bounded local search
@@ -176,7 +175,7 @@ def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, s
     float, str
         The ceiling (NaN when the class has no linear member here) and how it was found.
     """
-    cands, how = members(plant, know, channels=channels, scalars=scalars, box=box, seed=seed)
+    cands, how = members(plant, know, channels=channels, scalars=scalars, box=box)
     rates, _ = loop_rates(plant, K, F, [L for _, L in cands])
     if not rates.size:
         return float("nan"), "no linear member found in the class"
@@ -222,21 +221,16 @@ def _jac(plant, K, F, z: np.ndarray) -> np.ndarray:
     return np.block([[plant.A + BF + Jx, -BF], [Jx - Jh, plant.A - K @ plant.C + Jh]])
 
 
-def _starts(plant, K, F, know, seed: int, n_random: int) -> list[np.ndarray]:
-    """Starts of the root search: null directions of the linear members' loops near singular (an
-    equilibrium ``z*`` makes ``A + B F + G diag(c) H`` or ``A - K C + G diag(d) H`` singular for the
-    secant slopes c, d of phi there), at several sizes, then seeded random points."""
+def _starts(plant, K, F, know) -> list[np.ndarray]:
+    """Starts of the root search: null directions of near-singular linear members' loops, then random points."""
     n, out = plant.n, []
     ch = know.channels
     sizes = np.geomspace(0.3, 30.0, 7)
     if ch is not None:
         cands, _ = members(plant, know, channels=True, scalars=())
-        BF, KC = plant.B @ F, K @ plant.C
-        for blk, M0 in (("x", plant.A + BF), ("e", plant.A - KC)):
-            mats = [M0 + L for _, L in cands]
-            eig = [np.linalg.eigvals(M) for M in mats]
-            small = np.array([np.min(np.abs(ev)) for ev in eig])
-            for j in np.argsort(small)[:2]:
+        for blk, M0 in (("x", plant.A + plant.B @ F), ("e", plant.A - K @ plant.C)):
+            mats = M0 + np.stack([L for _, L in cands])  # an equilibrium makes one of them singular
+            for j in np.argsort(np.abs(np.linalg.eigvals(mats)).min(axis=1))[:2]:
                 w, V = np.linalg.eig(mats[j])
                 v = np.real(V[:, int(np.argmin(np.abs(w)))])
                 hv = float(np.abs(ch.H @ v).max()) or 1.0
@@ -244,8 +238,8 @@ def _starts(plant, K, F, know, seed: int, n_random: int) -> list[np.ndarray]:
                     for sign in (1.0, -1.0):
                         d = sign * s * v / hv
                         out.append(np.concatenate([d, np.zeros(n)]) if blk == "x" else np.concatenate([d, d]))
-    rng = np.random.default_rng([seed, 7])
-    for s in np.geomspace(0.3, 30.0, n_random):
+    rng = np.random.default_rng([0, 7])
+    for s in np.geomspace(0.3, 30.0, 16):
         d = rng.standard_normal(2 * n)
         out.append(s * d / np.linalg.norm(d))
     return out
@@ -288,8 +282,7 @@ def no_equilibrium(plant, K: np.ndarray, F: np.ndarray, know) -> bool:
     return len(signs) == 1
 
 
-def equilibrium_witness(plant, K: np.ndarray, F: np.ndarray, know, *, seed: int = 0, n_random: int = 16,
-                        tol: float = 1e-9) -> Witness | None:
+def equilibrium_witness(plant, K: np.ndarray, F: np.ndarray, know, *, tol: float = 1e-9) -> Witness | None:
     """An equilibrium of the true closed loop other than the origin (None if the search finds none).
 
     A root search (scipy ``root``, hybrid Powell, with the plant's Jacobian when it has one) of the
@@ -307,7 +300,7 @@ def equilibrium_witness(plant, K: np.ndarray, F: np.ndarray, know, *, seed: int 
     jac = (lambda z: _jac(plant, K, F, z)) if plant.jacobian is not None else None
     best = None
     with np.errstate(all="ignore"):
-        for z0 in _starts(plant, K, F, know, seed, n_random):
+        for z0 in _starts(plant, K, F, know):
             try:
                 sol = root(lambda z: _rhs(plant, K, F, z), z0, jac=jac, method="hybr")
             except (ValueError, ArithmeticError, np.linalg.LinAlgError):
