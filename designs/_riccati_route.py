@@ -14,20 +14,13 @@ multipliers s, t are redundant (the x-side is invariant under ``(tau, s, eps, P)
 so they are fixed at ``s = ||Dr H|| / ||G||``, ``t = 1 / s``; tau and eps are taken from grids
 relative to the natural scales ``tau0 = sigma / ||B||^2``, ``eps0 = sigma``, ``sigma = ||Dr H|| ||G||``.
 
-The design searches the e-side's largest decay target lam whose gain stays within ``max_gain``
-(:func:`_search`), two targets at a time on the two cores (:func:`bench._env.parallel`), then
-solves and verifies both sides there (:func:`_targets`): P > 0 and the side matrix negative
-definite one rate-grid step below lam, recomputed from the gain. The pair is certified by
-:func:`bench.joint.certify`, which measures the rate the certificate proves.
-
-AREs (:func:`solve_are`, indefinite ``M``, the stabilizing solution): ``"sign"`` (default) is the
-matrix sign function of the Hamiltonian ``[[a, -M], [-q, -a']]`` (Newton iteration with
-determinant scaling), ``X`` from ``[W12; W22 + I] X = -[W11 + I; W21]``; from
-:data:`SINGLE_FROM_N` states the iteration runs in single precision and Newton's method for the
-ARE refines its solution (:func:`_newton`, each step a Lyapunov equation by the sign function).
-``"scipy"`` is ``scipy.linalg.solve_continuous_are`` (the ordered Schur form of the extended
-pencil), the fallback when a solution fails its accuracy checks (residual, symmetry). A solution
-is used only through the side's own Lyapunov test, which also proves the closed loop Hurwitz.
+The design searches the e-side's largest decay target whose gain stays within ``max_gain``
+(:func:`_search`), solves and verifies both sides there (:func:`_targets`) and certifies the pair
+by :func:`bench.joint.certify`, which measures the rate the certificate proves. The AREs (indefinite
+``M``, the stabilizing solution) are solved by the matrix sign function of the Hamiltonian
+(:func:`_sign_are`; single precision from :data:`SINGLE_FROM_N` states, refined by Newton's method,
+:func:`_newton`), with scipy's ordered Schur method as the other method (:func:`solve_are`). A
+solution is used only through its side's Lyapunov test, which also proves the closed loop Hurwitz.
 
 References
 ----------

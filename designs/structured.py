@@ -1,15 +1,9 @@
 """A design that uses the nonlinearity's channel structure: separated sides, a searched decay target.
 
 For a plant that declares ``f(x) = G phi(H x)`` with channel slopes in ``[lo, hi]``
-(:class:`plants.Channels`), the loop transformation ``c0 = (lo + hi) / 2``, ``r = (hi - lo) / 2``,
-``A0 = A + G diag(c0) H``, ``psi(z) = phi(z) - c0 z`` gives ``|delta psi_i| <= r_i |delta z_i|``
-and the closed loop (6) with ``u = F x_hat``, ``e = x - x_hat`` ::
-
-    x' = (A0 + B F) x - B F e + G psi(H x)
-    e' = (A0 - K C) e + G (psi(H x) - psi(H x_hat))
-
-Each side is an S-procedure LMI with one multiplier per channel (``docs/structured.md``);
-with ``Dr = diag(r)`` and a decay target ``lam``:
+(:class:`plants.Channels`), in the loop-transformed data of :mod:`bench.joint` (``A0``,
+``Dr = diag(r)``), each side is an S-procedure LMI with one multiplier per channel
+(``docs/structured.md``) at a decay target ``lam``:
 
 - x-side, in ``Q > 0``, ``Y`` (m x n), ``S = diag(s) >= 0``; ``F = Y Q^-1`` ::
 
@@ -22,20 +16,15 @@ with ``Dr = diag(r)`` and a decay target ``lam``:
       [ G' R                                                    -T  ]  < 0
 
 Both sides are homogeneous, so ``Q >= I`` and ``R >= I`` fix their scale, and each side
-minimises a bound on its gain: ``||Y|| <= kF`` gives ``||F|| <= ||Y|| ||Q^-1|| <= kF`` (and
-``||K|| <= kK`` likewise). The decay target ``lam`` is searched (bisection, relative tolerance
-``rtol``) for the largest value at which both gains stay within ``max_gain``: a faster
-certified rate bought with a huge gain is no win, so the bound is part of the design.
+minimises a bound on its gain (``||Y|| <= kF`` gives ``||F|| <= kF``; likewise ``||K|| <= kK``).
+The decay target is searched for the largest value at which both gains stay within
+``max_gain``: a faster certified rate bought with a huge gain is no win.
 
 Two routes solve the sides (``route``): ``"sdp"`` (the LMIs above, Clarabel or SCS) and
-``"riccati"`` (one scalar multiplier per side and ``F = -tau B' P``, ``K = tau' X C'``: each side is
-an algebraic Riccati equation, :func:`designs._riccati_route.structured_riccati`; O(n^3), for
-large n; sufficient, not necessary; the decay target is searched side by side). ``"auto"`` takes
-the Riccati route from :data:`RICCATI_FROM_N` states on.
-
-Either way the gains are certified by the joint certificate of :mod:`bench.joint`
-(``V = x' Q^-1 x + mu e' R e`` with multipliers ``S^-1`` and ``mu T``), and the certificate's
-``decay_rate`` is the rate it proves (a generalised eigenvalue), not the design's target.
+``"riccati"`` (one scalar multiplier per side, each side an algebraic Riccati equation:
+:mod:`designs._riccati_route`; O(n^3), sufficient, not necessary). ``"auto"`` takes the Riccati
+route from :data:`RICCATI_FROM_N` states on. Either way the gains are certified by the joint
+certificate of :mod:`bench.joint`, whose ``decay_rate`` is the rate it proves, not the target.
 
 References
 ----------
