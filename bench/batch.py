@@ -181,10 +181,7 @@ class _BatchRHS(Budget):
         Y = y.reshape(n, 2 * N)
         x, xh = Y[:, :N], Y[:, N:]
         lin = self.Px @ x + self.Ph @ xh  # (2n, N)
-        fY = np.asarray(self.f(Y), dtype=float)
-        dY = np.empty((n, 2 * N))
-        np.add(fY[:, :N], lin[:n], out=dY[:, :N])
-        np.add(fY[:, N:], lin[n:], out=dY[:, N:])
+        dY = np.asarray(self.f(Y), dtype=float) + np.hstack([lin[:n], lin[n:]])
         if not (y @ y) <= self.fast2:  # rare path (also taken on NaN): freeze the members that blew up
             frozen = ~(_norms(x, xh) <= self.limit)
             if frozen.any():

@@ -205,5 +205,4 @@ def chain_v1(*, N: int = 3, c: float = 2.0, t_final: float = 20.0) -> Plant:
     -------
     Plant
     """
-    N = check_int("N", N, 1, MAX_N)
     return chain_plant(N=N, c=c, nonlinear=(0,), inputs=(0,), outputs=(0,), t_final=t_final, id="chain_v1")

@@ -460,12 +460,10 @@ def _osl_rows(rows: list[dict], plants: list[str]) -> list[dict]:
 
 def _compile_note(rows: list[dict]) -> str:
     """The compile, solve and certificate seconds summed over every evaluation."""
-    compile_total = sum(r["compile_s"] for r in rows)
-    solve_total = sum(r["solve_s"] for r in rows)
-    cert_total = sum(r["cert_s"] for r in rows)
-    n_evals = sum(r["n_evals"] for r in rows)
-    return (f"{n_evals} evaluations (design + certificate at one knob value each): compile {compile_total:.2f} s, "
-            f"solve {solve_total:.2f} s (design LMIs), certificate (compile + solve) {cert_total:.2f} s. Each "
+    total = {k: sum(r[k] for r in rows) for k in ("compile_s", "solve_s", "cert_s", "n_evals")}
+    return (f"{total['n_evals']} evaluations (design + certificate at one knob value each): compile "
+            f"{total['compile_s']:.2f} s, solve {total['solve_s']:.2f} s (design LMIs), certificate (compile + solve) "
+            f"{total['cert_s']:.2f} s. Each "
             "design compiles its cvxpy problem once per structure and re-uses it across the bisection, the knob "
             "entering as parameter values (`bench.lmi.cached_program`).")
 
