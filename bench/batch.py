@@ -65,8 +65,7 @@ class BatchTrajectory:
 
 
 def _check_inputs(plant, K, F, x0, x_hat0, t_final):
-    """Gains, initial conditions (as (n, N) arrays) and horizon of a batch, checked: ``K, F, X, XH, T``; a
-    ValueError names the bad one."""
+    """``K, F, X, XH, T``: gains, initial conditions as (n, N) arrays and horizon, checked (ValueError)."""
     K, F = checks.gains(plant, K, F)
     n = plant.n
     X, XH = (np.asarray(v, dtype=float) for v in (x0, x_hat0))
@@ -150,8 +149,7 @@ def simulate_batch(
 
 def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options: SimOptions,
                extra: dict) -> tuple[np.ndarray, np.ndarray, str, str, int]:
-    """One ``solve_ivp`` call over ``[0, T]``: ``t, y, status, message, nfev`` (the initial state alone
-    when the right-hand side stopped the run)."""
+    """One ``solve_ivp`` call over ``[0, T]``: ``t, y, status, message, nfev`` (y0 alone if stopped)."""
     from scipy.integrate import solve_ivp
 
     t_eval = np.linspace(0.0, T, int(options.n_points))
@@ -165,8 +163,7 @@ def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options:
 
 
 class _BatchRHS(Budget):
-    """Right-hand side of the batch loop (6), freezing the members above their limit and stopping the
-    run past the budgets."""
+    """Right-hand side of the batch loop (6), freezing the members above their limit; stops at the budgets."""
 
     def __init__(self, plant, K: np.ndarray, F: np.ndarray, N: int, limit: np.ndarray, options: SimOptions):
         super().__init__(options)
@@ -239,8 +236,7 @@ def simulate_digital_batch(
 
 def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, rec_idx: list[int],
            limit: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Advance the batch by ``n_steps`` periods, freezing members above ``limit``: the recorded states and
-    estimates, the diverged members, the right-hand sides spent."""
+    """Advance ``n_steps`` periods: recorded states and estimates, diverged members, right-hand sides spent."""
     rec_pos = {k: i for i, k in enumerate(rec_idx)}
     n, N = X.shape
     xs = np.empty((n, N, len(rec_idx)))
@@ -264,7 +260,7 @@ def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, re
 
 
 def _periods(A: np.ndarray, T: float, h, discretisation: str) -> tuple[int, int]:
-    """The periods covering the horizon and the RK4 sub-steps per period, of at most ``min(5e-3, 0.1 / rho(A))``."""
+    """The periods covering the horizon, and RK4 sub-steps per period of ``<= min(5e-3, 0.1 / rho(A))``."""
     h = checks.real("h", h, lo=0.0, strict=True)
     if discretisation not in DISCRETISATIONS:
         raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")

@@ -151,7 +151,7 @@ def _loop_operator(plant, K: np.ndarray, F: np.ndarray):
 
 
 class Budget:
-    """Counts right-hand sides; :meth:`spend` stops the run past ``options.max_nfev`` or ``options.max_wall_s``."""
+    """Counts right-hand sides; :meth:`spend` stops the run past ``max_nfev`` or ``max_wall_s``."""
 
     def __init__(self, options: SimOptions):
         self.options, self.count = options, 0
@@ -167,7 +167,7 @@ class Budget:
 
 
 class _LoopRHS(Budget):
-    """The right-hand side of the loop (6) in ``z = (x, x_hat)``, stopping at the budgets or a non-finite state."""
+    """Right-hand side of the loop (6) in ``z = (x, x_hat)``, stopping at the budgets or a non-finite state."""
 
     def __init__(self, L, f, n: int, options: SimOptions):
         super().__init__(options)

@@ -165,8 +165,7 @@ def chain_plant(
 
 
 def _linear_part(N: int, m: float, k: float, d: float, b: float, ins, outs) -> tuple[np.ndarray, ...]:
-    """``(A, B, C)`` of the chain (module docstring), or PlantError when (A, B) is not stabilizable or
-    (A, C) not detectable (PBH)."""
+    """``(A, B, C)`` of the chain (module docstring); PlantError when (A, B) or (A, C) fails the PBH test."""
     from plants.random_families import is_detectable, is_stabilizable, pbh_margin
 
     n, i, j = 2 * N, np.arange(N), np.arange(N - 1)
