@@ -338,7 +338,7 @@ class _SampledLoop:
         method = options.method if options.method != "auto" else ("RK45" if estimator is not None else "DOP853")
         self.method = getattr(scipy.integrate, method) if isinstance(method, str) else method
         self.held = None  # B u_k ((n, 1) beside the model, (n,) alone), or (0, K v_k) for the observer
-        self.first = None  # the first step of the next interval (see _step)
+        self.first = None  # the first step of the next interval (see _solve)
         self.nfev = 0
 
     def _model_rhs(self, t, s):
