@@ -65,17 +65,12 @@ class BatchTrajectory:
 
 
 def _check_inputs(plant, K, F, x0, x_hat0, t_final):
-    """Gains, initial conditions (as (n, N) arrays) and horizon of a batch, checked: ``K, F, X, XH, T``; a
-    ValueError names the bad one."""
+    """``K, F, X, XH, T``: gains, initial conditions as (n, N) arrays and horizon, checked (ValueError)."""
     K, F = checks.gains(plant, K, F)
     n = plant.n
-    X = np.asarray(x0, dtype=float)
-    XH = np.asarray(x_hat0, dtype=float)
-    if X.ndim == 1:
-        X = X[:, None]
-    if XH.ndim == 1:
-        XH = XH[:, None]
-    if X.shape[0] != n or X.ndim != 2 or X.shape[1] < 1:
+    X, XH = (np.asarray(v, dtype=float) for v in (x0, x_hat0))
+    X, XH = (v[:, None] if v.ndim == 1 else v for v in (X, XH))
+    if X.ndim != 2 or X.shape[0] != n or X.shape[1] < 1:
         raise ValueError(f"x0: expected shape ({n}, N) with N >= 1, got {np.shape(x0)}")
     if XH.shape != X.shape:
         raise ValueError(f"x_hat0: expected shape {X.shape} like x0, got {np.shape(x_hat0)}")
@@ -140,9 +135,7 @@ def simulate_batch(
     limit = options.blowup * np.maximum(1.0, _norms(X, XH))
     rhs = _BatchRHS(plant, K, F, N, limit, options)
     method = choose_method(plant, K, F, T) if options.method == "auto" else options.method
-    extra = {}
-    if method in ("BDF", "Radau"):
-        extra["jac_sparsity"] = _batch_sparsity(n, N)
+    extra = {"jac_sparsity": _batch_sparsity(n, N)} if method in ("BDF", "Radau") else {}
     Y0 = np.concatenate([X, XH], axis=1)
     t0 = time.perf_counter()
     t_out, y, status, message, nfev = _integrate(rhs, Y0.ravel(), T, method, options, extra)
@@ -156,8 +149,7 @@ def simulate_batch(
 
 def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options: SimOptions,
                extra: dict) -> tuple[np.ndarray, np.ndarray, str, str, int]:
-    """One ``solve_ivp`` call over ``[0, T]``: ``t, y, status, message, nfev`` (the initial state alone
-    when the right-hand side stopped the run)."""
+    """One ``solve_ivp`` call over ``[0, T]``: ``t, y, status, message, nfev`` (y0 alone if stopped)."""
     from scipy.integrate import solve_ivp
 
     t_eval = np.linspace(0.0, T, int(options.n_points))
@@ -171,8 +163,7 @@ def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options:
 
 
 class _BatchRHS(Budget):
-    """Right-hand side of the batch loop (6), freezing the members above their limit and stopping the
-    run past the budgets."""
+    """Right-hand side of the batch loop (6), freezing the members above their limit; stops at the budgets."""
 
     def __init__(self, plant, K: np.ndarray, F: np.ndarray, N: int, limit: np.ndarray, options: SimOptions):
         super().__init__(options)
@@ -187,10 +178,7 @@ class _BatchRHS(Budget):
         Y = y.reshape(n, 2 * N)
         x, xh = Y[:, :N], Y[:, N:]
         lin = self.Px @ x + self.Ph @ xh  # (2n, N)
-        fY = np.asarray(self.f(Y), dtype=float)
-        dY = np.empty((n, 2 * N))
-        np.add(fY[:, :N], lin[:n], out=dY[:, :N])
-        np.add(fY[:, N:], lin[n:], out=dY[:, N:])
+        dY = np.asarray(self.f(Y), dtype=float) + np.hstack([lin[:n], lin[n:]])
         if not (y @ y) <= self.fast2:  # rare path (also taken on NaN): freeze the members that blew up
             frozen = ~(_norms(x, xh) <= self.limit)
             if frozen.any():
@@ -212,9 +200,6 @@ def simulate_digital_batch(
     h: float,
     t_final: float | None = None,
     discretisation: str = "zoh",
-    dt_max: float | None = None,
-    blowup: float = 1e6,
-    max_records: int = 4001,
 ) -> BatchTrajectory:
     """Simulate the sampled-data loop (discrete observer and controller at period h, continuous plant).
 
@@ -230,23 +215,18 @@ def simulate_digital_batch(
         Horizon (default ``plant.t_final``).
     discretisation : {"zoh", "euler"}
         Observer discretisation.
-    dt_max : float, optional
-        Largest RK4 sub-step.
-    blowup : float
-        Members above ``blowup * max(1, ||z_j(0)||)`` are frozen and reported diverged.
-    max_records : int
-        At most this many sample instants are recorded (evenly strided, the last one always).
 
     Returns
     -------
     BatchTrajectory
-        At the recorded samples (``x_hat`` the estimate used there).
+        At most :data:`MAX_RECORDS` sample instants (evenly strided, the last one always; ``x_hat`` the
+        estimate used there); members above ``1e6 max(1, ||z_j(0)||)`` are frozen and reported diverged.
     """
     K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
-    n_steps, n_sub = _periods(plant.A, T, h, discretisation, dt_max)
+    n_steps, n_sub = _periods(plant.A, T, h, discretisation)
     loop = _DigitalLoop(plant, K, F, h, n_sub, zoh=discretisation == "zoh")
-    rec_idx = _record_indices(n_steps, max_records)
-    limit = blowup * np.maximum(1.0, np.linalg.norm(np.vstack([X, XH]), axis=0))
+    rec_idx = _record_indices(n_steps)
+    limit = 1e6 * np.maximum(1.0, np.linalg.norm(np.vstack([X, XH]), axis=0))
     t0 = time.perf_counter()
     xs, xhs, diverged, nfev = _march(loop, X, XH, n_steps, rec_idx, limit)
     wall = time.perf_counter() - t0
@@ -256,8 +236,7 @@ def simulate_digital_batch(
 
 def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, rec_idx: list[int],
            limit: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Advance the batch by ``n_steps`` periods, freezing members above ``limit``: the recorded states and
-    estimates, the diverged members, the right-hand sides spent."""
+    """Advance ``n_steps`` periods: recorded states and estimates, diverged members, right-hand sides spent."""
     rec_pos = {k: i for i, k in enumerate(rec_idx)}
     n, N = X.shape
     xs = np.empty((n, N, len(rec_idx)))
@@ -272,36 +251,32 @@ def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, re
                 xhs[:, :, rec_pos[k]] = xh
             active &= _norms(x, xh) <= limit
             if k == n_steps or not active.any():
-                if k < n_steps:  # everything diverged: fill the remaining records with the frozen state
-                    for kk in rec_idx:
-                        if kk > k:
-                            xs[:, :, rec_pos[kk]] = x
-                            xhs[:, :, rec_pos[kk]] = xh
+                later = [i for kk, i in rec_pos.items() if kk > k]  # everything diverged: the frozen state
+                xs[:, :, later] = x[:, :, None]
+                xhs[:, :, later] = xh[:, :, None]
                 break
             nfev += loop.advance(x, xh, active if not active.all() else slice(None))
     return xs, xhs, ~active | ~(_norms(x, xh) <= limit), nfev
 
 
-def _periods(A: np.ndarray, T: float, h, discretisation: str, dt_max) -> tuple[int, int]:
-    """The periods covering the horizon and the RK4 sub-steps per period (checked; ``dt_max`` by default
-    ``min(5e-3, 0.1 / rho(A))``)."""
+def _periods(A: np.ndarray, T: float, h, discretisation: str) -> tuple[int, int]:
+    """The periods covering the horizon, and RK4 sub-steps per period of ``<= min(5e-3, 0.1 / rho(A))``."""
     h = checks.real("h", h, lo=0.0, strict=True)
     if discretisation not in DISCRETISATIONS:
         raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
-    if dt_max is None:
-        rho = float(np.abs(np.linalg.eigvals(A)).max())
-        dt_max = min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
-    dtm = checks.real("dt_max", dt_max, lo=0.0, strict=True)
-    return max(1, math.ceil(T / h - 1e-9)), max(1, math.ceil(h / dtm - 1e-9))
+    rho = float(np.abs(np.linalg.eigvals(A)).max())
+    dt_max = min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
+    return max(1, math.ceil(T / h - 1e-9)), max(1, math.ceil(h / dt_max - 1e-9))
 
 
-def _record_indices(n_steps: int, max_records: int) -> list[int]:
-    """The sample indices recorded: evenly strided, at most about ``max_records``, the last one always."""
-    stride = max(1, math.ceil((n_steps + 1) / max(int(max_records), 2)))
-    rec_idx = list(range(0, n_steps + 1, stride))
-    if rec_idx[-1] != n_steps:
-        rec_idx.append(n_steps)
-    return rec_idx
+#: At most this many sample instants of a digital batch are recorded.
+MAX_RECORDS = 4001
+
+
+def _record_indices(n_steps: int) -> list[int]:
+    """The sample indices recorded: evenly strided, at most about :data:`MAX_RECORDS`, the last one always."""
+    stride = math.ceil((n_steps + 1) / MAX_RECORDS)
+    return sorted({*range(0, n_steps + 1, stride), n_steps})
 
 
 class _DigitalLoop:
@@ -351,10 +326,7 @@ def digital_matrix(A: np.ndarray, B: np.ndarray, C: np.ndarray, K: np.ndarray, F
     from scipy.linalg import expm
 
     n = A.shape[0]
-    M = np.zeros((2 * n, 2 * n))
-    M[:n, :n] = A
-    M[:n, n:] = np.eye(n)
-    E = expm(M * h)
+    E = expm(np.block([[A, np.eye(n)], [np.zeros((n, 2 * n))]]) * h)
     Ad, G = E[:n, :n], E[:n, n:]
     BF, KC = B @ F, K @ C
     top = np.hstack([Ad, G @ BF])

@@ -151,8 +151,7 @@ def _loop_operator(plant, K: np.ndarray, F: np.ndarray):
 
 
 class Budget:
-    """Counts right-hand sides; :meth:`spend` stops the run past ``options.max_nfev`` of them or
-    ``options.max_wall_s`` seconds."""
+    """Counts right-hand sides; :meth:`spend` stops the run past ``max_nfev`` or ``max_wall_s``."""
 
     def __init__(self, options: SimOptions):
         self.options, self.count = options, 0
@@ -168,8 +167,7 @@ class Budget:
 
 
 class _LoopRHS(Budget):
-    """The right-hand side of the loop (6) in ``z = (x, x_hat)``, stopping the run past the budgets or
-    at a non-finite state."""
+    """Right-hand side of the loop (6) in ``z = (x, x_hat)``, stopping at the budgets or a non-finite state."""
 
     def __init__(self, L, f, n: int, options: SimOptions):
         super().__init__(options)
@@ -324,8 +322,7 @@ def _sampled(plant: Plant, F, K, estimator, dt: float, t_final: float, noise: fl
 
 
 class _SampledLoop:
-    """One run of the sampled paths of :func:`simulate_controller`, one sample interval at a time;
-    the right-hand sides read what is held over the interval from ``held``."""
+    """One run of the sampled paths of :func:`simulate_controller`, one sample interval at a time."""
 
     def __init__(self, plant: Plant, F, K, estimator, dt: float, options: SimOptions):
         import scipy.integrate
@@ -341,7 +338,7 @@ class _SampledLoop:
         method = options.method if options.method != "auto" else ("RK45" if estimator is not None else "DOP853")
         self.method = getattr(scipy.integrate, method) if isinstance(method, str) else method
         self.held = None  # B u_k ((n, 1) beside the model, (n,) alone), or (0, K v_k) for the observer
-        self.first = None  # the first step of the next interval (see _step)
+        self.first = None  # the first step of the next interval (see _solve)
         self.nfev = 0
 
     def _model_rhs(self, t, s):
@@ -358,8 +355,7 @@ class _SampledLoop:
         return _finite(self.L @ s + self.held + np.asarray(self.f(s.reshape(2, self.n).T), dtype=float).T.ravel(), t)
 
     def _solve(self, fun, y0) -> tuple[np.ndarray, int]:
-        """Integrate over one interval with scipy's solver class stepped directly; the end state and the
-        right-hand sides used. The next interval starts with twice this one's largest step."""
+        """One interval with scipy's solver stepped directly: the end state and the right-hand sides used."""
         o = self.options
         solver = self.method(fun, 0.0, y0, self.dt, rtol=o.rtol, atol=o.atol, first_step=self.first)
         largest = 0.0
@@ -372,33 +368,27 @@ class _SampledLoop:
         self.first = min(self.dt, 2.0 * largest) if largest > 0 else None
         return solver.y, solver.nfev
 
-    def _estimator_step(self, x, xh, u):
-        """The plant with ``u`` held and the estimator's prediction over one interval; the next plant state
-        and the right-hand sides used."""
-        est = self.estimator
-        # a NaN derivative at the start would make the integrator's step-size loop endless
-        xe = np.asarray(xh, dtype=float)
-        _finite(np.asarray(self.f(xe), dtype=float), 0.0, "f at the estimate")
-        bu = self.B @ u
-        if getattr(est, "predicts_with_model", False):  # plant and prediction: one ODE
-            self.held = bu[:, None]
-            y, nfev = self._solve(self._model_rhs, np.stack([x, xe], axis=1).ravel())
-            S = y.reshape(self.n, 2)
-            est.predict(u, x_next=S[:, 1])  # the filter keeps a copy
-            return S[:, 0].copy(), nfev
-        self.held = bu
-        y, nfev = self._solve(self._plant_rhs, x)
-        est.predict(u)
-        return y, nfev
-
     def _step(self, x, xh, u, z, v):
         """Advance over one interval (measurement noise ``v``); count its right-hand sides."""
-        if self.estimator is not None:
-            x, nfev = self._estimator_step(x, xh, u)
-        else:
+        est = self.estimator
+        if est is None:
             self.held = np.concatenate([np.zeros(self.n), self.K @ v])
             y, nfev = self._solve(self._observer_rhs, z)
             x, xh = y[:self.n], y[self.n:]
+        else:
+            # a NaN derivative at the start would make the integrator's step-size loop endless
+            _finite(np.asarray(self.f(xh), dtype=float), 0.0, "f at the estimate")
+            bu = self.B @ u
+            if getattr(est, "predicts_with_model", False):  # plant and prediction: one ODE
+                self.held = bu[:, None]
+                y, nfev = self._solve(self._model_rhs, np.stack([x, xh], axis=1).ravel())
+                S = y.reshape(self.n, 2)
+                est.predict(u, x_next=S[:, 1])  # the filter keeps a copy
+                x = S[:, 0].copy()
+            else:
+                self.held = bu
+                x, nfev = self._solve(self._plant_rhs, x)
+                est.predict(u)
         self.nfev += nfev
         return x, xh
 

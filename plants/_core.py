@@ -15,15 +15,9 @@ from bench.errors import PlantError, RegistryError
 from bench.registry import check_id
 
 
-def _plant_error(name: str, message: str) -> PlantError:
-    return PlantError(f"{name}: {message}")
-
-
-def _finite_scalar(name: str, value, *, allow_none: bool = True, positive: bool = False):
-    """``value`` as a finite float (> 0 if ``positive``), None passed through when ``allow_none``."""
-    if value is None and allow_none:
-        return None
-    return check_real(name, value, lo=0.0 if positive else None, strict=positive)
+def _finite_scalar(name: str, value, *, positive: bool = False):
+    """``value`` as a finite float (> 0 if ``positive``), None passed through."""
+    return None if value is None else check_real(name, value, lo=0.0 if positive else None, strict=positive)
 
 
 def check_int(name: str, value, lo: int, hi: int | None = None, *, what: str = "") -> int:
@@ -42,7 +36,8 @@ def check_int(name: str, value, lo: int, hi: int | None = None, *, what: str = "
 
 def check_real(name: str, value, *, lo: float | None = None, strict: bool = False) -> float:
     """:func:`bench.checks.real` raising :class:`PlantError`."""
-    return checks.real(name, value, lo=lo, strict=strict, error=_plant_error)
+    return checks.real(name, value, lo=lo, strict=strict,
+                       error=lambda name, message: PlantError(f"{name}: {message}"))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -261,21 +256,18 @@ def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> dict:
         J[acts, reads] = gain * np.cos(x[reads])
         return J
 
-    a = abs(coef) / scale if acts.size else 0.0
-    return {"f": f, "jacobian": jacobian, "channels": _sine_channels(n, acts, reads, coef, scale),
-            "bounds": Constants(alpha=a, rho=a / 2, beta=a**2, gamma=0.0)}
-
-
-def _sine_channels(n: int, acts: np.ndarray, reads: np.ndarray, coef: float, scale: float) -> Channels | None:
-    """The channels of :func:`sine_terms` (None when there is no term)."""
     q = acts.size
-    if not q:
-        return None
-    G = np.zeros((n, q))
-    G[acts, np.arange(q)] = 1.0 / scale
-    H = np.zeros((q, n))
-    H[np.arange(q), reads] = 1.0
-    return Channels(G=G, H=H, phi=lambda z: coef * np.sin(z), lo=-abs(coef), hi=abs(coef), narrow=sine_slopes(coef))
+    channels = None
+    if q:
+        G = np.zeros((n, q))
+        G[acts, np.arange(q)] = 1.0 / scale
+        H = np.zeros((q, n))
+        H[np.arange(q), reads] = 1.0
+        channels = Channels(G=G, H=H, phi=lambda z: coef * np.sin(z), lo=-abs(coef), hi=abs(coef),
+                            narrow=sine_slopes(coef))
+    a = abs(coef) / scale if q else 0.0
+    return {"f": f, "jacobian": jacobian, "channels": channels,
+            "bounds": Constants(alpha=a, rho=a / 2, beta=a**2, gamma=0.0)}
 
 
 def _real_array(value) -> np.ndarray:
@@ -384,8 +376,7 @@ class Plant:
                 raise PlantError(f"{name}: expected shape ({n},) to match A {A.shape}, got {v.shape}")
         for name, value in (("A", A), ("B", B), ("C", C), ("x0", x0), ("x_hat0", xh0)):
             object.__setattr__(self, name, value)
-        t_final = _finite_scalar("t_final", self.t_final, allow_none=False, positive=True)
-        object.__setattr__(self, "t_final", t_final)
+        object.__setattr__(self, "t_final", check_real("t_final", self.t_final, lo=0.0, strict=True))
         if not isinstance(self.claimed, Constants):
             raise PlantError(f"claimed: expected a Constants, got {type(self.claimed).__name__}")
         if self.bounds is not None and not isinstance(self.bounds, Constants):
@@ -396,7 +387,7 @@ class Plant:
             raise PlantError(f"params: expected a mapping of parameter names to numbers, "
                              f"got {checks.brief(self.params)}") from None
         for key, val in self.params.items():
-            _finite_scalar(f"params[{key!r}]", val, allow_none=False)
+            check_real(f"params[{key!r}]", val)
         self._check_f(n)
         self._check_contract(n)
         self._check_jacobian(n)
@@ -452,6 +443,7 @@ class Plant:
     def _check_contract(self, n: int) -> None:
         """f must not write into its argument, and its batch form must act column by column."""
         X = self._probe_points(n)
+        singles = []
         for j in range(X.shape[1]):
             arg = X[:, j].copy()
             out = _real_array(self.f(arg))
@@ -464,6 +456,7 @@ class Plant:
                 raise PlantError(f"f is not deterministic: at the state x = {np.round(X[:, j], 6).tolist()} it gave "
                                  f"{np.round(out, 6).tolist()}, then {np.round(again, 6).tolist()}; f must be a "
                                  "function of x alone (no random or hidden state)")
+            singles.append(out)
         arg = X.copy()
         batch = _real_array(self.f(arg))
         if not np.array_equal(arg, X):
@@ -471,8 +464,7 @@ class Plant:
         if batch.shape != X.shape:
             raise PlantError(f"f: a batch of shape {X.shape} gave shape {batch.shape}; a batch (n, N) must "
                              "give (n, N), one column per state")
-        for j in range(X.shape[1]):
-            single = _real_array(self.f(X[:, j].copy()))
+        for j, single in enumerate(singles):
             if not np.allclose(batch[:, j], single, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(single).max()))):
                 raise PlantError(
                     f"f: the batch form mixes columns: column {j} of f(X) is {np.round(batch[:, j], 6).tolist()} "
@@ -545,9 +537,8 @@ class Plant:
         >>> plant.n, plant.m, plant.p
         (2, 1, 1)
         """
-        for name in ("A", "B", "C", "D"):
-            if not hasattr(sys, name):
-                raise PlantError(f"sys: expected a control.StateSpace (with A, B, C, D), got {type(sys).__name__}")
+        if not all(hasattr(sys, name) for name in "ABCD"):
+            raise PlantError(f"sys: expected a control.StateSpace (with A, B, C, D), got {type(sys).__name__}")
         dt = getattr(sys, "dt", 0)
         if dt not in (0, None):
             raise PlantError(f"sys: must be a continuous-time system (dt = 0), got dt = {dt!r}")

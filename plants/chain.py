@@ -147,7 +147,6 @@ def chain_plant(
     A, B, C = _linear_part(N, m, k, d, b, ins, outs)
     qi = np.array([2 * i for i in nl], dtype=np.intp)
     pendula = sine_terms(n, acts=qi + 1, reads=qi, coef=c, scale=m)
-    q = len(nl)
 
     x0 = np.zeros(n)
     x0[0::2] = amplitude * np.sin(np.pi * np.arange(1, N + 1) / (N + 1))
@@ -156,7 +155,7 @@ def chain_plant(
         A=A, B=B, C=C, x0=x0, x_hat0=np.zeros(n), **pendula, claimed=pendula["bounds"], t_final=t_final,
         family="chain",
         params={"N": N, "n": n, "m": m, "k": k, "d": d, "b": b, "c": c, "amplitude": amplitude,
-                "n_inputs": len(ins), "n_outputs": len(outs), "n_channels": q, "version": 1},
+                "n_inputs": len(ins), "n_outputs": len(outs), "n_channels": len(nl), "version": 1},
         source=SOURCE,
         notes=(f"chain of {N} masses, pendula (c sin q) at {list(nl)}, forces at {list(ins)}, "
                f"positions measured at {list(outs)}; alpha = |c|/m, rho = |c|/(2m), "
@@ -165,8 +164,7 @@ def chain_plant(
 
 
 def _linear_part(N: int, m: float, k: float, d: float, b: float, ins, outs) -> tuple[np.ndarray, ...]:
-    """``(A, B, C)`` of the chain (module docstring), or PlantError when (A, B) is not stabilizable or
-    (A, C) not detectable (PBH)."""
+    """``(A, B, C)`` of the chain (module docstring); PlantError when (A, B) or (A, C) fails the PBH test."""
     from plants.random_families import is_detectable, is_stabilizable, pbh_margin
 
     n, i, j = 2 * N, np.arange(N), np.arange(N - 1)
@@ -205,5 +203,4 @@ def chain_v1(*, N: int = 3, c: float = 2.0, t_final: float = 20.0) -> Plant:
     -------
     Plant
     """
-    N = check_int("N", N, 1, MAX_N)
     return chain_plant(N=N, c=c, nonlinear=(0,), inputs=(0,), outputs=(0,), t_final=t_final, id="chain_v1")

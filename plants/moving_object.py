@@ -57,13 +57,6 @@ def _jacobian(x: np.ndarray) -> np.ndarray:
     return -(float(x @ x) * np.eye(x.size) + 2.0 * np.outer(x, x))
 
 
-def moving_object_bounds(r: float) -> Constants:
-    """Valid, tight constants of ``f(x) = -||x||^2 x`` on the ball ``||x|| <= r``, ``r > 0`` (module docstring):
-    ``alpha = 3 r^2``, ``rho = 0``, ``(beta, gamma) = (0, -3 r^2)``."""
-    r = check_real("r", r, lo=0.0, strict=True)
-    return Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-3 * r**2, radius=r)
-
-
 @register_plant("moving_object_v1")
 def moving_object(*, r: float = R_SOURCE, t_final: float = 20.0) -> Plant:
     """Moving object OSL plant (Abbaszadeh & Marquez 2010; Nguyen et al. 2018): f = -||x||^2 x.
@@ -80,12 +73,12 @@ def moving_object(*, r: float = R_SOURCE, t_final: float = 20.0) -> Plant:
     Plant
         PlantError when the region ``||x|| <= r`` does not contain the initial conditions.
     """
-    bounds = moving_object_bounds(r)
-    r = bounds.radius
+    r = check_real("r", r, lo=0.0, strict=True)
     for name, v in (("x0", X0), ("x_hat0", X_HAT0)):
         if np.linalg.norm(v) > r:
             raise PlantError(f"r: the region ||x|| <= {r:g} must contain {name} = {v.tolist()}")
     return Plant(id="moving_object_v1", A=A, B=B, C=C, f=_f, jacobian=_jacobian, x0=X0, x_hat0=X_HAT0,
-                 claimed=Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-4 * r**2, radius=r), bounds=bounds,
+                 claimed=Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-4 * r**2, radius=r),
+                 bounds=Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-3 * r**2, radius=r),
                  t_final=t_final, family="moving_object", params={"r": r, "version": 1}, source=SOURCE,
                  notes="OSL with rho = 0 globally; Lipschitz only locally (3 r^2 on ||x|| <= r)")

@@ -229,8 +229,7 @@ def random_osl_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 1.0, r: f
 
 
 def _start(c, *, n, m, p, seed, n_unstable, max_re) -> tuple:
-    """A member's linear part (seed stream 0), its n, the checked scale c (>= 0) and the random stream 1
-    of its nonlinearity and x0."""
+    """A member's A, B, C (seed stream 0), n, checked c (>= 0) and stream 1 (its nonlinearity and x0)."""
     A, B, C = random_lti(n, m, p, seed=seed, n_unstable=n_unstable, max_re=max_re)
     return A, B, C, A.shape[0], check_real("c", c, lo=0.0), np.random.default_rng([int(seed), 1])
 

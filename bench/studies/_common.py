@@ -120,10 +120,7 @@ def default_box(plant) -> float:
 def random_ics(plant, n_ics: int, box: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """``n_ics`` seeded initial conditions ``(x0, x_hat0)``, each uniform in ``[-box, box]^n``, shape (n, n_ics)."""
     rng = np.random.default_rng([int(seed), 5])
-    n = plant.n
-    X = rng.uniform(-box, box, size=(n, n_ics))
-    XH = rng.uniform(-box, box, size=(n, n_ics))
-    return X, XH
+    return tuple(rng.uniform(-box, box, size=(plant.n, n_ics)) for _ in range(2))
 
 
 #: Sampled pairs of a study's constants check (the catalog's constants are analytic; the

@@ -44,9 +44,8 @@ DEFAULT_DESIGNS = ("thm1", "thm1_sep", "thm1_printed", "cor1", "cor1_sep", "cor1
 CAP_DESIGNS = ("thm1", "cor1")
 #: Plants on which the normalisation sensitivity is measured (when selected).
 CAP_PLANTS = ("flexible_link", "random_osl_v1")
-#: Other sensitivity variants: (plant, design, overrides), run when the plant and design are selected.
-#: The gamma < 0 form of Theorem 1 searches eps2 on a grid (default 1e-2 to 1e2); on the moving
-#: object its best eps2 sits at the grid's lower end at every r, so the grid is widened here.
+#: Other sensitivity variants: (plant, design, overrides), run when the plant and design are selected
+#: (a wider eps2 grid for the gamma < 0 form of Theorem 1).
 EXTRA_VARIANTS = (("moving_object_v1", "thm1", {"eps2_range": (1e-6, 1e2)}),)
 
 
@@ -72,14 +71,8 @@ def small_gain_bound(plant_id: str, knob: str, K: np.ndarray, F: np.ndarray) -> 
     if ch1 is None or ch1.q != 1 or np.any(ch1.center != 0) or not np.allclose(ch2.spread, 2 * ch1.spread) \
             or ch1.spread[0] == 0:
         return math.nan
-    G, H = ch1.G, ch1.H
-    worst = 0.0
-    for M in (p1.A + p1.B @ F, p1.A - K @ p1.C):
-        h = _siso_peak(M, G, H)
-        if not math.isfinite(h):
-            return math.nan
-        worst = max(worst, h)
-    return 1.0 / (float(ch1.spread[0]) * worst)
+    peaks = [_siso_peak(M, ch1.G, ch1.H) for M in (p1.A + p1.B @ F, p1.A - K @ p1.C)]
+    return 1.0 / (float(ch1.spread[0]) * max(peaks)) if all(map(math.isfinite, peaks)) else math.nan
 
 
 def _siso_peak(M: np.ndarray, G: np.ndarray, H: np.ndarray) -> float:
@@ -117,12 +110,6 @@ def knob_of(plant_id: str) -> str | None:
         return None
 
 
-def _knob_default(plant_id: str, knob: str) -> float:
-    from bench.registry import PLANTS
-
-    return float(PLANTS.create(plant_id).params[knob])
-
-
 def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, overrides: dict | None = None) -> dict:
     """Design and certify ``design_id`` (with ``overrides``) on ``PLANTS.create(plant_id, **{knob: value})``
     without simulating: a record with ``value``, ``ok`` (gains designed and certified), ``status`` (``invalid``
@@ -130,7 +117,6 @@ def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, override
     """
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
-    from designs import GAIN_STATUSES
     from plants import PlantError
 
     rec: dict[str, Any] = {"value": float(value), "ok": False, "status": "", "feasible": False, "certified": False,
@@ -154,38 +140,37 @@ def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds
     from bench.registry import PLANTS
 
     t0 = time.perf_counter()
-    default = _knob_default(plant_id, knob)
+    default = float(PLANTS.create(plant_id).params[knob])
     out = bisect_largest(lambda v: evaluate_at(plant_id, knob, v, design_id, overrides), default, bounds=bounds,
                          rtol=rtol)
     ev = out["evals"]
     row = {"plant": plant_id, "knob": knob, "default": default, "design": design_id,
            "variant": _label(overrides), "admissible_lo": out["lo"], "failing_hi": out["hi"],
-           "kind": out["kind"], "n_evals": len(ev), "compile_s": sum(e["compile_s"] for e in ev),
-           "solve_s": sum(e["solve_s"] for e in ev), "n_solves": sum(e["n_solves"] for e in ev),
-           "cert_s": sum(e["cert_s"] for e in ev), "wall_s": time.perf_counter() - t0}
+           "kind": out["kind"], "n_evals": len(ev),
+           **{k: sum(e[k] for e in ev) for k in ("compile_s", "solve_s", "n_solves", "cert_s")},
+           "wall_s": time.perf_counter() - t0}
     fail = [e for e in ev if not e["ok"] and (e["value"] == out["hi"] or out["kind"] == "inapplicable")]
-    if fail:
-        f = fail[-1]
-        row["fails_by"] = ("not certified" if f["status"] in GAIN_STATUSES else f["status"])
-        row["fail_reason"] = f["reason"][:300]
-    else:
-        row["fails_by"] = ""
-        row["fail_reason"] = ""
+    row["fails_by"] = _outcome(fail[-1]) if fail else ""
+    row["fail_reason"] = fail[-1]["reason"][:300] if fail else ""
     default_ev = [e for e in ev if e["value"] == default]
-    row["at_default"] = ("ok" if default_ev[0]["ok"] else ("not certified" if default_ev[0]["status"] in GAIN_STATUSES
-                                                            else default_ev[0]["status"])) if default_ev else ""
+    row["at_default"] = _outcome(default_ev[0]) if default_ev else ""
     if math.isfinite(out["lo"]):
         b = PLANTS.create(plant_id, **{knob: out["lo"]}).bounds
         row.update(alpha_at_lo=b.alpha, rho_at_lo=b.rho, beta_at_lo=b.beta, gamma_at_lo=b.gamma)
     for e in ev:
         e.update(plant=plant_id, design=design_id, knob=knob, variant=row["variant"])
-    if design_id in ("lqr+lqe",) and not overrides:  # neither gain depends on the knob
+    if design_id == "lqr+lqe" and not overrides:  # neither gain depends on the knob
         from bench.registry import DESIGNS
 
         plant = PLANTS.create(plant_id)
         res = DESIGNS.create(design_id).design(plant, plant.bounds)
         row["small_gain"] = small_gain_bound(plant_id, knob, res.K, res.F) if res.has_gains else math.nan
     return {"row": row, "evals": ev}
+
+
+def _outcome(e: dict) -> str:
+    """An evaluation's outcome: ``ok``, ``not certified`` (gains designed) or its status."""
+    return "ok" if e["ok"] else "not certified" if e["status"] in GAIN_STATUSES else e["status"]
 
 
 @dataclass
@@ -475,12 +460,10 @@ def _osl_rows(rows: list[dict], plants: list[str]) -> list[dict]:
 
 def _compile_note(rows: list[dict]) -> str:
     """The compile, solve and certificate seconds summed over every evaluation."""
-    compile_total = sum(r["compile_s"] for r in rows)
-    solve_total = sum(r["solve_s"] for r in rows)
-    cert_total = sum(r["cert_s"] for r in rows)
-    n_evals = sum(r["n_evals"] for r in rows)
-    return (f"{n_evals} evaluations (design + certificate at one knob value each): compile {compile_total:.2f} s, "
-            f"solve {solve_total:.2f} s (design LMIs), certificate (compile + solve) {cert_total:.2f} s. Each "
+    total = {k: sum(r[k] for r in rows) for k in ("compile_s", "solve_s", "cert_s", "n_evals")}
+    return (f"{total['n_evals']} evaluations (design + certificate at one knob value each): compile "
+            f"{total['compile_s']:.2f} s, solve {total['solve_s']:.2f} s (design LMIs), certificate (compile + solve) "
+            f"{total['cert_s']:.2f} s. Each "
             "design compiles its cvxpy problem once per structure and re-uses it across the bisection, the knob "
             "entering as parameter values (`bench.lmi.cached_program`).")
 

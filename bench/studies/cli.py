@@ -25,8 +25,8 @@ _count = argtype(checks.integer, lo=1)
 _seed = argtype(checks.integer, lo=0)
 
 
-def _float_list(*, positive: bool, allow_empty: bool):
-    """An argparse type: comma-separated finite numbers (each > 0 if ``positive``; none if ``allow_empty``)."""
+def _float_list(*, allow_empty: bool):
+    """An argparse type: comma-separated finite numbers > 0 (none if ``allow_empty``)."""
     def fail(name: str, message: str) -> Exception:
         return argparse.ArgumentTypeError(f"each value {message}")
 
@@ -38,7 +38,7 @@ def _float_list(*, positive: bool, allow_empty: bool):
             values = [float(p) for p in parts]
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected numbers like 1e-3,1e-2, got {text!r}") from None
-        return [checks.real("value", v, lo=0.0 if positive else None, strict=True, error=fail) for v in values]
+        return [checks.real("value", v, lo=0.0, strict=True, error=fail) for v in values]
 
     return parse
 
@@ -48,12 +48,14 @@ def add_study_parser(sub) -> None:
     st = sub.add_parser("study", help="studies after the tables: admissible, sampling, montecarlo, noise")
     ss = st.add_subparsers(dest="study", required=True, parser_class=type(st))
 
-    def common(p, seed: bool = True):
+    def common(p, simulates: bool = True):
         p.add_argument("--plant", action="append", metavar="GLOB", help="plant id or glob (repeatable)")
         p.add_argument("--design", action="append", metavar="GLOB", help="design id or glob (repeatable)")
         p.add_argument("--out", default="reports", metavar="DIR", help="report folder (default: reports)")
-        if seed:
+        if simulates:
             p.add_argument("--seed", type=_seed, default=0, help="seed of the random draws (default 0)")
+            p.add_argument("--t-final", type=_positive, default=None, metavar="SECONDS",
+                           help="horizon (default: each plant's)")
         p.add_argument("-j", "--jobs", type=_count, default=None, metavar="N",
                        help="local worker processes (default: all cores; 1 = serial)")
         p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
@@ -62,11 +64,11 @@ def add_study_parser(sub) -> None:
 
     a = ss.add_parser("admissible", help="largest scale of f at which each LMI/Riccati design is feasible and "
                                          "certified (bisection)")
-    common(a, seed=False)
+    common(a, simulates=False)
     a.add_argument("--range", nargs=2, type=_number, default=None, metavar=("LO", "HI"),
                    help="bisection bounds on the plant's scale knob (default: bracket from its default value)")
     a.add_argument("--rtol", type=_positive, default=0.01, help="relative tolerance of the bisection (default 0.01)")
-    a.add_argument("--caps", type=_float_list(positive=True, allow_empty=True), default=[10.0, 100.0, 1e4],
+    a.add_argument("--caps", type=_float_list(allow_empty=True), default=[10.0, 100.0, 1e4],
                    metavar="CAP,CAP,...", help="other normalisation caps for thm1/cor1 (default 10,100,10000; '' skips)")
 
     s = ss.add_parser("sampling", help="largest sample period of a digital implementation (ZOH, discrete observer)")
@@ -80,23 +82,20 @@ def add_study_parser(sub) -> None:
     s.add_argument("--h-range", nargs=2, type=_number, default=None, metavar=("LO", "HI"),
                    help="bisection bounds on h in seconds (default: bracket from h_lin / 2)")
     s.add_argument("--rtol", type=_positive, default=0.01, help="relative tolerance of the bisection (default 0.01)")
-    s.add_argument("--t-final", type=_positive, default=None, metavar="SECONDS", help="horizon (default: each plant's)")
 
     m = ss.add_parser("montecarlo", help="region of convergence: N seeded random initial conditions, one batch ODE")
     common(m)
     m.add_argument("--n", type=_count, default=1000, metavar="N", help="initial conditions per plant (default 1000)")
     m.add_argument("--box", type=_positive, default=None, metavar="B",
                    help="half-width of the initial-condition box (default: the plant's initial-condition scale)")
-    m.add_argument("--t-final", type=_positive, default=None, metavar="SECONDS", help="horizon (default: each plant's)")
     m.add_argument("--method", default="auto", choices=("auto", "RK45", "DOP853", "RK23", "BDF", "Radau"),
                    help="solve_ivp method of the batch (default auto: DOP853, BDF when the loop is stiff)")
 
     n = ss.add_parser("noise", help="RMS estimation error and final ||x|| vs measurement noise, Luenberger vs EKF")
     common(n)
-    n.add_argument("--levels", type=_float_list(positive=True, allow_empty=False), default=None,
+    n.add_argument("--levels", type=_float_list(allow_empty=False), default=None,
                    metavar="SIGMA,SIGMA,...", help="noise standard deviations (default: 7 points from 1e-4 to 1e-1)")
     n.add_argument("--no-matched-ekf", action="store_true", help="skip the EKF with r = sigma^2")
-    n.add_argument("--t-final", type=_positive, default=None, metavar="SECONDS", help="horizon (default: each plant's)")
 
 
 def _explicit(patterns: list[str] | None) -> list[str]:

@@ -155,8 +155,8 @@ def _draw(pid: str, rows: list[dict], settling: dict):
         a2.set_yticks(y, names)
         a2.set_ylim(len(sim) - 0.5, -0.5)
         a2.set(xlabel="2 % settling time of ||x|| [s] (converging ICs; whiskers min-max)",
-               title=f"{pid}: {sim[0]['N'] if sim else 0} initial conditions in [-{fmt(sim[0]['box']) if sim else ''}, "
-                     f"{fmt(sim[0]['box']) if sim else ''}]^n")
+               title=f"{pid}: {sim[0]['N']} initial conditions in "
+                     f"[-{fmt(sim[0]['box'])}, {fmt(sim[0]['box'])}]^n")
         a2.grid(True, axis="x", alpha=0.3)
         save_figure(fig, path)
 
@@ -166,8 +166,8 @@ def _draw(pid: str, rows: list[dict], settling: dict):
 def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
     """Write ``STUDY_montecarlo.md``, its CSV and figures atomically; return the markdown's path."""
     rows = result.rows
-    plants = list(dict.fromkeys(r["plant"] for r in rows))
     sim = [r for r in rows if "frac_converged" in r]
+    plants = list(dict.fromkeys(r["plant"] for r in sim))  # those with a figure
     skipped = [r for r in rows if "frac_converged" not in r]
     cols = ["plant", "design", "certified", "region", "frac_converged", "n_diverged", "worst_final_x",
             "settling_min", "settling_median", "settling_p90", "settling_max", "method", "sim_s"]
@@ -191,9 +191,8 @@ def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
                                                                              for r in warn), ""]
     lines += skipped_lines(skipped, width=250)
     lines += ["## Figures", ""]
-    lines += [f"![{pid}](figures/study_montecarlo_{pid}.png)" for pid in plants
-              if any(r["plant"] == pid for r in sim)]
+    lines += [f"![{pid}](figures/study_montecarlo_{pid}.png)" for pid in plants]
     lines.append("")
     figs = {f"study_montecarlo_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid], result.settling)
-            for pid in plants if any(r["plant"] == pid for r in sim)}
+            for pid in plants}
     return write_study(out_dir, "montecarlo", "\n".join(lines), {"study_montecarlo": rows}, figs)

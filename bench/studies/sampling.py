@@ -11,6 +11,7 @@ random initial conditions (``h_max <= h_lin`` expected), with settling times vs 
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -43,13 +44,9 @@ def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1
         return float(np.abs(np.linalg.eigvals(digital_matrix(Alin, plant.B, plant.C, K, F, h, discretisation))).max())
 
     grid = np.logspace(math.log10(h_min), math.log10(h_max), int(n_grid))
-    prev = None
-    for h in grid:
+    for i, h in enumerate(grid):
         if rho(h) >= 1.0:
-            if prev is None:
-                return 0.0
-            return float(brentq(lambda v: rho(v) - 1.0, prev, h, rtol=1e-8))
-        prev = h
+            return 0.0 if i == 0 else float(brentq(lambda v: rho(v) - 1.0, grid[i - 1], h, rtol=1e-8))
     return math.inf
 
 
@@ -103,9 +100,7 @@ def _sampling_task(prior, n_ics: int, box: float | None, seed: int, disc: str, h
     h_lin = linear_h_bound(plant, K, F, disc)
     start = h_lin / 2 if 0 < h_lin < math.inf else (1e-3 if h_lin == 0 else 1.0)
 
-    def check(h):
-        return _check_h(plant, prior, X, XH, h, disc, t_final)
-
+    check = functools.partial(_check_h, plant, prior, X, XH, disc=disc, t_final=t_final)
     out = bisect_largest(check, start, bounds=h_range, rtol=rtol, max_doublings=6)
     evals = out["evals"]
     # settling time vs h: a few periods below the bound (not below 2e-4 s, for cost)
