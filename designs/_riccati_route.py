@@ -698,8 +698,7 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     s, t : float, optional
         Channel multipliers (default ``s = ||Dr H|| / ||G||``, ``t = 1 / s``).
     method : str
-        ARE method of the verified solves (:func:`solve_are`; the search's estimates use the sign
-        function in single precision).
+        ARE method of the verified solves (:func:`solve_are`).
 
     Returns
     -------
@@ -711,10 +710,25 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     q = _check_shapes(A, B, C, G, H, lo, hi)
     lp = joint.loop(A, B, C, G, H, lo, hi)
     r = np.broadcast_to(np.asarray((np.asarray(hi, float) - np.asarray(lo, float)) / 2), (q,))
-    A0, n = lp.A0, A.shape[0]
-    sigma, s, t, tau0_x, tau0_e = _scales(lp, B, C, s, t)
-    res = RiccatiRouteResult(status="infeasible", reason="", s=s, t=t)
-    grid = [(tau, e) for e in eps for tau in taus]
+    scales = _scales(lp, B, C, s, t)
+    res = RiccatiRouteResult(status="infeasible", reason="", s=scales[1], t=scales[2])
+    xs, es = _sides(lp, G, H, r, scales, [(tau, e) for e in eps for tau in taus], max_gain, method)
+    found = _targets(xs, es, lam, max_decay, rtol)
+    res.tries, t1 = es.tries + xs.tries, time.perf_counter()
+    res.timings = {"search": t1 - t_start}
+    if isinstance(found, str):
+        res.reason = found
+    else:
+        _certify_pair(res, lp, *found, res.s, res.t)
+        res.timings["certificate"] = time.perf_counter() - t1
+    res.timings["total"] = time.perf_counter() - t_start
+    return res
+
+
+def _sides(lp: joint.Loop, G, H, r, scales: tuple, grid: list, max_gain: float, method: str) -> tuple[_Side, _Side]:
+    """The x-side and the e-side of the route (:class:`_Side`) on the (tau, eps) ``grid`` relative to ``scales``."""
+    A0, B, C, n = lp.A0, lp.B, lp.C, lp.A0.shape[0]
+    sigma, s, t, tau0_x, tau0_e = scales
     I = np.eye(n)
     xs = _Side("x", n, lambda la, tau, e: _are_data(A0 + la * I, B, lp.G, lp.DH, s, tau * tau0_x, e * sigma),
                lambda X, tau: _norm2(tau * tau0_x * (B.T @ X)),
@@ -724,17 +738,7 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
                lambda X, tau: _norm2(tau * tau0_e * (X @ C.T)),
                lambda la, tau, e, X0: solve_e_side(A0, C, G, H, r, la, t, tau * tau0_e, e * sigma, method=method, X0=X0),
                grid, max_gain)
-    found = _targets(xs, es, lam, max_decay, rtol)
-    res.tries = es.tries + xs.tries
-    if isinstance(found, str):
-        res.reason = found
-        res.timings = {"search": time.perf_counter() - t_start, "total": time.perf_counter() - t_start}
-        return res
-    t1 = time.perf_counter()
-    _certify_pair(res, lp, *found, s, t)
-    res.timings = {"search": t1 - t_start, "certificate": time.perf_counter() - t1,
-                   "total": time.perf_counter() - t_start}
-    return res
+    return xs, es
 
 
 def _are_data(a, inputs, acts, reads, mult, tau, eps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
