@@ -83,6 +83,8 @@ class Knowledge:
         qib = {"beta", "gamma"} if {"beta", "gamma"} & set(untrusted) else set()  # both or neither
         consts = replace(self.constants, **dict.fromkeys({"alpha", "rho"} & set(untrusted) | qib))
         ch = None if "channels" in untrusted else self.channels
+        if ch is not None and "channels.narrow" in untrusted:  # the global slopes hold: only the narrowing goes
+            ch = replace(ch, narrow=None)
         notes = self.notes + tuple(f"{why}: not used by certificates" for why in untrusted.values())
         return Knowledge(consts, ch, notes, {**self.untrusted, **untrusted})
 
@@ -181,26 +183,15 @@ class ConstantsReport:
     def knowledge(self, plant: Plant) -> Knowledge:
         """The trusted part for ``plant``: analytic constants no sample disproved, and the plant's
         channels unless a sample disproved their slopes."""
-        an = self.analytic or Constants()
-        bad = {v.name for v in self.disproved}
-        notes = [v.describe("analytic") + ": not used by certificates" for v in self.disproved]
-        untrusted = {v.name: "analytic " + v.describe("analytic") for v in self.disproved}
-        sampled_only = [k for k in ("alpha", "rho", "beta") if self.source.get(k, "").startswith("sampled")]
-        if sampled_only:
-            notes.append(f"{', '.join(sampled_only)} only sampled (lower bounds): never used by certificates")
-        consts = replace(an, **dict.fromkeys(bad | ({"gamma"} if "beta" in bad else set())))
-        narrowing = [v for v in self.channel_violations if NARROWED in v.name]
+        untrusted = {v.name: v.describe("analytic") for v in self.disproved}
         slopes = [v for v in self.channel_violations if NARROWED not in v.name]
-        ch = plant.channels if not slopes else None
-        if ch is not None and narrowing:  # the global slopes hold: only the narrowing goes
-            ch = replace(ch, narrow=None)
-            notes += [v.describe("declared") + ": the narrowing not used by certificates" for v in narrowing]
-            untrusted["channels.narrow"] = "the declared narrowing: " + "; ".join(v.describe("declared")
-                                                                                for v in narrowing)
-        notes += [v.describe("declared") + ": channels not used by certificates" for v in slopes]
-        if slopes:
-            untrusted["channels"] = "the declared channels: " + "; ".join(v.describe("declared") for v in slopes)
-        return Knowledge(consts, ch, tuple(notes), untrusted)
+        narrowing = [v for v in self.channel_violations if NARROWED in v.name]
+        for key, what, vs in (("channels", "channels", slopes), ("channels.narrow", "narrowing", narrowing)):
+            if vs and "channels" not in untrusted:
+                untrusted[key] = f"the declared {what}: " + "; ".join(v.describe("declared") for v in vs)
+        sampled_only = ", ".join(k for k in ("alpha", "rho", "beta") if self.source.get(k, "").startswith("sampled"))
+        notes = (f"{sampled_only} only sampled (lower bounds): never used by certificates",) if sampled_only else ()
+        return Knowledge(self.analytic or Constants(), plant.channels, notes).without(untrusted)
 
     @property
     def trust(self) -> str:
@@ -398,14 +389,12 @@ def _slope_violations(ch: Channels, i: int, p1: np.ndarray, p2: np.ndarray, Z1: 
         return []
     tol = _REL_TOL * max(1.0, abs(ch.lo[i]), abs(ch.hi[i])) + 1e-9
     out = []
-    for bound, name in ((ch.hi[i], "max"), (ch.lo[i], "min")):
-        k = int(np.argmax(np.where(ok, slope if name == "max" else -slope, -np.inf)))
-        worst = float(slope[k])
-        if (name == "max" and worst > bound + tol) or (name == "min" and worst < bound - tol):
+    for bound, sign, word in ((ch.hi[i], 1.0, "upper"), (ch.lo[i], -1.0, "lower")):
+        k = int(np.argmax(np.where(ok, sign * slope, -np.inf)))
+        if sign * (slope[k] - bound) > tol:
             Hp = np.linalg.pinv(ch.H)
-            label = f"channel {i} {'upper' if name == 'max' else 'lower'} slope bound"
-            out.append(Violation(label, float(bound), worst, tuple(float(v) for v in Hp @ Z1[:, k]),
-                                 tuple(float(v) for v in Hp @ Z2[:, k])))
+            out.append(Violation(f"channel {i} {word} slope bound", float(bound), float(slope[k]),
+                                 tuple(float(v) for v in Hp @ Z1[:, k]), tuple(float(v) for v in Hp @ Z2[:, k])))
     return out
 
 
@@ -456,7 +445,7 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
                                                                   + np.linalg.norm(X2, axis=0))
             inside = _inside(X, c.radius) & _inside(X2, c.radius) & apart
             for k, v in _scalar_violations(plant.f, X[:, inside], X2[:, inside], c.gamma, scalars).items():
-                bad.setdefault(k, "analytic " + v.describe("analytic") + " (along the simulation)")
+                bad.setdefault(k, v.describe("analytic") + " (along the simulation)")
     far = REACH_FACTOR * reach
     glob = {k: v for k, v in scalars.items() if k not in bad and c.radius is None}
     glob_channels = ch is not None and ch.radius is None and "channels" not in bad
@@ -479,7 +468,7 @@ def _sampled_far(plant: Plant, channels: bool, scalars: dict[str, float], gamma:
     if scalars:
         x1, x2 = _random_pairs(rng, plant.n, 4000, None, far=far)
         for k, v in _scalar_violations(plant.f, x1, x2, gamma, scalars).items():
-            bad[k] = "analytic " + v.describe("analytic")
+            bad[k] = v.describe("analytic")
     return bad
 
 
@@ -639,14 +628,11 @@ def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded
     valid_kw, source = {}, {}
     for name in ("alpha", "rho", "beta"):
         av = getattr(analytic, name, None)
-        if av is not None and name not in bad:
-            valid_kw[name], source[name] = av, "analytic"
-        elif av is not None:
-            valid_kw[name], source[name] = getattr(sampled, name), "sampled (analytic disproved)"
-        elif name in unbounded:
-            valid_kw[name], source[name] = None, "unbounded"
+        if av is not None:
+            source[name] = "sampled (analytic disproved)" if name in bad else "analytic"
         else:
-            valid_kw[name], source[name] = getattr(sampled, name), "sampled"
+            source[name] = "unbounded" if name in unbounded else "sampled"
+        valid_kw[name] = {"analytic": av, "unbounded": None}.get(source[name], getattr(sampled, name))
     return Constants(**valid_kw, gamma=None if valid_kw["beta"] is None else gamma, radius=radius), source
 
 
