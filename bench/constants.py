@@ -16,7 +16,7 @@ declarations along a simulation.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Callable
 
 import numpy as np
@@ -156,29 +156,18 @@ class ConstantsReport:
 
     def to_dict(self) -> dict:
         """A JSON-ready description (for the cache and run.json); :meth:`from_dict` inverts it."""
-        def viol(vs):
-            return [{"name": v.name, "claimed": float(v.claimed), "sampled": float(v.sampled),
-                     "x1": [float(a) for a in v.x1], "x2": [float(a) for a in v.x2]} for v in vs]
-
-        return {**{k: (None if getattr(self, k) is None else getattr(self, k).as_dict())
-                   for k in ("claimed", "analytic", "sampled", "used")},
-                "source": dict(self.source), "violations": viol(self.violations), "disproved": viol(self.disproved),
-                "channel_violations": viol(self.channel_violations), "unbounded": dict(self.unbounded),
-                "prechecks": list(self.prechecks), "seed": self.seed, "n_samples": self.n_samples,
-                "checked_on": self.checked_on, "trust": self.trust}
+        return {**asdict(self), "trust": self.trust}
 
     @classmethod
     def from_dict(cls, doc: dict) -> "ConstantsReport":
         """The report :meth:`to_dict` described."""
-        def viol(vs):
-            return [Violation(v["name"], v["claimed"], v["sampled"], tuple(v["x1"]), tuple(v["x2"])) for v in vs]
-
         doc = {"used": doc.get("valid"), **doc}  # "valid": the field's former name in run.json
-        cs = {k: None if doc[k] is None else Constants(**doc[k]) for k in ("claimed", "analytic", "sampled", "used")}
-        return cls(**cs, source=doc["source"], violations=viol(doc["violations"]), disproved=viol(doc["disproved"]),
-                   channel_violations=viol(doc["channel_violations"]), unbounded=doc["unbounded"],
-                   prechecks=doc["prechecks"], seed=doc["seed"], n_samples=doc["n_samples"],
-                   checked_on=doc.get("checked_on"))
+        kw = {f.name: doc[f.name] for f in fields(cls) if f.name in doc}
+        for k in ("claimed", "analytic", "sampled", "used"):
+            kw[k] = None if kw[k] is None else Constants(**kw[k])
+        for k in ("violations", "disproved", "channel_violations"):
+            kw[k] = [Violation(**{**v, "x1": tuple(v["x1"]), "x2": tuple(v["x2"])}) for v in kw[k]]
+        return cls(**kw)
 
     def knowledge(self, plant: Plant) -> Knowledge:
         """The trusted part for ``plant``: analytic constants no sample disproved, and the plant's
