@@ -316,9 +316,14 @@ def _unbounded(f, x1, x2, gamma) -> dict[str, str]:
     return out
 
 
+#: Marks a violated narrowing (``Channels.narrow``): certificates then drop the narrowing only.
+NARROWED = "narrowed"
+
+
 def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000,
                    far: float = GLOBAL_RANGE) -> list[Violation]:
-    """Sampled slopes of each channel against its bounds (on its region, or ``|z_i| <= ||H_i|| far``)."""
+    """Sampled slopes of each channel against its bounds (on its region, or ``|z_i| <= ||H_i|| far``), then
+    on ``|z_i| <= r`` against a declared narrowing ``Channels.slopes_on(r)`` (r up to that range)."""
     ch = plant.channels
     if ch is None:
         return []
@@ -328,7 +333,15 @@ def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000,
         a = rng.uniform(-zmax, zmax, n_pairs)
         b = a + rng.normal(0, 1, n_pairs) * np.maximum(0.05 * zmax, 1e-3) * 10.0 ** rng.uniform(-4, 0, n_pairs)
         out += _pair_violations(ch, i, a, np.clip(b, -zmax, zmax))
-    return out + _narrowing_check(ch, rng, n_pairs, far)
+    for i in range(ch.q if ch.narrow is not None else 0):
+        zmax = _zmax(ch, i, far)
+        for r in np.geomspace(min(1e-2, zmax), zmax, 9):
+            lo, hi = ch.slopes_on(float(r))
+            a = rng.uniform(-r, r, n_pairs // 4)
+            b = np.clip(a + rng.normal(0, 1, a.size) * r * 10.0 ** rng.uniform(-4, 0, a.size), -r, r)
+            out += [replace(v, name=f"{v.name} {NARROWED} on |z| <= {r:.3g}")
+                    for v in _pair_violations(replace(ch, lo=lo, hi=hi, narrow=None), i, a, b)]
+    return out
 
 
 def _zmax(ch: Channels, i: int, far: float) -> float:
@@ -344,26 +357,6 @@ def _pair_violations(ch: Channels, i: int, a: np.ndarray, b: np.ndarray) -> list
     with np.errstate(invalid="ignore", divide="ignore"):
         phi = np.asarray(ch.phi(Z), dtype=float)[i]
     return _slope_violations(ch, i, phi[:a.size], phi[a.size:], Z[:, :a.size], Z[:, a.size:])
-
-
-#: Marks a violated narrowing (``Channels.narrow``): certificates then drop the narrowing only.
-NARROWED = "narrowed"
-
-
-def _narrowing_check(ch: Channels, rng: np.random.Generator, n_pairs: int, far: float) -> list[Violation]:
-    """Sampled slopes of each channel on ``|z_i| <= r`` against ``Channels.slopes_on(r)`` (r up to its range)."""
-    if ch.narrow is None:
-        return []
-    out = []
-    for i in range(ch.q):
-        zmax = _zmax(ch, i, far)
-        for r in np.geomspace(min(1e-2, zmax), zmax, 9):
-            lo, hi = ch.slopes_on(float(r))
-            a = rng.uniform(-r, r, n_pairs // 4)
-            b = np.clip(a + rng.normal(0, 1, a.size) * r * 10.0 ** rng.uniform(-4, 0, a.size), -r, r)
-            out += [replace(v, name=f"{v.name} {NARROWED} on |z| <= {r:.3g}")
-                    for v in _pair_violations(replace(ch, lo=lo, hi=hi, narrow=None), i, a, b)]
-    return out
 
 
 def _slope_violations(ch: Channels, i: int, p1: np.ndarray, p2: np.ndarray, Z1: np.ndarray,
