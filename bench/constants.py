@@ -305,9 +305,8 @@ def _unbounded(f, x1, x2, gamma) -> dict[str, str]:
     s1, s2 = np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0)
     for name, r in zip(("alpha", "rho", "beta"), _ratios(f, x1, x2, gamma)):
         r = np.where(np.isfinite(r), r, -np.inf)
-        inside, outside = r[np.maximum(s1, s2) <= 1.0], r[np.minimum(s1, s2) >= 10.0]
-        small = float(inside.max()) if inside.size else -np.inf
-        large = float(outside.max()) if outside.size else -np.inf
+        small = float(r[np.maximum(s1, s2) <= 1.0].max(initial=-np.inf))
+        large = float(r[np.minimum(s1, s2) >= 10.0].max(initial=-np.inf))
         if large > GROWTH_FACTOR * max(small, 1e-12) and large > 1e-9:
             kind = {"alpha": "globally Lipschitz", "rho": "one-sided Lipschitz with any constant",
                     "beta": "quadratically inner-bounded at this gamma"}[name]

@@ -162,8 +162,7 @@ def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, s
     """The smallest decay rate over the class's linear members: no certificate over the class proves more.
 
     The members of :func:`members`; for a channel box the best is refined by a bounded local search
-    (Powell) over the slopes. Any member's rate bounds every certified rate from above, so the
-    value is a valid ceiling whether or not the search found the true minimum.
+    (Powell) over the slopes (any member's rate is a valid ceiling, found minimum or not).
 
     Returns
     -------
