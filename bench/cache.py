@@ -79,55 +79,44 @@ def _outside_file(module: str) -> str | None:
     return None if real.startswith(tuple(r + os.sep for r in _INSTALLED)) else real
 
 
-def _canon(v: Any, modules: set[str]) -> Any:
-    """A JSON-able, exact description of a value (arrays by hash); adds the modules it meets to ``modules``."""
-    if dataclasses.is_dataclass(v) and not isinstance(v, type):
-        modules.add(type(v).__module__)
-        return {"__type__": f"{type(v).__module__}.{type(v).__qualname__}",
-                **{f.name: _canon(getattr(v, f.name), modules) for f in dataclasses.fields(v)}}
-    if isinstance(v, np.ndarray):
-        a = np.ascontiguousarray(v)
-        return {"__array__": [list(a.shape), str(a.dtype), _sha(a.tobytes())]}
-    if isinstance(v, (bool, np.bool_)):
-        return bool(v)
-    if isinstance(v, (float, np.floating)):
-        return repr(float(v))
-    if isinstance(v, (int, np.integer)):
-        return int(v)
-    if v is None or isinstance(v, str):
-        return v
-    if isinstance(v, (list, tuple)):
-        return [_canon(x, modules) for x in v]
-    if isinstance(v, dict):
-        return {str(k): _canon(x, modules) for k, x in sorted(v.items(), key=lambda kv: str(kv[0]))}
-    if callable(v):
-        modules.add(getattr(v, "__module__", None) or "")
-        return {"__callable__": f"{getattr(v, '__module__', None)}.{getattr(v, '__qualname__', type(v).__name__)}"}
-    return {"__repr__": repr(v)}
+def _encode(v: Any, arrays: dict[str, np.ndarray], modules: set[str] | None = None) -> Any:
+    """JSON for ``v`` (dataclasses by init fields, arrays by name in ``arrays``); TypeError for other types.
 
-
-def _encode(v: Any, arrays: dict[str, np.ndarray]) -> Any:
-    """JSON for ``v`` (dataclasses by init fields, arrays by name in ``arrays``); TypeError for other types."""
+    With ``modules`` (a key's exact description instead): dataclasses by every field, arrays by hash,
+    callables by name and anything else by repr; the modules of dataclasses and callables go into ``modules``.
+    """
+    key = modules is not None
     if isinstance(v, np.ndarray) and not v.dtype.hasobject:
+        if key:
+            a = np.ascontiguousarray(v)
+            return {"__array__": [list(a.shape), str(a.dtype), _sha(a.tobytes())]}
         name = f"a{len(arrays)}"
         arrays[name] = v
         return {"__array__": name}
     if isinstance(v, np.generic):
-        return _encode(v.item(), arrays)
+        return _encode(v.item(), arrays, modules)
     if dataclasses.is_dataclass(v) and not isinstance(v, type):
+        if key:
+            modules.add(type(v).__module__)
         return {"__dataclass__": f"{type(v).__module__}:{type(v).__qualname__}",
-                "fields": {f.name: _encode(getattr(v, f.name), arrays) for f in dataclasses.fields(v) if f.init}}
-    if isinstance(v, dict) and all(isinstance(k, str) for k in v):
-        return {"__dict__": {k: _encode(x, arrays) for k, x in v.items()}}
+                "fields": {f.name: _encode(getattr(v, f.name), arrays, modules)
+                           for f in dataclasses.fields(v) if f.init or key}}
+    if isinstance(v, dict) and (key or all(isinstance(k, str) for k in v)):
+        return {"__dict__": {str(k): _encode(x, arrays, modules) for k, x in v.items()}}
     if isinstance(v, tuple):
-        return {"__tuple__": [_encode(x, arrays) for x in v]}
+        return {"__tuple__": [_encode(x, arrays, modules) for x in v]}
     if isinstance(v, list):
-        return [_encode(x, arrays) for x in v]
+        return [_encode(x, arrays, modules) for x in v]
     if v is None or isinstance(v, (bool, int, float, str)):
         return v
     if isinstance(v, complex):  # an eigenvalue of a witness
         return {"__complex__": [v.real, v.imag]}
-    raise TypeError(f"a {type(v).__name__} cannot be stored without pickling")
+    if not key:
+        raise TypeError(f"a {type(v).__name__} cannot be stored without pickling")
+    if callable(v):
+        modules.add(getattr(v, "__module__", None) or "")
+        return {"__callable__": f"{getattr(v, '__module__', None)}.{getattr(v, '__qualname__', type(v).__name__)}"}
+    return {"__repr__": repr(v)}
 
 
 def _decode(v: Any, arrays: dict[str, np.ndarray]) -> Any:
@@ -224,7 +213,7 @@ class Cache:
     def plant_fingerprint(self, plant, plant_id: str) -> dict[str, Any]:
         """The plant's id, fields and probe (see the module docstring), and the modules it refers to."""
         modules: set[str] = set()
-        return {"id": plant_id, "plant": _canon(plant, modules), "probe": self._probe(plant), "modules": modules}
+        return {"id": plant_id, "plant": _encode(plant, {}, modules), "probe": self._probe(plant), "modules": modules}
 
     @staticmethod
     def _probe_points(plant) -> np.ndarray:
@@ -275,7 +264,7 @@ class Cache:
             modules = p.pop("modules")
             if "design" in parts:
                 design, design_id = parts.pop("design")
-                parts["design"] = {"id": design_id, "design": _canon(design, modules)}
+                parts["design"] = {"id": design_id, "design": _encode(design, {}, modules)}
             return self._key({"kind": kind, "format": CACHE_FORMAT, "versions": self._versions,
                               "code": self._code(modules), "plant": p, **parts})
         except Exception as exc:  # noqa: BLE001 - a cache problem never fails a run: no key, a miss
@@ -288,7 +277,7 @@ class Cache:
         opts["sim"] = {f.name: getattr(options.sim, f.name) for f in dataclasses.fields(options.sim)
                        if f.name not in _NOT_RESULTS}
         return self._build_key(f"{plant_id} x {design_id}", "pair", plant, plant_id, design=(design, design_id),
-                               options=_canon(opts, set()))
+                               options=_encode(opts, {}, set()))
 
     def constants_key(self, plant, plant_id: str, options) -> str | None:
         """The key of one plant's constants; None when it cannot be computed."""

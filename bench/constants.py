@@ -16,7 +16,7 @@ declarations along a simulation.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Callable
 
 import numpy as np
@@ -83,6 +83,8 @@ class Knowledge:
         qib = {"beta", "gamma"} if {"beta", "gamma"} & set(untrusted) else set()  # both or neither
         consts = replace(self.constants, **dict.fromkeys({"alpha", "rho"} & set(untrusted) | qib))
         ch = None if "channels" in untrusted else self.channels
+        if ch is not None and "channels.narrow" in untrusted:  # the global slopes hold: only the narrowing goes
+            ch = replace(ch, narrow=None)
         notes = self.notes + tuple(f"{why}: not used by certificates" for why in untrusted.values())
         return Knowledge(consts, ch, notes, {**self.untrusted, **untrusted})
 
@@ -154,53 +156,31 @@ class ConstantsReport:
 
     def to_dict(self) -> dict:
         """A JSON-ready description (for the cache and run.json); :meth:`from_dict` inverts it."""
-        def viol(vs):
-            return [{"name": v.name, "claimed": float(v.claimed), "sampled": float(v.sampled),
-                     "x1": [float(a) for a in v.x1], "x2": [float(a) for a in v.x2]} for v in vs]
-
-        return {**{k: (None if getattr(self, k) is None else getattr(self, k).as_dict())
-                   for k in ("claimed", "analytic", "sampled", "used")},
-                "source": dict(self.source), "violations": viol(self.violations), "disproved": viol(self.disproved),
-                "channel_violations": viol(self.channel_violations), "unbounded": dict(self.unbounded),
-                "prechecks": list(self.prechecks), "seed": self.seed, "n_samples": self.n_samples,
-                "checked_on": self.checked_on, "trust": self.trust}
+        return {**asdict(self), "trust": self.trust}
 
     @classmethod
     def from_dict(cls, doc: dict) -> "ConstantsReport":
         """The report :meth:`to_dict` described."""
-        def viol(vs):
-            return [Violation(v["name"], v["claimed"], v["sampled"], tuple(v["x1"]), tuple(v["x2"])) for v in vs]
-
         doc = {"used": doc.get("valid"), **doc}  # "valid": the field's former name in run.json
-        cs = {k: None if doc[k] is None else Constants(**doc[k]) for k in ("claimed", "analytic", "sampled", "used")}
-        return cls(**cs, source=doc["source"], violations=viol(doc["violations"]), disproved=viol(doc["disproved"]),
-                   channel_violations=viol(doc["channel_violations"]), unbounded=doc["unbounded"],
-                   prechecks=doc["prechecks"], seed=doc["seed"], n_samples=doc["n_samples"],
-                   checked_on=doc.get("checked_on"))
+        kw = {f.name: doc[f.name] for f in fields(cls) if f.name in doc}
+        for k in ("claimed", "analytic", "sampled", "used"):
+            kw[k] = None if kw[k] is None else Constants(**kw[k])
+        for k in ("violations", "disproved", "channel_violations"):
+            kw[k] = [Violation(**{**v, "x1": tuple(v["x1"]), "x2": tuple(v["x2"])}) for v in kw[k]]
+        return cls(**kw)
 
     def knowledge(self, plant: Plant) -> Knowledge:
         """The trusted part for ``plant``: analytic constants no sample disproved, and the plant's
         channels unless a sample disproved their slopes."""
-        an = self.analytic or Constants()
-        bad = {v.name for v in self.disproved}
-        notes = [v.describe("analytic") + ": not used by certificates" for v in self.disproved]
-        untrusted = {v.name: "analytic " + v.describe("analytic") for v in self.disproved}
-        sampled_only = [k for k in ("alpha", "rho", "beta") if self.source.get(k, "").startswith("sampled")]
-        if sampled_only:
-            notes.append(f"{', '.join(sampled_only)} only sampled (lower bounds): never used by certificates")
-        consts = replace(an, **dict.fromkeys(bad | ({"gamma"} if "beta" in bad else set())))
-        narrowing = [v for v in self.channel_violations if NARROWED in v.name]
+        untrusted = {v.name: v.describe("analytic") for v in self.disproved}
         slopes = [v for v in self.channel_violations if NARROWED not in v.name]
-        ch = plant.channels if not slopes else None
-        if ch is not None and narrowing:  # the global slopes hold: only the narrowing goes
-            ch = replace(ch, narrow=None)
-            notes += [v.describe("declared") + ": the narrowing not used by certificates" for v in narrowing]
-            untrusted["channels.narrow"] = "the declared narrowing: " + "; ".join(v.describe("declared")
-                                                                                for v in narrowing)
-        notes += [v.describe("declared") + ": channels not used by certificates" for v in slopes]
-        if slopes:
-            untrusted["channels"] = "the declared channels: " + "; ".join(v.describe("declared") for v in slopes)
-        return Knowledge(consts, ch, tuple(notes), untrusted)
+        narrowing = [v for v in self.channel_violations if NARROWED in v.name]
+        for key, what, vs in (("channels", "channels", slopes), ("channels.narrow", "narrowing", narrowing)):
+            if vs and "channels" not in untrusted:
+                untrusted[key] = f"the declared {what}: " + "; ".join(v.describe("declared") for v in vs)
+        sampled_only = ", ".join(k for k in ("alpha", "rho", "beta") if self.source.get(k, "").startswith("sampled"))
+        notes = (f"{sampled_only} only sampled (lower bounds): never used by certificates",) if sampled_only else ()
+        return Knowledge(self.analytic or Constants(), plant.channels, notes).without(untrusted)
 
     @property
     def trust(self) -> str:
@@ -325,9 +305,8 @@ def _unbounded(f, x1, x2, gamma) -> dict[str, str]:
     s1, s2 = np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0)
     for name, r in zip(("alpha", "rho", "beta"), _ratios(f, x1, x2, gamma)):
         r = np.where(np.isfinite(r), r, -np.inf)
-        inside, outside = r[np.maximum(s1, s2) <= 1.0], r[np.minimum(s1, s2) >= 10.0]
-        small = float(inside.max()) if inside.size else -np.inf
-        large = float(outside.max()) if outside.size else -np.inf
+        small = float(r[np.maximum(s1, s2) <= 1.0].max(initial=-np.inf))
+        large = float(r[np.minimum(s1, s2) >= 10.0].max(initial=-np.inf))
         if large > GROWTH_FACTOR * max(small, 1e-12) and large > 1e-9:
             kind = {"alpha": "globally Lipschitz", "rho": "one-sided Lipschitz with any constant",
                     "beta": "quadratically inner-bounded at this gamma"}[name]
@@ -336,9 +315,14 @@ def _unbounded(f, x1, x2, gamma) -> dict[str, str]:
     return out
 
 
+#: Marks a violated narrowing (``Channels.narrow``): certificates then drop the narrowing only.
+NARROWED = "narrowed"
+
+
 def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000,
                    far: float = GLOBAL_RANGE) -> list[Violation]:
-    """Sampled slopes of each channel against its bounds (on its region, or ``|z_i| <= ||H_i|| far``)."""
+    """Sampled slopes of each channel against its bounds (on its region, or ``|z_i| <= ||H_i|| far``), then
+    on ``|z_i| <= r`` against a declared narrowing ``Channels.slopes_on(r)`` (r up to that range)."""
     ch = plant.channels
     if ch is None:
         return []
@@ -348,7 +332,15 @@ def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000,
         a = rng.uniform(-zmax, zmax, n_pairs)
         b = a + rng.normal(0, 1, n_pairs) * np.maximum(0.05 * zmax, 1e-3) * 10.0 ** rng.uniform(-4, 0, n_pairs)
         out += _pair_violations(ch, i, a, np.clip(b, -zmax, zmax))
-    return out + _narrowing_check(ch, rng, n_pairs, far)
+    for i in range(ch.q if ch.narrow is not None else 0):
+        zmax = _zmax(ch, i, far)
+        for r in np.geomspace(min(1e-2, zmax), zmax, 9):
+            lo, hi = ch.slopes_on(float(r))
+            a = rng.uniform(-r, r, n_pairs // 4)
+            b = np.clip(a + rng.normal(0, 1, a.size) * r * 10.0 ** rng.uniform(-4, 0, a.size), -r, r)
+            out += [replace(v, name=f"{v.name} {NARROWED} on |z| <= {r:.3g}")
+                    for v in _pair_violations(replace(ch, lo=lo, hi=hi, narrow=None), i, a, b)]
+    return out
 
 
 def _zmax(ch: Channels, i: int, far: float) -> float:
@@ -366,26 +358,6 @@ def _pair_violations(ch: Channels, i: int, a: np.ndarray, b: np.ndarray) -> list
     return _slope_violations(ch, i, phi[:a.size], phi[a.size:], Z[:, :a.size], Z[:, a.size:])
 
 
-#: Marks a violated narrowing (``Channels.narrow``): certificates then drop the narrowing only.
-NARROWED = "narrowed"
-
-
-def _narrowing_check(ch: Channels, rng: np.random.Generator, n_pairs: int, far: float) -> list[Violation]:
-    """Sampled slopes of each channel on ``|z_i| <= r`` against ``Channels.slopes_on(r)`` (r up to its range)."""
-    if ch.narrow is None:
-        return []
-    out = []
-    for i in range(ch.q):
-        zmax = _zmax(ch, i, far)
-        for r in np.geomspace(min(1e-2, zmax), zmax, 9):
-            lo, hi = ch.slopes_on(float(r))
-            a = rng.uniform(-r, r, n_pairs // 4)
-            b = np.clip(a + rng.normal(0, 1, a.size) * r * 10.0 ** rng.uniform(-4, 0, a.size), -r, r)
-            out += [replace(v, name=f"{v.name} {NARROWED} on |z| <= {r:.3g}")
-                    for v in _pair_violations(replace(ch, lo=lo, hi=hi, narrow=None), i, a, b)]
-    return out
-
-
 def _slope_violations(ch: Channels, i: int, p1: np.ndarray, p2: np.ndarray, Z1: np.ndarray,
                       Z2: np.ndarray) -> list[Violation]:
     """Channel ``i``'s slopes over the input pairs ``Z1``, ``Z2`` (q, N): a :class:`Violation` per bound broken."""
@@ -398,14 +370,12 @@ def _slope_violations(ch: Channels, i: int, p1: np.ndarray, p2: np.ndarray, Z1: 
         return []
     tol = _REL_TOL * max(1.0, abs(ch.lo[i]), abs(ch.hi[i])) + 1e-9
     out = []
-    for bound, name in ((ch.hi[i], "max"), (ch.lo[i], "min")):
-        k = int(np.argmax(np.where(ok, slope if name == "max" else -slope, -np.inf)))
-        worst = float(slope[k])
-        if (name == "max" and worst > bound + tol) or (name == "min" and worst < bound - tol):
+    for bound, sign, word in ((ch.hi[i], 1.0, "upper"), (ch.lo[i], -1.0, "lower")):
+        k = int(np.argmax(np.where(ok, sign * slope, -np.inf)))
+        if sign * (slope[k] - bound) > tol:
             Hp = np.linalg.pinv(ch.H)
-            label = f"channel {i} {'upper' if name == 'max' else 'lower'} slope bound"
-            out.append(Violation(label, float(bound), worst, tuple(float(v) for v in Hp @ Z1[:, k]),
-                                 tuple(float(v) for v in Hp @ Z2[:, k])))
+            out.append(Violation(f"channel {i} {word} slope bound", float(bound), float(slope[k]),
+                                 tuple(float(v) for v in Hp @ Z1[:, k]), tuple(float(v) for v in Hp @ Z2[:, k])))
     return out
 
 
@@ -456,7 +426,7 @@ def check_trajectory(plant: Plant, know: Knowledge, X: np.ndarray, XH: np.ndarra
                                                                   + np.linalg.norm(X2, axis=0))
             inside = _inside(X, c.radius) & _inside(X2, c.radius) & apart
             for k, v in _scalar_violations(plant.f, X[:, inside], X2[:, inside], c.gamma, scalars).items():
-                bad.setdefault(k, "analytic " + v.describe("analytic") + " (along the simulation)")
+                bad.setdefault(k, v.describe("analytic") + " (along the simulation)")
     far = REACH_FACTOR * reach
     glob = {k: v for k, v in scalars.items() if k not in bad and c.radius is None}
     glob_channels = ch is not None and ch.radius is None and "channels" not in bad
@@ -479,7 +449,7 @@ def _sampled_far(plant: Plant, channels: bool, scalars: dict[str, float], gamma:
     if scalars:
         x1, x2 = _random_pairs(rng, plant.n, 4000, None, far=far)
         for k, v in _scalar_violations(plant.f, x1, x2, gamma, scalars).items():
-            bad[k] = "analytic " + v.describe("analytic")
+            bad[k] = v.describe("analytic")
     return bad
 
 
@@ -639,14 +609,11 @@ def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded
     valid_kw, source = {}, {}
     for name in ("alpha", "rho", "beta"):
         av = getattr(analytic, name, None)
-        if av is not None and name not in bad:
-            valid_kw[name], source[name] = av, "analytic"
-        elif av is not None:
-            valid_kw[name], source[name] = getattr(sampled, name), "sampled (analytic disproved)"
-        elif name in unbounded:
-            valid_kw[name], source[name] = None, "unbounded"
+        if av is not None:
+            source[name] = "sampled (analytic disproved)" if name in bad else "analytic"
         else:
-            valid_kw[name], source[name] = getattr(sampled, name), "sampled"
+            source[name] = "unbounded" if name in unbounded else "sampled"
+        valid_kw[name] = {"analytic": av, "unbounded": None}.get(source[name], getattr(sampled, name))
     return Constants(**valid_kw, gamma=None if valid_kw["beta"] is None else gamma, radius=radius), source
 
 

@@ -21,9 +21,8 @@ from bench.errors import DeadlineExceeded, HardStop as _HardStop
 __all__ = ["check_deadline", "hard_stop", "time_limit"]
 
 
-#: (monotonic deadline, limit in seconds) of the innermost scope of this thread or task.
-_DEADLINE: contextvars.ContextVar[tuple[float, float] | None] = contextvars.ContextVar("oslbench_deadline",
-                                                                                       default=None)
+#: The monotonic deadline of the innermost scope of this thread or task.
+_DEADLINE: contextvars.ContextVar[float | None] = contextvars.ContextVar("oslbench_deadline", default=None)
 
 
 @contextmanager
@@ -45,7 +44,7 @@ def time_limit(seconds: float | None) -> Iterator[None]:
         return
     if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds > 0):
         raise ValueError(f"timeout: must be a finite number of seconds > 0, got {seconds!r}")
-    token = _DEADLINE.set((time.monotonic() + float(seconds), float(seconds)))
+    token = _DEADLINE.set(time.monotonic() + float(seconds))
     try:
         yield
     finally:
@@ -54,8 +53,8 @@ def time_limit(seconds: float | None) -> Iterator[None]:
 
 def remaining_time() -> float | None:
     """Seconds left in the current :func:`time_limit` scope (None: no limit; may be negative)."""
-    d = _DEADLINE.get()
-    return None if d is None else d[0] - time.monotonic()
+    deadline = _DEADLINE.get()
+    return None if deadline is None else deadline - time.monotonic()
 
 
 def check_deadline(where: str) -> None:

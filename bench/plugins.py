@@ -102,26 +102,23 @@ def load_plugin(path) -> list[str]:
 
 def _execute(p: Path, name: str) -> None:
     """Execute the file as the module ``name``, helper modules beside it importable; PluginError on a failure."""
+    spec = importlib.util.spec_from_file_location(name, p)
+    if spec is None or spec.loader is None:
+        raise PluginError("cannot be imported as a Python module (is it a .py file?)")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    sys.path.insert(0, str(p.parent))
     try:
-        spec = importlib.util.spec_from_file_location(name, p)
-        if spec is None or spec.loader is None:
-            raise PluginError("cannot be imported as a Python module (is it a .py file?)")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        sys.path.insert(0, str(p.parent))
-        try:
-            spec.loader.exec_module(module)
-        finally:
-            with contextlib.suppress(ValueError):
-                sys.path.remove(str(p.parent))
-    except PluginError:
-        raise
+        spec.loader.exec_module(module)
     except SyntaxError as exc:
         raise PluginError(f"syntax error{_where(exc, p)}: {exc.msg}") from None
     except Exception as exc:  # ImportError, RegistryError (duplicate id), anything the file raises
         raise PluginError(f"failed to import{_where(exc, p)}: {type(exc).__name__}: {exc}") from None
     except SystemExit as exc:  # a plugin calling sys.exit() must not end the run silently
         raise PluginError(f"called sys.exit({exc.code!r}) while being imported") from None
+    finally:
+        with contextlib.suppress(ValueError):
+            sys.path.remove(str(p.parent))
 
 
 def _build(kind: str, registry, rid: str, p: Path):

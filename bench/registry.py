@@ -155,15 +155,14 @@ def register_design(id: str, summary: str | None = None, *, order: int = 100, **
     """Decorator registering a design class (or factory) under ``id``, with ``fixed`` keyword defaults bound."""
 
     def deco(cls):
+        factory = cls
         if fixed:
             def factory(**overrides: Any):
                 return cls(**{**fixed, **overrides})
 
             factory.__doc__ = cls.__doc__
             factory.__module__ = cls.__module__
-            DESIGNS.register(id, factory, summary, order=order)
-        else:
-            DESIGNS.register(id, cls, summary, order=order)
+        DESIGNS.register(id, factory, summary, order=order)
         return cls
 
     return deco

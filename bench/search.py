@@ -113,16 +113,12 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
     if kh is None:
         return {"lo": _value(kl, lo, rtol, up=False), "hi": math.nan, "kind": "above_range"}
     for _ in range(max_moves if kl is None else 0):
-        k = kh - moves
-        x = _point(k, rtol)
-        if x < down_until:
-            break
-        if passes(x):
-            kl = k
+        last = kh
+        if _point(kh - moves, rtol) < down_until or probe(kh - moves):
             break
         if stop is not None and stop():  # the probe lay outside the valid range: hi stays the last valid one
+            kh = last
             break
-        kh = k
     if kl is None:
         return {"lo": math.nan, "hi": _value(kh, hi, rtol, up=True), "kind": "below_range"}
     while kh - kl > 1:

@@ -125,19 +125,16 @@ def members(plant, know, *, channels: bool, scalars: tuple[str, ...],
     return out, how
 
 
-def loop_rates(plant, K: np.ndarray, F: np.ndarray, Ls: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Decay rates ``-max Re eig`` of the linear loops with ``f = L x``, one per L, and their worst eigenvalues.
-
-    The loop is block triangular in ``(x, e)``: its eigenvalues are those of ``A + L + B F`` and
-    ``A + L - K C``.
-    """
+def slowest_loop(plant, K: np.ndarray, F: np.ndarray, Ls: list[np.ndarray]) -> tuple[int, float, complex] | None:
+    """The slowest of the linear loops with ``f = L x``: its index in ``Ls``, its decay rate ``-max Re eig``
+    and that eigenvalue (None without any L)."""
     if not Ls:
-        return np.zeros(0), np.zeros(0, complex)
+        return None
     AL = plant.A[None] + np.stack(Ls)
     eig = np.concatenate([np.linalg.eigvals(AL + plant.B @ F), np.linalg.eigvals(AL - K @ plant.C)], axis=1)
-    k = np.argmax(eig.real, axis=1)
-    worst = eig[np.arange(len(Ls)), k]
-    return -worst.real, worst
+    worst = eig[np.arange(len(Ls)), np.argmax(eig.real, axis=1)]
+    i = int(np.argmax(worst.real))
+    return i, float(-worst[i].real), complex(worst[i])
 
 
 def _scale(plant, K, F) -> float:
@@ -148,18 +145,16 @@ def linear_witness(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool,
                    scalars: tuple[str, ...]) -> Witness | None:
     """The least stable linear member of the class (:func:`members`) when its loop is unstable, else None."""
     cands, how = members(plant, know, channels=channels, scalars=scalars)
-    rates, worst = loop_rates(plant, K, F, [L for _, L in cands])
-    if not rates.size:
+    slowest = slowest_loop(plant, K, F, [L for _, L in cands])
+    if slowest is None or slowest[2].real <= UNSTABLE_TOL * _scale(plant, K, F):
         return None
-    i = int(np.argmin(rates))
-    if worst[i].real <= UNSTABLE_TOL * _scale(plant, K, F):
-        return None
+    i, _, eig = slowest
     c, L = cands[i]
     what = ("f = 0" if not np.any(L) else f"phi(s) = c s with slopes c = {vector(c, '.5g')}" if c is not None
             else f"f = {L[0, 0]:.4g} x")
     text = (f"the linear member {what} (in the class; searched: {how}) leaves the loop with the eigenvalue "
-            f"{_eig(worst[i])}")
-    return Witness("linear member", text, slopes=c, L=L, eig=complex(worst[i]))
+            f"{_eig(eig)}")
+    return Witness("linear member", text, slopes=c, L=L, eig=eig)
 
 
 def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, scalars: tuple[str, ...],
@@ -167,8 +162,7 @@ def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, s
     """The smallest decay rate over the class's linear members: no certificate over the class proves more.
 
     The members of :func:`members`; for a channel box the best is refined by a bounded local search
-    (Powell) over the slopes. Any member's rate bounds every certified rate from above, so the
-    value is a valid ceiling whether or not the search found the true minimum.
+    (Powell) over the slopes (any member's rate is a valid ceiling, found minimum or not).
 
     Returns
     -------
@@ -176,11 +170,10 @@ def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, s
         The ceiling (NaN when the class has no linear member here) and how it was found.
     """
     cands, how = members(plant, know, channels=channels, scalars=scalars, box=box)
-    rates, _ = loop_rates(plant, K, F, [L for _, L in cands])
-    if not rates.size:
+    slowest = slowest_loop(plant, K, F, [L for _, L in cands])
+    if slowest is None:
         return float("nan"), "no linear member found in the class"
-    i = int(np.argmin(rates))
-    best, c0 = float(rates[i]), cands[i][0]
+    best, c0 = slowest[1], cands[slowest[0]][0]
     ch = know.channels
     if c0 is not None and ch is not None:
         from scipy.optimize import minimize
@@ -194,7 +187,7 @@ def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, s
                 L = ch.G @ (c[:, None] * ch.H)
                 if scalars and not admits(L, scalars, know.constants):
                     return best
-                return float(loop_rates(plant, K, F, [L])[0][0])
+                return slowest_loop(plant, K, F, [L])[1]
             res = minimize(rate, c0[free], method="Powell", bounds=list(zip(lo[free], hi[free])),
                            options={"maxfev": 60 * int(free.sum()), "xtol": 1e-6, "ftol": 1e-9})
             if np.isfinite(res.fun) and res.fun < best:
