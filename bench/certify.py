@@ -209,16 +209,6 @@ def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
     return _Spec(level, n, know.channels.q, True, scalars, True), ""
 
 
-def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge, rows: np.ndarray | None = None) -> lmi.Program:
-    """The level's analysis program, compiled once per structure (with ``rows``: of a certificate from x0)."""
-    ch = know.channels if spec.channels else None
-    Gw = ch.G if ch is not None else np.eye(spec.n)
-    Hc = ch.H if ch is not None else None
-    blocks = partial(_blocks, spec, Gw, Hc)
-    key = ("certify" if rows is None else "certify-from-x0", spec, mats.key, lmi.digest(Gw), lmi.digest(Hc))
-    return lmi.cached_program(key, lambda: _build(spec, mats, blocks, rows=rows))
-
-
 def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = None) -> lmi.Program:
     """A level's program: max ``slack``, ``M << -slack I``, ``P >> slack I``, ``trace(P) = 1``, multipliers >= 0;
     with ``rows`` ``a_k``, ``z0' P z0 <= 1``, ``[[P, a_k], [a_k', r2]] >= 0`` (Schur) and ``slack <= 1`` instead."""
@@ -295,8 +285,8 @@ def _blocks(spec: _Spec, Gw: np.ndarray, Hc: np.ndarray | None, d: dict) -> list
                 ww[side] = ww[side] - tau * GtG
         if spec.channels:
             tau = d[f"ch_{side}"]
-            diag[side] = diag[side] + Hc.T @ lmi.diag(-_times(tau, d["lohi"])) @ Hc
-            cross[side] = cross[side] + Hc.T @ lmi.diag(0.5 * _times(tau, d["losum"]))
+            diag[side] = diag[side] + Hc.T @ lmi.diag(-(lmi.diag(d["lohi"]) @ tau)) @ Hc
+            cross[side] = cross[side] + Hc.T @ lmi.diag(0.5 * (lmi.diag(d["losum"]) @ tau))
             ww[side] = ww[side] - lmi.diag(tau)
     return [
         [xx + diag["x"], xe, xwx + cross["x"], xwe],
@@ -304,15 +294,6 @@ def _blocks(spec: _Spec, Gw: np.ndarray, Hc: np.ndarray | None, d: dict) -> list
         [(xwx + cross["x"]).T, ewx.T, ww["x"], Zw],
         [xwe.T, (ewe + cross["e"]).T, Zw, ww["e"]],
     ]
-
-
-def _times(a, b):
-    """Elementwise product (cvxpy or numpy)."""
-    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray):
-        return a * b
-    import cvxpy as cp
-
-    return cp.multiply(a, b)
 
 
 def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
@@ -358,9 +339,15 @@ def _radius(spec: _Spec, know: Knowledge) -> float | None:
 
 
 def _set_program(spec: _Spec, plant: Plant, K, F, know: Knowledge, rows: np.ndarray | None = None) -> lmi.Program:
-    """The level's program (:func:`_program`) set for the gains K, F and the trusted scalar constants."""
+    """The level's analysis program, compiled once per structure (with ``rows``: of a certificate from x0), set
+    for the gains K, F and the trusted scalar constants."""
     mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
-    prog = _program(spec, mats, know, rows)
+    ch = know.channels if spec.channels else None
+    Gw = ch.G if ch is not None else np.eye(spec.n)
+    Hc = ch.H if ch is not None else None
+    blocks = partial(_blocks, spec, Gw, Hc)
+    key = ("certify" if rows is None else "certify-from-x0", spec, mats.key, lmi.digest(Gw), lmi.digest(Hc))
+    prog = lmi.cached_program(key, lambda: _build(spec, mats, blocks, rows=rows))
     c = know.constants
     prog.set(**mats.settable(), rho=c.rho or 0.0, beta=c.beta or 0.0, gamma=c.gamma or 0.0, a2=(c.alpha or 0.0) ** 2)
     return prog
@@ -373,13 +360,11 @@ def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: flo
     if spec.channels:
         prog.set(lohi=know.channels.lo * know.channels.hi, losum=know.channels.lo + know.channels.hi)
     radius = _radius(spec, know)
-    lam0 = start if 0 < start < hi else 0.0
-    prog.solve(lam=lam0)
-    verdict, margin = prog.verdict()
-    if verdict != "verified" and lam0 > 0:
-        lam0 = 0.0
-        prog.solve(lam=0.0)
+    for lam0 in dict.fromkeys((start if 0 < start < hi else 0.0, 0.0)):
+        prog.solve(lam=lam0)
         verdict, margin = prog.verdict()
+        if verdict == "verified":
+            break
     out = LevelResult(spec.level, "not certified", margin=margin, radius=radius)
     if verdict == "verified":
         out.status, out.P, out.decay_rate = "certified", _full_p(prog, spec), 0.0

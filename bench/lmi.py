@@ -507,16 +507,12 @@ _LOCAL = threading.local()
 
 
 def _cache() -> OrderedDict:
-    c = getattr(_LOCAL, "programs", None)
-    if c is None:
-        c = _LOCAL.programs = OrderedDict()
-    return c
+    return _LOCAL.__dict__.setdefault("programs", OrderedDict())
 
 
 def cached_program(key: tuple, build: Callable[[], Program]) -> Program:
     """The compiled :class:`Program` for ``key``, built by ``build()`` on first use, then reused.
 
-    Calls differing only in parameter values share one problem, so cvxpy compiles once per key.
     The program comes back :meth:`Program.reset`. The cache is per thread (a problem holds its
     last solution) and keeps :data:`PROGRAM_CACHE_SIZE` programs.
 
