@@ -129,9 +129,7 @@ class YoungForm:
         :func:`bench.lmi.conclude`'s dict plus ``normalisation``, ``cap`` and ``cost``.
         """
         prog = self.side_program(plant, side, cap=cap, scale_free=True)
-        # one accurate solve: a verdict of infeasibility is not left to SCS
-        prog.solve(solver="CLARABEL" if solver == "auto" else solver,
-                   solver_opts=lmi.SCS_OPTS if solver == "SCS" else None)
+        lmi.solve_side(prog, "CLARABEL" if solver == "auto" else solver)  # a verdict of infeasibility not left to SCS
         norm = f"I << {SIDE_MATRIX[side]} << {cap:g} I"
         out = lmi.conclude(prog, what=f"{self.what} {side}", normalisation=norm, searched="(scale-free)")
         out.update(normalisation=norm, cap=cap, cost=(prog.compile_s, prog.solve_s, prog.n_solves))

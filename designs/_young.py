@@ -53,7 +53,7 @@ class YoungDesign(Design):
         check_choice("method", self.method, ("joint", "separated"))
         if self._fixed_phi is not None:
             check_positive(self.phi_name, self._fixed_phi)
-        check_range(f"{self.phi_name}_range", self._phi_range)
+        check_range(f"{self.phi_name}_range", getattr(self, f"{self.phi_name}_range"))
         check_positive("cap", self.cap)
         check_int("n_grid", self.n_grid, minimum=2)
         check_int("n_refine", self.n_refine, minimum=0)
@@ -61,10 +61,6 @@ class YoungDesign(Design):
     @property
     def _fixed_phi(self) -> float | None:
         return getattr(self, self.phi_name)
-
-    @property
-    def _phi_range(self) -> tuple[float, float]:
-        return getattr(self, f"{self.phi_name}_range")
 
     @property
     def _joint_solver(self) -> str:
@@ -111,7 +107,7 @@ class YoungDesign(Design):
     def _search_phi(self, obj: Callable[[float], float], *, n_grid: int | None = None,
                     n_refine: int | None = None) -> tuple[float, float, str]:
         """Search (or fix) the Young weight maximising ``obj(phi)``: the weight, its margin and where it was searched."""
-        lo, hi = self._phi_range
+        lo, hi = getattr(self, f"{self.phi_name}_range")
         if self._fixed_phi is not None:
             return self._fixed_phi, obj(self._fixed_phi), f"at {self.phi_name} = {self._fixed_phi:g}"
         phi, val = lmi.log_search(obj, lo, hi, n_grid=self.n_grid if n_grid is None else n_grid,

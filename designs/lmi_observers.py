@@ -50,8 +50,7 @@ def _solve_observer(part: "Part", key: tuple, blocks, variables, mats: lmi.Matri
     if concl["status"] != "marginal":
         return prog, concl, log
     sf = side_program(key, blocks, variables, mats, constants, nonneg, "P", cap=part.cap, scale_free=True)
-    sf.solve(solver="CLARABEL" if part.solver == "auto" else part.solver,
-             solver_opts=lmi.SCS_OPTS if part.solver == "SCS" else None)
+    lmi.solve_side(sf, "CLARABEL" if part.solver == "auto" else part.solver)
     norm = f"I << P << {part.cap:g} I"
     dec = lmi.conclude(sf, what=what, normalisation=norm, searched=f"{searched} (scale-free)")
     if dec["status"] == "infeasible":

@@ -228,14 +228,12 @@ class Thm1Printed(Design):
         I, Z = np.eye(plant.n), np.zeros((plant.n, plant.n))
 
         def blocks(d):
-            A, B = d["A"], d["B"]
-            Q, Fh = d["Q"], d["Fh"]
-            S11 = Q @ A.T + A @ Q + Fh @ B.T + B @ Fh.T
+            Q = d["Q"]
             S22, X = osl_qib_eside(d, I)
-            BF = -B @ Fh.T
+            BF = -d["B"] @ d["Fh"].T
             return [
                 # S1                                                  | S2
-                [S11, Z, I, Z, BF, Z, Q, Z],
+                [state_feedback_block(d), Z, I, Z, BF, Z, Q, Z],
                 [Z, S22, Z, X, Z, I, Z, Z],
                 [I, Z, -d["two_eps2"] * I, Z, Z, Z, Z, I],
                 [Z, X.T, Z, -2 * d["eps4"] * I, Z, Z, Z, Z],
@@ -259,29 +257,20 @@ class Thm1Printed(Design):
         """Solve Theorem 1 as printed, or explain why it cannot be satisfied."""
         c = constants
         params = {"rho": c.rho, "beta": c.beta, "gamma": c.gamma}
-        if c.gamma <= 0:
-            return DesignResult(
-                status="infeasible",
-                reason=(
-                    f"as printed, S3 holds -zeta I with zeta = 1/(eps2 gamma - eps1); with gamma = {c.gamma:g} <= 0, "
-                    "eps2 gamma - eps1 < 0 for every eps1, eps2 > 0, so -zeta I is positive definite and S < 0 "
-                    "is impossible (the proof needs eta2 = eps2 gamma - eps1 > 0, which the statement omits)"
-                ),
-                params=params,
-            )
         combos = []
         for eps2 in np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), int(self.n_eps2)):
-            for r in self.ratios:
+            for r in self.ratios if c.gamma > 0 else ():
                 eps1 = r * c.gamma * eps2
                 den = (2 * c.rho - 1) * eps1 + (2 * c.beta + c.gamma) * eps2
                 if den > 0:
                     combos.append((eps1, eps2, 1 / den, 1 / (eps2 * c.gamma - eps1)))
         if not combos:
-            return DesignResult(
-                status="infeasible",
-                reason="as printed, psi = 1/((2 rho - 1) eps1 + (2 beta + gamma) eps2) <= 0 on the whole eps grid",
-                params=params,
-            )
+            return DesignResult(status="infeasible", params=params, reason=(
+                f"as printed, S3 holds -zeta I with zeta = 1/(eps2 gamma - eps1); with gamma = {c.gamma:g} <= 0, "
+                "eps2 gamma - eps1 < 0 for every eps1, eps2 > 0, so -zeta I is positive definite and S < 0 "
+                "is impossible (the proof needs eta2 = eps2 gamma - eps1 > 0, which the statement omits)"
+                if c.gamma <= 0 else
+                "as printed, psi = 1/((2 rho - 1) eps1 + (2 beta + gamma) eps2) <= 0 on the whole eps grid"))
         prog = self._program(plant, c)
         best = max(combos, key=lambda cb: np.nan_to_num(prog.solve(psi=cb[2], zeta=cb[3], two_eps2=2 * cb[1]), nan=-np.inf))
         eps1, eps2, psi, zeta = best
