@@ -303,15 +303,15 @@ def settle_joint(plant, form: YoungForm, concl: dict, *, cap: float, solver: str
     return {**concl, "status": "infeasible", "reason": reason}, cost
 
 
-# -- helpers shared by the corrected Theorem 1 and Corollary 1 ---------------------------------
+# -- helpers shared by the corrected Theorem 1, Corollary 1 and the LMI observers ----------------
 def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...],
                         matrices: tuple[str, ...] = ("Q", "R", "Fh", "Kh")) -> dict:
-    """cvxpy variables ``matrices`` among Q, R (symmetric), Fh (n x m), Kh (p x n), the margin ``slack`` and
-    ``scalars``."""
+    """cvxpy variables ``matrices`` among Q, R, P (symmetric), Fh (n x m), Kh (p x n), W (n x p), the margin
+    ``slack`` and ``scalars``."""
     import cvxpy as cp
 
-    shapes = {"Q": (n, n), "R": (n, n), "Fh": (n, m), "Kh": (p, n)}
-    v = {k: cp.Variable(shapes[k], symmetric=k in SIDE_MATRIX.values(), name=k) for k in matrices}
+    shapes = {"Q": (n, n), "R": (n, n), "P": (n, n), "Fh": (n, m), "Kh": (p, n), "W": (n, p)}
+    v = {k: cp.Variable(shapes[k], symmetric=k in ("Q", "R", "P"), name=k) for k in matrices}
     v.update({s: cp.Variable(name=s) for s in ("slack", *scalars)})
     return v
 
