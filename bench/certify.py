@@ -404,9 +404,8 @@ def _inherit(out: LevelResult, prev: LevelResult | None) -> LevelResult:
     if prev is None or not prev.certified or (out.certified and out.decay_rate >= prev.decay_rate):
         return out
     own = f"its own LMI: {out.status}" + (f", rate {out.decay_rate:.3g}" if out.certified else "")
-    return LevelResult(out.level, "certified", decay_rate=prev.decay_rate, margin=prev.margin,
-                       reason=f"inherits the {prev.level} level's certificate ({own})", P=prev.P, radius=prev.radius,
-                       solve_s=out.solve_s, n_solves=out.n_solves)
+    return replace(prev, level=out.level, reason=f"inherits the {prev.level} level's certificate ({own})",
+                   solve_s=out.solve_s, n_solves=out.n_solves)
 
 
 def certify(
@@ -437,8 +436,7 @@ def certify(
     rate_rtol : float
         Relative tolerance of the rate bisection.
     inherit : bool
-        A level whose own LMI certifies less than the level below (numerical trouble, or a
-        different P found) keeps the lower certificate, which holds at every higher level
+        A level whose own LMI certifies less than the level below keeps the lower certificate
         (:func:`_inherit`); False reports each level's own LMI only.
     loop : ClosedLoop, optional
         The checked gains K, F and their spectra (:func:`bench.checks.closed_loop`), when the
@@ -759,10 +757,9 @@ def adopt(cert: Certificate, candidate: dict | None, knowledge: Knowledge) -> No
     if cur.certified and cur.decay_rate >= ADOPT_RATIO * candidate["decay_rate"]:
         return  # the ladder's own P (normalised, usually better conditioned) is kept
     own = f"the ladder's own LMI: {cur.status}" + (f", rate {cur.decay_rate:.3g}" if cur.certified else "")
-    cert.levels[lv] = LevelResult(lv, "certified", decay_rate=float(candidate["decay_rate"]),
-                                  margin=float(candidate["margin"]), reason=f"{candidate['how']} ({own})",
-                                  P=candidate["P"], radius=candidate.get("radius"), solve_s=cur.solve_s,
-                                  n_solves=cur.n_solves)
+    cert.levels[lv] = replace(cur, status="certified", decay_rate=float(candidate["decay_rate"]),
+                              margin=float(candidate["margin"]), reason=f"{candidate['how']} ({own})",
+                              P=candidate["P"], radius=candidate.get("radius"))
     for up in LEVELS[LEVELS.index(lv) + 1:]:
         if up in cert.levels:
             cert.levels[up] = _inherit(cert.levels[up], cert.levels[lv])

@@ -150,13 +150,12 @@ def recombine(
     B: np.ndarray,
     xprog: lmi.Program,
     eprog: lmi.Program,
-    e_keys: tuple[str, ...],
-    joint_blocks: Callable[[dict], list],
+    form: YoungForm,
     decide: Callable[[str], dict] | None,
 ) -> dict:
-    """Rebuild and verify the joint certificate from the solved x-side and e-side programs (module docstring).
+    """Rebuild and verify ``form``'s joint certificate from its solved x-side and e-side programs (module docstring).
 
-    The e-side variables ``e_keys`` are scaled by s; ``decide(side)`` (:meth:`YoungForm.decide_side`) labels a side
+    R, Kh and the e-side scalars are scaled by s; ``decide(side)`` (:meth:`YoungForm.decide_side`) labels a side
     that is not strictly feasible (None: undecided). Returns ``status``, ``reason``, ``margin`` (equilibrated joint
     matrix), ``raw_margin``, ``lmi_size``, ``min_eig``, ``phi``, ``scale``, ``x_margin``, ``e_margin``, ``values``,
     ``cost``.
@@ -173,7 +172,7 @@ def recombine(
     lx, le = lmi.max_eig(X), lmi.max_eig(E)
     out.update(x_margin=lx, e_margin=le)
     failed = _failed_sides(xprog, eprog, X, E, lx, le, decide)
-    out.update(failed if failed is not None else _joint_verdict(B, xv, ev, e_keys, joint_blocks, lx, le))
+    out.update(failed if failed is not None else _joint_verdict(B, xv, ev, form, lx, le))
     return out
 
 
@@ -200,8 +199,7 @@ def _failed_sides(xprog: lmi.Program, eprog: lmi.Program, X: np.ndarray, E: np.n
     return _side_verdict({name: decide(name) for name in bad}, margins)
 
 
-def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, e_keys: tuple[str, ...], joint_blocks: Callable[[dict], list],
-                   lx: float, le: float) -> dict:
+def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, form: YoungForm, lx: float, le: float) -> dict:
     """The joint matrix rebuilt at the module docstring's ``phi`` and ``s``, its equilibrated margin and verdict."""
     qmin = lmi.min_eig(xv["Q"])
     Q, Fh = xv["Q"], xv["Fh"]
@@ -209,8 +207,8 @@ def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, e_keys: tuple[str, ...], j
     gmax = lmi.max_eig(BF @ Q @ BF.T)  # lmax(B Fh' Q^{-1} Fh B')
     phi = 0.5 * abs(lx) / gmax if gmax > 0 else 1.0
     s = 2.0 / (phi * qmin * abs(le))
-    vals = {**xv, **ev, **{k: ev[k] * s for k in e_keys}, "phi": phi, "iphi": 1.0 / phi}
-    M = lmi.assemble(joint_blocks, vals, numeric=True)
+    vals = {**xv, **ev, **{k: ev[k] * s for k in ("R", "Kh", *form.e_scalars)}, "phi": phi, "iphi": 1.0 / phi}
+    M = lmi.assemble(form.blocks[0], vals, numeric=True)
     M = (M + M.T) / 2
     diag = np.diag(M)
     raw = lmi.max_eig(M)
@@ -263,8 +261,7 @@ def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_nam
     eprog = form.side_program(plant, "e-side", cap=cap)
     xlog = lmi.solve_side(xprog, solver, plant.n)
     elog = lmi.solve_side(eprog, solver, plant.n)
-    rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, e_keys=("R", "Kh", *form.e_scalars),
-                   joint_blocks=form.blocks[0],
+    rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, form=form,
                    decide=(lambda side: form.decide_side(plant, side, cap=cap, solver=solver)) if decide else None)
     K = F = None
     vals = rc["values"] or {}

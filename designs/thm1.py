@@ -175,9 +175,8 @@ class Thm1(YoungDesign):
                 best = (val, eps2, eta1, phi, prog)
         _, eps2, eta1, phi, prog = best
         prog.restore_best()
-        prog.compile_s = sum(p.compile_s for p in progs.values())
-        prog.solve_s = sum(p.solve_s for p in progs.values())
-        prog.n_solves = sum(p.n_solves for p in progs.values())
+        for k in ("compile_s", "solve_s", "n_solves"):
+            setattr(prog, k, sum(getattr(p, k) for p in progs.values()))
         lo, hi = self.phi1_range
         searched = f"over eps2 in {self.eps2_range} x phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
         concl = lmi.conclude(prog, what="corrected Theorem 1 (fixed eps, gamma < 0)",
