@@ -210,8 +210,7 @@ def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
 
 
 def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = None) -> lmi.Program:
-    """A level's program: max ``slack``, ``M << -slack I``, ``P >> slack I``, ``trace(P) = 1``, multipliers >= 0;
-    with ``rows`` ``a_k``, ``z0' P z0 <= 1``, ``[[P, a_k], [a_k', r2]] >= 0`` (Schur) and ``slack <= 1`` instead."""
+    """A level's margin program: ``trace(P) = 1``, or with ``rows`` z0's level set held in the region (Schur)."""
     import cvxpy as cp
 
     n, nw = spec.n, spec.nw

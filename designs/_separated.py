@@ -374,12 +374,3 @@ def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.
         n_solves=prog.n_solves + cost[2], margin=concl["margin"], lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
         params={**params, "slack": concl.get("slack", float("nan"))},
     )
-
-
-def coordinate_hint(plant, res: DesignResult, variant: str) -> DesignResult:
-    """Append to an infeasible or marginal result with channels that the ``variant`` design searches a scaling."""
-    scaled_already = plant.id.endswith(".scaled")
-    if res.status in ("infeasible", "marginal") and plant.channels is not None and not scaled_already:
-        res.reason += (f"; the scalar constants depend on the state's coordinates: {variant} searches a diagonal "
-                       "scaling, and the structured design uses the channels themselves")
-    return res

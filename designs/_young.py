@@ -14,7 +14,7 @@ from typing import Callable, ClassVar
 
 from bench import lmi
 from designs._core import Design, DesignResult, check_choice, check_int, check_positive, check_range
-from designs._separated import YoungForm, coordinate_hint, joint_result, separated_design, settle_joint
+from designs._separated import YoungForm, joint_result, separated_design, settle_joint
 from plants import Constants, Plant
 
 
@@ -86,7 +86,11 @@ class YoungDesign(Design):
     # -- the flow -------------------------------------------------------------------------------
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the design for ``plant`` with ``constants``; a failure's reason names the scaled variant."""
-        return coordinate_hint(plant, self._design(plant, constants), self.scaled_variant)
+        res = self._design(plant, constants)
+        if res.status in ("infeasible", "marginal") and plant.channels is not None and not plant.id.endswith(".scaled"):
+            res.reason += (f"; the scalar constants depend on the state's coordinates: {self.scaled_variant} searches "
+                           "a diagonal scaling, and the structured design uses the channels themselves")
+        return res
 
     def _design(self, plant: Plant, constants: Constants) -> DesignResult:
         if self.method == "separated":
