@@ -75,12 +75,8 @@ class YoungDesign(Design):
         """The design's LMI for ``plant`` with ``constants``."""
         raise NotImplementedError
 
-    def joint_params(self, phi: float, vals: dict, constants: Constants) -> dict:  # pragma: no cover
-        """The scalars a joint solve reports (Young weight ``phi``, solved values ``vals``)."""
-        raise NotImplementedError
-
-    def separated_params(self, vals: dict, constants: Constants) -> dict:  # pragma: no cover
-        """The design-specific scalars a separated solve reports (solved values ``vals``)."""
+    def solved_params(self, vals: dict, constants: Constants, phi: float | None = None) -> dict:  # pragma: no cover
+        """The scalars a joint solve at the Young weight ``phi`` (None: a separated solve) reports, from ``vals``."""
         raise NotImplementedError
 
     # -- the flow -------------------------------------------------------------------------------
@@ -100,7 +96,7 @@ class YoungDesign(Design):
     def separated(self, plant: Plant, constants: Constants, *, decide: bool = True) -> DesignResult:
         """The sides solved apart and the joint certificate rebuilt; ``decide=False`` skips the scale-free solves."""
         return separated_design(plant, self.form(plant, constants), solver=self.solver, cap=self.cap,
-                                phi_name=self.phi_name, extra_params=lambda vals: self.separated_params(vals, constants),
+                                phi_name=self.phi_name, extra_params=lambda vals: self.solved_params(vals, constants),
                                 decide=decide)
 
     def joint_program(self, plant: Plant, constants: Constants) -> lmi.Program:
@@ -128,4 +124,4 @@ class YoungDesign(Design):
         concl = lmi.conclude(prog, what=form.what, normalisation=self._normalisation, searched=searched)
         concl, cost = settle_joint(plant, form, concl, cap=self.cap, solver=self.solver, searched=searched,
                                    normalisation=self._normalisation)
-        return joint_result(prog, concl, self.joint_params(phi, prog.values(), constants), cost)
+        return joint_result(prog, concl, self.solved_params(prog.values(), constants, phi), cost)

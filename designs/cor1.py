@@ -71,17 +71,11 @@ class Cor1(YoungDesign):
                          blocks=young_layout(n, eside, (lambda d: d["kappa"] * d["ia2"]) if schur else None),
                          e_scalars=("mu2",), constants={"a2": a2, "ia2": 1 / a2 if schur else 0.0})
 
-    def joint_params(self, phi: float, vals: dict, constants: Constants) -> dict:
-        return {"phi2": phi, **self._multipliers(vals, constants), "cap": self.cap}
-
-    def separated_params(self, vals: dict, constants: Constants) -> dict:
-        return self._multipliers(vals, constants)
-
-    @staticmethod
-    def _multipliers(vals: dict, constants: Constants) -> dict:
+    def solved_params(self, vals: dict, constants: Constants, phi: float | None = None) -> dict:
         kappa = scalar(vals, "kappa")
-        return {"kappa": kappa, "mu1": 1 / kappa if kappa > 0 else float("nan"), "mu2": scalar(vals, "mu2"),
+        mult = {"kappa": kappa, "mu1": 1 / kappa if kappa > 0 else float("nan"), "mu2": scalar(vals, "mu2"),
                 "alpha": constants.alpha}
+        return mult if phi is None else {"phi2": phi, **mult, "cap": self.cap}
 
 
 @register_design("cor1_printed", order=13)

@@ -105,8 +105,10 @@ class Thm1(YoungDesign):
                          blocks=young_layout(n, eside, (lambda d: d["kappa"] * d["ibeff"]) if schur else None),
                          e_scalars=("eps3", "eps4"), constants=constants)
 
-    def joint_params(self, phi: float, vals: dict, c: Constants) -> dict:
+    def solved_params(self, vals: dict, c: Constants, phi: float | None = None) -> dict:
         kappa = scalar(vals, "kappa")
+        if phi is None:
+            return {"kappa": kappa, **self._multipliers(vals, c)}
         return {
             "form": "convex (eps1 = gamma eps2)",
             "phi1": phi,
@@ -115,9 +117,6 @@ class Thm1(YoungDesign):
             "eps1": c.gamma / (2 * kappa) if kappa > 0 else float("nan"),
             **self._multipliers(vals, c),
         }
-
-    def separated_params(self, vals: dict, c: Constants) -> dict:
-        return {"kappa": scalar(vals, "kappa"), **self._multipliers(vals, c)}
 
     def _multipliers(self, vals: dict, c: Constants) -> dict:
         """The e-side multipliers solved for, the constants and the cap."""
