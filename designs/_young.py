@@ -1,9 +1,7 @@
 """The design flow shared by the corrected Theorem 1 and Corollary 1 (``docs/paper.md``).
 
-Both are one LMI in the Young layout (:func:`designs._separated.young_layout`), solved either
-jointly with the Young weight searched on a log grid (``method="joint"``), or side by side with
-the joint certificate rebuilt (``method="separated"``, :func:`designs._separated.separated_design`).
-A subclass names its Young weight (``phi_name``: the fields ``phi_name`` and ``{phi_name}_range``),
+Both are one LMI in the Young layout (:func:`designs._separated.young_layout`), solved jointly or side
+by side (:class:`YoungDesign`'s ``method``). A subclass names its Young weight (:attr:`YoungDesign.phi_name`),
 builds its LMI (:meth:`YoungDesign.form`) and says which scalars it reports.
 """
 

@@ -165,11 +165,8 @@ class Thm1(YoungDesign):
             fixed = dict(eta2=eps2 * c.gamma - eps1, two_eps2=2 * eps2)
             if schur:
                 fixed["inv_eta1"] = 1 / eta1
-
-            def obj(phi, fixed=fixed, prog=prog):
-                return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi, **fixed)
-
-            phi, val, _ = self._search_phi(obj, n_grid=7, n_refine=3)
+            phi, val, _ = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi,
+                                                                  **fixed), n_grid=7, n_refine=3)
             if val > best[0] or best[4] is None:
                 best = (val, eps2, eta1, phi, prog)
         _, eps2, eta1, phi, prog = best
