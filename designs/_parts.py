@@ -128,7 +128,7 @@ class Composite(Design):
         )
 
 
-def register_pairing(feedback: str, estimator: str, *, summary: str | None = None) -> str:
+def register_pairing(feedback: str, estimator: str) -> str:
     """Register the design ``"feedback+estimator"`` (hyperparameters: the dicts ``feedback_params`` and
     ``estimator_params``); returns its id."""
     did = f"{feedback}+{estimator}"
@@ -151,8 +151,6 @@ def register_pairing(feedback: str, estimator: str, *, summary: str | None = Non
         return Composite(feedback=parts[0], estimator=parts[1])
 
     factory.__module__ = "designs.pairings"
-    if summary is None:
-        summary = f"observer-based controller: {feedback} feedback with the {estimator} estimator"
-    factory.__doc__ = summary
-    DESIGNS.register(did, factory, summary, order=50)
+    factory.__doc__ = f"observer-based controller: {feedback} feedback with the {estimator} estimator"
+    DESIGNS.register(did, factory, factory.__doc__, order=50)
     return did
