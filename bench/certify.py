@@ -214,12 +214,9 @@ def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = No
     import cvxpy as cp
 
     n, nw = spec.n, spec.nw
+    pos, size = (("P",), 2 * n) if spec.full_p else (("P1", "P2"), n)
     v = {"slack": cp.Variable(name="slack")}
-    if spec.full_p:
-        v["P"] = cp.Variable((2 * n, 2 * n), symmetric=True, name="P")
-    else:
-        v["P1"] = cp.Variable((n, n), symmetric=True, name="P1")
-        v["P2"] = cp.Variable((n, n), symmetric=True, name="P2")
+    v.update({k: cp.Variable((size, size), symmetric=True, name=k) for k in pos})
     for side in ("x", "e"):
         for k in spec.scalars:
             v[f"{k}_{side}"] = cp.Variable(name=f"tau_{k}_{side}")
@@ -233,7 +230,6 @@ def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = No
     t_build = time.perf_counter()
     M = lmi.sym(lmi.assemble(blocks, {**v, **prm}, numeric=False))
     slack = v["slack"]
-    pos = ("P",) if spec.full_p else ("P1", "P2")
     cons = [M << -slack * np.eye(M.shape[0])]
     cons += [v[k] >> slack * np.eye(v[k].shape[0]) for k in pos]
     if rows is None:
@@ -391,9 +387,8 @@ def _level(spec: _Spec, plant: Plant, K, F, know: Knowledge, **kw) -> LevelResul
         alt = _solve_level(replace(spec, scalars=()), plant, K, F, know, **kw)
         alt.solve_s += out.solve_s
         alt.n_solves += out.n_solves
-        if alt.certified:
-            return alt
-        alt.reason = f"with the scalar constants: {out.reason}; with the channels alone: {alt.reason}"
+        if not alt.certified:
+            alt.reason = f"with the scalar constants: {out.reason}; with the channels alone: {alt.reason}"
         return alt
     return out
 
