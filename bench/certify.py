@@ -209,28 +209,14 @@ def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
     return _Spec(level, n, know.channels.q, True, scalars, True), ""
 
 
-def _program(spec: _Spec, mats: lmi.Matrices, know: Knowledge, rows: np.ndarray | None = None) -> lmi.Program:
-    """The level's analysis program, compiled once per structure (with ``rows``: of a certificate from x0)."""
-    ch = know.channels if spec.channels else None
-    Gw = ch.G if ch is not None else np.eye(spec.n)
-    Hc = ch.H if ch is not None else None
-    blocks = partial(_blocks, spec, Gw, Hc)
-    key = ("certify" if rows is None else "certify-from-x0", spec, mats.key, lmi.digest(Gw), lmi.digest(Hc))
-    return lmi.cached_program(key, lambda: _build(spec, mats, blocks, rows=rows))
-
-
 def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = None) -> lmi.Program:
-    """A level's program: max ``slack``, ``M << -slack I``, ``P >> slack I``, ``trace(P) = 1``, multipliers >= 0;
-    with ``rows`` ``a_k``, ``z0' P z0 <= 1``, ``[[P, a_k], [a_k', r2]] >= 0`` (Schur) and ``slack <= 1`` instead."""
+    """A level's margin program: ``trace(P) = 1``, or with ``rows`` z0's level set held in the region (Schur)."""
     import cvxpy as cp
 
     n, nw = spec.n, spec.nw
+    pos, size = (("P",), 2 * n) if spec.full_p else (("P1", "P2"), n)
     v = {"slack": cp.Variable(name="slack")}
-    if spec.full_p:
-        v["P"] = cp.Variable((2 * n, 2 * n), symmetric=True, name="P")
-    else:
-        v["P1"] = cp.Variable((n, n), symmetric=True, name="P1")
-        v["P2"] = cp.Variable((n, n), symmetric=True, name="P2")
+    v.update({k: cp.Variable((size, size), symmetric=True, name=k) for k in pos})
     for side in ("x", "e"):
         for k in spec.scalars:
             v[f"{k}_{side}"] = cp.Variable(name=f"tau_{k}_{side}")
@@ -244,7 +230,6 @@ def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = No
     t_build = time.perf_counter()
     M = lmi.sym(lmi.assemble(blocks, {**v, **prm}, numeric=False))
     slack = v["slack"]
-    pos = ("P",) if spec.full_p else ("P1", "P2")
     cons = [M << -slack * np.eye(M.shape[0])]
     cons += [v[k] >> slack * np.eye(v[k].shape[0]) for k in pos]
     if rows is None:
@@ -295,8 +280,8 @@ def _blocks(spec: _Spec, Gw: np.ndarray, Hc: np.ndarray | None, d: dict) -> list
                 ww[side] = ww[side] - tau * GtG
         if spec.channels:
             tau = d[f"ch_{side}"]
-            diag[side] = diag[side] + Hc.T @ lmi.diag(-_times(tau, d["lohi"])) @ Hc
-            cross[side] = cross[side] + Hc.T @ lmi.diag(0.5 * _times(tau, d["losum"]))
+            diag[side] = diag[side] + Hc.T @ lmi.diag(-(lmi.diag(d["lohi"]) @ tau)) @ Hc
+            cross[side] = cross[side] + Hc.T @ lmi.diag(0.5 * (lmi.diag(d["losum"]) @ tau))
             ww[side] = ww[side] - lmi.diag(tau)
     return [
         [xx + diag["x"], xe, xwx + cross["x"], xwe],
@@ -304,15 +289,6 @@ def _blocks(spec: _Spec, Gw: np.ndarray, Hc: np.ndarray | None, d: dict) -> list
         [(xwx + cross["x"]).T, ewx.T, ww["x"], Zw],
         [xwe.T, (ewe + cross["e"]).T, Zw, ww["e"]],
     ]
-
-
-def _times(a, b):
-    """Elementwise product (cvxpy or numpy)."""
-    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray):
-        return a * b
-    import cvxpy as cp
-
-    return cp.multiply(a, b)
 
 
 def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
@@ -358,9 +334,15 @@ def _radius(spec: _Spec, know: Knowledge) -> float | None:
 
 
 def _set_program(spec: _Spec, plant: Plant, K, F, know: Knowledge, rows: np.ndarray | None = None) -> lmi.Program:
-    """The level's program (:func:`_program`) set for the gains K, F and the trusted scalar constants."""
+    """The level's analysis program, compiled once per structure (with ``rows``: of a certificate from x0), set
+    for the gains K, F and the trusted scalar constants."""
     mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
-    prog = _program(spec, mats, know, rows)
+    ch = know.channels if spec.channels else None
+    Gw = ch.G if ch is not None else np.eye(spec.n)
+    Hc = ch.H if ch is not None else None
+    blocks = partial(_blocks, spec, Gw, Hc)
+    key = ("certify" if rows is None else "certify-from-x0", spec, mats.key, lmi.digest(Gw), lmi.digest(Hc))
+    prog = lmi.cached_program(key, lambda: _build(spec, mats, blocks, rows=rows))
     c = know.constants
     prog.set(**mats.settable(), rho=c.rho or 0.0, beta=c.beta or 0.0, gamma=c.gamma or 0.0, a2=(c.alpha or 0.0) ** 2)
     return prog
@@ -373,13 +355,11 @@ def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: flo
     if spec.channels:
         prog.set(lohi=know.channels.lo * know.channels.hi, losum=know.channels.lo + know.channels.hi)
     radius = _radius(spec, know)
-    lam0 = start if 0 < start < hi else 0.0
-    prog.solve(lam=lam0)
-    verdict, margin = prog.verdict()
-    if verdict != "verified" and lam0 > 0:
-        lam0 = 0.0
-        prog.solve(lam=0.0)
+    for lam0 in dict.fromkeys((start if 0 < start < hi else 0.0, 0.0)):
+        prog.solve(lam=lam0)
         verdict, margin = prog.verdict()
+        if verdict == "verified":
+            break
     out = LevelResult(spec.level, "not certified", margin=margin, radius=radius)
     if verdict == "verified":
         out.status, out.P, out.decay_rate = "certified", _full_p(prog, spec), 0.0
@@ -407,9 +387,8 @@ def _level(spec: _Spec, plant: Plant, K, F, know: Knowledge, **kw) -> LevelResul
         alt = _solve_level(replace(spec, scalars=()), plant, K, F, know, **kw)
         alt.solve_s += out.solve_s
         alt.n_solves += out.n_solves
-        if alt.certified:
-            return alt
-        alt.reason = f"with the scalar constants: {out.reason}; with the channels alone: {alt.reason}"
+        if not alt.certified:
+            alt.reason = f"with the scalar constants: {out.reason}; with the channels alone: {alt.reason}"
         return alt
     return out
 
@@ -419,9 +398,8 @@ def _inherit(out: LevelResult, prev: LevelResult | None) -> LevelResult:
     if prev is None or not prev.certified or (out.certified and out.decay_rate >= prev.decay_rate):
         return out
     own = f"its own LMI: {out.status}" + (f", rate {out.decay_rate:.3g}" if out.certified else "")
-    return LevelResult(out.level, "certified", decay_rate=prev.decay_rate, margin=prev.margin,
-                       reason=f"inherits the {prev.level} level's certificate ({own})", P=prev.P, radius=prev.radius,
-                       solve_s=out.solve_s, n_solves=out.n_solves)
+    return replace(prev, level=out.level, reason=f"inherits the {prev.level} level's certificate ({own})",
+                   solve_s=out.solve_s, n_solves=out.n_solves)
 
 
 def certify(
@@ -452,8 +430,7 @@ def certify(
     rate_rtol : float
         Relative tolerance of the rate bisection.
     inherit : bool
-        A level whose own LMI certifies less than the level below (numerical trouble, or a
-        different P found) keeps the lower certificate, which holds at every higher level
+        A level whose own LMI certifies less than the level below keeps the lower certificate
         (:func:`_inherit`); False reports each level's own LMI only.
     loop : ClosedLoop, optional
         The checked gains K, F and their spectra (:func:`bench.checks.closed_loop`), when the
@@ -774,10 +751,9 @@ def adopt(cert: Certificate, candidate: dict | None, knowledge: Knowledge) -> No
     if cur.certified and cur.decay_rate >= ADOPT_RATIO * candidate["decay_rate"]:
         return  # the ladder's own P (normalised, usually better conditioned) is kept
     own = f"the ladder's own LMI: {cur.status}" + (f", rate {cur.decay_rate:.3g}" if cur.certified else "")
-    cert.levels[lv] = LevelResult(lv, "certified", decay_rate=float(candidate["decay_rate"]),
-                                  margin=float(candidate["margin"]), reason=f"{candidate['how']} ({own})",
-                                  P=candidate["P"], radius=candidate.get("radius"), solve_s=cur.solve_s,
-                                  n_solves=cur.n_solves)
+    cert.levels[lv] = replace(cur, status="certified", decay_rate=float(candidate["decay_rate"]),
+                              margin=float(candidate["margin"]), reason=f"{candidate['how']} ({own})",
+                              P=candidate["P"], radius=candidate.get("radius"))
     for up in LEVELS[LEVELS.index(lv) + 1:]:
         if up in cert.levels:
             cert.levels[up] = _inherit(cert.levels[up], cert.levels[lv])

@@ -203,11 +203,10 @@ def assemble(blocks_fn: Callable[[dict], list], values: dict, *, numeric: bool):
 
 
 class BestPoint(NamedTuple):
-    """The best solution a :class:`Program` has seen: objective, variable and parameter values, status."""
+    """The best solution a :class:`Program` has seen: objective, variable and parameter values by name, status."""
 
     value: float
-    variables: dict
-    parameters: dict
+    values: dict
     status: str
 
 
@@ -310,19 +309,18 @@ class Program:
         self.n_solves += 1
         self.last_status, self.last_error = out.status, out.error
         if out.solved and (self.best is None or out.value > self.best.value):
-            snap = {k: (None if v.value is None else np.array(v.value)) for k, v in self.variables.items()}
-            pars = {k: (None if p.value is None else np.array(p.value)) for k, p in self.parameters.items()}
-            self.best = BestPoint(out.value, snap, pars, out.status)
+            held = {**self.variables, **self.parameters}
+            snap = {k: (None if v.value is None else np.array(v.value)) for k, v in held.items()}
+            self.best = BestPoint(out.value, snap, out.status)
         return out.value if out.solved else float("nan")
 
     def restore_best(self) -> bool:
         """Put the best solution back into the variables and parameters (False: there is none)."""
         if self.best is None:
             return False
-        for k, v in self.best.variables.items():
-            self.variables[k].value = v
-        for k, v in self.best.parameters.items():
-            self.parameters[k].value = v
+        held = {**self.variables, **self.parameters}
+        for k, v in self.best.values.items():
+            held[k].value = v
         self.last_status, self.last_error = self.best.status, ""
         return True
 
@@ -507,16 +505,12 @@ _LOCAL = threading.local()
 
 
 def _cache() -> OrderedDict:
-    c = getattr(_LOCAL, "programs", None)
-    if c is None:
-        c = _LOCAL.programs = OrderedDict()
-    return c
+    return _LOCAL.__dict__.setdefault("programs", OrderedDict())
 
 
 def cached_program(key: tuple, build: Callable[[], Program]) -> Program:
     """The compiled :class:`Program` for ``key``, built by ``build()`` on first use, then reused.
 
-    Calls differing only in parameter values share one problem, so cvxpy compiles once per key.
     The program comes back :meth:`Program.reset`. The cache is per thread (a problem holds its
     last solution) and keeps :data:`PROGRAM_CACHE_SIZE` programs.
 

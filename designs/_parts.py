@@ -128,7 +128,7 @@ class Composite(Design):
         )
 
 
-def register_pairing(feedback: str, estimator: str, *, summary: str | None = None) -> str:
+def register_pairing(feedback: str, estimator: str) -> str:
     """Register the design ``"feedback+estimator"`` (hyperparameters: the dicts ``feedback_params`` and
     ``estimator_params``); returns its id."""
     did = f"{feedback}+{estimator}"
@@ -139,12 +139,11 @@ def register_pairing(feedback: str, estimator: str, *, summary: str | None = Non
             shown = key if key.isidentifier() else repr(key)
             raise DesignError(f"{shown}: unknown hyperparameter of the pairing {did!r} "
                               "(valid: feedback_params, estimator_params)")
-        for key, value in (("feedback_params", feedback_params), ("estimator_params", estimator_params)):
-            if value is not None and not (isinstance(value, Mapping) and all(isinstance(k, str) for k in value)):
-                raise DesignError(f"{key}: expected a dict of the part's hyperparameters by name, got {value!r}")
         parts = []
         for key, reg, part, params in (("feedback_params", FEEDBACKS, feedback, feedback_params),
                                        ("estimator_params", ESTIMATORS, estimator, estimator_params)):
+            if params is not None and not (isinstance(params, Mapping) and all(isinstance(k, str) for k in params)):
+                raise DesignError(f"{key}: expected a dict of the part's hyperparameters by name, got {params!r}")
             try:
                 parts.append(reg.create(part, **(params or {})))
             except DesignError as exc:  # say which dict the bad parameter came from
@@ -152,8 +151,6 @@ def register_pairing(feedback: str, estimator: str, *, summary: str | None = Non
         return Composite(feedback=parts[0], estimator=parts[1])
 
     factory.__module__ = "designs.pairings"
-    if summary is None:
-        summary = f"observer-based controller: {feedback} feedback with the {estimator} estimator"
-    factory.__doc__ = summary
-    DESIGNS.register(did, factory, summary, order=50)
+    factory.__doc__ = f"observer-based controller: {feedback} feedback with the {estimator} estimator"
+    DESIGNS.register(did, factory, factory.__doc__, order=50)
     return did

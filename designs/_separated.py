@@ -129,9 +129,7 @@ class YoungForm:
         :func:`bench.lmi.conclude`'s dict plus ``normalisation``, ``cap`` and ``cost``.
         """
         prog = self.side_program(plant, side, cap=cap, scale_free=True)
-        # one accurate solve: a verdict of infeasibility is not left to SCS
-        prog.solve(solver="CLARABEL" if solver == "auto" else solver,
-                   solver_opts=lmi.SCS_OPTS if solver == "SCS" else None)
+        lmi.solve_side(prog, "CLARABEL" if solver == "auto" else solver)  # a verdict of infeasibility not left to SCS
         norm = f"I << {SIDE_MATRIX[side]} << {cap:g} I"
         out = lmi.conclude(prog, what=f"{self.what} {side}", normalisation=norm, searched="(scale-free)")
         out.update(normalisation=norm, cap=cap, cost=(prog.compile_s, prog.solve_s, prog.n_solves))
@@ -152,13 +150,12 @@ def recombine(
     B: np.ndarray,
     xprog: lmi.Program,
     eprog: lmi.Program,
-    e_keys: tuple[str, ...],
-    joint_blocks: Callable[[dict], list],
+    form: YoungForm,
     decide: Callable[[str], dict] | None,
 ) -> dict:
-    """Rebuild and verify the joint certificate from the solved x-side and e-side programs (module docstring).
+    """Rebuild and verify ``form``'s joint certificate from its solved x-side and e-side programs (module docstring).
 
-    The e-side variables ``e_keys`` are scaled by s; ``decide(side)`` (:meth:`YoungForm.decide_side`) labels a side
+    R, Kh and the e-side scalars are scaled by s; ``decide(side)`` (:meth:`YoungForm.decide_side`) labels a side
     that is not strictly feasible (None: undecided). Returns ``status``, ``reason``, ``margin`` (equilibrated joint
     matrix), ``raw_margin``, ``lmi_size``, ``min_eig``, ``phi``, ``scale``, ``x_margin``, ``e_margin``, ``values``,
     ``cost``.
@@ -175,7 +172,7 @@ def recombine(
     lx, le = lmi.max_eig(X), lmi.max_eig(E)
     out.update(x_margin=lx, e_margin=le)
     failed = _failed_sides(xprog, eprog, X, E, lx, le, decide)
-    out.update(failed if failed is not None else _joint_verdict(B, xv, ev, e_keys, joint_blocks, lx, le))
+    out.update(failed if failed is not None else _joint_verdict(B, xv, ev, form, lx, le))
     return out
 
 
@@ -202,8 +199,7 @@ def _failed_sides(xprog: lmi.Program, eprog: lmi.Program, X: np.ndarray, E: np.n
     return _side_verdict({name: decide(name) for name in bad}, margins)
 
 
-def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, e_keys: tuple[str, ...], joint_blocks: Callable[[dict], list],
-                   lx: float, le: float) -> dict:
+def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, form: YoungForm, lx: float, le: float) -> dict:
     """The joint matrix rebuilt at the module docstring's ``phi`` and ``s``, its equilibrated margin and verdict."""
     qmin = lmi.min_eig(xv["Q"])
     Q, Fh = xv["Q"], xv["Fh"]
@@ -211,8 +207,8 @@ def _joint_verdict(B: np.ndarray, xv: dict, ev: dict, e_keys: tuple[str, ...], j
     gmax = lmi.max_eig(BF @ Q @ BF.T)  # lmax(B Fh' Q^{-1} Fh B')
     phi = 0.5 * abs(lx) / gmax if gmax > 0 else 1.0
     s = 2.0 / (phi * qmin * abs(le))
-    vals = {**xv, **ev, **{k: ev[k] * s for k in e_keys}, "phi": phi, "iphi": 1.0 / phi}
-    M = lmi.assemble(joint_blocks, vals, numeric=True)
+    vals = {**xv, **ev, **{k: ev[k] * s for k in ("R", "Kh", *form.e_scalars)}, "phi": phi, "iphi": 1.0 / phi}
+    M = lmi.assemble(form.blocks[0], vals, numeric=True)
     M = (M + M.T) / 2
     diag = np.diag(M)
     raw = lmi.max_eig(M)
@@ -265,8 +261,7 @@ def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_nam
     eprog = form.side_program(plant, "e-side", cap=cap)
     xlog = lmi.solve_side(xprog, solver, plant.n)
     elog = lmi.solve_side(eprog, solver, plant.n)
-    rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, e_keys=("R", "Kh", *form.e_scalars),
-                   joint_blocks=form.blocks[0],
+    rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, form=form,
                    decide=(lambda side: form.decide_side(plant, side, cap=cap, solver=solver)) if decide else None)
     K = F = None
     vals = rc["values"] or {}
@@ -305,15 +300,15 @@ def settle_joint(plant, form: YoungForm, concl: dict, *, cap: float, solver: str
     return {**concl, "status": "infeasible", "reason": reason}, cost
 
 
-# -- helpers shared by the corrected Theorem 1 and Corollary 1 ---------------------------------
+# -- helpers shared by the corrected Theorem 1, Corollary 1 and the LMI observers ----------------
 def synthesis_variables(n: int, m: int, p: int, scalars: tuple[str, ...],
                         matrices: tuple[str, ...] = ("Q", "R", "Fh", "Kh")) -> dict:
-    """cvxpy variables ``matrices`` among Q, R (symmetric), Fh (n x m), Kh (p x n), the margin ``slack`` and
-    ``scalars``."""
+    """cvxpy variables ``matrices`` among Q, R, P (symmetric), Fh (n x m), Kh (p x n), W (n x p), the margin
+    ``slack`` and ``scalars``."""
     import cvxpy as cp
 
-    shapes = {"Q": (n, n), "R": (n, n), "Fh": (n, m), "Kh": (p, n)}
-    v = {k: cp.Variable(shapes[k], symmetric=k in SIDE_MATRIX.values(), name=k) for k in matrices}
+    shapes = {"Q": (n, n), "R": (n, n), "P": (n, n), "Fh": (n, m), "Kh": (p, n), "W": (n, p)}
+    v = {k: cp.Variable(shapes[k], symmetric=k in ("Q", "R", "P"), name=k) for k in matrices}
     v.update({s: cp.Variable(name=s) for s in ("slack", *scalars)})
     return v
 
@@ -379,12 +374,3 @@ def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.
         n_solves=prog.n_solves + cost[2], margin=concl["margin"], lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
         params={**params, "slack": concl.get("slack", float("nan"))},
     )
-
-
-def coordinate_hint(plant, res: DesignResult, variant: str) -> DesignResult:
-    """Append to an infeasible or marginal result with channels that the ``variant`` design searches a scaling."""
-    scaled_already = plant.id.endswith(".scaled")
-    if res.status in ("infeasible", "marginal") and plant.channels is not None and not scaled_already:
-        res.reason += (f"; the scalar constants depend on the state's coordinates: {variant} searches a diagonal "
-                       "scaling, and the structured design uses the channels themselves")
-    return res

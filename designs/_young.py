@@ -1,9 +1,7 @@
 """The design flow shared by the corrected Theorem 1 and Corollary 1 (``docs/paper.md``).
 
-Both are one LMI in the Young layout (:func:`designs._separated.young_layout`), solved either
-jointly with the Young weight searched on a log grid (``method="joint"``), or side by side with
-the joint certificate rebuilt (``method="separated"``, :func:`designs._separated.separated_design`).
-A subclass names its Young weight (``phi_name``: the fields ``phi_name`` and ``{phi_name}_range``),
+Both are one LMI in the Young layout (:func:`designs._separated.young_layout`), solved jointly or side
+by side (:class:`YoungDesign`'s ``method``). A subclass names its Young weight (:attr:`YoungDesign.phi_name`),
 builds its LMI (:meth:`YoungDesign.form`) and says which scalars it reports.
 """
 
@@ -14,7 +12,7 @@ from typing import Callable, ClassVar
 
 from bench import lmi
 from designs._core import Design, DesignResult, check_choice, check_int, check_positive, check_range
-from designs._separated import YoungForm, coordinate_hint, joint_result, separated_design, settle_joint
+from designs._separated import YoungForm, joint_result, separated_design, settle_joint
 from plants import Constants, Plant
 
 
@@ -53,7 +51,7 @@ class YoungDesign(Design):
         check_choice("method", self.method, ("joint", "separated"))
         if self._fixed_phi is not None:
             check_positive(self.phi_name, self._fixed_phi)
-        check_range(f"{self.phi_name}_range", self._phi_range)
+        check_range(f"{self.phi_name}_range", getattr(self, f"{self.phi_name}_range"))
         check_positive("cap", self.cap)
         check_int("n_grid", self.n_grid, minimum=2)
         check_int("n_refine", self.n_refine, minimum=0)
@@ -61,10 +59,6 @@ class YoungDesign(Design):
     @property
     def _fixed_phi(self) -> float | None:
         return getattr(self, self.phi_name)
-
-    @property
-    def _phi_range(self) -> tuple[float, float]:
-        return getattr(self, f"{self.phi_name}_range")
 
     @property
     def _joint_solver(self) -> str:
@@ -79,18 +73,18 @@ class YoungDesign(Design):
         """The design's LMI for ``plant`` with ``constants``."""
         raise NotImplementedError
 
-    def joint_params(self, phi: float, vals: dict, constants: Constants) -> dict:  # pragma: no cover
-        """The scalars a joint solve reports (Young weight ``phi``, solved values ``vals``)."""
-        raise NotImplementedError
-
-    def separated_params(self, vals: dict, constants: Constants) -> dict:  # pragma: no cover
-        """The design-specific scalars a separated solve reports (solved values ``vals``)."""
+    def solved_params(self, vals: dict, constants: Constants, phi: float | None = None) -> dict:  # pragma: no cover
+        """The scalars a joint solve at the Young weight ``phi`` (None: a separated solve) reports, from ``vals``."""
         raise NotImplementedError
 
     # -- the flow -------------------------------------------------------------------------------
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the design for ``plant`` with ``constants``; a failure's reason names the scaled variant."""
-        return coordinate_hint(plant, self._design(plant, constants), self.scaled_variant)
+        res = self._design(plant, constants)
+        if res.status in ("infeasible", "marginal") and plant.channels is not None and not plant.id.endswith(".scaled"):
+            res.reason += (f"; the scalar constants depend on the state's coordinates: {self.scaled_variant} searches "
+                           "a diagonal scaling, and the structured design uses the channels themselves")
+        return res
 
     def _design(self, plant: Plant, constants: Constants) -> DesignResult:
         if self.method == "separated":
@@ -100,7 +94,7 @@ class YoungDesign(Design):
     def separated(self, plant: Plant, constants: Constants, *, decide: bool = True) -> DesignResult:
         """The sides solved apart and the joint certificate rebuilt; ``decide=False`` skips the scale-free solves."""
         return separated_design(plant, self.form(plant, constants), solver=self.solver, cap=self.cap,
-                                phi_name=self.phi_name, extra_params=lambda vals: self.separated_params(vals, constants),
+                                phi_name=self.phi_name, extra_params=lambda vals: self.solved_params(vals, constants),
                                 decide=decide)
 
     def joint_program(self, plant: Plant, constants: Constants) -> lmi.Program:
@@ -111,7 +105,7 @@ class YoungDesign(Design):
     def _search_phi(self, obj: Callable[[float], float], *, n_grid: int | None = None,
                     n_refine: int | None = None) -> tuple[float, float, str]:
         """Search (or fix) the Young weight maximising ``obj(phi)``: the weight, its margin and where it was searched."""
-        lo, hi = self._phi_range
+        lo, hi = getattr(self, f"{self.phi_name}_range")
         if self._fixed_phi is not None:
             return self._fixed_phi, obj(self._fixed_phi), f"at {self.phi_name} = {self._fixed_phi:g}"
         phi, val = lmi.log_search(obj, lo, hi, n_grid=self.n_grid if n_grid is None else n_grid,
@@ -128,4 +122,4 @@ class YoungDesign(Design):
         concl = lmi.conclude(prog, what=form.what, normalisation=self._normalisation, searched=searched)
         concl, cost = settle_joint(plant, form, concl, cap=self.cap, solver=self.solver, searched=searched,
                                    normalisation=self._normalisation)
-        return joint_result(prog, concl, self.joint_params(phi, prog.values(), constants), cost)
+        return joint_result(prog, concl, self.solved_params(prog.values(), constants, phi), cost)

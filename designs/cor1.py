@@ -15,7 +15,8 @@ import numpy as np
 from bench import lmi
 from bench.registry import register_design
 from designs._core import Design, DesignResult, check_positive, check_values_in
-from designs._separated import YoungForm, joint_program, joint_result, scalar, young_layout
+from designs._separated import (YoungForm, joint_program, joint_result, scalar, state_feedback_block,
+                                young_layout)
 from designs._young import YoungDesign
 from plants import Constants, Plant
 
@@ -36,9 +37,9 @@ class Cor1(YoungDesign):
     """Corollary 1, corrected (kappa = 1/mu1 exact, docs/paper.md): the joint 6n LMI, Young weight phi2 searched.
 
     For fixed phi2, the LMI in Q, R, Fh, Kh, kappa, mu2 is the Young layout
-    (:func:`designs._separated.young_layout`) with the e-side ``[[W22, R], [R, -mu2 I]]``,
-    ``W22 = A'R + RA - C'Kh - Kh'C + mu2 alpha^2 I``, and the Schur weight ``kappa / alpha^2`` (no Schur
-    column for alpha = 0); ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
+    (:func:`designs._separated.young_layout`) with the e-side ``[[W22, R], [R, -mu2 I]]`` (W22:
+    :func:`lipschitz_w22`) and the Schur weight ``kappa / alpha^2`` (no Schur column for alpha = 0);
+    ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
 
     Parameters
     ----------
@@ -70,17 +71,11 @@ class Cor1(YoungDesign):
                          blocks=young_layout(n, eside, (lambda d: d["kappa"] * d["ia2"]) if schur else None),
                          e_scalars=("mu2",), constants={"a2": a2, "ia2": 1 / a2 if schur else 0.0})
 
-    def joint_params(self, phi: float, vals: dict, constants: Constants) -> dict:
-        return {"phi2": phi, **self._multipliers(vals, constants), "cap": self.cap}
-
-    def separated_params(self, vals: dict, constants: Constants) -> dict:
-        return self._multipliers(vals, constants)
-
-    @staticmethod
-    def _multipliers(vals: dict, constants: Constants) -> dict:
+    def solved_params(self, vals: dict, constants: Constants, phi: float | None = None) -> dict:
         kappa = scalar(vals, "kappa")
-        return {"kappa": kappa, "mu1": 1 / kappa if kappa > 0 else float("nan"), "mu2": scalar(vals, "mu2"),
+        mult = {"kappa": kappa, "mu1": 1 / kappa if kappa > 0 else float("nan"), "mu2": scalar(vals, "mu2"),
                 "alpha": constants.alpha}
+        return mult if phi is None else {"phi2": phi, **mult, "cap": self.cap}
 
 
 @register_design("cor1_printed", order=13)
@@ -115,15 +110,12 @@ class Cor1Printed(Design):
         I, Z = np.eye(plant.n), np.zeros((plant.n, plant.n))
 
         def blocks(d):
-            A, B = d["A"], d["B"]
-            Q, R, Fh = d["Q"], d["R"], d["Fh"]
-            W11 = Q @ A.T + A @ Q + Fh @ B.T + B @ Fh.T
-            W22 = lipschitz_w22(d, I)
-            BF = -B @ Fh.T
+            Q, R = d["Q"], d["R"]
+            BF = -d["B"] @ d["Fh"].T
             return [
                 # W1                                          | W2
-                [W11, Z, I, Z, Q, BF, Z],
-                [Z, W22, Z, R, Z, Z, I],
+                [state_feedback_block(d), Z, I, Z, Q, BF, Z],
+                [Z, lipschitz_w22(d, I), Z, R, Z, Z, I],
                 [I, Z, -d["mu1"] * I, Z, Z, Z, Z],
                 [Z, R, Z, -d["mu2"] * I, Z, Z, Z],
                 # W2'                                         | W3 (Remarks 2-3)

@@ -12,7 +12,7 @@ A. H. Jazwinski, *Stochastic Processes and Filtering Theory*, 1970 (continuous-d
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 from designs._core import DesignError, DesignResult, check_positive
 from designs._parts import Part, register_estimator
@@ -64,6 +64,6 @@ class EKFEstimator(EKFSpec, Part):
         """Return the filter specification (checked against the plant's horizon)."""
         spec = EKFSpec(dt=self.dt, q=self.q, r=self.r, p0=self.p0)  # the spec alone, for the simulator
         spec.check_horizon(plant.t_final)
+        jacobian = "analytic" if plant.jacobian is not None else "finite differences"
         return DesignResult(status="given", route="given", estimator=spec, solver=None,
-                          params={"dt": spec.dt, "q": spec.q, "r": spec.r, "p0": spec.p0,
-                                  "jacobian": "analytic" if plant.jacobian is not None else "finite differences"})
+                            params={**asdict(spec), "jacobian": jacobian})

@@ -21,7 +21,7 @@ import numpy as np
 from bench import lmi
 from designs._core import DesignResult, check_choice, check_positive
 from designs._parts import Part, register_estimator
-from designs._separated import joint_result, scalar, side_program
+from designs._separated import joint_result, scalar, side_program, synthesis_variables
 from plants import Constants, Plant
 
 __all__ = ["RajamaniLMI", "ZhangOSL"]
@@ -41,17 +41,21 @@ class _ObserverLMI(Part):
         check_choice("solver", self.solver, ("auto", "CLARABEL", "SCS"))
 
 
-def _solve_observer(part: "Part", key: tuple, blocks, variables, mats: lmi.Matrices, constants: dict,
-                    nonneg: tuple[str, ...], *, what: str, n: int, searched: str) -> tuple[lmi.Program, dict, str]:
-    """Solve the LMI ``blocks`` under ``P << cap I``, a marginal verdict again under ``I << P << cap I``."""
+def _solve_observer(part: "Part", plant: Plant, key: tuple, blocks, matrices: tuple[str, ...], mats: lmi.Matrices,
+                    constants: dict, nonneg: tuple[str, ...], *, what: str,
+                    searched: str) -> tuple[lmi.Program, dict, str]:
+    """Solve the LMI ``blocks`` in ``matrices`` and the scalars ``nonneg`` under ``P << cap I``, a marginal verdict
+    again under ``I << P << cap I``."""
+    def variables():
+        return synthesis_variables(plant.n, plant.m, plant.p, nonneg, matrices)
+
     prog = side_program(key, blocks, variables, mats, constants, nonneg, "P", cap=part.cap, scale_free=False)
-    log = lmi.solve_side(prog, part.solver, n)
+    log = lmi.solve_side(prog, part.solver, plant.n)
     concl = lmi.conclude(prog, what=what, normalisation=f"P << {part.cap:g} I, slack <= 1", searched=searched)
     if concl["status"] != "marginal":
         return prog, concl, log
     sf = side_program(key, blocks, variables, mats, constants, nonneg, "P", cap=part.cap, scale_free=True)
-    sf.solve(solver="CLARABEL" if part.solver == "auto" else part.solver,
-             solver_opts=lmi.SCS_OPTS if part.solver == "SCS" else None)
+    lmi.solve_side(sf, "CLARABEL" if part.solver == "auto" else part.solver)
     norm = f"I << P << {part.cap:g} I"
     dec = lmi.conclude(sf, what=what, normalisation=norm, searched=f"{searched} (scale-free)")
     if dec["status"] == "infeasible":
@@ -75,8 +79,6 @@ class RajamaniLMI(_ObserverLMI):
 
     def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the LMI and return K."""
-        import cvxpy as cp
-
         n, p = plant.n, plant.p
         a2, lam = float(constants.alpha) ** 2, float(self.decay)
         I = np.eye(n)
@@ -86,13 +88,9 @@ class RajamaniLMI(_ObserverLMI):
             S = A.T @ P + P @ A - C.T @ W.T - W @ C + d["eps"] * d["a2"] * I + 2 * lam * P
             return [[S, P], [P, -d["eps"] * I]]
 
-        def variables():
-            return {"P": cp.Variable((n, n), symmetric=True), "W": cp.Variable((n, p)), "eps": cp.Variable(),
-                    "slack": cp.Variable()}
-
         mats = lmi.matrices(A=plant.A, C=plant.C)
-        prog, concl, log = _solve_observer(self, ("rajamani", n, p, lam), blocks, variables, mats, {"a2": a2}, ("eps",),
-                                           what="Rajamani LMI observer", n=n, searched=f"with decay {lam:g}")
+        prog, concl, log = _solve_observer(self, plant, ("rajamani", n, p, lam), blocks, ("P", "W"), mats, {"a2": a2},
+                                           ("eps",), what="Rajamani LMI observer", searched=f"with decay {lam:g}")
         vals = prog.values()
         K = np.linalg.solve(vals["P"], vals["W"]) if concl["status"] == "feasible" else None
         return joint_result(prog, concl, {"alpha": constants.alpha, "decay": lam, "eps": scalar(vals, "eps")},
@@ -117,8 +115,6 @@ class ZhangOSL(_ObserverLMI):
 
     def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the LMI and return K."""
-        import cvxpy as cp
-
         C = plant.C
         n = plant.n
         rho, beta, gamma = constants.rho, constants.beta, constants.gamma
@@ -132,15 +128,11 @@ class ZhangOSL(_ObserverLMI):
             X = P + ((d["gamma"] * d["eps2"] - d["eps1"]) / 2) * I
             return [[S, X], [X.T, -d["eps2"] * I]]
 
-        def variables():
-            return {"P": cp.Variable((n, n), symmetric=True), "sigma": cp.Variable(), "eps1": cp.Variable(),
-                    "eps2": cp.Variable(), "slack": cp.Variable()}
-
         # C'C is one parameter: sigma * (C' C) with C a parameter would not be DPP
         mats = lmi.matrices(A=plant.A, CtC=C.T @ C)
-        prog, concl, log = _solve_observer(self, ("zhang_osl", n, lam), blocks, variables, mats,
+        prog, concl, log = _solve_observer(self, plant, ("zhang_osl", n, lam), blocks, ("P",), mats,
                                            {"rho": rho, "beta": beta, "gamma": gamma}, ("sigma", "eps1", "eps2"),
-                                           what="Zhang OSL LMI observer", n=n, searched=f"with decay {lam:g}")
+                                           what="Zhang OSL LMI observer", searched=f"with decay {lam:g}")
         vals = prog.values()
         K = None
         if concl["status"] == "feasible":

@@ -27,8 +27,7 @@ __all__ = ["LQEObserver", "LQRFeedback"]
 
 @dataclass(frozen=True, kw_only=True)
 class _Weighted(Part):
-    """A part with weight matrices: ``weights`` lists ``(field, definite, dimension)`` (the plant's
-    ``n``, ``m`` or ``p`` sizes the matrix). Checked when the part is built, and against the plant."""
+    """A part with weight matrices ``weights``: ``(field, definite, plant dimension)``, checked when built."""
 
     weights: ClassVar[tuple[tuple[str, bool, str], ...]] = ()
 

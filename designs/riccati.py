@@ -32,8 +32,10 @@ from plants import Constants, Plant
 __all__ = ["RHRiccati"]
 
 
-def rh_solve(A: np.ndarray, C: np.ndarray, alpha: float, eps: float) -> tuple[np.ndarray | None, str]:
-    """Solve the Raghavan-Hedrick ARE for one eps; returns (P, "") or (None, why)."""
+def rh_solve(A: np.ndarray, C: np.ndarray, alpha: float, eps: float,
+             residual_tol: float) -> tuple[tuple | None, str]:
+    """Solve the Raghavan-Hedrick ARE for one eps and check the solution (P > 0, the relative residual, A - KC
+    Hurwitz); returns ``((K, residual, lmin(P)), "")`` or ``(None, why)``."""
     from scipy.linalg import block_diag, solve_continuous_are
 
     n, p = A.shape[0], C.shape[0]
@@ -45,14 +47,18 @@ def rh_solve(A: np.ndarray, C: np.ndarray, alpha: float, eps: float) -> tuple[np
         return None, str(exc).splitlines()[0]
     if not np.all(np.isfinite(P)):
         return None, "non-finite solution"
-    return (P + P.T) / 2, ""
-
-
-def rh_residual(A, C, alpha, eps, P) -> float:
-    """Relative residual of the RH Riccati equation at P."""
-    n = A.shape[0]
+    P = (P + P.T) / 2
     res = A @ P + P @ A.T + P @ (alpha**2 * np.eye(n) - C.T @ C / eps) @ P + (1 + eps) * np.eye(n)
-    return float(np.abs(res).max() / max(1.0, float(np.abs(P).max()) ** 2, 1 + eps))
+    res = float(np.abs(res).max() / max(1.0, float(np.abs(P).max()) ** 2, 1 + eps))
+    lo = float(np.linalg.eigvalsh(P)[0])
+    K = P @ C.T / (2 * eps)
+    if lo <= 0:
+        return None, "P not positive definite"
+    if res > residual_tol:
+        return None, f"residual above {residual_tol:g}"
+    if np.linalg.eigvals(A - K @ C).real.max() >= 0:
+        return None, "A - KC not Hurwitz"
+    return (K, res, lo), ""
 
 
 @register_estimator("rh_riccati")
@@ -96,34 +102,23 @@ class RHRiccati(Part):
         t0 = time.perf_counter()
         valid, failures = [], {}
         for eps in grid:
-            P, why = rh_solve(A, C, alpha, eps)
-            if P is None:
+            sol, why = rh_solve(A, C, alpha, eps, self.residual_tol)
+            if sol is None:
                 failures.setdefault(why, []).append(eps)
-                continue
-            res = rh_residual(A, C, alpha, eps, P)
-            lo = float(np.linalg.eigvalsh(P)[0])
-            K = P @ C.T / (2 * eps)
-            ae = float(np.linalg.eigvals(A - K @ C).real.max())
-            if lo <= 0:
-                failures.setdefault("P not positive definite", []).append(eps)
-            elif res > self.residual_tol:
-                failures.setdefault(f"residual above {self.residual_tol:g}", []).append(eps)
-            elif ae >= 0:
-                failures.setdefault("A - KC not Hurwitz", []).append(eps)
             else:
-                valid.append((eps, P, K, res, lo, ae))
+                valid.append((eps, *sol))
         wall = time.perf_counter() - t0
         if not valid:
             summary = "; ".join(f"{why} (eps = {', '.join(f'{e:.2g}' for e in es[:3])}{', ...' if len(es) > 3 else ''})"
                                 for why, es in failures.items())
             return DesignResult(status="infeasible", route="riccati", solver="scipy.solve_continuous_are",
                                 solver_status="no solution",
-                              reason=f"no stabilizing solution P > 0 of the RH Riccati equation for alpha = {alpha:.4g} "
-                                     f"on {len(grid)} eps values in [{grid[0]:.2g}, {grid[-1]:.2g}]: {summary}",
-                              solve_s=wall, n_solves=len(grid), params={"alpha": alpha})
-        eps, P, K, res, lo, ae = max(valid, key=lambda v: v[0])
+                                reason=f"no stabilizing solution P > 0 of the RH Riccati equation for alpha = {alpha:.4g} "
+                                       f"on {len(grid)} eps values in [{grid[0]:.2g}, {grid[-1]:.2g}]: {summary}",
+                                solve_s=wall, n_solves=len(grid), params={"alpha": alpha})
+        eps, K, res, lo = max(valid, key=lambda v: v[0])
         return DesignResult(status="feasible", route="riccati", K=K, solver="scipy.solve_continuous_are",
                             solver_status="solved",
-                          solve_s=wall, n_solves=len(grid), min_eig={"P": lo},
-                          params={"eps": eps, "alpha": alpha, "riccati_residual": res,
-                                  "eps_valid_min": min(v[0] for v in valid), "eps_valid_max": eps})
+                            solve_s=wall, n_solves=len(grid), min_eig={"P": lo},
+                            params={"eps": eps, "alpha": alpha, "riccati_residual": res,
+                                    "eps_valid_min": min(v[0] for v in valid), "eps_valid_max": eps})

@@ -101,15 +101,13 @@ class Scaled(Design):
         coords = sorted(set(np.nonzero(np.any(ch.G != 0, axis=1))[0]) | set(np.nonzero(np.any(ch.H != 0, axis=0))[0]))
         d = np.ones(plant.n)
         best, tried = self._score(plant, d)[0], 1
-        for _ in range(self.sweeps):
-            for i in coords:
-                for v in np.logspace(-1, 1, self.grid):
-                    cand = d.copy()
-                    cand[i] = v
-                    score, _ = self._score(plant, cand)
-                    tried += 1
-                    if score > best:
-                        best, d = score, cand
+        for _, i, v in itertools.product(range(self.sweeps), coords, np.logspace(-1, 1, self.grid)):
+            cand = d.copy()
+            cand[i] = v
+            score, _ = self._score(plant, cand)
+            tried += 1
+            if score > best:
+                best, d = score, cand
         sp, consts = scaled_plant(plant, d)
         res = DESIGNS.create(self.inner).design(sp, consts)
         params = {**res.params, "scaling": "[" + ", ".join(f"{v:.3g}" for v in d) + "]", "scalings_tried": tried,

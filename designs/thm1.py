@@ -105,8 +105,10 @@ class Thm1(YoungDesign):
                          blocks=young_layout(n, eside, (lambda d: d["kappa"] * d["ibeff"]) if schur else None),
                          e_scalars=("eps3", "eps4"), constants=constants)
 
-    def joint_params(self, phi: float, vals: dict, c: Constants) -> dict:
+    def solved_params(self, vals: dict, c: Constants, phi: float | None = None) -> dict:
         kappa = scalar(vals, "kappa")
+        if phi is None:
+            return {"kappa": kappa, **self._multipliers(vals, c)}
         return {
             "form": "convex (eps1 = gamma eps2)",
             "phi1": phi,
@@ -115,9 +117,6 @@ class Thm1(YoungDesign):
             "eps1": c.gamma / (2 * kappa) if kappa > 0 else float("nan"),
             **self._multipliers(vals, c),
         }
-
-    def separated_params(self, vals: dict, c: Constants) -> dict:
-        return {"kappa": scalar(vals, "kappa"), **self._multipliers(vals, c)}
 
     def _multipliers(self, vals: dict, c: Constants) -> dict:
         """The e-side multipliers solved for, the constants and the cap."""
@@ -166,18 +165,14 @@ class Thm1(YoungDesign):
             fixed = dict(eta2=eps2 * c.gamma - eps1, two_eps2=2 * eps2)
             if schur:
                 fixed["inv_eta1"] = 1 / eta1
-
-            def obj(phi, fixed=fixed, prog=prog):
-                return prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi, **fixed)
-
-            phi, val, _ = self._search_phi(obj, n_grid=7, n_refine=3)
+            phi, val, _ = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi,
+                                                                  **fixed), n_grid=7, n_refine=3)
             if val > best[0] or best[4] is None:
                 best = (val, eps2, eta1, phi, prog)
         _, eps2, eta1, phi, prog = best
         prog.restore_best()
-        prog.compile_s = sum(p.compile_s for p in progs.values())
-        prog.solve_s = sum(p.solve_s for p in progs.values())
-        prog.n_solves = sum(p.n_solves for p in progs.values())
+        for k in ("compile_s", "solve_s", "n_solves"):
+            setattr(prog, k, sum(getattr(p, k) for p in progs.values()))
         lo, hi = self.phi1_range
         searched = f"over eps2 in {self.eps2_range} x phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
         concl = lmi.conclude(prog, what="corrected Theorem 1 (fixed eps, gamma < 0)",
@@ -228,14 +223,12 @@ class Thm1Printed(Design):
         I, Z = np.eye(plant.n), np.zeros((plant.n, plant.n))
 
         def blocks(d):
-            A, B = d["A"], d["B"]
-            Q, Fh = d["Q"], d["Fh"]
-            S11 = Q @ A.T + A @ Q + Fh @ B.T + B @ Fh.T
+            Q = d["Q"]
             S22, X = osl_qib_eside(d, I)
-            BF = -B @ Fh.T
+            BF = -d["B"] @ d["Fh"].T
             return [
                 # S1                                                  | S2
-                [S11, Z, I, Z, BF, Z, Q, Z],
+                [state_feedback_block(d), Z, I, Z, BF, Z, Q, Z],
                 [Z, S22, Z, X, Z, I, Z, Z],
                 [I, Z, -d["two_eps2"] * I, Z, Z, Z, Z, I],
                 [Z, X.T, Z, -2 * d["eps4"] * I, Z, Z, Z, Z],
@@ -259,29 +252,20 @@ class Thm1Printed(Design):
         """Solve Theorem 1 as printed, or explain why it cannot be satisfied."""
         c = constants
         params = {"rho": c.rho, "beta": c.beta, "gamma": c.gamma}
-        if c.gamma <= 0:
-            return DesignResult(
-                status="infeasible",
-                reason=(
-                    f"as printed, S3 holds -zeta I with zeta = 1/(eps2 gamma - eps1); with gamma = {c.gamma:g} <= 0, "
-                    "eps2 gamma - eps1 < 0 for every eps1, eps2 > 0, so -zeta I is positive definite and S < 0 "
-                    "is impossible (the proof needs eta2 = eps2 gamma - eps1 > 0, which the statement omits)"
-                ),
-                params=params,
-            )
         combos = []
         for eps2 in np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), int(self.n_eps2)):
-            for r in self.ratios:
+            for r in self.ratios if c.gamma > 0 else ():
                 eps1 = r * c.gamma * eps2
                 den = (2 * c.rho - 1) * eps1 + (2 * c.beta + c.gamma) * eps2
                 if den > 0:
                     combos.append((eps1, eps2, 1 / den, 1 / (eps2 * c.gamma - eps1)))
         if not combos:
-            return DesignResult(
-                status="infeasible",
-                reason="as printed, psi = 1/((2 rho - 1) eps1 + (2 beta + gamma) eps2) <= 0 on the whole eps grid",
-                params=params,
-            )
+            return DesignResult(status="infeasible", params=params, reason=(
+                f"as printed, S3 holds -zeta I with zeta = 1/(eps2 gamma - eps1); with gamma = {c.gamma:g} <= 0, "
+                "eps2 gamma - eps1 < 0 for every eps1, eps2 > 0, so -zeta I is positive definite and S < 0 "
+                "is impossible (the proof needs eta2 = eps2 gamma - eps1 > 0, which the statement omits)"
+                if c.gamma <= 0 else
+                "as printed, psi = 1/((2 rho - 1) eps1 + (2 beta + gamma) eps2) <= 0 on the whole eps grid"))
         prog = self._program(plant, c)
         best = max(combos, key=lambda cb: np.nan_to_num(prog.solve(psi=cb[2], zeta=cb[3], two_eps2=2 * cb[1]), nan=-np.inf))
         eps1, eps2, psi, zeta = best
