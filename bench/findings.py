@@ -1,11 +1,7 @@
 """What a run found, in a few lines: computed from the records and the constants, rendered by the report.
 
-:func:`findings` reads the results table (one row per pair, :data:`bench.pipeline.COLUMNS`) and
-the plants' :class:`bench.constants.ConstantsReport`; it decides nothing new about a pair (the
-pipeline did), it only selects and counts: per plant, the best certified design and the designs
-that converge without a certificate; every claimed constant a sample violated; every analytic
-constant or channel slope a sample disproved; every printed form that is infeasible, with why;
-and any row whose verdicts disagree (which should never happen). run.json stores the result.
+:func:`findings` decides nothing new about a pair (the pipeline did): it only selects and counts what the
+results table (:data:`bench.pipeline.COLUMNS`) and the plants' constants reports hold; run.json stores it.
 """
 
 from __future__ import annotations

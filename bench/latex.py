@@ -1,9 +1,5 @@
-"""LaTeX (booktabs) tables of a results frame, for papers.
-
-:func:`tables_tex` turns the results table (one row per (plant, design), as ``reports/results.csv``)
-into feasibility, certified-decay, convergence and timing tables that need only ``booktabs``, set at the
-text's own size (too wide or too long tables are split, never scaled); :func:`minimal_document` wraps the
-fragment in a document ``pdflatex`` compiles as it is.
+"""LaTeX (booktabs) tables of a results frame (one row per (plant, design), as ``reports/results.csv``):
+:func:`tables_tex` writes the fragment, :func:`minimal_document` a document ``pdflatex`` compiles as it is.
 """
 
 from __future__ import annotations
@@ -190,7 +186,8 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     matrix of ``status``, :data:`STATUS_SHORT`, split by designs when wider than ``text_width_pt``);
     certified decay by level (``decay_paper``, ``decay_full``, ``decay_structured``, else ``decay_rate``;
     a level that did not certify shows its status, :data:`CERT_SHORT`) with ``cert_level`` and
-    ``cert_scope``; convergence; timing.
+    ``cert_scope``; convergence; timing. The tables are set at the text's own size: too wide or too long ones
+    are split, never scaled.
 
     Parameters
     ----------

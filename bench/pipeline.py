@@ -7,9 +7,6 @@ pair; each study maps it over its own parameter (the scale of f, the sample peri
 initial conditions, the noise level) with its own :class:`RunOptions` and :class:`Scenario`;
 perf times it. Every verdict is computed here (the rules are in :mod:`bench.verdicts`) and
 stored in the record, so results.csv says everything the report shows.
-
-A failure inside a pair becomes a row with status ``error`` and the message (``fail_fast``
-re-raises); a pair over its ``timeout`` becomes a ``timeout`` row that claims nothing.
 """
 
 from __future__ import annotations
@@ -430,13 +427,9 @@ def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float,
 
 
 def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> list[PairOutcome]:
-    """Drop, from every pair of a plant, the declarations another pair's simulation disproved (``outcomes``
-    changed in place and returned; ``reports``: plant id -> constants).
-
-    A declaration is true or false for the plant, not for one pair: when the simulation of one pair
-    disproves it (``disproved``, :func:`bench.constants.check_trajectory`), every other certified
-    pair of that plant whose certificate may rest on it is re-certified without it, and its
-    convergence verdict is judged again.
+    """Re-certify every certified pair of a plant without the declarations (true or false for the plant, not
+    for one pair) another pair's simulation disproved, and judge its convergence again (``outcomes`` changed
+    in place and returned; ``reports``: plant id -> constants).
     """
     found: dict[str, dict[str, str]] = {}
     for o in outcomes:
@@ -486,7 +479,8 @@ def evaluate_pair(
 ) -> PairOutcome:
     """Evaluate one (plant, design) pair: design, verify, certify, simulate, measure, judge.
 
-    Never raises (unless ``options.fail_fast``): a failure is a row with status ``error``.
+    Never raises (unless ``options.fail_fast``): a failure is a row with status ``error`` and the message, a
+    pair over ``options.timeout`` a ``timeout`` row that claims nothing.
 
     Parameters
     ----------
@@ -532,13 +526,10 @@ def _timed_out(rec: dict, exc: DeadlineExceeded, options: RunOptions, phase: str
                reason=f"timeout: the pair exceeded {options.timeout:g} s during the {phase}, in {exc.where}{note}")
 
 
-#: Record columns that come from the design and the certificate (re-used with a ``prior``).
-_PRIOR_COLUMNS = ("status", "reason", "feasible", "route", "lmi_margin", "lmi_size", "solver", "solver_status",
-                  "n_solves", "compile_s", "solve_s", "design_s", "params", "constants", "stabilizing", "max_re_eig_x",
-                  "max_re_eig_e", "norm_K", "norm_F", "certified", "cert_level", "decay_rate", "cert_margin",
-                  "cert_scope", "cert_radius", "level_set", "level_x0", "cert_s", "witness", "rate_ceiling", "rate_ratio",
-                  "ceiling_how",
-                  *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")])
+#: Record columns a ``prior`` does not give: the pair's ids and what the simulation measures.
+_NOT_PRIOR = {"plant", "design", "converged", "in_region", "max_norm", "sim_s", "horizon_s", "horizon_rule",
+              "cert_horizon_s", "sim_status", "sim_witness", "settling_x_s", "settling_e_s", "final_x",
+              "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "checked_on", "disproved"}
 
 
 def _evaluate(plant, design, design_id, report, options, prior, scenario) -> PairOutcome:
@@ -549,7 +540,7 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
     phase = "design"
     try:
         if prior is not None:
-            rec.update({k: prior.record[k] for k in _PRIOR_COLUMNS})
+            rec.update({k: prior.record[k] for k in COLUMNS if k not in _NOT_PRIOR})
             out.result, out.certificate, out.disproved = prior.result, prior.certificate, dict(prior.disproved)
             if out.result is None or not out.result.has_controller:
                 return out
