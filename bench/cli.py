@@ -96,12 +96,10 @@ def _build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_list() -> int:
-    print("plants:")
-    for pid in PLANTS.ids():
-        print(f"  {pid:<24} {PLANTS[pid].summary}")
-    print("designs:")
-    for did in DESIGNS.ids():
-        print(f"  {did:<24} {DESIGNS[did].summary}")
+    for kind, registry in (("plants", PLANTS), ("designs", DESIGNS)):
+        print(f"{kind}:")
+        for i in registry.ids():
+            print(f"  {i:<24} {registry[i].summary}")
     return 0
 
 

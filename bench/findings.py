@@ -81,13 +81,10 @@ def constants_rows(constants: dict, errors: dict) -> list[dict]:
     rows = []
     for pid, rep in constants.items():
         for name in ("alpha", "rho", "beta", "gamma"):
-            flags = []
-            v = rep.violated(name)
-            if v:
-                flags.append(f"CLAIM VIOLATED: {v.describe('claimed')}")
-            d = next((x for x in rep.disproved if x.name == name), None)
-            if d:
-                flags.append(f"ANALYTIC BOUND DISPROVED: {d.describe('analytic')}")
+            flags = [f"{label}: {v.describe(what)}" for label, found, what in (
+                ("CLAIM VIOLATED", rep.violations, "claimed"),
+                ("ANALYTIC BOUND DISPROVED", rep.disproved, "analytic"),
+            ) for v in found if v.name == name]
             if name in rep.unbounded:
                 flags.append(rep.unbounded[name])
             rows.append(_row(

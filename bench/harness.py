@@ -183,10 +183,9 @@ class _Run:
         for pid in plant_ids:
             for did in self.design_ids:
                 if pid in self.errors:
-                    rec = blank_record(pid, did)
                     status = "timeout" if self.errors[pid].startswith("timeout") else "error"
-                    rec.update(status=status, reason=f"plant {pid!r}: {self.errors[pid]}")
-                    self.results[(pid, did)] = PairOutcome(rec)
+                    reason = f"plant {pid!r}: {self.errors[pid]}"
+                    self.results[(pid, did)] = PairOutcome(blank_record(pid, did, status=status, reason=reason))
                     self.tick(f"{pid} x {did}: {status}")
                 elif not (self.cache is not None and pid in self.plants and self._from_cache(pid, did)):
                     todo.append((pid, did))
@@ -200,9 +199,8 @@ class _Run:
         except Exception as exc:  # fail_fast re-raise, or a worker that died mid-run
             if self.options.fail_fast:
                 raise
-            rec = blank_record(pid, did)
-            rec.update(status="error", reason=f"worker failed: {type(exc).__name__}: {exc}")
-            o = PairOutcome(rec)
+            o = PairOutcome(blank_record(pid, did, status="error",
+                                         reason=f"worker failed: {type(exc).__name__}: {exc}"))
         self.results[(pid, did)] = o
         if self.keys.get((pid, did)):
             self.cache.store_pair(self.keys[(pid, did)], o)

@@ -170,14 +170,15 @@ class PairOutcome:
     loop: checks.ClosedLoop | None = None
 
 
-def blank_record(plant_id: str, design_id: str) -> dict:
-    """A record with every column NaN (flags False, text empty)."""
+def blank_record(plant_id: str, design_id: str, **values) -> dict:
+    """A record with every column NaN (flags False, text empty), then ``values``."""
     rec = {c: math.nan for c in COLUMNS}
     rec.update(plant=plant_id, design=design_id, status="", reason="", solver="", solver_status="", route="",
                sim_status="", constants="", params="", cert_level="", cert_scope="", horizon_rule="", witness="",
                sim_witness="", ceiling_how="", checked_on="", disproved="",
                feasible=False, stabilizing=None, certified=False, converged=False, in_region=None,
                **{f"cert_{lv}": "" for lv in LEVELS})
+    rec.update(values)
     return rec
 
 
@@ -291,13 +292,11 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
 def _record_horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
                     loop: checks.ClosedLoop) -> float:
     """The pair's simulation horizon (:func:`bench.verdicts.simulation_horizon`), stored in ``rec`` with its rule."""
-    if res.estimator is not None:  # sampled-time estimator: the plant's horizon (a multiple of its dt)
-        T, rule = (options.t_final or plant.t_final), ("fixed" if options.t_final else "plant")
-    else:
-        best = cert.best if cert is not None else None
-        T, rule = simulation_horizon(plant.t_final, fixed=options.t_final, cap_factor=options.horizon_cap,
-                          cert_rate=best.decay_rate if best is not None else math.nan, cond_p=_cond(best),
-                          linear_rate=loop.linearised_rate)
+    own = res.estimator is None  # a sampled-time estimator keeps the plant's horizon (a multiple of its dt)
+    best = cert.best if cert is not None and own else None
+    T, rule = simulation_horizon(plant.t_final, fixed=options.t_final, cap_factor=options.horizon_cap,
+                                 cert_rate=best.decay_rate if best is not None else math.nan,
+                                 cond_p=_cond(best), linear_rate=loop.linearised_rate if own else math.nan)
     rec.update(horizon_s=T, horizon_rule=rule)
     return T
 

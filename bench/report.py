@@ -327,15 +327,15 @@ def _summary(found: dict) -> str:
         if b is None:
             best = "no design certified"
         else:
-            ratio = b.get("rate_ratio", math.nan)
             best = (f"best certified: **{b['design']}**, decay {format_cell(b['decay_rate'])} at the {b['level']} level"
-                    f"{' (local)' if b['scope'] == 'local' else ' (from x0)' if b['scope'] == 'from x0' else ''}"
-                    + (f", {format_cell(ratio)} of the class's rate ceiling" if math.isfinite(ratio) else "")
+                    + (f" ({b['scope']})" if b["scope"] in ("local", "from x0") else "")
+                    + (f", {format_cell(b['rate_ratio'])} of the class's rate ceiling"
+                       if math.isfinite(b["rate_ratio"]) else "")
                     + f", peak |u| {format_cell(b['peak_u'])}")
-        can_not = f.get("no_certificate_can_exist", [])
-        not_found = f.get("no_certificate_found", f["uncertified_converging"])
-        split = [f"{what}: {', '.join(ds)}" for what, ds in (("no certificate can exist (witness)", can_not),
-                                                              ("no certificate found", not_found)) if ds]
+        split = [f"{what}: {', '.join(f[key])}" for what, key in (
+            ("no certificate can exist (witness)", "no_certificate_can_exist"),
+            ("no certificate found", "no_certificate_found"),
+        ) if f[key]]
         tail = f"; converge without a certificate ({'; '.join(split)})" if split else ""
         lines.append(f"- **{pid}**: {best}; {f['certified_pairs']} of {f['pairs']} pairs certified{tail}.")
     for v in found["violated_claims"]:
