@@ -99,14 +99,6 @@ def _register_objects(items, registry, kind: str) -> list[str]:
     return out
 
 
-def _reorder(result, plant_ids: list[str], design_ids: list[str]) -> None:
-    """Sort a run's outcomes and constants in the order of ``plant_ids`` x ``design_ids`` (in place)."""
-    result.outcomes.sort(key=lambda o: (plant_ids.index(o.record["plant"]),
-                                        design_ids.index(o.record["design"])))
-    result.constants = {p: result.constants[p] for p in plant_ids if p in result.constants}
-    result.constants_errors = {p: result.constants_errors[p] for p in plant_ids if p in result.constants_errors}
-
-
 def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed: int = 0,
         claimed_constants: bool = False, t_final: float | None = None, noise: float = 0.0,
         timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
@@ -191,7 +183,10 @@ def _run_in_registry_order(plant_ids: list[str], design_ids: list[str], options,
     finally:
         if hasattr(bar, "close"):
             bar.close()
-    _reorder(result, plant_ids, design_ids)
+    result.outcomes.sort(key=lambda o: (plant_ids.index(o.record["plant"]),
+                                        design_ids.index(o.record["design"])))
+    result.constants = {p: result.constants[p] for p in plant_ids if p in result.constants}
+    result.constants_errors = {p: result.constants_errors[p] for p in plant_ids if p in result.constants_errors}
     return result
 
 

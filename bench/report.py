@@ -7,6 +7,7 @@ publishes it whole or not at all (:mod:`bench.outdir`).
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -87,12 +88,8 @@ def short_reason(text, limit: int = REASON_CHARS) -> str:
     text = str(text)
     if len(text) <= limit:
         return text
-    depth, head = 0, text
-    for i, ch in enumerate(text):
-        depth += (ch == "(") - (ch == ")")
-        if depth <= 0 and text.startswith("; ", i):
-            head = text[:i]
-            break
+    depths = itertools.accumulate((ch == "(") - (ch == ")") for ch in text)
+    head = next((text[:i] for i, depth in enumerate(depths) if depth <= 0 and text.startswith("; ", i)), text)
     removed = 1
     while removed:  # innermost asides first, so nested parentheses go too
         head, removed = re.subn(r" ?\([^()]{30,}\)", "", head)
