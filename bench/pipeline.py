@@ -313,11 +313,10 @@ def _sim_options(options: RunOptions, T: float, t_plant: float) -> SimOptions:
     return sim
 
 
-def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
-              scenario: Scenario | None, report: ConstantsReport) -> None:
+def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, report: ConstantsReport) -> None:
     """Simulate (one trajectory or the scenario's batch), record the metrics, check the declarations."""
-    rec = out.record
-    T = _record_horizon(rec, plant, res, cert, options, out.loop)
+    rec, plant, res = out.record, out.plant, out.result
+    T = _record_horizon(rec, plant, res, out.certificate, options, out.loop)
     sim = _sim_options(options, T, plant.t_final)
     rec["noise"] = options.noise
     batch = scenario is not None and scenario.batch
@@ -340,7 +339,7 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
                                   "iae_e", "rms_e", "peak_u", "max_norm")})
     tr = out.trajectory
     X, XH = np.asarray(tr.x, dtype=float), np.asarray(tr.x_hat, dtype=float)
-    _check_declarations(out, plant, res, report, options, X, XH)
+    _check_declarations(out, report, options, X, XH)
     radius = rec["cert_radius"]
     rec["in_region"] = None if not math.isfinite(radius) else bool(rec["max_norm"] <= radius)
     best = out.certificate.best if out.certificate is not None else None
@@ -360,10 +359,10 @@ def _cond(best: LevelResult | None) -> float:
     return float(np.linalg.cond(best.P)) if best is not None and best.P is not None else math.nan
 
 
-def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, report: ConstantsReport,
-                        options: RunOptions, X: np.ndarray, XH: np.ndarray) -> None:
+def _check_declarations(out: PairOutcome, report: ConstantsReport, options: RunOptions, X: np.ndarray,
+                        XH: np.ndarray) -> None:
     """Check the certificate's declarations along the simulation; re-certify without any disproved."""
-    rec = out.record
+    rec, plant = out.record, out.plant
     if out.certificate is None:  # nothing certified uses a declaration: the Jacobian alone (the EKF uses it)
         know = Knowledge()
     else:
@@ -376,7 +375,7 @@ def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, repor
     _note(rec, "DECLARATION DISPROVED by the simulation: " + "; ".join(bad.values())
           + ": the pair is re-certified without it")
     out.disproved = {**out.disproved, **bad}
-    out.certificate = _certify(rec, plant, res, report, options, out.loop, know=know.without(bad))
+    out.certificate = _certify(rec, plant, out.result, report, options, out.loop, know=know.without(bad))
 
 
 def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float, H: np.ndarray | None = None) -> str:
@@ -553,10 +552,9 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
             out.loop = _verify(rec, plant, out.result)
             phase = "certificate"
             out.certificate = _certify(rec, plant, out.result, report, options, out.loop)
-        result = out.result
         if options.simulate:
             phase = "simulation"
-            _simulate(out, plant, result, out.certificate, options, scenario, report)
+            _simulate(out, options, scenario, report)
         if rec["sim_status"]:
             _note(rec, convergence_note(rec))
     except DeadlineExceeded as exc:  # --timeout: a row, never a claim
