@@ -14,7 +14,6 @@ __all__ = ["minimal_document", "tables_tex"]
 STATUS_SHORT: dict[str, str] = {
     "feasible": "yes",
     "computed": "comp",
-    "given": "given",
     "infeasible": "no",
     "marginal": "marg",
     "inapplicable": "n/a",
@@ -25,12 +24,11 @@ STATUS_SHORT: dict[str, str] = {
     "diverged": "div",
 }
 
-#: Cells of a certificate level that did not certify (a certified level shows its decay rate).
+#: Cells of a certificate level that did not certify (a certified level shows its decay rate, a status not
+#: listed is written as it is).
 CERT_SHORT: dict[str, str] = {
     "not certified": "no",
-    "marginal": "marginal",
     "inapplicable": "n/a",
-    "undecided": "undecided",
 }
 
 #: The LaTeX packages the fragment needs.

@@ -234,9 +234,7 @@ NORM_FLOOR = 1e-16
 
 def _norms_figure(job: _FigureJob):
     """||x(t)|| and ||e(t)|| of every converging design of a plant on log axes; returns (figure, dpi)."""
-    import matplotlib.pyplot as plt
-
-    fig = plt.figure(figsize=(12, 4.2))
+    fig = pyplot().figure(figsize=(12, 4.2))
     grid = fig.add_gridspec(1, 3, width_ratios=(1, 1, 0.36), left=0.06, right=0.995, bottom=0.12, top=0.86,
                             wspace=0.22)
     axes = [fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1])]
@@ -267,11 +265,9 @@ def _norms_figure(job: _FigureJob):
 
 def _states_figure(job: _FigureJob):
     """One pair's states, estimates (dashed) and errors (the paper's Figures 2-5); returns (figure, dpi)."""
-    import matplotlib.pyplot as plt
-
     t, x, x_hat, t_show = job.data
     n = x.shape[0]
-    fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
+    fig, axes = pyplot().subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
     fig.subplots_adjust(left=0.06, right=0.99, bottom=0.09, top=0.88, wspace=0.35, hspace=0.4)
     for i in range(n):
         ax = axes[0, i]
