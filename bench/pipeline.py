@@ -516,9 +516,7 @@ def evaluate_pair(
 
 def _timed_out(rec: dict, exc: DeadlineExceeded, options: RunOptions, phase: str) -> None:
     """Turn ``rec`` into a ``timeout`` row: no claim survives, the reason says how far it got."""
-    got = [rec["status"]] if rec["status"] else []
-    if rec["certified"]:
-        got.append("certified")
+    got = [s for s in (rec["status"], "certified" if rec["certified"] else "") if s]
     note = f" (reached before: {', '.join(got)})" if got else ""
     rec.update(status="timeout", feasible=False, certified=False, converged=False, stabilizing=None,
                reason=f"timeout: the pair exceeded {options.timeout:g} s during the {phase}, in {exc.where}{note}")
