@@ -145,13 +145,11 @@ def _cell(rec) -> str:
     return f"{s}: {cert}, {conv}"
 
 
-def _matrix(df, cell) -> str:
-    designs = list(dict.fromkeys(df["design"]))
-    rows = []
-    for p in dict.fromkeys(df["plant"]):
-        sub = df[df["plant"] == p].set_index("design")
-        rows.append({"plant": p, **{d: cell(sub.loc[d]) for d in designs if d in sub.index}})
-    return md_table(rows, ["plant", *designs])
+def _matrix(df) -> str:
+    rows: dict[str, dict] = {}
+    for r in df.to_dict("records"):
+        rows.setdefault(r["plant"], {"plant": r["plant"]})[r["design"]] = _cell(r)
+    return md_table(list(rows.values()), ["plant", *dict.fromkeys(df["design"])])
 
 
 def _ladder(df) -> str:
@@ -396,7 +394,7 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         "",
         "## Feasibility and verdicts",
         "",
-        _matrix(df, _cell),
+        _matrix(df),
         "",
         "## Certified decay rate by level",
         "",
