@@ -239,8 +239,7 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     if options.certificate == "none":
         return None
     if res.K is None:
-        for lv in LEVELS:
-            rec[f"cert_{lv}"] = "inapplicable"
+        rec.update({f"cert_{lv}": "inapplicable" for lv in LEVELS})
         _note(rec, "certificate: no fixed observer gain (the estimator is time-varying): no quadratic certificate "
                    "applies")
         return None
@@ -418,9 +417,6 @@ def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float,
     out.record.update(sim_s=tr.wall_s, sim_status=tr.status if not tr.diverged.any() else "diverged")
     worst = {k: float(np.max(v)) for k, v in m.items() if k != "converged"}
     worst["tail_rate"] = float(np.min(m["tail_rate"]))
-    for k in ("settling_x_s", "settling_e_s"):
-        if np.isnan(m[k]).any():
-            worst[k] = math.nan
     return {"converged": bool(np.all(m["converged"])), **worst}
 
 
