@@ -99,21 +99,6 @@ def _register_objects(items, registry, kind: str) -> list[str]:
     return out
 
 
-def _registry_order(ids: list[str], registry) -> list[str]:
-    """``ids`` sorted as the registry lists them."""
-    rank = {i: k for k, i in enumerate(registry.ids())}
-    return sorted(ids, key=lambda i: rank.get(i, len(rank)))
-
-
-def _reorder(result, plant_ids: list[str], design_ids: list[str]) -> None:
-    """Sort a run's outcomes and constants in the order of ``plant_ids`` x ``design_ids`` (in place)."""
-    p_rank = {p: k for k, p in enumerate(plant_ids)}
-    d_rank = {d: k for k, d in enumerate(design_ids)}
-    result.outcomes.sort(key=lambda o: (p_rank.get(o.record["plant"], 0), d_rank.get(o.record["design"], 0)))
-    result.constants = {p: result.constants[p] for p in plant_ids if p in result.constants}
-    result.constants_errors = {p: result.constants_errors[p] for p in plant_ids if p in result.constants_errors}
-
-
 def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed: int = 0,
         claimed_constants: bool = False, t_final: float | None = None, noise: float = 0.0,
         timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
@@ -192,12 +177,16 @@ def _run_in_registry_order(plant_ids: list[str], design_ids: list[str], options,
     from bench.registry import DESIGNS, PLANTS
 
     try:
-        result = run_pairs(_registry_order(plant_ids, PLANTS), _registry_order(design_ids, DESIGNS), options,
-                           progress=bar, jobs=jobs, scheduler=scheduler, cache=store)
+        result = run_pairs([p for p in PLANTS.ids() if p in plant_ids],
+                           [d for d in DESIGNS.ids() if d in design_ids], options, progress=bar, jobs=jobs,
+                           scheduler=scheduler, cache=store)
     finally:
         if hasattr(bar, "close"):
             bar.close()
-    _reorder(result, plant_ids, design_ids)
+    result.outcomes.sort(key=lambda o: (plant_ids.index(o.record["plant"]),
+                                        design_ids.index(o.record["design"])))
+    result.constants = {p: result.constants[p] for p in plant_ids if p in result.constants}
+    result.constants_errors = {p: result.constants_errors[p] for p in plant_ids if p in result.constants_errors}
     return result
 
 

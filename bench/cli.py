@@ -96,12 +96,10 @@ def _build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_list() -> int:
-    print("plants:")
-    for pid in PLANTS.ids():
-        print(f"  {pid:<24} {PLANTS[pid].summary}")
-    print("designs:")
-    for did in DESIGNS.ids():
-        print(f"  {did:<24} {DESIGNS[did].summary}")
+    for kind, registry in (("plants", PLANTS), ("designs", DESIGNS)):
+        print(f"{kind}:")
+        for i in registry.ids():
+            print(f"  {i:<24} {registry[i].summary}")
     return 0
 
 
@@ -180,7 +178,7 @@ def summary_line(df) -> str:
     plural = {"error": "errors", "timeout": "timeouts"}
     without = ", ".join(f"{count[k]} {plural.get(k, k) if count[k] != 1 else k}" for k in STATUSES
                         if k not in GAIN_STATUSES and count[k])
-    other = len(df) - with_gains - sum(count[k] for k in STATUSES if k not in GAIN_STATUSES)
+    other = len(df) - sum(count.values())
     if other:
         without += (", " if without else "") + f"{other} other"
     line = f"{len(df)} pairs: {with_gains} with gains" + (f" ({gains})" if gains else "")

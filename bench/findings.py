@@ -1,11 +1,7 @@
 """What a run found, in a few lines: computed from the records and the constants, rendered by the report.
 
-:func:`findings` reads the results table (one row per pair, :data:`bench.pipeline.COLUMNS`) and
-the plants' :class:`bench.constants.ConstantsReport`; it decides nothing new about a pair (the
-pipeline did), it only selects and counts: per plant, the best certified design and the designs
-that converge without a certificate; every claimed constant a sample violated; every analytic
-constant or channel slope a sample disproved; every printed form that is infeasible, with why;
-and any row whose verdicts disagree (which should never happen). run.json stores the result.
+:func:`findings` decides nothing new about a pair (the pipeline did): it only selects and counts what the
+results table (:data:`bench.pipeline.COLUMNS`) and the plants' constants reports hold; run.json stores it.
 """
 
 from __future__ import annotations
@@ -85,13 +81,10 @@ def constants_rows(constants: dict, errors: dict) -> list[dict]:
     rows = []
     for pid, rep in constants.items():
         for name in ("alpha", "rho", "beta", "gamma"):
-            flags = []
-            v = rep.violated(name)
-            if v:
-                flags.append(f"CLAIM VIOLATED: {v.describe('claimed')}")
-            d = next((x for x in rep.disproved if x.name == name), None)
-            if d:
-                flags.append(f"ANALYTIC BOUND DISPROVED: {d.describe('analytic')}")
+            flags = [f"{label}: {v.describe(what)}" for label, found, what in (
+                ("CLAIM VIOLATED", rep.violations, "claimed"),
+                ("ANALYTIC BOUND DISPROVED", rep.disproved, "analytic"),
+            ) for v in found if v.name == name]
             if name in rep.unbounded:
                 flags.append(rep.unbounded[name])
             rows.append(_row(

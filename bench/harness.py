@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import time
 from dataclasses import dataclass
+from functools import partial
 from typing import Callable
 
 from bench.constants import ConstantsReport, compute_constants
@@ -86,25 +87,25 @@ def _stop_workers(ex) -> None:
             proc.terminate()
 
 
-def _drain(ex, tasks, finish) -> None:
-    """Submit ``(fn, args, tag)`` tasks, and the tasks ``finish(future, tag)`` returns as each completes."""
+def _drain(ex, tasks) -> None:
+    """Submit ``(fn, args, then)`` tasks, and the tasks ``then(future)`` returns as each completes."""
     from concurrent.futures import FIRST_COMPLETED, wait
 
     pending = {}
 
     def submit(batch) -> None:
-        for fn, args, tag in batch or ():
+        for fn, args, then in batch or ():
             fut = ex.submit(fn, *args)
             if fut.done():
-                submit(finish(fut, tag))
+                submit(then(fut))
             else:
-                pending[fut] = tag
+                pending[fut] = then
 
     submit(tasks)
     while pending:
         done, _ = wait(pending, return_when=FIRST_COMPLETED)
         for fut in done:
-            submit(finish(fut, pending.pop(fut)))
+            submit(pending.pop(fut)(fut))
 
 
 class _Run:
@@ -144,9 +145,10 @@ class _Run:
                     continue
             self.keys[pid] = key
             limit = None if self.options.timeout is None else CONSTANTS_TIMEOUT_FACTOR * self.options.timeout
-            yield _constants_task, (pid, self.options.seed, self.options.n_samples, limit), pid
+            yield _constants_task, (pid, self.options.seed, self.options.n_samples, limit), partial(
+                self.finish_constants, pid)
 
-    def finish_constants(self, fut, pid: str):
+    def finish_constants(self, pid: str, fut):
         """Store a plant's constants; return the tasks of its pairs."""
         try:
             rep, err = fut.result()
@@ -183,33 +185,28 @@ class _Run:
         for pid in plant_ids:
             for did in self.design_ids:
                 if pid in self.errors:
-                    rec = blank_record(pid, did)
                     status = "timeout" if self.errors[pid].startswith("timeout") else "error"
-                    rec.update(status=status, reason=f"plant {pid!r}: {self.errors[pid]}")
-                    self.results[(pid, did)] = PairOutcome(rec)
+                    reason = f"plant {pid!r}: {self.errors[pid]}"
+                    self.results[(pid, did)] = PairOutcome(blank_record(pid, did, status=status, reason=reason))
                     self.tick(f"{pid} x {did}: {status}")
                 elif not (self.cache is not None and pid in self.plants and self._from_cache(pid, did)):
                     todo.append((pid, did))
         todo.sort(key=lambda pd: -expected_cost(self.plants.get(pd[0]), pd[1]))
-        return [(_pair_task, (pid, did, self.constants[pid], self.options), (pid, did)) for pid, did in todo]
+        return [(_pair_task, (pid, did, self.constants[pid], self.options), partial(self.finish_pair, pid, did))
+                for pid, did in todo]
 
-    def finish_pair(self, fut, tag: tuple[str, str]) -> None:
-        pid, did = tag
+    def finish_pair(self, pid: str, did: str, fut) -> None:
         try:
             o = fut.result()
         except Exception as exc:  # fail_fast re-raise, or a worker that died mid-run
             if self.options.fail_fast:
                 raise
-            rec = blank_record(pid, did)
-            rec.update(status="error", reason=f"worker failed: {type(exc).__name__}: {exc}")
-            o = PairOutcome(rec)
+            o = PairOutcome(blank_record(pid, did, status="error",
+                                         reason=f"worker failed: {type(exc).__name__}: {exc}"))
         self.results[(pid, did)] = o
         if self.keys.get((pid, did)):
             self.cache.store_pair(self.keys[(pid, did)], o)
         self.tick(f"{pid} x {did}: {_flags(o.record)}")
-
-    def finish(self, fut, tag):
-        return self.finish_pair(fut, tag) if isinstance(tag, tuple) else self.finish_constants(fut, tag)
 
     def constants_in_order(self) -> tuple[dict, dict]:
         """The constants and their errors in the order of the plants asked for."""
@@ -270,7 +267,7 @@ def run(
     state = _Run(plant_ids, design_ids, options, progress, cache)
     with executor(jobs, scheduler) as ex:
         try:
-            _drain(ex, state.constants_tasks(), state.finish)
+            _drain(ex, state.constants_tasks())
         except KeyboardInterrupt:
             _stop_workers(ex)
             raise

@@ -1,9 +1,5 @@
-"""LaTeX (booktabs) tables of a results frame, for papers.
-
-:func:`tables_tex` turns the results table (one row per (plant, design), as ``reports/results.csv``)
-into feasibility, certified-decay, convergence and timing tables that need only ``booktabs``, set at the
-text's own size (too wide or too long tables are split, never scaled); :func:`minimal_document` wraps the
-fragment in a document ``pdflatex`` compiles as it is.
+"""LaTeX (booktabs) tables of a results frame (one row per (plant, design), as ``reports/results.csv``):
+:func:`tables_tex` writes the fragment, :func:`minimal_document` a document ``pdflatex`` compiles as it is.
 """
 
 from __future__ import annotations
@@ -18,7 +14,6 @@ __all__ = ["minimal_document", "tables_tex"]
 STATUS_SHORT: dict[str, str] = {
     "feasible": "yes",
     "computed": "comp",
-    "given": "given",
     "infeasible": "no",
     "marginal": "marg",
     "inapplicable": "n/a",
@@ -29,12 +24,11 @@ STATUS_SHORT: dict[str, str] = {
     "diverged": "div",
 }
 
-#: Cells of a certificate level that did not certify (a certified level shows its decay rate).
+#: Cells of a certificate level that did not certify (a certified level shows its decay rate, a status not
+#: listed is written as it is).
 CERT_SHORT: dict[str, str] = {
     "not certified": "no",
-    "marginal": "marginal",
     "inapplicable": "n/a",
-    "undecided": "undecided",
 }
 
 #: The LaTeX packages the fragment needs.
@@ -165,31 +159,21 @@ def _row_table(frame, columns, caption: str, label: str, *, max_rows: int, cell=
     cell = cell or (lambda rec, col: format_cell(rec[col]))
     spec = "l" + "".join("l" if col in ("cert_level", "cert_scope") else "r" for col, _ in present)
     header = ["design"] + [_head(head) for _, head in present]
-    lines: list = []  # (plant, row) with row None for a plant heading
-    previous = None
+    tables: list[list] = []  # the rows of each table; a plant's heading counts as a line, a continued one not
+    used, previous = 0, None
     for rec in frame.to_dict("records"):
         plant = format_cell(rec["plant"])
-        if plant != previous:
-            lines.append((plant, None))
-            previous = plant
-        lines.append((plant, [format_cell(rec["design"])] + [cell(rec, col) for col, _ in present]))
-    parts, start = [], 0
-    while start < len(lines):
-        chunk = lines[start:start + max_rows]
-        if chunk[-1][1] is None and len(chunk) > 1:  # a heading never ends a table
-            chunk = chunk[:-1]
-        start += len(chunk)
-        rows: list = []
-        for i, (plant, row) in enumerate(chunk):
-            if row is None or i == 0:
-                if rows:
-                    rows.append(None)
-                rows.append(plant + (" (continued)" if row is not None else ""))
-            if row is not None:
-                rows.append(row)
-        cap = caption if not parts else caption + " (continued)"
-        parts.append(_table(_tabular(spec, header, rows), cap, label if not parts else None))
-    return "\n\n".join(parts)
+        heading = plant != previous
+        previous = plant
+        if not tables or used + heading + 1 > max_rows:  # a heading never ends a table
+            tables.append([] if heading else [plant + " (continued)"])
+            used = 0
+        if heading:
+            tables[-1] += [None, plant] if tables[-1] else [plant]
+        tables[-1].append([format_cell(rec["design"])] + [cell(rec, col) for col, _ in present])
+        used += heading + 1
+    return "\n\n".join(_table(_tabular(spec, header, rows), caption + (" (continued)" if k else ""),
+                               None if k else label) for k, rows in enumerate(tables))
 
 
 def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslbench-", max_rows: int = 40,
@@ -200,7 +184,8 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     matrix of ``status``, :data:`STATUS_SHORT`, split by designs when wider than ``text_width_pt``);
     certified decay by level (``decay_paper``, ``decay_full``, ``decay_structured``, else ``decay_rate``;
     a level that did not certify shows its status, :data:`CERT_SHORT`) with ``cert_level`` and
-    ``cert_scope``; convergence; timing.
+    ``cert_scope``; convergence; timing. The tables are set at the text's own size: too wide or too long ones
+    are split, never scaled.
 
     Parameters
     ----------
@@ -249,14 +234,13 @@ def _decay_tables(frame, caption_prefix: str, label: str, max_rows: int) -> str:
     """The certified decay rate per level with the level and scope (empty without a rate column)."""
     decay = _DECAY_COLUMNS
     if not any(c in frame.columns for c, _ in _DECAY_COLUMNS[:3]):
+        if "decay_rate" not in frame.columns:
+            return ""
         decay = (("decay_rate", "decay rate"),) + _DECAY_COLUMNS[3:]
     caption = (r"Certified decay rate $\lambda$ ($\dot V \le -2\lambda V$) by certificate level; no: not certified, "
                "marginal: margin within the verification tolerance of zero, n/a: the level does not apply; scope: "
                "global, from x0 (the certified level set holds the initial condition) or local.")
-    table = _row_table(frame, decay, caption_prefix + caption, label, max_rows=max_rows, cell=_cert_cell)
-    if table and any(c in frame.columns for c, _ in decay if c not in ("cert_level", "cert_scope")):
-        return table
-    return ""
+    return _row_table(frame, decay, caption_prefix + caption, label, max_rows=max_rows, cell=_cert_cell)
 
 
 def _preamble_comment(text_width_pt: float) -> str:

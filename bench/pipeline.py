@@ -7,9 +7,6 @@ pair; each study maps it over its own parameter (the scale of f, the sample peri
 initial conditions, the noise level) with its own :class:`RunOptions` and :class:`Scenario`;
 perf times it. Every verdict is computed here (the rules are in :mod:`bench.verdicts`) and
 stored in the record, so results.csv says everything the report shows.
-
-A failure inside a pair becomes a row with status ``error`` and the message (``fail_fast``
-re-raises); a pair over its ``timeout`` becomes a ``timeout`` row that claims nothing.
 """
 
 from __future__ import annotations
@@ -173,14 +170,15 @@ class PairOutcome:
     loop: checks.ClosedLoop | None = None
 
 
-def blank_record(plant_id: str, design_id: str) -> dict:
-    """A record with every column NaN (flags False, text empty)."""
+def blank_record(plant_id: str, design_id: str, **values) -> dict:
+    """A record with every column NaN (flags False, text empty), then ``values``."""
     rec = {c: math.nan for c in COLUMNS}
     rec.update(plant=plant_id, design=design_id, status="", reason="", solver="", solver_status="", route="",
                sim_status="", constants="", params="", cert_level="", cert_scope="", horizon_rule="", witness="",
                sim_witness="", ceiling_how="", checked_on="", disproved="",
                feasible=False, stabilizing=None, certified=False, converged=False, in_region=None,
                **{f"cert_{lv}": "" for lv in LEVELS})
+    rec.update(values)
     return rec
 
 
@@ -241,8 +239,7 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     if options.certificate == "none":
         return None
     if res.K is None:
-        for lv in LEVELS:
-            rec[f"cert_{lv}"] = "inapplicable"
+        rec.update({f"cert_{lv}": "inapplicable" for lv in LEVELS})
         _note(rec, "certificate: no fixed observer gain (the estimator is time-varying): no quadratic certificate "
                    "applies")
         return None
@@ -294,13 +291,11 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
 def _record_horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
                     loop: checks.ClosedLoop) -> float:
     """The pair's simulation horizon (:func:`bench.verdicts.simulation_horizon`), stored in ``rec`` with its rule."""
-    if res.estimator is not None:  # sampled-time estimator: the plant's horizon (a multiple of its dt)
-        T, rule = (options.t_final or plant.t_final), ("fixed" if options.t_final else "plant")
-    else:
-        best = cert.best if cert is not None else None
-        T, rule = simulation_horizon(plant.t_final, fixed=options.t_final, cap_factor=options.horizon_cap,
-                          cert_rate=best.decay_rate if best is not None else math.nan, cond_p=_cond(best),
-                          linear_rate=loop.linearised_rate)
+    own = res.estimator is None  # a sampled-time estimator keeps the plant's horizon (a multiple of its dt)
+    best = cert.best if cert is not None and own else None
+    T, rule = simulation_horizon(plant.t_final, fixed=options.t_final, cap_factor=options.horizon_cap,
+                                 cert_rate=best.decay_rate if best is not None else math.nan,
+                                 cond_p=_cond(best), linear_rate=loop.linearised_rate if own else math.nan)
     rec.update(horizon_s=T, horizon_rule=rule)
     return T
 
@@ -317,11 +312,10 @@ def _sim_options(options: RunOptions, T: float, t_plant: float) -> SimOptions:
     return sim
 
 
-def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
-              scenario: Scenario | None, report: ConstantsReport) -> None:
+def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, report: ConstantsReport) -> None:
     """Simulate (one trajectory or the scenario's batch), record the metrics, check the declarations."""
-    rec = out.record
-    T = _record_horizon(rec, plant, res, cert, options, out.loop)
+    rec, plant, res = out.record, out.plant, out.result
+    T = _record_horizon(rec, plant, res, out.certificate, options, out.loop)
     sim = _sim_options(options, T, plant.t_final)
     rec["noise"] = options.noise
     batch = scenario is not None and scenario.batch
@@ -344,7 +338,7 @@ def _simulate(out: PairOutcome, plant: Plant, res: DesignResult, cert: Certifica
                                   "iae_e", "rms_e", "peak_u", "max_norm")})
     tr = out.trajectory
     X, XH = np.asarray(tr.x, dtype=float), np.asarray(tr.x_hat, dtype=float)
-    _check_declarations(out, plant, res, report, options, X, XH)
+    _check_declarations(out, report, options, X, XH)
     radius = rec["cert_radius"]
     rec["in_region"] = None if not math.isfinite(radius) else bool(rec["max_norm"] <= radius)
     best = out.certificate.best if out.certificate is not None else None
@@ -364,10 +358,10 @@ def _cond(best: LevelResult | None) -> float:
     return float(np.linalg.cond(best.P)) if best is not None and best.P is not None else math.nan
 
 
-def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, report: ConstantsReport,
-                        options: RunOptions, X: np.ndarray, XH: np.ndarray) -> None:
+def _check_declarations(out: PairOutcome, report: ConstantsReport, options: RunOptions, X: np.ndarray,
+                        XH: np.ndarray) -> None:
     """Check the certificate's declarations along the simulation; re-certify without any disproved."""
-    rec = out.record
+    rec, plant = out.record, out.plant
     if out.certificate is None:  # nothing certified uses a declaration: the Jacobian alone (the EKF uses it)
         know = Knowledge()
     else:
@@ -380,7 +374,7 @@ def _check_declarations(out: PairOutcome, plant: Plant, res: DesignResult, repor
     _note(rec, "DECLARATION DISPROVED by the simulation: " + "; ".join(bad.values())
           + ": the pair is re-certified without it")
     out.disproved = {**out.disproved, **bad}
-    out.certificate = _certify(rec, plant, res, report, options, out.loop, know=know.without(bad))
+    out.certificate = _certify(rec, plant, out.result, report, options, out.loop, know=know.without(bad))
 
 
 def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float, H: np.ndarray | None = None) -> str:
@@ -423,20 +417,13 @@ def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float,
     out.record.update(sim_s=tr.wall_s, sim_status=tr.status if not tr.diverged.any() else "diverged")
     worst = {k: float(np.max(v)) for k, v in m.items() if k != "converged"}
     worst["tail_rate"] = float(np.min(m["tail_rate"]))
-    for k in ("settling_x_s", "settling_e_s"):
-        if np.isnan(m[k]).any():
-            worst[k] = math.nan
     return {"converged": bool(np.all(m["converged"])), **worst}
 
 
 def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> list[PairOutcome]:
-    """Drop, from every pair of a plant, the declarations another pair's simulation disproved (``outcomes``
-    changed in place and returned; ``reports``: plant id -> constants).
-
-    A declaration is true or false for the plant, not for one pair: when the simulation of one pair
-    disproves it (``disproved``, :func:`bench.constants.check_trajectory`), every other certified
-    pair of that plant whose certificate may rest on it is re-certified without it, and its
-    convergence verdict is judged again.
+    """Re-certify every certified pair of a plant without the declarations (true or false for the plant, not
+    for one pair) another pair's simulation disproved, and judge its convergence again (``outcomes`` changed
+    in place and returned; ``reports``: plant id -> constants).
     """
     found: dict[str, dict[str, str]] = {}
     for o in outcomes:
@@ -486,7 +473,8 @@ def evaluate_pair(
 ) -> PairOutcome:
     """Evaluate one (plant, design) pair: design, verify, certify, simulate, measure, judge.
 
-    Never raises (unless ``options.fail_fast``): a failure is a row with status ``error``.
+    Never raises (unless ``options.fail_fast``): a failure is a row with status ``error`` and the message, a
+    pair over ``options.timeout`` a ``timeout`` row that claims nothing.
 
     Parameters
     ----------
@@ -524,21 +512,16 @@ def evaluate_pair(
 
 def _timed_out(rec: dict, exc: DeadlineExceeded, options: RunOptions, phase: str) -> None:
     """Turn ``rec`` into a ``timeout`` row: no claim survives, the reason says how far it got."""
-    got = [rec["status"]] if rec["status"] else []
-    if rec["certified"]:
-        got.append("certified")
+    got = [s for s in (rec["status"], "certified" if rec["certified"] else "") if s]
     note = f" (reached before: {', '.join(got)})" if got else ""
     rec.update(status="timeout", feasible=False, certified=False, converged=False, stabilizing=None,
                reason=f"timeout: the pair exceeded {options.timeout:g} s during the {phase}, in {exc.where}{note}")
 
 
-#: Record columns that come from the design and the certificate (re-used with a ``prior``).
-_PRIOR_COLUMNS = ("status", "reason", "feasible", "route", "lmi_margin", "lmi_size", "solver", "solver_status",
-                  "n_solves", "compile_s", "solve_s", "design_s", "params", "constants", "stabilizing", "max_re_eig_x",
-                  "max_re_eig_e", "norm_K", "norm_F", "certified", "cert_level", "decay_rate", "cert_margin",
-                  "cert_scope", "cert_radius", "level_set", "level_x0", "cert_s", "witness", "rate_ceiling", "rate_ratio",
-                  "ceiling_how",
-                  *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")])
+#: Record columns a ``prior`` does not give: the pair's ids and what the simulation measures.
+_NOT_PRIOR = {"plant", "design", "converged", "in_region", "max_norm", "sim_s", "horizon_s", "horizon_rule",
+              "cert_horizon_s", "sim_status", "sim_witness", "settling_x_s", "settling_e_s", "final_x",
+              "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "checked_on", "disproved"}
 
 
 def _evaluate(plant, design, design_id, report, options, prior, scenario) -> PairOutcome:
@@ -549,7 +532,7 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
     phase = "design"
     try:
         if prior is not None:
-            rec.update({k: prior.record[k] for k in _PRIOR_COLUMNS})
+            rec.update({k: prior.record[k] for k in COLUMNS if k not in _NOT_PRIOR})
             out.result, out.certificate, out.disproved = prior.result, prior.certificate, dict(prior.disproved)
             if out.result is None or not out.result.has_controller:
                 return out
@@ -563,10 +546,9 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
             out.loop = _verify(rec, plant, out.result)
             phase = "certificate"
             out.certificate = _certify(rec, plant, out.result, report, options, out.loop)
-        result = out.result
         if options.simulate:
             phase = "simulation"
-            _simulate(out, plant, result, out.certificate, options, scenario, report)
+            _simulate(out, options, scenario, report)
         if rec["sim_status"]:
             _note(rec, convergence_note(rec))
     except DeadlineExceeded as exc:  # --timeout: a row, never a claim

@@ -7,6 +7,7 @@ publishes it whole or not at all (:mod:`bench.outdir`).
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -87,12 +88,8 @@ def short_reason(text, limit: int = REASON_CHARS) -> str:
     text = str(text)
     if len(text) <= limit:
         return text
-    depth, head = 0, text
-    for i, ch in enumerate(text):
-        depth += (ch == "(") - (ch == ")")
-        if depth <= 0 and text.startswith("; ", i):
-            head = text[:i]
-            break
+    depths = itertools.accumulate((ch == "(") - (ch == ")") for ch in text)
+    head = next((text[:i] for i, depth in enumerate(depths) if depth <= 0 and text.startswith("; ", i)), text)
     removed = 1
     while removed:  # innermost asides first, so nested parentheses go too
         head, removed = re.subn(r" ?\([^()]{30,}\)", "", head)
@@ -148,13 +145,11 @@ def _cell(rec) -> str:
     return f"{s}: {cert}, {conv}"
 
 
-def _matrix(df, cell) -> str:
-    designs = list(dict.fromkeys(df["design"]))
-    rows = []
-    for p in dict.fromkeys(df["plant"]):
-        sub = df[df["plant"] == p].set_index("design")
-        rows.append({"plant": p, **{d: cell(sub.loc[d]) for d in designs if d in sub.index}})
-    return md_table(rows, ["plant", *designs])
+def _matrix(df) -> str:
+    rows: dict[str, dict] = {}
+    for r in df.to_dict("records"):
+        rows.setdefault(r["plant"], {"plant": r["plant"]})[r["design"]] = _cell(r)
+    return md_table(list(rows.values()), ["plant", *dict.fromkeys(df["design"])])
 
 
 def _ladder(df) -> str:
@@ -237,9 +232,7 @@ NORM_FLOOR = 1e-16
 
 def _norms_figure(job: _FigureJob):
     """||x(t)|| and ||e(t)|| of every converging design of a plant on log axes; returns (figure, dpi)."""
-    import matplotlib.pyplot as plt
-
-    fig = plt.figure(figsize=(12, 4.2))
+    fig = pyplot().figure(figsize=(12, 4.2))
     grid = fig.add_gridspec(1, 3, width_ratios=(1, 1, 0.36), left=0.06, right=0.995, bottom=0.12, top=0.86,
                             wspace=0.22)
     axes = [fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1])]
@@ -270,11 +263,9 @@ def _norms_figure(job: _FigureJob):
 
 def _states_figure(job: _FigureJob):
     """One pair's states, estimates (dashed) and errors (the paper's Figures 2-5); returns (figure, dpi)."""
-    import matplotlib.pyplot as plt
-
     t, x, x_hat, t_show = job.data
     n = x.shape[0]
-    fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
+    fig, axes = pyplot().subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
     fig.subplots_adjust(left=0.06, right=0.99, bottom=0.09, top=0.88, wspace=0.35, hspace=0.4)
     for i in range(n):
         ax = axes[0, i]
@@ -327,15 +318,15 @@ def _summary(found: dict) -> str:
         if b is None:
             best = "no design certified"
         else:
-            ratio = b.get("rate_ratio", math.nan)
             best = (f"best certified: **{b['design']}**, decay {format_cell(b['decay_rate'])} at the {b['level']} level"
-                    f"{' (local)' if b['scope'] == 'local' else ' (from x0)' if b['scope'] == 'from x0' else ''}"
-                    + (f", {format_cell(ratio)} of the class's rate ceiling" if math.isfinite(ratio) else "")
+                    + (f" ({b['scope']})" if b["scope"] in ("local", "from x0") else "")
+                    + (f", {format_cell(b['rate_ratio'])} of the class's rate ceiling"
+                       if math.isfinite(b["rate_ratio"]) else "")
                     + f", peak |u| {format_cell(b['peak_u'])}")
-        can_not = f.get("no_certificate_can_exist", [])
-        not_found = f.get("no_certificate_found", f["uncertified_converging"])
-        split = [f"{what}: {', '.join(ds)}" for what, ds in (("no certificate can exist (witness)", can_not),
-                                                              ("no certificate found", not_found)) if ds]
+        split = [f"{what}: {', '.join(f[key])}" for what, key in (
+            ("no certificate can exist (witness)", "no_certificate_can_exist"),
+            ("no certificate found", "no_certificate_found"),
+        ) if f[key]]
         tail = f"; converge without a certificate ({'; '.join(split)})" if split else ""
         lines.append(f"- **{pid}**: {best}; {f['certified_pairs']} of {f['pairs']} pairs certified{tail}.")
     for v in found["violated_claims"]:
@@ -403,7 +394,7 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         "",
         "## Feasibility and verdicts",
         "",
-        _matrix(df, _cell),
+        _matrix(df),
         "",
         "## Certified decay rate by level",
         "",

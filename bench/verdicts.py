@@ -1,7 +1,6 @@
 """The judgements of a pair, each a pure function of numbers the pipeline already has: how long to
 simulate (:func:`simulation_horizon`), what a certificate proves from the initial condition
-(:func:`certificate_scope`), and why a pair did not converge (:func:`convergence_note`; a certified pair
-that diverges, leaves its region or does not converge within the horizon its rate needs is INCONSISTENT).
+(:func:`certificate_scope`), and why a pair did not converge (:func:`convergence_note`).
 """
 
 from __future__ import annotations
