@@ -340,12 +340,9 @@ def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, 
     X, XH = np.asarray(tr.x, dtype=float), np.asarray(tr.x_hat, dtype=float)
     _check_declarations(out, report, options, X, XH)
     radius = rec["cert_radius"]
-    rec["in_region"] = None if not math.isfinite(radius) else bool(rec["max_norm"] <= radius)
     best = out.certificate.best if out.certificate is not None else None
     H = best.region_H if best is not None else None
-    if H is not None and math.isfinite(radius):  # a certificate from x0 holds on |Hx|, |Hx_hat| <= r
-        rec["in_region"] = bool(max(np.abs(np.tensordot(H, v, axes=(1, 0))).max() for v in (X, XH))
-                                <= radius * (1 + 1e-9))
+    rec["in_region"] = _in_region(rec["max_norm"], radius, H, tr)
     rec["sim_witness"] = _witness(np.asarray(tr.t, dtype=float), X, XH, radius, H)
     applies = best is not None and res.K is not None and res.estimator is None and options.noise == 0 and (
         not batch or (scenario.sample_period is None and rec["cert_scope"] == "global"))
@@ -420,6 +417,19 @@ def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float,
     return {"converged": bool(np.all(m["converged"])), **worst}
 
 
+def _in_region(max_norm: float, radius: float, H, tr) -> bool | None:
+    """Whether the trajectory stayed where the certificate holds: ``|H x|, |H x_hat| <= radius`` for a certificate
+    from x0 (its ``region_H``), else ``max_norm <= radius``; None without a finite radius, or without ``tr``."""
+    if not math.isfinite(radius):
+        return None
+    if H is None:
+        return bool(max_norm <= radius)
+    if tr is None:
+        return None
+    Hz = (np.abs(np.tensordot(H, np.asarray(v, dtype=float), axes=(1, 0))).max() for v in (tr.x, tr.x_hat))
+    return bool(max(Hz) <= radius * (1 + 1e-9))
+
+
 def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> list[PairOutcome]:
     """Re-certify every certified pair of a plant without the declarations (true or false for the plant, not
     for one pair) another pair's simulation disproved, and judge its convergence again (``outcomes`` changed
@@ -454,7 +464,8 @@ def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> 
         if math.isfinite(rec["cert_horizon_s"]):
             rec["cert_horizon_s"] = certified_horizon(best.decay_rate, _cond(best)) if best is not None else math.nan
         if math.isfinite(rec["cert_radius"]):
-            rec["in_region"] = bool(rec["max_norm"] <= rec["cert_radius"])
+            rec["in_region"] = _in_region(rec["max_norm"], rec["cert_radius"],
+                                          best.region_H if best is not None else None, o.trajectory)
         if rec["sim_status"]:
             _note(rec, convergence_note(rec))
     return outcomes

@@ -86,3 +86,20 @@ def test_a_pair_reused_with_prior_keeps_its_design_and_certificate(catalog_const
     assert again.result is first.result and again.certificate is first.certificate
     assert again.record["decay_rate"] == first.record["decay_rate"]
     assert again.record["sim_status"] == "ok" and again.record["noise"] == 1e-3
+
+
+def test_in_region_is_one_rule_for_the_first_judgement_and_the_rejudgement():
+    """A certificate from x0 holds on |Hx|, |Hx_hat| <= r, not on a ball: a trajectory with a large state
+    but small Hx is in its region; without region_H the ball ||(x, x_hat)|| <= r decides."""
+    from types import SimpleNamespace
+
+    from bench.pipeline import _in_region
+
+    tr = SimpleNamespace(x=np.array([[10.0, 0.0], [0.0, 0.0]]), x_hat=np.array([[9.0, 0.0], [0.5, 0.0]]))
+    H = np.array([[0.0, 1.0]])  # reads the second state only: |Hx| <= 0.5 along the trajectory
+    assert _in_region(max_norm=10.0, radius=1.0, H=H, tr=tr) is True
+    assert _in_region(max_norm=10.0, radius=0.4, H=H, tr=tr) is False
+    assert _in_region(max_norm=10.0, radius=1.0, H=None, tr=tr) is False  # the ball: 10 > 1
+    assert _in_region(max_norm=0.5, radius=1.0, H=None, tr=None) is True
+    assert _in_region(max_norm=0.5, radius=float("inf"), H=H, tr=tr) is None
+    assert _in_region(max_norm=0.5, radius=1.0, H=H, tr=None) is None  # a region but no trajectory: unknown
