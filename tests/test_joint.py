@@ -59,3 +59,29 @@ def test_ladder_rate_within_its_tolerance_of_a_fine_bisection(catalog_constants)
     rate = certify(p, r.K, r.F, know, levels=("structured",)).decay_rate
     assert fine / 1.01 <= rate <= fine * (1 + 1e-3)
     assert rate >= 0.95 * 0.8367
+
+
+@pytest.mark.parametrize("pid", ["chain_v1", "flexible_link"])
+def test_lanczos_margin_and_bound_agree_with_the_dense_eigenvalues(pid, monkeypatch):
+    """From LANCZOS_FROM on, the margin and the rate bound come from Lanczos iteration on a Cholesky factor;
+    lowered here, both must equal LAPACK's dense symmetric eigenvalues of the same matrices, and the rate
+    (verified by Cholesky at its grid point) must be the same; a failed Lanczos falls back to the dense values."""
+    import bench.joint as joint
+
+    p = PLANTS.create(pid)
+    ch = p.channels
+    res = structured_riccati(p.A, p.B, p.C, ch.G, ch.H, ch.lo, ch.hi, lam=None, max_gain=20.0)
+    assert res.ok, res.reason
+    lp = joint.loop(p.A, p.B, p.C, ch.G, ch.H, ch.lo, ch.hi)
+    args = (lp, res.F, res.K, res.P, res.R, res.s, res.t)
+    monkeypatch.setattr(joint, "LANCZOS_FROM", 10**9)
+    dense = joint.certify(*args)
+    monkeypatch.setattr(joint, "LANCZOS_FROM", 0)
+    fast = joint.certify(*args)
+    assert fast.verified and dense.verified
+    assert fast.margin == pytest.approx(dense.margin, rel=1e-8)
+    assert fast.bound == pytest.approx(dense.bound, rel=1e-9)
+    assert fast.rate == dense.rate
+    monkeypatch.setattr(joint, "_lanczos_min", lambda *a: float("nan"))
+    fallback = joint.certify(*args)
+    assert (fallback.margin, fallback.bound, fallback.rate) == (dense.margin, dense.bound, dense.rate)
