@@ -51,6 +51,7 @@ System and Control Theory, SIAM 1994, section 5.1 (decay rate as a generalised e
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -202,12 +203,18 @@ def verdict(M: np.ndarray, *, clear: float = 1.0) -> str:
 def _rate_bound(M0: np.ndarray, *blocks: np.ndarray) -> float:
     """Half the smallest generalised eigenvalue of ``(-M0, W)``, ``W = blkdiag(blocks)`` positive definite:
     the largest lam with ``M0 + 2 lam W <= 0``. With ``W = L L'`` (block by block) it is the smallest
-    eigenvalue of ``L^-1 (-M0) L^-T``."""
+    eigenvalue of ``L^-1 (-M0) L^-T``; from :data:`LANCZOS_FROM` on, of a negative definite M0, by
+    :func:`_lanczos_min`."""
     k = M0.shape[0]
     if not k:
         return math.inf
     try:
         Ls = [sla.cholesky(B, lower=True, check_finite=False) for B in blocks]
+        if k >= LANCZOS_FROM and np.all(np.diag(M0) < 0):
+            with contextlib.suppress(np.linalg.LinAlgError):  # not negative definite: the dense way says how far
+                bound = _lanczos_min(sla.cholesky(-M0, lower=True, check_finite=False), *Ls) / 2
+                if math.isfinite(bound):
+                    return bound
         at = np.cumsum([0] + [B.shape[0] for B in blocks])
         S = np.empty_like(M0)
         for i, Li in enumerate(Ls):
@@ -245,16 +252,14 @@ def _lanczos_min(L: np.ndarray, *factors: np.ndarray) -> float:
     return 1.0 / float(w[0]) if w[0] > 0 else math.nan
 
 
-def _margin_and_bound(M0: np.ndarray, P: np.ndarray, muR: np.ndarray) -> tuple[float, float]:
-    """Equilibrated max eigenvalue and rate bound of a negative definite M0, by :func:`_lanczos_min` on one
-    Cholesky factor ``L`` of ``-M0`` (``D L`` is one of ``-D M0 D``); NaN where Lanczos fails."""
+def _lanczos_margin(M0: np.ndarray) -> float:
+    """Equilibrated max eigenvalue of a negative definite M0 by :func:`_lanczos_min` (``D L`` is a Cholesky
+    factor of ``-D M0 D`` when ``L`` is one of ``-M0``); NaN where it fails."""
     try:
         L = sla.cholesky(-M0, lower=True, check_finite=False)
-        factors = [sla.cholesky(B, lower=True, check_finite=False) for B in (P, muR)]
     except np.linalg.LinAlgError:
-        return math.nan, math.nan
-    d = 1.0 / np.sqrt(np.abs(np.diag(M0)))
-    return -_lanczos_min(d[:, None] * L), _lanczos_min(L, *factors) / 2
+        return math.nan
+    return -_lanczos_min(L / np.sqrt(np.abs(np.diag(M0)))[:, None])
 
 
 @dataclass
@@ -329,14 +334,12 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
     W = np.zeros_like(M0)
     W[:n, :n], W[n:, n:] = P, mu * R
     out = JointCertificate(verdict(M0), mu=mu, side_rates=(sx, se), P=W)
-    if out.verified and 2 * n >= LANCZOS_FROM:
-        out.margin, out.bound = _margin_and_bound(M0, P, mu * R)
-    if margin and not math.isfinite(out.margin):
-        out.margin = equilibrated_max_eig(M0)
+    if margin:
+        out.margin = _lanczos_margin(M0) if out.verified and 2 * n >= LANCZOS_FROM else math.nan
+        out.margin = out.margin if math.isfinite(out.margin) else equilibrated_max_eig(M0)
     if not out.verified:
         return out
-    if not math.isfinite(out.bound):
-        out.bound = _rate_bound(M0, P, mu * R)
+    out.bound = _rate_bound(M0, P, mu * R)
     out.rate = 0.0
     if out.bound > 0:
         lam = grid_floor(out.bound * (1 - 1e-9), rtol)
