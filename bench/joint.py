@@ -51,7 +51,6 @@ System and Control Theory, SIAM 1994, section 5.1 (decay rate as a generalised e
 
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import dataclass
 
@@ -200,21 +199,19 @@ def verdict(M: np.ndarray, *, clear: float = 1.0) -> str:
     return "violated"
 
 
-def _rate_bound(M0: np.ndarray, *blocks: np.ndarray) -> float:
+def _rate_bound(M0: np.ndarray, *blocks: np.ndarray, L: np.ndarray | None = None) -> float:
     """Half the smallest generalised eigenvalue of ``(-M0, W)``, ``W = blkdiag(blocks)`` positive definite:
     the largest lam with ``M0 + 2 lam W <= 0``. With ``W = L L'`` (block by block) it is the smallest
-    eigenvalue of ``L^-1 (-M0) L^-T``; from :data:`LANCZOS_FROM` on, of a negative definite M0, by
-    :func:`_lanczos_min`."""
+    eigenvalue of ``L^-1 (-M0) L^-T``; by :func:`_lanczos_min` when ``L``, a Cholesky factor of ``-M0``, is
+    given."""
     k = M0.shape[0]
     if not k:
         return math.inf
     try:
         Ls = [sla.cholesky(B, lower=True, check_finite=False) for B in blocks]
-        if k >= LANCZOS_FROM and np.all(np.diag(M0) < 0):
-            with contextlib.suppress(np.linalg.LinAlgError):  # not negative definite: the dense way says how far
-                bound = _lanczos_min(sla.cholesky(-M0, lower=True, check_finite=False), *Ls) / 2
-                if math.isfinite(bound):
-                    return bound
+        bound = _lanczos_min(L, *Ls) / 2 if L is not None else math.nan
+        if math.isfinite(bound):
+            return bound
         at = np.cumsum([0] + [B.shape[0] for B in blocks])
         S = np.empty_like(M0)
         for i, Li in enumerate(Ls):
@@ -232,17 +229,19 @@ def _lanczos_min(L: np.ndarray, *factors: np.ndarray) -> float:
     """Smallest generalised eigenvalue of ``(L L', W)``, ``W = blkdiag(B B' for B in factors)`` (the identity
     without factors), as ``1 / lambda_max(B' (L L')^-1 B)`` by Lanczos iteration (``eigsh``); NaN when it does
     not converge. ``L`` and the factors are lower triangular."""
+    from scipy.linalg.blas import get_blas_funcs
     from scipy.sparse.linalg import ArpackError, LinearOperator, eigsh
 
+    trmv = get_blas_funcs("trmv", (L,))
     k = L.shape[0]
     at = np.cumsum([0] + [B.shape[0] for B in factors])
     parts = list(zip(factors, at[:-1], at[1:]))
 
     def apply(v):
         v = np.ravel(v)
-        y = np.concatenate([B @ v[a:b] for B, a, b in parts]) if parts else v
+        y = np.concatenate([trmv(B, v[a:b], lower=1) for B, a, b in parts]) if parts else v
         z = sla.cho_solve((L, True), y, check_finite=False)
-        return np.concatenate([B.T @ z[a:b] for B, a, b in parts]) if parts else z
+        return np.concatenate([trmv(B, z[a:b], lower=1, trans=1) for B, a, b in parts]) if parts else z
 
     try:
         w = eigsh(LinearOperator((k, k), matvec=apply, dtype=float), k=1, which="LA", tol=1e-12, v0=np.ones(k),
@@ -252,14 +251,12 @@ def _lanczos_min(L: np.ndarray, *factors: np.ndarray) -> float:
     return 1.0 / float(w[0]) if w[0] > 0 else math.nan
 
 
-def _lanczos_margin(M0: np.ndarray) -> float:
-    """Equilibrated max eigenvalue of a negative definite M0 by :func:`_lanczos_min` (``D L`` is a Cholesky
-    factor of ``-D M0 D`` when ``L`` is one of ``-M0``); NaN where it fails."""
+def _neg_cholesky(M0: np.ndarray) -> np.ndarray | None:
+    """A Cholesky factor of ``-M0`` (None when M0 is not negative definite)."""
     try:
-        L = sla.cholesky(-M0, lower=True, check_finite=False)
+        return sla.cholesky(-M0, lower=True, check_finite=False)
     except np.linalg.LinAlgError:
-        return math.nan
-    return -_lanczos_min(L / np.sqrt(np.abs(np.diag(M0)))[:, None])
+        return None
 
 
 @dataclass
@@ -334,12 +331,13 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
     W = np.zeros_like(M0)
     W[:n, :n], W[n:, n:] = P, mu * R
     out = JointCertificate(verdict(M0), mu=mu, side_rates=(sx, se), P=W)
-    if margin:
-        out.margin = _lanczos_margin(M0) if out.verified and 2 * n >= LANCZOS_FROM else math.nan
+    L = _neg_cholesky(M0) if out.verified and 2 * n >= LANCZOS_FROM else None
+    if margin:  # D L is a Cholesky factor of -D M0 D
+        out.margin = -_lanczos_min(L / np.sqrt(np.abs(np.diag(M0)))[:, None]) if L is not None else math.nan
         out.margin = out.margin if math.isfinite(out.margin) else equilibrated_max_eig(M0)
     if not out.verified:
         return out
-    out.bound = _rate_bound(M0, P, mu * R)
+    out.bound = _rate_bound(M0, P, mu * R, L=L)
     out.rate = 0.0
     if out.bound > 0:
         lam = grid_floor(out.bound * (1 - 1e-9), rtol)
