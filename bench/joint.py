@@ -246,7 +246,7 @@ def _lanczos_min(L: np.ndarray, *factors: np.ndarray) -> float:
     try:
         w = eigsh(LinearOperator((k, k), matvec=apply, dtype=float), k=1, which="LA", tol=1e-12, v0=np.ones(k),
                   return_eigenvectors=False)
-    except ArpackError:
+    except (ArpackError, ValueError):  # ValueError: ARPACK needs a matrix larger than 2 x 2
         return math.nan
     return 1.0 / float(w[0]) if w[0] > 0 else math.nan
 
