@@ -143,20 +143,20 @@ def _table(tabular: str, caption: str, label: str | None) -> str:
     return "\n".join(lines + [r"\end{table}"])
 
 
-def _cert_cell(rec: dict, col: str) -> str:
-    """A decay cell: the rate where the level certified, else its status in short (:data:`CERT_SHORT`)."""
+def level_cell(rec: dict, col: str) -> str:
+    """A row table's cell as plain text (:func:`plain_cell`); a ``decay_<level>`` cell whose level did not
+    certify shows the level's status in short instead (:data:`CERT_SHORT`)."""
     status = rec.get(f"cert_{col.removeprefix('decay_')}") if col.startswith("decay_") else None
     if _is_missing(status) or status in ("", "certified"):
-        return format_cell(rec[col])
-    return _short(status, CERT_SHORT)
+        return plain_cell(rec[col])
+    return CERT_SHORT.get(str(status), str(status))
 
 
-def _row_table(frame, columns, caption: str, label: str, *, max_rows: int, cell=None) -> str | None:
+def _row_table(frame, columns, caption: str, label: str, *, max_rows: int) -> str | None:
     """Tables of one row per pair under a heading per plant, split every ``max_rows`` lines ("(continued)")."""
     present = [(col, head) for col, head in columns if col in frame.columns]
     if not present:
         return None
-    cell = cell or (lambda rec, col: format_cell(rec[col]))
     spec = "l" + "".join("l" if col in ("cert_level", "cert_scope") else "r" for col, _ in present)
     header = ["design"] + [_head(head) for _, head in present]
     tables: list[list] = []  # the rows of each table; a plant's heading counts as a line, a continued one not
@@ -170,7 +170,7 @@ def _row_table(frame, columns, caption: str, label: str, *, max_rows: int, cell=
             used = 0
         if heading:
             tables[-1] += [None, plant] if tables[-1] else [plant]
-        tables[-1].append([format_cell(rec["design"])] + [cell(rec, col) for col, _ in present])
+        tables[-1].append([format_cell(rec["design"])] + [escape_tex(level_cell(rec, col)) for col, _ in present])
         used += heading + 1
     return "\n\n".join(_table(_tabular(spec, header, rows), caption + (" (continued)" if k else ""),
                                None if k else label) for k, rows in enumerate(tables))
@@ -219,28 +219,20 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     parts = [_preamble_comment(text_width_pt)]
     if "status" in frame.columns:
         parts.append(_feasibility_tables(frame, caption_prefix, f"{label_prefix}feasibility", text_width_pt))
-    parts.append(_decay_tables(frame, caption_prefix, f"{label_prefix}decay", int(max_rows)))
+    decay = _DECAY_COLUMNS  # the certified decay rate per level, else the one rate (no table without a rate column)
+    if not any(c in frame.columns for c, _ in _DECAY_COLUMNS[:3]):
+        decay = (("decay_rate", "decay rate"),) + _DECAY_COLUMNS[3:] if "decay_rate" in frame.columns else ()
     for columns, caption, key in (
+        (decay, r"Certified decay rate $\lambda$ ($\dot V \le -2\lambda V$) by certificate level; no: not certified, "
+                "marginal: margin within the verification tolerance of zero, n/a: the level does not apply; scope: "
+                "global, from x0 (the certified level set holds the initial condition) or local.", "decay"),
         (_CONVERGENCE_COLUMNS, "Convergence of the closed loop (settling times of the state x and of the "
                                "estimation error e).", "convergence"),
         (_TIMING_COLUMNS, "Wall-clock time of the design, the certificate and the simulation.", "timing"),
     ):
-        parts.append(_row_table(frame, columns, caption_prefix + escape_tex(caption), f"{label_prefix}{key}",
+        parts.append(_row_table(frame, columns, caption_prefix + caption, f"{label_prefix}{key}",
                                 max_rows=int(max_rows)))
     return "\n\n".join(p for p in parts if p) + "\n"
-
-
-def _decay_tables(frame, caption_prefix: str, label: str, max_rows: int) -> str:
-    """The certified decay rate per level with the level and scope (empty without a rate column)."""
-    decay = _DECAY_COLUMNS
-    if not any(c in frame.columns for c, _ in _DECAY_COLUMNS[:3]):
-        if "decay_rate" not in frame.columns:
-            return ""
-        decay = (("decay_rate", "decay rate"),) + _DECAY_COLUMNS[3:]
-    caption = (r"Certified decay rate $\lambda$ ($\dot V \le -2\lambda V$) by certificate level; no: not certified, "
-               "marginal: margin within the verification tolerance of zero, n/a: the level does not apply; scope: "
-               "global, from x0 (the certified level set holds the initial condition) or local.")
-    return _row_table(frame, decay, caption_prefix + caption, label, max_rows=max_rows, cell=_cert_cell)
 
 
 def _preamble_comment(text_width_pt: float) -> str:

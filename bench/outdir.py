@@ -222,13 +222,12 @@ def _rollback(out: Path, doc: dict) -> list[str]:
     return problems
 
 
-def recover(out_dir) -> bool:
+def recover(out_dir) -> None:
     """Roll back a swap a killed writer left half done, and remove stale temporary entries, holding
-    :func:`locked`; True when a swap was rolled back. OutDirError when the journal is unreadable or a
-    file could not be restored (the journal is kept for the next writer)."""
+    :func:`locked`. OutDirError when the journal is unreadable or a file could not be restored (the journal
+    is kept for the next writer)."""
     out = Path(out_dir)
     journal = out / JOURNAL_NAME
-    rolled = False
     if os.path.lexists(journal):
         try:
             doc = json.loads(journal.read_text(encoding="utf-8"))
@@ -245,7 +244,6 @@ def recover(out_dir) -> bool:
             raise OutDirError(f"{out}: could not undo the interrupted write recorded in {JOURNAL_NAME} "
                               f"({'; '.join(problems[:3])}); the previous versions are in {doc['backup']}")
         journal.unlink()
-        rolled = True
     for entry in out.iterdir():
         if entry.name.startswith(TMP_PREFIX) and _stale(entry):
             if entry.is_dir() and not entry.is_symlink():
@@ -253,7 +251,6 @@ def recover(out_dir) -> bool:
             else:
                 with contextlib.suppress(OSError):
                     entry.unlink()
-    return rolled
 
 
 def _relpath(rel: str) -> str:

@@ -19,8 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.findings import constants_rows, findings
 from bench.harness import RunResult
-from bench.latex import plain_cell
+from bench.latex import level_cell, minimal_document, plain_cell, tables_tex
 
 __all__ = ["draw_figures", "results_table", "write_report"]
 
@@ -62,7 +63,6 @@ def git_revision() -> dict[str, object]:
     top = git("rev-parse", "--show-toplevel")
     if top is None or Path(top).resolve() != root:
         return {"commit": None, "dirty": None}
-    # the committed reports/ are outputs, not code: regenerating them does not make a checkout dirty
     status = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)reports")
     return {"commit": git("rev-parse", "HEAD"), "dirty": None if status is None else bool(status)}
 
@@ -155,19 +155,11 @@ def _matrix(df) -> str:
 def _ladder(df) -> str:
     """Certified decay rate per plant x design x level (blank: not certified at that level)."""
     from bench.certify import LEVELS
-    from bench.latex import CERT_SHORT
 
     sub = df[df[[f"cert_{lv}" for lv in LEVELS]].ne("").any(axis=1)]
     if not len(sub):
         return "No pair has fixed gains to certify."
-
-    def rate(r, lv):
-        st = r[f"cert_{lv}"]
-        if st == "certified":
-            return format_cell(r[f"decay_{lv}"])
-        return CERT_SHORT.get(st, st)
-
-    rows = [{"plant": r["plant"], "design": r["design"], **{lv: rate(r, lv) for lv in LEVELS},
+    rows = [{"plant": r["plant"], "design": r["design"], **{lv: level_cell(r, f"decay_{lv}") for lv in LEVELS},
              "head": f"{format_cell(r['decay_rate'])} ({r['cert_level']})" if r["certified"] else "not certified",
              "scope": r["cert_scope"]} for r in sub.to_dict("records")]
     return md_table(rows, ["plant", "design", *LEVELS, "head", "scope"],
@@ -175,8 +167,6 @@ def _ladder(df) -> str:
 
 
 def _constants_table(result: RunResult) -> str:
-    from bench.findings import constants_rows
-
     rows = constants_rows(result.constants, result.constants_errors)
     keys = ["plant", "constant", "claimed", "analytic", "sampled", "used", "source", "region", "flag"]
     return md_table(rows, keys, [*keys[:4], "sampled (lower bound)", *keys[5:]])
@@ -220,8 +210,7 @@ def _figure_jobs(result: RunResult) -> list[_FigureJob]:
 
 
 #: Colours of the designs in a norms figure: 15 distinct ones (matplotlib's ten, then five more),
-#: each with its own line style too (:data:`NORM_STYLES`), so every design up to 15 is told apart
-#: in colour and in greyscale.
+#: each with its own line style too (:data:`NORM_STYLES`).
 NORM_COLOURS = ("C0", "C1", "C2", "C3", "C4", "C5", "C6", "C7", "C8", "C9", "black", "#b8860b", "#000080",
                 "#008080", "#ff1493")
 #: Line styles of a norms figure, cycled beside the colours (15 designs: 15 different pairs).
@@ -286,11 +275,10 @@ def _states_figure(job: _FigureJob):
 
 def _draw(job: _FigureJob, figdir: Path, fmts: tuple[str, ...]) -> str:
     """Draw one figure into ``figdir`` in every format; return the first file's name."""
-    plt = pyplot()
     fig, dpi = _norms_figure(job) if job.kind == "norms" else _states_figure(job)
     for fmt in fmts:
         fig.savefig(figdir / f"{job.stem}.{fmt}", dpi=dpi)
-    plt.close(fig)
+    pyplot().close(fig)
     return f"{job.stem}.{fmts[0]}"
 
 
@@ -499,9 +487,6 @@ def _formats(figure_format) -> tuple[str, ...]:
 
 
 def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: tuple[str, ...]) -> list[str]:
-    from bench.findings import findings
-    from bench.latex import minimal_document, tables_tex
-
     (tmp / "figures").mkdir()
     df = result.frame()
     info = {**run_info, "findings": run_info.get("findings") or findings(df, result.constants)}
