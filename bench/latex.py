@@ -219,7 +219,7 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     parts = [_preamble_comment(text_width_pt)]
     if "status" in frame.columns:
         parts.append(_feasibility_tables(frame, caption_prefix, f"{label_prefix}feasibility", text_width_pt))
-    decay = _DECAY_COLUMNS  # the certified decay rate per level, else the one rate (no table without a rate column)
+    decay = _DECAY_COLUMNS
     if not any(c in frame.columns for c, _ in _DECAY_COLUMNS[:3]):
         decay = (("decay_rate", "decay rate"),) + _DECAY_COLUMNS[3:] if "decay_rate" in frame.columns else ()
     for columns, caption, key in (

@@ -260,14 +260,13 @@ def _states_figure(job: _FigureJob):
         ax = axes[0, i]
         ax.plot(t, x[i], label=f"x{i + 1}")
         ax.plot(t, x_hat[i], "--", label=f"x_hat{i + 1}")
-        ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", ylabel=f"x{i + 1}, x_hat{i + 1}",
-               xlim=(0, t_show))
+        ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", ylabel=f"x{i + 1}, x_hat{i + 1}")
         ax.legend(fontsize=8, loc="upper right")
-        ax.grid(True, alpha=0.3)
         ax = axes[1, i]
         ax.plot(t, x[i] - x_hat[i], color="C3")
-        ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", ylabel=f"e{i + 1} = x{i + 1} - x_hat{i + 1}",
-               xlim=(0, t_show))
+        ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", ylabel=f"e{i + 1} = x{i + 1} - x_hat{i + 1}")
+    for ax in axes.flat:
+        ax.set(xlim=(0, t_show))
         ax.grid(True, alpha=0.3)
     fig.suptitle(job.title)
     return fig, 100
