@@ -28,9 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench import checks
-from bench.errors import SimulationStopped as _BatchStop
 from bench.metrics import batch_metrics
-from bench.simulate import Budget, SimOptions, choose_method, loop_matrix
+from bench.simulate import Budget, SimOptions, choose_method, integrate, loop_matrix
 
 __all__ = ["simulate_batch", "simulate_digital_batch"]
 
@@ -138,28 +137,14 @@ def simulate_batch(
     extra = {"jac_sparsity": _batch_sparsity(n, N)} if method in ("BDF", "Radau") else {}
     Y0 = np.concatenate([X, XH], axis=1)
     t0 = time.perf_counter()
-    t_out, y, status, message, nfev = _integrate(rhs, Y0.ravel(), T, method, options, extra)
+    sol, t_out, y, status, message = integrate(rhs, Y0.ravel(), T, method, options, **extra)
     wall = time.perf_counter() - t0
+    nfev = rhs.count if sol is None else int(sol.nfev)
     Yt = y.reshape(n, 2 * N, -1)
     xs, xhs = Yt[:, :N], Yt[:, N:]
     diverged = ~np.all(_norms(xs, xhs) <= limit[:, None], axis=1)
     return BatchTrajectory(t_out, xs, xhs, diverged, status, message, wall, nfev, method,
                            u=np.einsum("mi,ijk->mjk", F, xhs))
-
-
-def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options: SimOptions,
-               extra: dict) -> tuple[np.ndarray, np.ndarray, str, str, int]:
-    """One ``solve_ivp`` call over ``[0, T]``: ``t, y, status, message, nfev`` (y0 alone if stopped)."""
-    from scipy.integrate import solve_ivp
-
-    t_eval = np.linspace(0.0, T, int(options.n_points))
-    try:
-        sol = solve_ivp(rhs, (0.0, T), y0, method=method, t_eval=t_eval, rtol=options.rtol, atol=options.atol,
-                        **extra)
-    except _BatchStop as stop:
-        return np.array([0.0]), y0[:, None], stop.status, str(stop), rhs.count
-    status = "ok" if sol.status == 0 else "failed"
-    return sol.t, sol.y, status, "" if status == "ok" else sol.message, int(sol.nfev)
 
 
 class _BatchRHS(Budget):
