@@ -174,6 +174,9 @@ class _BatchRHS(Budget):
 
 DISCRETISATIONS = ("zoh", "euler")
 
+#: At most this many sample instants of a digital batch are recorded.
+MAX_RECORDS = 4001
+
 
 def simulate_digital_batch(
     plant,
@@ -208,9 +211,15 @@ def simulate_digital_batch(
         estimate used there); members above ``1e6 max(1, ||z_j(0)||)`` are frozen and reported diverged.
     """
     K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
-    n_steps, n_sub = _periods(plant.A, T, h, discretisation)
+    checks.real("h", h, lo=0.0, strict=True)
+    if discretisation not in DISCRETISATIONS:
+        raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
+    rho = float(np.abs(np.linalg.eigvals(plant.A)).max())
+    dt_max = min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
+    n_steps, n_sub = max(1, math.ceil(T / h - 1e-9)), max(1, math.ceil(h / dt_max - 1e-9))
     loop = _DigitalLoop(plant, K, F, h, n_sub, zoh=discretisation == "zoh")
-    rec_idx = _record_indices(n_steps)
+    stride = math.ceil((n_steps + 1) / MAX_RECORDS)
+    rec_idx = sorted({*range(0, n_steps + 1, stride), n_steps})
     limit = 1e6 * np.maximum(1.0, np.linalg.norm(np.vstack([X, XH]), axis=0))
     t0 = time.perf_counter()
     xs, xhs, diverged, nfev = _march(loop, X, XH, n_steps, rec_idx, limit)
@@ -242,26 +251,6 @@ def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, re
                 break
             nfev += loop.advance(x, xh, active if not active.all() else slice(None))
     return xs, xhs, ~active | ~(_norms(x, xh) <= limit), nfev
-
-
-def _periods(A: np.ndarray, T: float, h, discretisation: str) -> tuple[int, int]:
-    """The periods covering the horizon, and RK4 sub-steps per period of ``<= min(5e-3, 0.1 / rho(A))``."""
-    h = checks.real("h", h, lo=0.0, strict=True)
-    if discretisation not in DISCRETISATIONS:
-        raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
-    rho = float(np.abs(np.linalg.eigvals(A)).max())
-    dt_max = min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
-    return max(1, math.ceil(T / h - 1e-9)), max(1, math.ceil(h / dt_max - 1e-9))
-
-
-#: At most this many sample instants of a digital batch are recorded.
-MAX_RECORDS = 4001
-
-
-def _record_indices(n_steps: int) -> list[int]:
-    """The sample indices recorded: evenly strided, at most about :data:`MAX_RECORDS`, the last one always."""
-    stride = math.ceil((n_steps + 1) / MAX_RECORDS)
-    return sorted({*range(0, n_steps + 1, stride), n_steps})
 
 
 class _DigitalLoop:

@@ -299,31 +299,26 @@ def simulate_controller(
             from bench.estimators import runtime_estimator
 
             estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final)
-        return _sampled(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options)
+        return _SampledLoop(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options).run()
     if noise > 0:
-        return _sampled(plant, F, K, None, noise_dt, t_final, noise, seed, options)
+        return _SampledLoop(plant, F, K, None, noise_dt, t_final, noise, seed, options).run()
     return simulate(plant, K, F, t_final=t_final, options=options, loop=loop)
 
 
-def _sampled(plant: Plant, F, K, estimator, dt: float, t_final: float, noise: float, seed: int,
-             options: SimOptions) -> Trajectory:
-    """The sampled paths of :func:`simulate_controller`: ``N = t_final / dt`` intervals, noise drawn once."""
-    checks.real("dt", dt, lo=0.0, strict=True)
-    T = float(t_final)
-    steps = T / dt
-    if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:
-        raise ValueError(f"dt: the sample time {dt:g} must divide the horizon {T:g}")
-    N = int(round(steps))
-    V = noise * np.random.default_rng(seed).standard_normal((N + 1, plant.p))
-    return _SampledLoop(plant, F, K, estimator, dt, options).run(N, V)
-
-
 class _SampledLoop:
-    """One run of the sampled paths of :func:`simulate_controller`, one sample interval at a time."""
+    """The sampled paths of :func:`simulate_controller`: ``N = t_final / dt`` intervals, noise drawn once."""
 
-    def __init__(self, plant: Plant, F, K, estimator, dt: float, options: SimOptions):
+    def __init__(self, plant: Plant, F, K, estimator, dt: float, t_final: float, noise: float, seed: int,
+                 options: SimOptions):
         import scipy.integrate
 
+        checks.real("dt", dt, lo=0.0, strict=True)
+        T = float(t_final)
+        steps = T / dt
+        if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:
+            raise ValueError(f"dt: the sample time {dt:g} must divide the horizon {T:g}")
+        self.N = int(round(steps))
+        self.V = noise * np.random.default_rng(seed).standard_normal((self.N + 1, plant.p))
         self.A, self.B, self.C, self.f, self.n = plant.A, plant.B, plant.C, plant.f, plant.n
         self.F = np.asarray(F, dtype=float)
         self.K = None if K is None else np.asarray(K, dtype=float)
@@ -389,9 +384,9 @@ class _SampledLoop:
         self.nfev += nfev
         return x, xh
 
-    def run(self, N: int, V: np.ndarray) -> Trajectory:
-        """Simulate ``N`` intervals with the measurement noise ``V`` ((N + 1, p)); the trajectory at the samples."""
-        est, C, F, dt, o = self.estimator, self.C, self.F, self.dt, self.options
+    def run(self) -> Trajectory:
+        """Simulate the ``N`` intervals with the measurement noise ``V`` ((N + 1, p)); the trajectory at the samples."""
+        est, C, F, dt, o, N, V = self.estimator, self.C, self.F, self.dt, self.options, self.N, self.V
         x, xh = self.x0, self.xh0
         limit = o.blowup * max(1.0, float(np.linalg.norm(np.concatenate([x, xh]))))
         ts, xs, xhs, us = [], [], [], []
