@@ -368,7 +368,6 @@ class _SampledLoop:
             y, nfev = self._solve(self._observer_rhs, z)
             x, xh = y[:self.n], y[self.n:]
         else:
-            # a NaN derivative at the start would make the integrator's step-size loop endless
             _finite(np.asarray(self.f(xh), dtype=float), 0.0, "f at the estimate")
             bu = self.B @ u
             if getattr(est, "predicts_with_model", False):  # plant and prediction: one ODE
