@@ -28,9 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench import checks
-from bench.errors import SimulationStopped as _BatchStop
 from bench.metrics import batch_metrics
-from bench.simulate import Budget, SimOptions, choose_method, loop_matrix
+from bench.simulate import Budget, SimOptions, choose_method, integrate, loop_matrix
 
 __all__ = ["simulate_batch", "simulate_digital_batch"]
 
@@ -138,28 +137,14 @@ def simulate_batch(
     extra = {"jac_sparsity": _batch_sparsity(n, N)} if method in ("BDF", "Radau") else {}
     Y0 = np.concatenate([X, XH], axis=1)
     t0 = time.perf_counter()
-    t_out, y, status, message, nfev = _integrate(rhs, Y0.ravel(), T, method, options, extra)
+    sol, t_out, y, status, message = integrate(rhs, Y0.ravel(), T, method, options, **extra)
     wall = time.perf_counter() - t0
+    nfev = rhs.count if sol is None else int(sol.nfev)
     Yt = y.reshape(n, 2 * N, -1)
     xs, xhs = Yt[:, :N], Yt[:, N:]
     diverged = ~np.all(_norms(xs, xhs) <= limit[:, None], axis=1)
     return BatchTrajectory(t_out, xs, xhs, diverged, status, message, wall, nfev, method,
                            u=np.einsum("mi,ijk->mjk", F, xhs))
-
-
-def _integrate(rhs: "_BatchRHS", y0: np.ndarray, T: float, method: str, options: SimOptions,
-               extra: dict) -> tuple[np.ndarray, np.ndarray, str, str, int]:
-    """One ``solve_ivp`` call over ``[0, T]``: ``t, y, status, message, nfev`` (y0 alone if stopped)."""
-    from scipy.integrate import solve_ivp
-
-    t_eval = np.linspace(0.0, T, int(options.n_points))
-    try:
-        sol = solve_ivp(rhs, (0.0, T), y0, method=method, t_eval=t_eval, rtol=options.rtol, atol=options.atol,
-                        **extra)
-    except _BatchStop as stop:
-        return np.array([0.0]), y0[:, None], stop.status, str(stop), rhs.count
-    status = "ok" if sol.status == 0 else "failed"
-    return sol.t, sol.y, status, "" if status == "ok" else sol.message, int(sol.nfev)
 
 
 class _BatchRHS(Budget):
@@ -188,6 +173,9 @@ class _BatchRHS(Budget):
 
 
 DISCRETISATIONS = ("zoh", "euler")
+
+#: At most this many sample instants of a digital batch are recorded.
+MAX_RECORDS = 4001
 
 
 def simulate_digital_batch(
@@ -223,9 +211,15 @@ def simulate_digital_batch(
         estimate used there); members above ``1e6 max(1, ||z_j(0)||)`` are frozen and reported diverged.
     """
     K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
-    n_steps, n_sub = _periods(plant.A, T, h, discretisation)
+    checks.real("h", h, lo=0.0, strict=True)
+    if discretisation not in DISCRETISATIONS:
+        raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
+    rho = float(np.abs(np.linalg.eigvals(plant.A)).max())
+    dt_max = min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
+    n_steps, n_sub = max(1, math.ceil(T / h - 1e-9)), max(1, math.ceil(h / dt_max - 1e-9))
     loop = _DigitalLoop(plant, K, F, h, n_sub, zoh=discretisation == "zoh")
-    rec_idx = _record_indices(n_steps)
+    stride = math.ceil((n_steps + 1) / MAX_RECORDS)
+    rec_idx = sorted({*range(0, n_steps + 1, stride), n_steps})
     limit = 1e6 * np.maximum(1.0, np.linalg.norm(np.vstack([X, XH]), axis=0))
     t0 = time.perf_counter()
     xs, xhs, diverged, nfev = _march(loop, X, XH, n_steps, rec_idx, limit)
@@ -257,26 +251,6 @@ def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, re
                 break
             nfev += loop.advance(x, xh, active if not active.all() else slice(None))
     return xs, xhs, ~active | ~(_norms(x, xh) <= limit), nfev
-
-
-def _periods(A: np.ndarray, T: float, h, discretisation: str) -> tuple[int, int]:
-    """The periods covering the horizon, and RK4 sub-steps per period of ``<= min(5e-3, 0.1 / rho(A))``."""
-    h = checks.real("h", h, lo=0.0, strict=True)
-    if discretisation not in DISCRETISATIONS:
-        raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
-    rho = float(np.abs(np.linalg.eigvals(A)).max())
-    dt_max = min(5e-3, 0.1 / rho) if rho > 0 else 5e-3
-    return max(1, math.ceil(T / h - 1e-9)), max(1, math.ceil(h / dt_max - 1e-9))
-
-
-#: At most this many sample instants of a digital batch are recorded.
-MAX_RECORDS = 4001
-
-
-def _record_indices(n_steps: int) -> list[int]:
-    """The sample indices recorded: evenly strided, at most about :data:`MAX_RECORDS`, the last one always."""
-    stride = math.ceil((n_steps + 1) / MAX_RECORDS)
-    return sorted({*range(0, n_steps + 1, stride), n_steps})
 
 
 class _DigitalLoop:

@@ -11,60 +11,44 @@ from plants import Plant
 __all__ = ["ContinuousDiscreteEKF"]
 
 
-def runtime_estimator(spec, plant: Plant, x_hat0: np.ndarray, *, t_final: float, options=None):
-    """The run-time estimator (``dt``, ``x``, ``update(y)``, ``predict(u)``) a design specified (an
-    :class:`designs.ekf.EKFSpec`), its prediction integrated with ``options``' tolerances."""
+def runtime_estimator(spec, plant: Plant, x_hat0: np.ndarray, *, t_final: float):
+    """The run-time estimator (``dt``, ``x``, ``update(y)``, ``predict(u, x_next)``) a design specified (an
+    :class:`designs.ekf.EKFSpec`)."""
     if isinstance(spec, EKFSpec):
         spec.check_horizon(t_final)
-        kw = {} if options is None else {"rtol": options.rtol, "atol": options.atol}
-        return ContinuousDiscreteEKF(plant, spec, x_hat0, **kw)
+        return ContinuousDiscreteEKF(plant, spec, x_hat0)
     raise TypeError(f"estimator: no run-time estimator for a {type(spec).__name__}")
 
 
 class ContinuousDiscreteEKF:
-    """A continuous-discrete EKF on filterpy's ``ExtendedKalmanFilter``: the prediction integrates the
-    nonlinear model over one sample, the covariance propagates with ``expm((A + Df) dt)``.
+    """A continuous-discrete EKF on filterpy's ``ExtendedKalmanFilter``: the prediction is the nonlinear
+    model's flow over one sample (integrated by the simulator), the covariance propagates with
+    ``expm((A + Df) dt)``.
 
     Parameters
     ----------
     plant : Plant
     spec : EKFSpec
     x_hat0 : ndarray (n,)
-    rtol, atol : float
-        Tolerances of the prediction integral.
     """
 
-    def __init__(self, plant: Plant, spec: EKFSpec, x_hat0: np.ndarray, *, rtol: float = 1e-8, atol: float = 1e-12):
+    def __init__(self, plant: Plant, spec: EKFSpec, x_hat0: np.ndarray):
         from filterpy.kalman import ExtendedKalmanFilter
-        from scipy.integrate import solve_ivp
         from scipy.linalg import expm
 
         n, p = plant.n, plant.p
-        A, B, C, f = plant.A, plant.B, plant.C, plant.f
         dt = spec.dt
-        self.spec = spec
 
         class _EKF(ExtendedKalmanFilter):
-            x_next = None  # set by predict(u, x_next): the model's flow, integrated by the simulator
-
-            def predict_x(self, u=0):  # nonlinear prediction over one sample (u held)
-                if self.x_next is not None:
-                    self.x = np.asarray(self.x_next, dtype=float).reshape(-1, 1).copy()
-                    self.x_next = None
-                    return
-                u = np.asarray(u, dtype=float).ravel()
-                if not (np.all(np.isfinite(self.x)) and np.all(np.isfinite(u))):
-                    raise FloatingPointError("EKF prediction from a non-finite estimate or input")
-                sol = solve_ivp(lambda t, z: A @ z + B @ u + f(z), (0.0, dt), self.x[:, 0], method="DOP853",
-                                rtol=rtol, atol=atol)
-                self.x = sol.y[:, -1:].copy()
+            def predict_x(self, u=0):  # the model's flow, set by predict(u, x_next)
+                self.x = self.x_next
 
         self._ekf = _EKF(dim_x=n, dim_z=p, dim_u=plant.m)
         self._ekf.x = np.asarray(x_hat0, dtype=float).reshape(n, 1).copy()
         self._ekf.P = spec.p0 * np.eye(n)
         self._ekf.Q = spec.q * dt * np.eye(n)
         self._ekf.R = spec.r * np.eye(p)
-        self._A, self._C, self._jac, self._dt, self._expm = A, C, plant.jacobian_at, dt, expm
+        self._A, self._C, self._jac, self._expm = plant.A, plant.C, plant.jacobian_at, expm
         self.dt = dt
 
     @property
@@ -82,20 +66,20 @@ class ContinuousDiscreteEKF:
         C = self._C
         self._ekf.update(np.asarray(y, dtype=float).reshape(-1, 1), HJacobian=lambda x: C, Hx=lambda x: C @ x)
 
-    #: A simulator may integrate the prediction with the plant and pass it to :meth:`predict`.
+    #: The simulator integrates the prediction with the plant and passes it to :meth:`predict`.
     predicts_with_model = True
 
-    def predict(self, u: np.ndarray, x_next: np.ndarray | None = None) -> None:
+    def predict(self, u: np.ndarray, x_next: np.ndarray) -> None:
         """Propagate the estimate (nonlinear) and covariance (Jacobian) over one sample.
 
         Parameters
         ----------
         u : ndarray (m,)
             The input held over the sample.
-        x_next : ndarray (n,), optional
-            The estimate's model flow, integrated by the caller (None: here).
+        x_next : ndarray (n,)
+            The estimate's model flow over the sample with ``u`` held, integrated by the caller.
         """
         J = self._A + self._jac(self.x)
-        self._ekf.F = self._expm(J * self._dt)
-        self._ekf.x_next = x_next
+        self._ekf.F = self._expm(J * self.dt)
+        self._ekf.x_next = np.asarray(x_next, dtype=float).reshape(-1, 1).copy()
         self._ekf.predict(u=np.asarray(u, dtype=float).reshape(-1, 1))

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextvars
 import math
+import threading
 import time
 from contextlib import contextmanager
 from typing import Iterator
@@ -75,7 +76,6 @@ def hard_stop(seconds: float | None) -> Iterator[None]:
     (Windows) or when someone else already uses ``SIGALRM`` (e.g. pytest-timeout).
     """
     import signal
-    import threading
 
     if seconds is not None and threading.current_thread() is not threading.main_thread():
         with _thread_stop(seconds):
@@ -103,7 +103,6 @@ def hard_stop(seconds: float | None) -> Iterator[None]:
 def _thread_stop(seconds: float) -> Iterator[None]:
     """:func:`hard_stop` off the main thread: a timer raises :class:`_HardStop` into this thread."""
     import ctypes
-    import threading
 
     tid = threading.get_ident()
     lock = threading.Lock()

@@ -137,8 +137,7 @@ def dense_metrics(dense, n: int, t0: float, t1: float, fraction: float = SETTLIN
     """
     from scipy.optimize import brentq
 
-    ts = np.asarray(getattr(dense, "ts", [t0, t1]), dtype=float)
-    ts = np.unique(np.clip(ts, t0, t1))
+    ts = np.unique(np.clip(dense.ts, t0, t1))
     h = np.diff(ts)
     nodes = (ts[:-1, None] + h[:, None] * _GL_NODES[None, :]).ravel()
     grid = np.sort(np.concatenate([ts, nodes]))

@@ -219,40 +219,37 @@ def simulate(
     xh0 = np.asarray(plant.x_hat0 if x_hat0 is None else x_hat0, dtype=float)
     z0 = np.concatenate([x0, xh0])
     rhs = _LoopRHS(_loop_operator(plant, K, F), plant.f, n, options)
-    t0 = time.perf_counter()
-    method = choose_method(plant, K, F, T, stiff="Radau", loop=loop) if options.method == "auto" else options.method
-    t_out, z, dense, status, message = _integrate(rhs, z0, T, method, options)
-    wall = time.perf_counter() - t0
-    x, xh = z[:n], z[n:]
-    return Trajectory(t_out, x, xh, F @ xh, status, message, wall, rhs.count, dense)
-
-
-def _integrate(rhs: _LoopRHS, z0: np.ndarray, T: float, method: str, options: SimOptions):
-    """``solve_ivp`` over ``[0, T]`` stopped at the blow-up limit: ``t, z, dense, status, message``."""
-    from scipy.integrate import solve_ivp
-
     limit = options.blowup * max(1.0, float(np.linalg.norm(z0)))
 
     def blowup(t, z):  # a terminal event
         return np.linalg.norm(z) - limit
 
     blowup.terminal = True
-    t_eval = np.linspace(0.0, T, int(options.n_points))
-    status, message, dense = "ok", "", None
-    try:
-        sol = solve_ivp(rhs, (0.0, T), z0, method=method, t_eval=t_eval, rtol=options.rtol,
-                        atol=options.atol, events=blowup, dense_output=True)
-        t_out, z, dense = sol.t, sol.y, sol.sol
-        if sol.status == 1:
-            status, message = "diverged", f"||z|| exceeded {limit:.3g} at t = {sol.t_events[0][0]:.4g}"
-        elif sol.status != 0:
-            status, message = "failed", sol.message
-    except _Stop as stop:
-        status, message = stop.status, str(stop)
-        t_out, z = np.array([0.0]), z0[:, None]
-    if status == "ok" and not np.all(np.isfinite(z)):
+    t0 = time.perf_counter()
+    method = choose_method(plant, K, F, T, stiff="Radau", loop=loop) if options.method == "auto" else options.method
+    sol, t_out, z, status, message = integrate(rhs, z0, T, method, options, events=blowup, dense_output=True)
+    if sol is not None and sol.status == 1:
+        status, message = "diverged", f"||z|| exceeded {limit:.3g} at t = {sol.t_events[0][0]:.4g}"
+    elif status == "ok" and not np.all(np.isfinite(z)):
         status, message = "diverged", "non-finite state"
-    return t_out, z, dense, status, message
+    wall = time.perf_counter() - t0
+    x, xh = z[:n], z[n:]
+    return Trajectory(t_out, x, xh, F @ xh, status, message, wall, rhs.count, None if sol is None else sol.sol)
+
+
+def integrate(rhs: Budget, y0: np.ndarray, T: float, method: str, options: SimOptions, **kw):
+    """``solve_ivp(rhs, (0, T), y0, **kw)`` on the output grid: ``sol, t, y, status, message`` (``"ok"`` or
+    ``"failed"``; ``sol`` None and ``y0`` alone when ``rhs`` stopped the run)."""
+    from scipy.integrate import solve_ivp
+
+    t_eval = np.linspace(0.0, T, int(options.n_points))
+    try:
+        sol = solve_ivp(rhs, (0.0, T), y0, method=method, t_eval=t_eval, rtol=options.rtol, atol=options.atol,
+                        **kw)
+    except _Stop as stop:
+        return None, np.array([0.0]), y0[:, None], stop.status, str(stop)
+    status = "ok" if sol.status == 0 else "failed"
+    return sol, sol.t, sol.y, status, "" if status == "ok" else sol.message
 
 
 def simulate_controller(
@@ -301,32 +298,27 @@ def simulate_controller(
         if not hasattr(estimator, "update"):  # a specification: build the filter
             from bench.estimators import runtime_estimator
 
-            estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final, options=options)
-        return _sampled(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options)
+            estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final)
+        return _SampledLoop(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options).run()
     if noise > 0:
-        return _sampled(plant, F, K, None, noise_dt, t_final, noise, seed, options)
+        return _SampledLoop(plant, F, K, None, noise_dt, t_final, noise, seed, options).run()
     return simulate(plant, K, F, t_final=t_final, options=options, loop=loop)
 
 
-def _sampled(plant: Plant, F, K, estimator, dt: float, t_final: float, noise: float, seed: int,
-             options: SimOptions) -> Trajectory:
-    """The sampled paths of :func:`simulate_controller`: ``N = t_final / dt`` intervals, noise drawn once."""
-    checks.real("dt", dt, lo=0.0, strict=True)
-    T = float(t_final)
-    steps = T / dt
-    if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:
-        raise ValueError(f"dt: the sample time {dt:g} must divide the horizon {T:g}")
-    N = int(round(steps))
-    V = noise * np.random.default_rng(seed).standard_normal((N + 1, plant.p))
-    return _SampledLoop(plant, F, K, estimator, dt, options).run(N, V)
-
-
 class _SampledLoop:
-    """One run of the sampled paths of :func:`simulate_controller`, one sample interval at a time."""
+    """The sampled paths of :func:`simulate_controller`: ``N = t_final / dt`` intervals, noise drawn once."""
 
-    def __init__(self, plant: Plant, F, K, estimator, dt: float, options: SimOptions):
+    def __init__(self, plant: Plant, F, K, estimator, dt: float, t_final: float, noise: float, seed: int,
+                 options: SimOptions):
         import scipy.integrate
 
+        checks.real("dt", dt, lo=0.0, strict=True)
+        T = float(t_final)
+        steps = T / dt
+        if abs(steps - round(steps)) > 1e-9 * max(1.0, steps) or round(steps) < 1:
+            raise ValueError(f"dt: the sample time {dt:g} must divide the horizon {T:g}")
+        self.N = int(round(steps))
+        self.V = noise * np.random.default_rng(seed).standard_normal((self.N + 1, plant.p))
         self.A, self.B, self.C, self.f, self.n = plant.A, plant.B, plant.C, plant.f, plant.n
         self.F = np.asarray(F, dtype=float)
         self.K = None if K is None else np.asarray(K, dtype=float)
@@ -376,7 +368,6 @@ class _SampledLoop:
             y, nfev = self._solve(self._observer_rhs, z)
             x, xh = y[:self.n], y[self.n:]
         else:
-            # a NaN derivative at the start would make the integrator's step-size loop endless
             _finite(np.asarray(self.f(xh), dtype=float), 0.0, "f at the estimate")
             bu = self.B @ u
             if getattr(est, "predicts_with_model", False):  # plant and prediction: one ODE
@@ -392,9 +383,9 @@ class _SampledLoop:
         self.nfev += nfev
         return x, xh
 
-    def run(self, N: int, V: np.ndarray) -> Trajectory:
-        """Simulate ``N`` intervals with the measurement noise ``V`` ((N + 1, p)); the trajectory at the samples."""
-        est, C, F, dt, o = self.estimator, self.C, self.F, self.dt, self.options
+    def run(self) -> Trajectory:
+        """Simulate the ``N`` intervals with the measurement noise ``V`` ((N + 1, p)); the trajectory at the samples."""
+        est, C, F, dt, o, N, V = self.estimator, self.C, self.F, self.dt, self.options, self.N, self.V
         x, xh = self.x0, self.xh0
         limit = o.blowup * max(1.0, float(np.linalg.norm(np.concatenate([x, xh]))))
         ts, xs, xhs, us = [], [], [], []
