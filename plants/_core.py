@@ -23,9 +23,8 @@ def _finite_scalar(name: str, value, *, positive: bool = False):
 def check_int(name: str, value, lo: int, hi: int | None = None, *, what: str = "") -> int:
     """``value`` as an int in ``[lo, hi]`` (a float with an integer value too; not bool), else
     :class:`PlantError`; ``what`` describes the parameter in the message."""
-    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)):
-        raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
-    if isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, float)) \
+            or isinstance(value, float) and not (math.isfinite(value) and value.is_integer()):
         raise PlantError(f"{name}: {what}must be an integer, got {value!r}")
     v = int(value)
     if v < lo or (hi is not None and v > hi):
@@ -64,11 +63,9 @@ class Constants:
     radius: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("alpha", "rho", "beta", "gamma"):
-            object.__setattr__(self, name, _finite_scalar(f"constants.{name}", getattr(self, name)))
-        object.__setattr__(
-            self, "radius", _finite_scalar("constants.radius", self.radius, positive=True)
-        )
+        for name in ("alpha", "rho", "beta", "gamma", "radius"):
+            object.__setattr__(self, name, _finite_scalar(f"constants.{name}", getattr(self, name),
+                                                          positive=name == "radius"))
         if self.alpha is not None and self.alpha < 0:
             raise PlantError(f"constants.alpha: a Lipschitz constant is >= 0, got {self.alpha}")
         if (self.beta is None) != (self.gamma is None):
@@ -115,8 +112,7 @@ class Channels:
     def __post_init__(self) -> None:
         if self.narrow is not None and not callable(self.narrow):
             raise PlantError(f"channels.narrow: must be callable r -> (lo, hi) or None, got {type(self.narrow).__name__}")
-        G = _matrix("channels.G", self.G)
-        H = _matrix("channels.H", self.H)
+        G, H = (_matrix(f"channels.{name}", getattr(self, name)) for name in "GH")
         q = G.shape[1]
         if H.shape[0] != q:
             raise PlantError(f"channels.H: must have q = {q} rows (G is {G.shape}), got shape {H.shape}")
@@ -238,8 +234,7 @@ def sine_terms(n: int, acts, reads, coef: float, *, scale: float = 1.0) -> dict:
     """
     acts = np.asarray(acts, dtype=np.intp).reshape(-1)
     reads = np.asarray(reads, dtype=np.intp).reshape(-1)
-    if acts.size != reads.size or len(set(acts.tolist())) != acts.size or len(set(reads.tolist())) != reads.size \
-            or set(acts.tolist()) & set(reads.tolist()):
+    if acts.size != reads.size or len(set(acts.tolist()) | set(reads.tolist())) != 2 * acts.size:
         raise PlantError(f"sine terms: acts {acts.tolist()} and reads {reads.tolist()} must have the same length, "
                          "no repeats and no common state")
     gain = coef / scale
@@ -359,9 +354,7 @@ class Plant:
             check_id(self.id, "plant")
         except RegistryError as exc:
             raise PlantError(f"id: {exc}") from None
-        A = _matrix("A", self.A)
-        B = _matrix("B", self.B)
-        C = _matrix("C", self.C)
+        A, B, C = (_matrix(name, getattr(self, name)) for name in "ABC")
         n = A.shape[0]
         if A.shape != (n, n):
             raise PlantError(f"A: must be square, got shape {A.shape}")
@@ -369,8 +362,7 @@ class Plant:
             raise PlantError(f"B: must have n = {n} rows (A is {A.shape}), got shape {B.shape}")
         if C.shape[1] != n:
             raise PlantError(f"C: must have n = {n} columns (A is {A.shape}), got shape {C.shape}")
-        x0 = _matrix("x0", self.x0, ndim=1)
-        xh0 = _matrix("x_hat0", self.x_hat0, ndim=1)
+        x0, xh0 = (_matrix(name, getattr(self, name), ndim=1) for name in ("x0", "x_hat0"))
         for name, v in (("x0", x0), ("x_hat0", xh0)):
             if v.shape != (n,):
                 raise PlantError(f"{name}: expected shape ({n},) to match A {A.shape}, got {v.shape}")

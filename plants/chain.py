@@ -19,9 +19,8 @@ Hurwitz when ``d > 0`` or ``b > 0``; the linearisation ``A + (c/m) sum_i e_{v_i}
 unstable once c exceeds the stiffness one pendulum mass sees, ``1 / [K^{-1}]_ii = k (N+1) / ((i+1)(N-i))``
 (0-based i). (A, B) and (A, C) are checked by the PBH test when the plant is built.
 
-f is a sum of sine terms, one channel per pendulum mass (``G[:, l] = e_{v_i} / m``, ``H[l, :] = e_{q_i}'``,
-``phi_l(z) = c sin(z)``); its global constants (:func:`plants._core.sine_terms`) are alpha = |c| / m,
-rho = |c| / (2 m), (beta, gamma) = (c^2 / m^2, 0); all 0 without a pendulum.
+f is :func:`plants._core.sine_terms` with ``acts = v(nonlinear)``, ``reads = q(nonlinear)``, ``coef = c``, ``scale = m``
+(one channel per pendulum mass; its constants: :func:`chain_plant`, all 0 without a pendulum).
 
 References
 ----------
@@ -138,7 +137,6 @@ def chain_plant(
     b = check_real("b", b, lo=0.0)
     c = check_real("c", c)
     amplitude = check_real("amplitude", amplitude)
-    stride = check_int("stride", stride, 1, MAX_N)
     layout = default_masses(N, stride)
     nl = layout if nonlinear is None else _masses("nonlinear", nonlinear, N, allow_empty=True)
     ins = layout if inputs is None else _masses("inputs", inputs, N, allow_empty=False)

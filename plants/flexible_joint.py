@@ -7,8 +7,7 @@ State ``x = (theta_m, omega_m, theta_l, omega_l)`` (the paper's plant (35) scale
 
 B and C those of :mod:`plants.flexible_link`. Unscaled, c is ten times the paper's 0.333. Initial
 conditions of the sources: ``x(0) = (0.1, -0.1, 0.2, -0.2)``, ``x_hat(0) = (0.2, -0.2, 0.1, -0.1)``.
-Constants and channels of the sine term: :func:`plants._core.sine_terms` (alpha = c, rho = c / 2,
-(beta, gamma) = (c^2, 0), global); the sources claim alpha = 3.33 only.
+Constants and channels of the sine term: :func:`plants._core.sine_terms`, as :func:`flexible_joint` returns them.
 
 References
 ----------

@@ -158,14 +158,11 @@ def random_lipschitz_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 0.5
     Returns
     -------
     Plant
-        Claimed = analytic: alpha = rho = c, (beta, gamma) = (c^2, 0), global; ``x0`` a random
-        unit vector, ``x_hat0 = 0``.
+        Claimed = analytic (module docstring), global; ``x0`` a random unit vector, ``x_hat0 = 0``.
     """
     A, B, C, n, c, rng = _start(c, n=n, m=m, p=p, seed=seed, n_unstable=n_unstable, max_re=max_re)
     G = _orthogonal(rng, n)
     H = _orthogonal(rng, n).T
-    G.setflags(write=False)
-    H.setflags(write=False)
 
     def f(x: np.ndarray) -> np.ndarray:
         return c * (G @ np.sin(H @ np.asarray(x, dtype=float)))
@@ -201,13 +198,11 @@ def random_osl_plant(*, n: int = 4, m: int = 1, p: int = 1, c: float = 1.0, r: f
     Returns
     -------
     Plant
-        Claimed = analytic on ``||x|| <= r``: rho = 0, alpha = 3 c r^2, (beta, gamma) = (0, -3 c r^2);
-        ``x0`` of norm r/2, ``x_hat0 = 0``.
+        Claimed = analytic on ``||x|| <= r`` (module docstring); ``x0`` of norm r/2, ``x_hat0 = 0``.
     """
     A, B, C, n, c, rng = _start(c, n=n, m=m, p=p, seed=seed, n_unstable=n_unstable, max_re=max_re)
     r = check_real("r", r, lo=0.0, strict=True)
     W = _orthogonal(rng, n)
-    W.setflags(write=False)
 
     def f(x: np.ndarray) -> np.ndarray:
         z = W.T @ np.asarray(x, dtype=float)
