@@ -1,9 +1,4 @@
-"""Observer-based controllers composed of a feedback part (F) and an estimator part (K or EKF).
-
-A *part* is a frozen dataclass of hyperparameters whose ``compute(plant, constants)`` returns a
-:class:`designs.DesignResult` with its half of the controller; :func:`register_pairing` registers a
-pairing ``"feedback+estimator"`` as a design that runs both parts and merges their evidence.
-"""
+"""Observer-based controllers composed of a feedback part (F) and an estimator part (K or EKF)."""
 
 from __future__ import annotations
 

@@ -16,11 +16,10 @@ relative to the natural scales ``tau0 = sigma / ||B||^2``, ``eps0 = sigma``, ``s
 
 The design searches the e-side's largest decay target whose gain stays within ``max_gain``
 (:func:`_search`), solves and verifies both sides there (:func:`_targets`) and certifies the pair
-by :func:`bench.joint.certify`, which measures the rate the certificate proves. The AREs (indefinite
-``M``, the stabilizing solution) are solved by the matrix sign function of the Hamiltonian
-(:func:`_sign_are`; single precision from :data:`SINGLE_FROM_N` states, refined by Newton's method,
-:func:`_newton`), with scipy's ordered Schur method as the other method (:func:`solve_are`). A
-solution is used only through its side's Lyapunov test, which also proves the closed loop Hurwitz.
+by :func:`bench.joint.certify`. The AREs (indefinite ``M``, the stabilizing solution) are solved by the
+matrix sign function of the Hamiltonian (:func:`_sign_are`, :func:`_newton`) or scipy's ordered Schur
+method (:func:`solve_are`). A solution is used only through its side's Lyapunov test, which also proves
+the closed loop Hurwitz.
 
 References
 ----------
@@ -551,12 +550,8 @@ class _Side:
         """The verified solution at ``lam`` (None: none on the grid; the gain bound is not checked)."""
         if lam in self.found:
             return self.found[lam]
-        order = list(range(len(self.grid)))
-        if self.pick is not None:
-            order.remove(self.pick)
-            order.insert(0, self.pick)
         sol = None
-        for i in order:
+        for i in sorted(range(len(self.grid)), key=lambda i: i != self.pick):  # the picked point first
             tau, eps = self.grid[i]
             sol, why = self.solve_at(lam, tau, eps, self.start.get((lam, i)))
             self.tries.append((self.label, lam, tau, eps, why or "ok"))
@@ -576,9 +571,10 @@ def _search(side: _Side, top: float, rtol: float, companion: _Side | None = None
     passing targets the power law of the two largest is extrapolated (at most 8 times up); without a
     solution at ``up``, the geometric mean; when every target fails, ``min / 8`` and 0. Beside each
     next target the ``companion`` side is estimated there (its solve at the final target then starts
-    from it), or without a companion the target times ``1 + rtol``. It stops when the passing gain is within ``1 + rtol`` of the bound, a failing target within
-    ``1 + rtol`` of the passing one, or the next target within ``1 + rtol / 2`` of it. Returns the
-    target, 0 when the bound fails at 0, or None when there is no solution at 0.
+    from it), or without a companion the target times ``1 + rtol``. It stops when the passing gain is
+    within ``1 + rtol`` of the bound, a failing target within ``1 + rtol`` of the passing one, or the
+    next target within ``1 + rtol / 2`` of it. Returns the target, 0 when the bound fails at 0, or None
+    when there is no solution at 0.
     """
     G = side.max_gain
     aim = G / math.sqrt(1 + rtol)

@@ -70,7 +70,6 @@ class YoungDesign(Design):
     def _normalisation(self) -> str:
         return f"the normalisation Q, R << {self.cap:g} I, slack <= 1"
 
-    # -- the flow -------------------------------------------------------------------------------
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the design for ``plant`` with ``constants``; a failure's reason names the scaled variant."""
         res = self._design(plant, constants)

@@ -8,8 +8,7 @@ has a solution P > 0, then ``K = P C' / (2 eps)`` makes the estimation error of
 ``x_hat' = A x_hat + B u + f(x_hat) + K (y - C x_hat)`` converge for every f with Lipschitz
 constant alpha (V = e' P^{-1} e). The equation is solved with scipy's
 ``solve_continuous_are(A', [C', I], (1 + eps) I, diag(eps I_p, -I_n / alpha^2))``: the
-indefinite weight makes ``B R^{-1} B' = C'C/eps - alpha^2 I``. eps is searched on a log grid;
-the solution must have P > 0, a residual below ``residual_tol`` (relative) and A - KC Hurwitz.
+indefinite weight makes ``B R^{-1} B' = C'C/eps - alpha^2 I`` (eps searched: :class:`RHRiccati`).
 
 References
 ----------

@@ -17,7 +17,6 @@ For a plant that declares ``f(x) = G phi(H x)`` with channel slopes in ``[lo, hi
 
 Both sides are homogeneous, so ``Q >= I`` and ``R >= I`` fix their scale, and each side
 minimises a bound on its gain (``||Y|| <= kF`` gives ``||F|| <= kF``; likewise ``||K|| <= kK``).
-The decay target is searched for the largest value at which both gains stay within ``max_gain``.
 
 Two routes solve the sides (``route``): ``"sdp"`` (the LMIs above, Clarabel or SCS) and
 ``"riccati"`` (one scalar multiplier per side, each side an algebraic Riccati equation:
@@ -48,7 +47,6 @@ from plants import Constants, Plant
 
 __all__ = ["Structured"]
 
-#: ``route="auto"`` solves the sides by Riccati equations (O(n^3)) from this n on, the SDP sides below it.
 RICCATI_FROM_N = 64
 
 
