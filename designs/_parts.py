@@ -47,10 +47,9 @@ def check_weight(name: str, W, size: int | None, *, definite: bool) -> np.ndarra
         raise DesignError(f"{name}: must be symmetric")
     lo = float(np.linalg.eigvalsh(M)[0])
     tol = 1e-12 * max(1.0, float(np.abs(M).max()))
-    if definite and lo <= tol:
-        raise DesignError(f"{name}: must be positive definite (smallest eigenvalue {lo:.3g})")
-    if not definite and lo < -tol:
-        raise DesignError(f"{name}: must be positive semidefinite (smallest eigenvalue {lo:.3g})")
+    if lo <= tol if definite else lo < -tol:
+        kind = "definite" if definite else "semidefinite"
+        raise DesignError(f"{name}: must be positive {kind} (smallest eigenvalue {lo:.3g})")
     return M
 
 

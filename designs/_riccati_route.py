@@ -674,7 +674,7 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     if isinstance(found, str):
         res.reason = found
     else:
-        _certify_pair(res, lp, *found, res.s, res.t)
+        _certify_pair(res, lp, *found)
         res.timings["certificate"] = time.perf_counter() - t1
     res.timings["total"] = time.perf_counter() - t_start
     return res
@@ -759,13 +759,12 @@ def _check_shapes(A, B, C, G, H, lo, hi) -> int:
     return q
 
 
-def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, lam: float, x: SideSolution, e: SideSolution, s: float,
-                  t: float) -> None:
+def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, lam: float, x: SideSolution, e: SideSolution) -> None:
     """Fill ``res`` (in place) with the sides' solutions at the target ``lam`` and the joint certificate."""
     res.lam = lam
     # normalise P and R to a unit largest eigenvalue: (P, s) -> (P/a, s a), (R, t) -> (R/b, t/b) keep both sides
     a_x, a_e = x.max_eig, e.max_eig
-    res.P, res.R, res.s, res.t = x.P / a_x, e.P / a_e, s * a_x, t / a_e
+    res.P, res.R, res.s, res.t = x.P / a_x, e.P / a_e, res.s * a_x, res.t / a_e
     res.F, res.K = x.gain, e.gain
     res.tau, res.tau_e = x.tau, e.tau
     res.residual_x, res.residual_e = x.are.residual, e.are.residual

@@ -88,9 +88,8 @@ def young_layout(n: int, eside: Callable[[dict], list], schur_weight: Callable[[
         return rows if schur_weight is None else append_schur_column(rows, Q, -schur_weight(d) * I)
 
     def xside(d):
-        if schur_weight is None:
-            return [[s11(d)]]
-        return [[s11(d), d["Q"]], [d["Q"], -schur_weight(d) * I]]
+        rows = [[s11(d)]]
+        return rows if schur_weight is None else append_schur_column(rows, d["Q"], -schur_weight(d) * I)
 
     return joint, xside, eside
 
