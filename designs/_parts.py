@@ -1,9 +1,4 @@
-"""Observer-based controllers composed of a feedback part (F) and an estimator part (K or EKF).
-
-A *part* is a frozen dataclass of hyperparameters whose ``compute(plant, constants)`` returns a
-:class:`designs.DesignResult` with its half of the controller; :func:`register_pairing` registers a
-pairing ``"feedback+estimator"`` as a design that runs both parts and merges their evidence.
-"""
+"""Observer-based controllers composed of a feedback part (F) and an estimator part (K or EKF)."""
 
 from __future__ import annotations
 
@@ -52,10 +47,9 @@ def check_weight(name: str, W, size: int | None, *, definite: bool) -> np.ndarra
         raise DesignError(f"{name}: must be symmetric")
     lo = float(np.linalg.eigvalsh(M)[0])
     tol = 1e-12 * max(1.0, float(np.abs(M).max()))
-    if definite and lo <= tol:
-        raise DesignError(f"{name}: must be positive definite (smallest eigenvalue {lo:.3g})")
-    if not definite and lo < -tol:
-        raise DesignError(f"{name}: must be positive semidefinite (smallest eigenvalue {lo:.3g})")
+    if lo <= tol if definite else lo < -tol:
+        kind = "definite" if definite else "semidefinite"
+        raise DesignError(f"{name}: must be positive {kind} (smallest eigenvalue {lo:.3g})")
     return M
 
 

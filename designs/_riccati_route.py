@@ -16,11 +16,10 @@ relative to the natural scales ``tau0 = sigma / ||B||^2``, ``eps0 = sigma``, ``s
 
 The design searches the e-side's largest decay target whose gain stays within ``max_gain``
 (:func:`_search`), solves and verifies both sides there (:func:`_targets`) and certifies the pair
-by :func:`bench.joint.certify`, which measures the rate the certificate proves. The AREs (indefinite
-``M``, the stabilizing solution) are solved by the matrix sign function of the Hamiltonian
-(:func:`_sign_are`; single precision from :data:`SINGLE_FROM_N` states, refined by Newton's method,
-:func:`_newton`), with scipy's ordered Schur method as the other method (:func:`solve_are`). A
-solution is used only through its side's Lyapunov test, which also proves the closed loop Hurwitz.
+by :func:`bench.joint.certify`. The AREs (indefinite ``M``, the stabilizing solution) are solved by the
+matrix sign function of the Hamiltonian (:func:`_sign_are`, :func:`_newton`) or scipy's ordered Schur
+method (:func:`solve_are`). A solution is used only through its side's Lyapunov test, which also proves
+the closed loop Hurwitz.
 
 References
 ----------
@@ -58,10 +57,9 @@ TAU_GRID = (1.0, 10.0, 1e2, 1e3, 1e4, 1e5)
 EPS_GRID = (1e-2, 1e-4)
 
 
-def _eig_at(M: np.ndarray, index: int) -> float:
-    """The ``index``-th smallest eigenvalue of a symmetric M (``-1``: the largest)."""
-    k = M.shape[0]
-    i = index % k
+def _max_eig(M: np.ndarray) -> float:
+    """The largest eigenvalue of a symmetric M."""
+    i = M.shape[0] - 1
     try:
         return float(sla.eigvalsh(M, subset_by_index=[i, i], check_finite=False)[0])
     except (np.linalg.LinAlgError, ValueError):  # LAPACK's subset driver can fail on clustered spectra
@@ -74,7 +72,7 @@ def _norm2(X: np.ndarray) -> float:
     if X.size == 0:
         return 0.0
     Gm = X.T @ X if X.shape[0] >= X.shape[1] else X @ X.T
-    return float(math.sqrt(max(_eig_at(Gm, -1), 0.0)))
+    return float(math.sqrt(max(_max_eig(Gm), 0.0)))
 
 
 @dataclass(frozen=True)
@@ -99,13 +97,11 @@ def _are_residual(a, M, q, X) -> float:
 
 def _sign_are(a, M, q, *, tol=1e-6, maxit=60, single=False):
     """The Newton iteration ``Z <- (c Z + Z^-1 / c) / 2`` for the sign of the Hamiltonian, determinant
-    scaling ``c = |det Z|^(-1/2n)`` in the first 8 steps, each inverse by LAPACK's getrf + getrs (getri
-    is faster alone but does not run concurrently with itself in OpenBLAS, and the route solves two
-    sides or two targets at once: :func:`bench._env.parallel`). It stops
-    when the relative step is below ``tol`` (the convergence is quadratic: the iterate's error is then of
-    the order of its square) and fails when, after 12 steps, a step no longer halves. X solves the
+    scaling ``c = |det Z|^(-1/2n)`` in the first 8 steps, each inverse by LAPACK's getrf + getrs. It stops
+    when the relative step is below ``tol`` and fails when, after 12 steps, a step no longer halves. X solves the
     stacked system ``[W12; W22 + I] X = -[W11 + I; W21]`` of ``W = sign(Z)`` by QR. ``single``: the
-    iteration in single precision (half the time; X to about 1e-4, for the search's gain estimates)."""
+    iteration in single precision (X to about 1e-4, for the search's gain estimates). Returns X (or None) and
+    the reason of a failure."""
     n = a.shape[0]
     dtype = np.float32 if single else np.float64
     getrf, getrs = (lapack.sgetrf, lapack.sgetrs) if single else (lapack.dgetrf, lapack.dgetrs)
@@ -114,29 +110,26 @@ def _sign_are(a, M, q, *, tol=1e-6, maxit=60, single=False):
     err = math.inf
     for it in range(maxit):
         lu, piv, info = getrf(Z)
-        if info != 0:
-            return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
         with np.errstate(divide="ignore"):
             logdet = float(np.sum(np.log(np.abs(np.diag(lu)), dtype=np.float64)))
-        Zn, info = getrs(lu, piv, I2)
-        if info != 0 or not math.isfinite(logdet):
-            return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
+        Zn, info2 = getrs(lu, piv, I2)
+        if info != 0 or info2 != 0 or not math.isfinite(logdet):
+            return None, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
         c = math.exp(-logdet / (2 * n)) if it < 8 else 1.0  # determinant scaling while far off
         with np.errstate(over="ignore", invalid="ignore"):
             Zn *= Zn.dtype.type(0.5 / c)
             Zn += Zn.dtype.type(0.5 * c) * Z  # in place: the next iterate, and Z - Zn its step (Frobenius norms)
             Z -= Zn
-        with np.errstate(over="ignore", invalid="ignore"):
             err, prev = float(np.linalg.norm(Z)) / max(float(np.linalg.norm(Zn)), 1e-300), err
         Z = Zn
         if not math.isfinite(err):
-            return None, True, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
+            return None, "sign iteration: singular iterate: eigenvalues on the imaginary axis"
         if err < tol:
             break
         if it >= 12 and err > 0.5 * prev:  # no quadratic convergence: eigenvalues on or near the axis
-            return None, True, f"sign iteration stalled at relative step {err:.2g} (eigenvalues near the imaginary axis)"
+            return None, f"sign iteration stalled at relative step {err:.2g} (eigenvalues near the imaginary axis)"
     else:
-        return None, True, f"sign iteration did not converge in {maxit} steps (eigenvalues near the imaginary axis)"
+        return None, f"sign iteration did not converge in {maxit} steps (eigenvalues near the imaginary axis)"
     Z = Z.astype(np.float64, copy=False)
     I = np.eye(n)
     lhs = np.vstack([Z[:n, n:], Z[n:, n:] + I])
@@ -145,8 +138,8 @@ def _sign_are(a, M, q, *, tol=1e-6, maxit=60, single=False):
     try:
         X = sla.solve_triangular(Rf, Qf.T @ rhs, check_finite=False)
     except np.linalg.LinAlgError:
-        return None, False, "sign iteration: the stacked system for X is singular"
-    return X, False, ""
+        return None, "sign iteration: the stacked system for X is singular"
+    return X, ""
 
 
 def _lyap_sign(A, Q, *, tol=1e-4, maxit=40):
@@ -160,12 +153,10 @@ def _lyap_sign(A, Q, *, tol=1e-4, maxit=40):
     I = np.asfortranarray(np.eye(n, dtype=np.float32))
     for it in range(maxit):
         lu, piv, info = lapack.sgetrf(Ak)
-        if info != 0:
-            return None
-        Ai, info = lapack.sgetrs(lu, piv, I)
+        Ai, info2 = lapack.sgetrs(lu, piv, I)
         with np.errstate(divide="ignore"):
             logdet = float(np.sum(np.log(np.abs(np.diag(lu)), dtype=np.float64)))
-        if info != 0 or not math.isfinite(logdet):
+        if info != 0 or info2 != 0 or not math.isfinite(logdet):
             return None
         c = np.float32(math.exp(-logdet / n) if it < 8 else 1.0)  # |det(c A)| = 1
         with np.errstate(over="ignore", invalid="ignore"):
@@ -184,8 +175,7 @@ def _lyap_sign(A, Q, *, tol=1e-4, maxit=40):
 
 def _newton(a, M, q, X, residual_tol, steps=5):
     """Newton (Kleinman) steps ``X <- X + D``, ``(a - M X)' D + D (a - M X) = -(a' X + X a - X M X + q)``
-    from an approximate solution: the residual in double precision, D by :func:`_lyap_sign`. Each
-    step squares the relative error of X until D's own error (about 1e-4 of D) dominates. The steps
+    from an approximate solution: the residual in double precision, D by :func:`_lyap_sign`. The steps
     go on to ``residual_tol / 100`` while each cuts the relative residual tenfold. Returns X (None unless
     it is within ``residual_tol``) and its relative residual."""
     X = lmi.sym(np.asarray(X, dtype=np.float64))
@@ -208,9 +198,9 @@ def _newton(a, M, q, X, residual_tol, steps=5):
     return (X if res_now <= residual_tol else None), res_now
 
 
-def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallback_max_n: int = 512,
-              residual_tol: float = RESIDUAL_TOL, X0=None) -> tuple[np.ndarray | None, AREInfo]:
-    """Stabilizing solution of ``a' X + X a - X b diag(rr)^{-1} b' X + q = 0`` (rr may be indefinite).
+def solve_are(a, b, rr, q, *, method: str = "sign", X0=None) -> tuple[np.ndarray | None, AREInfo]:
+    """Stabilizing solution of ``a' X + X a - X b diag(rr)^{-1} b' X + q = 0`` (rr may be indefinite), its relative
+    residual within :data:`RESIDUAL_TOL`.
 
     Parameters
     ----------
@@ -222,14 +212,6 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
         Symmetric.
     method : {"sign", "scipy"}
         See the module docstring.
-    fallback : bool
-        If the chosen method fails an accuracy check (residual, symmetry), try
-        ``"scipy"`` (balanced QZ on the extended pencil). Not when the Hamiltonian has eigenvalues
-        on (or within rounding of) the imaginary axis: no method has a stabilizing solution then.
-    fallback_max_n : int
-        No fallback above this n.
-    residual_tol : float
-        Largest relative residual accepted.
     X0 : ndarray, optional
         An approximate solution (``"sign"``: refined by Newton steps instead of the single-precision
         sign iteration).
@@ -250,54 +232,39 @@ def solve_are(a, b, rr, q, *, method: str = "sign", fallback: bool = True, fallb
     if np.any(rr == 0) or not np.all(np.isfinite(rr)):
         raise ValueError(f"rr: weights must be finite and nonzero, got {rr.tolist()}")
     M = lmi.sym((b / rr) @ b.T)
-    n = a.shape[0]
-    X, max_re, definite, reason, res = _solve_by(method, a, b, rr, M, q, X0, residual_tol)
+    X, max_re, reason, res = _solve_by(method, a, b, rr, M, q, X0)
     if X is not None:
-        X, res, reason = _accurate(X, a, M, q, max_re, residual_tol, res)
-    info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re, reason=reason)
-    if X is None and fallback and method != "scipy" and not definite and n <= fallback_max_n:
-        X2, info2 = solve_are(a, b, rr, q, method="scipy", fallback=False, residual_tol=residual_tol)
-        if X2 is not None:
-            return X2, info2
-        info = AREInfo(method=method, residual=res, closed_loop_max_re=max_re,
-                       reason=f"{reason}; scipy fallback: {info2.reason}")
-    return X, info
+        X, res, reason = _accurate(X, a, M, q, max_re, res)
+    return X, AREInfo(method=method, residual=res, closed_loop_max_re=max_re, reason=reason)
 
 
-def _solve_by(method: str, a, b, rr, M, q, X0=None,
-              residual_tol=RESIDUAL_TOL) -> tuple[np.ndarray | None, float, bool, str, float | None]:
-    """One ARE solve by ``method``: ``X`` (None on failure), the largest real part of ``a - M X``, whether
-    the failure is definite (Hamiltonian eigenvalues on, or within rounding of, the imaginary axis: no
-    method has a stabilizing solution), the reason of a failure and X's relative residual when known.
-    ``"sign"``: the sign iteration in single precision (or ``X0``) refined by Newton steps
-    (:func:`_newton`), else in double precision."""
-    X, max_re, reason, definite, res = None, math.inf, "", False, None
+def _solve_by(method: str, a, b, rr, M, q, X0) -> tuple[np.ndarray | None, float, str, float | None]:
+    """One ARE solve by ``method``: ``X`` (None on failure), the largest real part of ``a - M X``, the reason
+    of a failure and X's relative residual when known. ``"sign"``: the sign iteration in single precision
+    (or ``X0``) refined by Newton steps (:func:`_newton`), else in double precision."""
+    X, max_re, reason, res = None, math.inf, "", None
     try:
         if method == "sign":
             if X0 is None and a.shape[0] >= SINGLE_FROM_N:
                 X0 = _sign_are(a, M, q, tol=1e-2, single=True)[0]
             if X0 is not None:
-                X, res = _newton(a, M, q, X0, residual_tol)
+                X, res = _newton(a, M, q, X0, RESIDUAL_TOL)
             if X is None:
-                (X, definite, reason), res = _sign_are(a, M, q), None
-            # the side's Lyapunov test (P > 0, side matrix < 0) proves the closed loop Hurwitz; the spectrum
-            # is computed only where it is cheap
-            if X is not None and a.shape[0] <= 128:
-                max_re = float(np.linalg.eigvals(a - M @ X).real.max())
-            else:
-                max_re = -math.inf
+                (X, reason), res = _sign_are(a, M, q), None
         else:
             X = sla.solve_continuous_are(a, b, q, np.diag(rr))
+        if X is not None and (method == "scipy" or a.shape[0] <= 128):
             max_re = float(np.linalg.eigvals(a - M @ X).real.max())
+        else:
+            max_re = -math.inf
     except (np.linalg.LinAlgError, ValueError) as exc:
         X, reason = None, f"{method}: {str(exc).splitlines()[0]}"
-    return X, max_re, definite, reason, res
+    return X, max_re, reason, res
 
 
-def _accurate(X: np.ndarray, a, M, q, max_re: float, residual_tol: float,
-              res: float | None = None) -> tuple[np.ndarray | None, float, str]:
+def _accurate(X: np.ndarray, a, M, q, max_re: float, res: float | None) -> tuple[np.ndarray | None, float, str]:
     """The accuracy checks of a solution: finite, symmetric (relative asymmetry <= 1e-6), relative residual
-    (``res`` when the caller has it) within ``residual_tol``, ``a - M X`` Hurwitz. Returns the symmetrised X
+    (``res`` when the caller has it) within :data:`RESIDUAL_TOL`, ``a - M X`` Hurwitz. Returns the symmetrised X
     (None when a check fails), the residual and the reason of a failure."""
     if not np.all(np.isfinite(X)):
         return None, math.inf, "non-finite solution"
@@ -307,8 +274,8 @@ def _accurate(X: np.ndarray, a, M, q, max_re: float, residual_tol: float,
     reason = ""
     if asym > 1e-6:
         reason = f"solution not symmetric (relative asymmetry {asym:.2g})"
-    elif not res <= residual_tol:
-        reason = f"ARE residual {res:.2g} above {residual_tol:g}"
+    elif not res <= RESIDUAL_TOL:
+        reason = f"ARE residual {res:.2g} above {RESIDUAL_TOL:g}"
     elif not max_re < 0:
         reason = f"a - M X is not Hurwitz (largest real part {max_re:.3g}): not the stabilizing solution"
     return (None if reason else X), res, reason
@@ -331,9 +298,9 @@ class SideSolution:
         Smallest eigenvalue of P (or R) over its largest.
     max_eig : float
         Largest eigenvalue of P (or R).
-    multiplier, tau, eps, lam : float
-        s (or t), tau (or tau'), eps, and the rate at which the side matrix is verified (the ARE's
-        decay target over ``1 + RATE_RTOL``).
+    tau, lam : float
+        tau (or tau') and the rate at which the side matrix is verified (the ARE's decay target over
+        ``1 + RATE_RTOL``).
     are : AREInfo
     """
 
@@ -341,9 +308,7 @@ class SideSolution:
     gain: np.ndarray
     side_matrix: np.ndarray
     min_eig: float
-    multiplier: float
     tau: float
-    eps: float
     are: AREInfo
     lam: float = 0.0
     max_eig: float = 1.0
@@ -364,9 +329,6 @@ def _pos_def(P: np.ndarray) -> tuple[float, float]:
 
 
 def _loop(A0, B, C, G, H, r) -> joint.Loop:
-    n = A0.shape[0]
-    C = np.zeros((0, n)) if C is None else C
-    B = np.zeros((n, 0)) if B is None else B
     r = np.asarray(r, dtype=float).reshape(-1)
     return joint.loop(A0, B, C, G, H, -r, r)
 
@@ -379,9 +341,9 @@ def _side_terms(inputs, acts, reads, mult, tau, eps) -> tuple[np.ndarray, np.nda
 
 
 def _side_are(a, inputs, acts, reads, mult, tau, eps, method, X0=None):
-    """One side's ARE (:func:`_side_terms`) by :func:`solve_are`, without its fallback."""
+    """One side's ARE (:func:`_side_terms`) by :func:`solve_are`."""
     b, rr, q = _side_terms(inputs, acts, reads, mult, tau, eps)
-    return solve_are(a, b, rr, q, method=method, fallback=False, X0=X0)  # a failing probe is a failed probe
+    return solve_are(a, b, rr, q, method=method, X0=X0)
 
 
 def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign", X0=None) -> tuple[SideSolution | None, str]:
@@ -409,13 +371,11 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign", X0=N
     -------
     (SideSolution or None, str)
         The verified solution (P > 0, ``Mx(lam / (1 + RATE_RTOL)) < 0``, its ``lam`` that rate) and
-        ``""``, or None and the reason in words. At the ARE's solution ``Mx(lam) = -eps I`` on this side
-        but ``-eps R^2`` on the e-side, which rounding can make marginal when R is ill-conditioned;
-        at the lower rate the side matrix has ``-2 lam RATE_RTOL / (1 + RATE_RTOL) R`` more.
+        ``""``, or None and the reason in words.
     """
     A0, B = np.asarray(A0, dtype=float), np.asarray(B, dtype=float)
-    lp = _loop(A0, B, None, G, H, r)
     n = A0.shape[0]
+    lp = _loop(A0, B, np.zeros((0, n)), G, H, r)
     P, info = _side_are(A0 + lam * np.eye(n), B, lp.G, lp.DH, s, tau, eps, method, X0)
     if P is None:
         return None, f"x-side ARE: {info.reason}"
@@ -425,7 +385,7 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign", X0=N
     F = -tau * (B.T @ P)
     lam = lam / (1 + RATE_RTOL)
     Mx = joint.side_matrices(lp, F, np.zeros((n, 0)), P, np.eye(n), s, 1.0, lam)[0]
-    return _verified_side("x-side", Mx, P, F, (pmin, pmax), s, tau, eps, lam, info)
+    return _verified_side("x-side", Mx, P, F, (pmin, pmax), tau, lam, info)
 
 
 def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign", X0=None) -> tuple[SideSolution | None, str]:
@@ -435,8 +395,8 @@ def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign", X0=N
     is R and ``.gain`` is K).
     """
     A0, C = np.asarray(A0, dtype=float), np.asarray(C, dtype=float)
-    lp = _loop(A0, None, C, G, H, r)
     n = A0.shape[0]
+    lp = _loop(A0, np.zeros((n, 0)), C, G, H, r)
     X, info = _side_are((A0 + lam * np.eye(n)).T, C.T, lp.DH.T, lp.G.T, t, tau, eps, method, X0)
     if X is None:
         return None, f"e-side ARE: {info.reason}"
@@ -451,16 +411,16 @@ def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign", X0=N
     K = tau * (X @ C.T)
     lam = lam / (1 + RATE_RTOL)
     Me = joint.side_matrices(lp, np.zeros((0, n)), K, np.eye(n), R, 1.0, t, lam)[1]
-    return _verified_side("e-side", Me, R, K, (rmin, rmax), t, tau, eps, lam, info)
+    return _verified_side("e-side", Me, R, K, (rmin, rmax), tau, lam, info)
 
 
-def _verified_side(side, M, P, gain, eigs, mult, tau, eps, lam, info) -> tuple[SideSolution | None, str]:
+def _verified_side(side, M, P, gain, eigs, tau, lam, info) -> tuple[SideSolution | None, str]:
     """The side's solution when its matrix is verified negative definite (:func:`bench.joint.verdict`)."""
     v = joint.verdict(M)
     if v != "verified":
         return None, f"{side} matrix not verified negative definite ({v})"
-    return SideSolution(P=P, gain=gain, side_matrix=M, min_eig=eigs[0], max_eig=eigs[1], multiplier=mult, tau=tau,
-                        eps=eps, are=info, lam=lam), ""
+    return SideSolution(P=P, gain=gain, side_matrix=M, min_eig=eigs[0], max_eig=eigs[1], tau=tau, are=info,
+                        lam=lam), ""
 
 
 @dataclass
@@ -550,7 +510,7 @@ class _Side:
             tau, eps = self.grid[i]
             a, M, q = self.are_data(lam, tau, eps)
             single = a.shape[0] >= SINGLE_FROM_N
-            X, _, why = _sign_are(a, M, q, tol=1e-2 if single else 1e-6, single=single)
+            X, why = _sign_are(a, M, q, tol=1e-2 if single else 1e-6, single=single)
             g = self.gain_of(X, tau) if X is not None else math.inf
             out.append((i, g if math.isfinite(g) else math.inf, X, why))
             if math.isfinite(g):
@@ -590,12 +550,8 @@ class _Side:
         """The verified solution at ``lam`` (None: none on the grid; the gain bound is not checked)."""
         if lam in self.found:
             return self.found[lam]
-        order = list(range(len(self.grid)))
-        if self.pick is not None:
-            order.remove(self.pick)
-            order.insert(0, self.pick)
         sol = None
-        for i in order:
+        for i in sorted(range(len(self.grid)), key=lambda i: i != self.pick):  # the picked point first
             tau, eps = self.grid[i]
             sol, why = self.solve_at(lam, tau, eps, self.start.get((lam, i)))
             self.tries.append((self.label, lam, tau, eps, why or "ok"))
@@ -611,15 +567,14 @@ def _search(side: _Side, top: float, rtol: float, companion: _Side | None = None
 
     First ``t1 = min(1/8, top/2)`` and ``t1/8`` are estimated (:meth:`_Side.estimate`, concurrently).
     With a passing target ``lo`` and a failing one ``up`` the next target is where the power law
-    through them, ``g(l) = g(lo) (l / lo)^p``, meets ``max_gain / sqrt(1 + rtol)`` (inside the
-    accepted band); above the passing targets the power law of the two largest is extrapolated (at
-    most 8 times up); without a solution at ``up``, the geometric mean; when every target fails,
-    ``min / 8`` and 0. Beside each next target, on the other core, the ``companion`` side is estimated
-    there (its solve at the final target then starts from it), or without a companion the target
-    times ``1 + rtol`` (the power law's chord lies above a gain convex in log-log, so it aims low).
-    It stops when the passing gain is within ``1 + rtol`` of the bound, a failing target within
-    ``1 + rtol`` of the passing one, or the next target within ``1 + rtol / 2`` of it. Returns the
-    target, 0 when the bound fails at 0, or None when there is no solution at 0.
+    through them, ``g(l) = g(lo) (l / lo)^p``, meets ``max_gain / sqrt(1 + rtol)``; above the
+    passing targets the power law of the two largest is extrapolated (at most 8 times up); without a
+    solution at ``up``, the geometric mean; when every target fails, ``min / 8`` and 0. Beside each
+    next target the ``companion`` side is estimated there (its solve at the final target then starts
+    from it), or without a companion the target times ``1 + rtol``. It stops when the passing gain is
+    within ``1 + rtol`` of the bound, a failing target within ``1 + rtol`` of the passing one, or the
+    next target within ``1 + rtol / 2`` of it. Returns the target, 0 when the bound fails at 0, or None
+    when there is no solution at 0.
     """
     G = side.max_gain
     aim = G / math.sqrt(1 + rtol)
@@ -719,7 +674,7 @@ def structured_riccati(A, B, C, G, H, lo, hi, *, lam: float | None = 0.0, max_ga
     if isinstance(found, str):
         res.reason = found
     else:
-        _certify_pair(res, lp, *found, res.s, res.t)
+        _certify_pair(res, lp, *found)
         res.timings["certificate"] = time.perf_counter() - t1
     res.timings["total"] = time.perf_counter() - t_start
     return res
@@ -753,8 +708,7 @@ def _targets(xs: _Side, es: _Side, lam: float | None, top: float, rtol: float) -
     A fixed ``lam``: both sides there. Searched: the e-side's target (:func:`_search`), both sides
     solved there concurrently; a side whose verified solution fails (or exceeds the gain bound) steps
     down to the next lower target estimated to pass (its own search for the x-side), and the other
-    side is solved at the lower target too (the joint rate is the slower side's). At target 0 a
-    solution is kept whatever its gain (the smallest gains found)."""
+    side is solved at the lower target too. At target 0 a solution is kept whatever its gain."""
     target = lam if lam is not None else _search(es, top, rtol, companion=xs)
     for _ in range(8):
         if target is None:
@@ -783,9 +737,8 @@ def _targets(xs: _Side, es: _Side, lam: float | None, top: float, rtol: float) -
 
 def _scales(lp: joint.Loop, B: np.ndarray, C: np.ndarray, s: float | None,
             t: float | None) -> tuple[float, float, float, float, float]:
-    """The natural scales (module docstring): ``sigma = ||Dr H|| ||G||`` (``||A0||`` without channels), the
-    multipliers ``s`` (default ``||Dr H|| / ||G||``) and ``t`` (default its inverse), and the gain scales
-    ``tau0 = sigma / ||B||^2`` (x-side) and ``sigma / ||C||^2`` (e-side)."""
+    """The module docstring's ``(sigma, s, t, tau0, tau0')``, ``tau0' = sigma / ||C||^2``, ``sigma = ||A0||`` without
+    channels; ``s``, ``t`` when given."""
     nG, nDH = _norm2(lp.G), _norm2(lp.DH)
     sigma, s0 = (nG * nDH, nDH / nG) if nG > 0 and nDH > 0 else (max(_norm2(lp.A0), 1e-12), 1.0)
     s = s0 if s is None else float(s)
@@ -806,13 +759,12 @@ def _check_shapes(A, B, C, G, H, lo, hi) -> int:
     return q
 
 
-def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, lam: float, x: SideSolution, e: SideSolution, s: float,
-                  t: float) -> None:
+def _certify_pair(res: RiccatiRouteResult, lp: joint.Loop, lam: float, x: SideSolution, e: SideSolution) -> None:
     """Fill ``res`` (in place) with the sides' solutions at the target ``lam`` and the joint certificate."""
     res.lam = lam
     # normalise P and R to a unit largest eigenvalue: (P, s) -> (P/a, s a), (R, t) -> (R/b, t/b) keep both sides
     a_x, a_e = x.max_eig, e.max_eig
-    res.P, res.R, res.s, res.t = x.P / a_x, e.P / a_e, s * a_x, t / a_e
+    res.P, res.R, res.s, res.t = x.P / a_x, e.P / a_e, res.s * a_x, res.t / a_e
     res.F, res.K = x.gain, e.gain
     res.tau, res.tau_e = x.tau, e.tau
     res.residual_x, res.residual_e = x.are.residual, e.are.residual

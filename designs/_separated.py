@@ -88,9 +88,8 @@ def young_layout(n: int, eside: Callable[[dict], list], schur_weight: Callable[[
         return rows if schur_weight is None else append_schur_column(rows, Q, -schur_weight(d) * I)
 
     def xside(d):
-        if schur_weight is None:
-            return [[s11(d)]]
-        return [[s11(d), d["Q"]], [d["Q"], -schur_weight(d) * I]]
+        rows = [[s11(d)]]
+        return rows if schur_weight is None else append_schur_column(rows, d["Q"], -schur_weight(d) * I)
 
     return joint, xside, eside
 
@@ -185,7 +184,6 @@ def _failed_sides(xprog: lmi.Program, eprog: lmi.Program, X: np.ndarray, E: np.n
     bad = [name for name, (verdict, _) in sides.items() if verdict != "verified"]
     if not bad:
         return None
-    # a solver that claimed a positive margin its point does not have: undecided, not infeasible
     claimed = [name for name in bad if float(sides[name][1].values()["slack"]) > lmi.verify_tol(X if name == "x-side" else E)]
     margins = f"max eig x-side {lx:.3g}, e-side {le:.3g}"
     if claimed:
@@ -257,10 +255,8 @@ def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_nam
     :class:`DesignResult`; ``phi_name`` names the Young weight, ``extra_params(values)`` adds the design's scalars,
     ``decide=False`` leaves a side that is not strictly feasible undecided.
     """
-    xprog = form.side_program(plant, "x-side", cap=cap)
-    eprog = form.side_program(plant, "e-side", cap=cap)
-    xlog = lmi.solve_side(xprog, solver, plant.n)
-    elog = lmi.solve_side(eprog, solver, plant.n)
+    xprog, eprog = (form.side_program(plant, side, cap=cap) for side in SIDE_MATRIX)
+    xlog, elog = (lmi.solve_side(prog, solver, plant.n) for prog in (xprog, eprog))
     rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, form=form,
                    decide=(lambda side: form.decide_side(plant, side, cap=cap, solver=solver)) if decide else None)
     K = F = None
@@ -268,13 +264,11 @@ def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_nam
     if rc["status"] == "feasible":
         K, F = paper_gains_from(vals)
     used = "+".join(dict.fromkeys((xprog.solver, eprog.solver)))
-    compile_s, solve_s, n_solves = rc["cost"]
     return DesignResult(
         status=rc["status"], reason=rc["reason"] and f"{form.what} (separated): {rc['reason']}", route="sdp",
-        K=K, F=F, solver=used, solver_status=f"x {xlog}; e {elog}",
-        compile_s=xprog.compile_s + eprog.compile_s + compile_s, solve_s=xprog.solve_s + eprog.solve_s + solve_s,
-        n_solves=xprog.n_solves + eprog.n_solves + n_solves, margin=rc["margin"], lmi_size=rc["lmi_size"],
-        min_eig=rc["min_eig"],
+        K=K, F=F, solver=used, solver_status=f"x {xlog}; e {elog}", margin=rc["margin"], lmi_size=rc["lmi_size"],
+        min_eig=rc["min_eig"], **{k: getattr(xprog, k) + getattr(eprog, k) + c
+                                  for k, c in zip(("compile_s", "solve_s", "n_solves"), rc["cost"])},
         params={"form": "separated (x-side and e-side apart, joint certificate rebuilt)", phi_name: rc["phi"],
                 "e_scale": rc["scale"], "x_margin": rc["x_margin"], "e_margin": rc["e_margin"],
                 "raw_joint_margin": rc.get("raw_margin", float("nan")), "cap": cap, **extra_params(vals)})

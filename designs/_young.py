@@ -1,8 +1,10 @@
 """The design flow shared by the corrected Theorem 1 and Corollary 1 (``docs/paper.md``).
 
 Both are one LMI in the Young layout (:func:`designs._separated.young_layout`), solved jointly or side
-by side (:class:`YoungDesign`'s ``method``). A subclass names its Young weight (:attr:`YoungDesign.phi_name`),
-builds its LMI (:meth:`YoungDesign.form`) and says which scalars it reports.
+by side (:class:`YoungDesign`'s ``method``). A subclass names its Young weight (:attr:`YoungDesign.phi_name`)
+and provides ``form(plant, constants)``, its :class:`designs._separated.YoungForm`, and
+``solved_params(vals, constants, phi=None)``, the scalars a joint solve at the Young weight ``phi`` (None: a
+separated solve) reports.
 """
 
 from __future__ import annotations
@@ -68,16 +70,6 @@ class YoungDesign(Design):
     def _normalisation(self) -> str:
         return f"the normalisation Q, R << {self.cap:g} I, slack <= 1"
 
-    # -- what a subclass provides ---------------------------------------------------------------
-    def form(self, plant: Plant, constants: Constants) -> YoungForm:  # pragma: no cover
-        """The design's LMI for ``plant`` with ``constants``."""
-        raise NotImplementedError
-
-    def solved_params(self, vals: dict, constants: Constants, phi: float | None = None) -> dict:  # pragma: no cover
-        """The scalars a joint solve at the Young weight ``phi`` (None: a separated solve) reports, from ``vals``."""
-        raise NotImplementedError
-
-    # -- the flow -------------------------------------------------------------------------------
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the design for ``plant`` with ``constants``; a failure's reason names the scaled variant."""
         res = self._design(plant, constants)

@@ -1,7 +1,6 @@
 """LMI observers for Lipschitz (Rajamani-style) and OSL/QIB (Zhang et al. 2012) systems.
 
-Both solve a 2n x 2n LMI maximising a margin ``slack`` under ``P << cap I`` (the LMIs are homogeneous,
-so the cap only fixes the scale), verified with numpy like every LMI of the suite
+Both solve a 2n x 2n LMI maximising a margin ``slack`` under ``P << cap I``, verified with numpy
 (:func:`bench.lmi.solve_side`).
 
 References
@@ -29,7 +28,7 @@ __all__ = ["RajamaniLMI", "ZhangOSL"]
 
 @dataclass(frozen=True, kw_only=True)
 class _ObserverLMI(Part):
-    """The hyperparameters of an observer LMI: decay rate ``lam`` asked for, normalisation cap, solver."""
+    """The hyperparameters of an observer LMI: ``decay`` (lam >= 0) asks for ``V' <= -2 lam V``; cap, solver."""
 
     decay: float = 0.0
     cap: float = 1e3
@@ -72,7 +71,7 @@ class RajamaniLMI(_ObserverLMI):
     """Lipschitz LMI observer: [(A-KC)'P + P(A-KC) + eps alpha^2 I + 2 lam P, P; P, -eps I] < 0.
 
     With ``W = P K`` this is an LMI in (P, W, eps) (V = e'Pe, Young's inequality on
-    2 e'P (f - f_hat)); ``K = P^{-1} W``. ``decay`` (lam >= 0) asks for ``V' <= -2 lam V``.
+    2 e'P (f - f_hat)); ``K = P^{-1} W``.
     """
 
     needs = ("alpha",)
@@ -108,7 +107,6 @@ class ZhangOSL(_ObserverLMI):
         [ *                                                           -eps2 I                       ]  < 0
 
     is the S-procedure on V = e'Pe with the OSL and QIB inequalities for ``f - f_hat``.
-    ``decay`` (lam >= 0) asks for ``V' <= -2 lam V``.
     """
 
     needs = ("rho", "beta", "gamma")

@@ -1,9 +1,7 @@
 """LQR state feedback and the Kalman-gain (LQE) observer, both from python-control.
 
-python-control's ``lqr`` returns K_lqr with ``u = -K_lqr x``; the paper's notation is
-``u = F x_hat``, so ``F = -K_lqr`` (converted here, once). ``lqe`` returns the observer gain L of
-``x_hat' = A x_hat + B u + L (y - C x_hat)``, which is the paper's K as it stands.
-``method="scipy"`` is passed so results do not depend on whether slycot is installed.
+python-control's ``lqr`` returns K_lqr with ``u = -K_lqr x``; the paper's ``u = F x_hat`` has ``F = -K_lqr``.
+``lqe`` returns the observer gain L of ``x_hat' = A x_hat + B u + L (y - C x_hat)``, the paper's K.
 
 References
 ----------
@@ -82,8 +80,7 @@ class LQEObserver(_Weighted):
     """Kalman-gain observer K = L from ``control.lqe(A, I, C, QN, RN, method="scipy")``.
 
     ``QN`` (n x n, process noise, symmetric PSD) defaults to I_n and ``RN`` (p x p,
-    measurement noise, symmetric PD) to I_p; a scalar means scalar * I. The nonlinearity is
-    ignored by the design (it is linear), which is exactly what the benchmark tests.
+    measurement noise, symmetric PD) to I_p; a scalar means scalar * I. The design ignores the nonlinearity.
     """
 
     QN: Any = None

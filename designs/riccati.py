@@ -8,8 +8,7 @@ has a solution P > 0, then ``K = P C' / (2 eps)`` makes the estimation error of
 ``x_hat' = A x_hat + B u + f(x_hat) + K (y - C x_hat)`` converge for every f with Lipschitz
 constant alpha (V = e' P^{-1} e). The equation is solved with scipy's
 ``solve_continuous_are(A', [C', I], (1 + eps) I, diag(eps I_p, -I_n / alpha^2))``: the
-indefinite weight makes ``B R^{-1} B' = C'C/eps - alpha^2 I``. eps is searched on a log grid;
-the solution must have P > 0, a residual below ``residual_tol`` (relative) and A - KC Hurwitz.
+indefinite weight makes ``B R^{-1} B' = C'C/eps - alpha^2 I`` (eps searched: :class:`RHRiccati`).
 
 References
 ----------
@@ -70,8 +69,7 @@ class RHRiccati(Part):
     ----------
     eps : float, optional
         Fixed eps; None (default) tries ``n_grid`` log-spaced values in ``eps_range`` and keeps
-        the largest eps with a valid solution (the least aggressive gain, since K scales with
-        1/eps).
+        the largest eps with a valid solution.
     eps_range : tuple of float
     n_grid : int
     residual_tol : float
@@ -107,18 +105,15 @@ class RHRiccati(Part):
                 failures.setdefault(why, []).append(eps)
             else:
                 valid.append((eps, *sol))
-        wall = time.perf_counter() - t0
+        base = dict(route="riccati", solver="scipy.solve_continuous_are", solve_s=time.perf_counter() - t0,
+                    n_solves=len(grid))
         if not valid:
             summary = "; ".join(f"{why} (eps = {', '.join(f'{e:.2g}' for e in es[:3])}{', ...' if len(es) > 3 else ''})"
                                 for why, es in failures.items())
-            return DesignResult(status="infeasible", route="riccati", solver="scipy.solve_continuous_are",
-                                solver_status="no solution",
+            return DesignResult(status="infeasible", solver_status="no solution", params={"alpha": alpha}, **base,
                                 reason=f"no stabilizing solution P > 0 of the RH Riccati equation for alpha = {alpha:.4g} "
-                                       f"on {len(grid)} eps values in [{grid[0]:.2g}, {grid[-1]:.2g}]: {summary}",
-                                solve_s=wall, n_solves=len(grid), params={"alpha": alpha})
+                                       f"on {len(grid)} eps values in [{grid[0]:.2g}, {grid[-1]:.2g}]: {summary}")
         eps, K, res, lo = max(valid, key=lambda v: v[0])
-        return DesignResult(status="feasible", route="riccati", K=K, solver="scipy.solve_continuous_are",
-                            solver_status="solved",
-                            solve_s=wall, n_solves=len(grid), min_eig={"P": lo},
+        return DesignResult(status="feasible", K=K, solver_status="solved", min_eig={"P": lo}, **base,
                             params={"eps": eps, "alpha": alpha, "riccati_residual": res,
                                     "eps_valid_min": min(v[0] for v in valid), "eps_valid_max": eps})

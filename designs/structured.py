@@ -17,8 +17,6 @@ For a plant that declares ``f(x) = G phi(H x)`` with channel slopes in ``[lo, hi
 
 Both sides are homogeneous, so ``Q >= I`` and ``R >= I`` fix their scale, and each side
 minimises a bound on its gain (``||Y|| <= kF`` gives ``||F|| <= kF``; likewise ``||K|| <= kK``).
-The decay target is searched for the largest value at which both gains stay within
-``max_gain``: a faster certified rate bought with a huge gain is no win.
 
 Two routes solve the sides (``route``): ``"sdp"`` (the LMIs above, Clarabel or SCS) and
 ``"riccati"`` (one scalar multiplier per side, each side an algebraic Riccati equation:
@@ -49,8 +47,6 @@ from plants import Constants, Plant
 
 __all__ = ["Structured"]
 
-#: ``route="auto"`` solves the sides by Riccati equations (O(n^3)) from this n on, the SDP sides by
-#: an interior-point method below it (cost growing like n^4 to n^6; see ``docs/structured.md``).
 RICCATI_FROM_N = 64
 
 
@@ -77,8 +73,7 @@ class Structured(Design):
     rtol : float
         Relative tolerance of the decay search.
     solver : {"auto", "CLARABEL", "SCS"}
-        SDP solver of the sides (:func:`bench.lmi.solve_side`); default Clarabel (interior point,
-        which suits these min-gain programs better than SCS).
+        SDP solver of the sides (:func:`bench.lmi.solve_side`).
     route : {"auto", "sdp", "riccati"}
         How the sides are solved (see the module docstring).
     """
@@ -154,11 +149,8 @@ class Structured(Design):
             return self._design_riccati(plant)
         progs = self._programs(plant)
         best, tries = self._search(progs)
-        compile_s = sum(p.compile_s for p in progs)
-        solve_s = sum(p.solve_s for p in progs)
-        n_solves = sum(p.n_solves for p in progs)
-        base = dict(route="sdp", solver="+".join(dict.fromkeys(p.solver for p in progs)), compile_s=compile_s,
-                    solve_s=solve_s, n_solves=n_solves)
+        base = dict(route="sdp", solver="+".join(dict.fromkeys(p.solver for p in progs)),
+                    **{k: sum(getattr(p, k) for p in progs) for k in ("compile_s", "solve_s", "n_solves")})
         if best is None:
             return DesignResult(status="infeasible", reason=(
                 "structured design: a side is not strictly feasible at decay 0 (Q, R >= I normalisation)"), **base)

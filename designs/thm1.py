@@ -141,7 +141,6 @@ class Thm1(YoungDesign):
                 [Fh @ B.T, Z, Z, Z, -d["iphi"] * Q, Z],
                 [Z, I, Z, Z, Z, -d["phi"] * Q],
             ]
-            # eta1 Q Q with eta1 > 0; for eta1 <= 0 the term is <= 0 and is dropped
             return append_schur_column(rows, Q, -d["inv_eta1"] * I) if schur else rows
 
         nonneg = {"phi": "phi1", "iphi": "inv_phi1", "two_eps2": "two_eps2"}

@@ -101,7 +101,7 @@ def test_scalar_are_closed_form():
 
 def test_no_real_solution_is_reported():
     # x^2 + 1 = 0 (a = 0, M = -1, q = 1): Hamiltonian eigenvalues +-j
-    X, info = solve_are(np.zeros((1, 1)), np.ones((1, 1)), np.array([-1.0]), np.ones((1, 1)), fallback=False)
+    X, info = solve_are(np.zeros((1, 1)), np.ones((1, 1)), np.array([-1.0]), np.ones((1, 1)))
     assert X is None and "imaginary axis" in info.reason
 
 
@@ -114,7 +114,7 @@ def test_indefinite_are_matches_scipy_and_has_a_small_residual(n):
     q = H.T @ H * 0.2 + 0.01 * np.eye(n)
     Xs = solve_continuous_are(p.A, b, q, np.diag(rr))
     M = b @ np.diag(1 / rr) @ b.T
-    X, info = solve_are(p.A, b, rr, q, method="sign", fallback=False)
+    X, info = solve_are(p.A, b, rr, q, method="sign")
     assert X is not None, info.reason
     res = p.A.T @ X + X @ p.A - X @ M @ X + q
     assert np.abs(res).max() <= 1e-10 * max(1.0, np.abs(X).max() ** 2)
@@ -172,10 +172,10 @@ def test_single_precision_start_refined_by_newton_matches_scipy(monkeypatch):
     M = b @ np.diag(1 / rr) @ b.T
     X32 = route._sign_are(a, M, q, tol=1e-2, single=True)[0]
     assert 1e-12 < np.abs(X32 - want).max() / np.abs(want).max() < 1e-3  # single precision alone
-    refined, _ = route._newton(a, M, q, X32, 1e-8)  # the path solve_are takes (its fallback would hide a failure)
+    refined, _ = route._newton(a, M, q, X32, 1e-8)  # the path solve_are takes
     assert refined is not None
     np.testing.assert_allclose(refined, want, rtol=1e-7, atol=1e-9 * np.abs(want).max())
-    X, info = solve_are(a, b, rr, q, fallback=False)
+    X, info = solve_are(a, b, rr, q)
     assert X is not None, info.reason
     assert info.residual <= 1e-8
     np.testing.assert_allclose(X, want, rtol=1e-7, atol=1e-9 * np.abs(want).max())
@@ -387,7 +387,7 @@ def test_the_slower_side_sets_the_pairs_target():
 
         def solve(lam, tau, eps, X0):
             sol = SideSolution(P=np.eye(1), gain=np.array([[gain(lam)]]), side_matrix=-np.eye(1), min_eig=1.0,
-                               multiplier=1.0, tau=tau, eps=eps, are=None, lam=lam)
+                               tau=tau, are=None, lam=lam)
             return sol, ""
 
         sd = _Side(label, 1, None, None, solve, [(1.0, 1.0)], 20.0)
