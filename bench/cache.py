@@ -80,11 +80,8 @@ def _outside_file(module: str) -> str | None:
 
 
 def _encode(v: Any, arrays: dict[str, np.ndarray], modules: set[str] | None = None) -> Any:
-    """JSON for ``v`` (dataclasses by init fields, arrays by name in ``arrays``); TypeError for other types.
-
-    With ``modules`` (a key's exact description instead): dataclasses by every field, arrays by hash,
-    callables by name and anything else by repr; the modules of dataclasses and callables go into ``modules``.
-    """
+    """JSON for ``v``, reversible (arrays into ``arrays``; TypeError for what needs a pickle), or with ``modules``
+    exact for a key (every dataclass field, arrays by hash, callables by name, the rest by repr; modules met added)."""
     key = modules is not None
     if isinstance(v, np.ndarray) and not v.dtype.hasobject:
         if key:
@@ -292,7 +289,6 @@ class Cache:
         try:
             arrays: dict[str, np.ndarray] = {}
             meta = json.dumps({"format": CACHE_FORMAT, "value": _encode(obj, arrays)})
-            arrays = {k: np.asarray(a) for k, a in arrays.items()}
             payload = {**arrays, "meta": np.array(meta), "sha256": np.array(_checksum(meta, arrays))}
             _atomic_write(path, lambda fh: np.savez_compressed(fh, **payload))
         except OSError as exc:  # an unwritable folder, a full disk: run on without the cache
