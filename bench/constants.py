@@ -170,9 +170,8 @@ class ConstantsReport:
         """The trusted part for ``plant``: analytic constants no sample disproved, and the plant's
         channels unless a sample disproved their slopes."""
         untrusted = {v.name: v.describe("analytic") for v in self.disproved}
-        slopes = [v for v in self.channel_violations if NARROWED not in v.name]
-        narrowing = [v for v in self.channel_violations if NARROWED in v.name]
-        for key, what, vs in (("channels", "channels", slopes), ("channels.narrow", "narrowing", narrowing)):
+        for key, what, narrowed in (("channels", "channels", False), ("channels.narrow", "narrowing", True)):
+            vs = [v for v in self.channel_violations if (NARROWED in v.name) == narrowed]
             if vs and "channels" not in untrusted:
                 untrusted[key] = f"the declared {what}: " + "; ".join(v.describe("declared") for v in vs)
         sampled_only = ", ".join(k for k in ("alpha", "rho", "beta") if self.source.get(k, "").startswith("sampled"))
@@ -510,15 +509,14 @@ def _inside(X: np.ndarray, radius: float | None) -> np.ndarray:
 def linear_prechecks(plant: Plant) -> list[str]:
     """Why (A, B) is not stabilizable or (A, C) not detectable (PBH test, naming the eigenvalue); empty if both hold."""
     A, B, C = plant.A, plant.B, plant.C
-    n = plant.n
     scale = max(1.0, float(np.linalg.norm(A, 2)))
     out = []
     for lam in np.linalg.eigvals(A):
         if lam.real < -1e-9 * scale or lam.imag < -1e-12:  # one of each conjugate pair
             continue
         shown = f"{lam.real:.4g}" + (f" +- {lam.imag:.4g}j" if abs(lam.imag) > 1e-12 else "")
-        for name, M, what in (("(A, B)", np.hstack([lam * np.eye(n) - A, B]), "stabilizable"),
-                              ("(A, C)", np.vstack([lam * np.eye(n) - A, C]), "detectable")):
+        for name, M, what in (("(A, B)", np.hstack([lam * np.eye(plant.n) - A, B]), "stabilizable"),
+                              ("(A, C)", np.vstack([lam * np.eye(plant.n) - A, C]), "detectable")):
             if float(np.linalg.svd(M, compute_uv=False)[-1]) <= 1e-9 * scale:
                 word = "uncontrollable" if what == "stabilizable" else "unobservable"
                 msg = f"{name} is not {what}: eigenvalue {shown} of A is {word}"
@@ -559,14 +557,13 @@ def compute_constants(
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
     rng = np.random.default_rng(seed)
-    n = plant.n
     analytic = plant.bounds
     radius = (analytic.radius if analytic is not None else None) or plant.claimed.radius
     gamma = next((g.gamma for g in (analytic, plant.claimed) if g is not None and g.gamma is not None), 0.0)
 
     far = sampled_range(plant)
-    x1, x2 = _random_pairs(rng, n, n_samples, radius, far)
-    best = _best_pairs(plant.f, x1, x2, gamma, radius, n, n_refine)
+    x1, x2 = _random_pairs(rng, plant.n, n_samples, radius, far)
+    best = _best_pairs(plant.f, x1, x2, gamma, radius, plant.n, n_refine)
     sampled = Constants(
         alpha=max(best["alpha"][0], 0.0), rho=best["rho"][0], beta=best["beta"][0], gamma=gamma, radius=radius
     )

@@ -388,8 +388,7 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
     return Program(problem, variables, parameters, blocks_fn, positive, build_s=time.perf_counter() - t_build)
 
 
-#: A matrix with at least this fraction of nonzeros enters a cached program as a Parameter, a
-#: sparser one as a :class:`Pattern` (keyed by its pattern, so plants of one structure share a program).
+#: A matrix with this fraction of nonzeros or more enters a program as a Parameter, a sparser one as a Pattern.
 DENSE_FRACTION = 0.75
 
 
