@@ -515,7 +515,6 @@ def cached_program(key: tuple, build: Callable[[], Program]) -> Program:
     prog = cache.get(key)
     if prog is None:
         prog = build()
-        prog.reused = False
         prog.cache_key = key
         cache[key] = prog
         while len(cache) > PROGRAM_CACHE_SIZE:
