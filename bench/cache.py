@@ -271,8 +271,7 @@ class Cache:
     def pair_key(self, plant, plant_id: str, design, design_id: str, options) -> str | None:
         """The key of one pair (see the module docstring); None when it cannot be computed."""
         opts = {f.name: getattr(options, f.name) for f in dataclasses.fields(options) if f.name not in _NOT_RESULTS}
-        opts["sim"] = {f.name: getattr(options.sim, f.name) for f in dataclasses.fields(options.sim)
-                       if f.name not in _NOT_RESULTS}
+        opts["sim"] = {k: v for k, v in dataclasses.asdict(options.sim).items() if k not in _NOT_RESULTS}
         return self._build_key(f"{plant_id} x {design_id}", "pair", plant, plant_id, design=(design, design_id),
                                options=_encode(opts, {}, set()))
 
