@@ -80,11 +80,8 @@ def _outside_file(module: str) -> str | None:
 
 
 def _encode(v: Any, arrays: dict[str, np.ndarray], modules: set[str] | None = None) -> Any:
-    """JSON for ``v`` (dataclasses by init fields, arrays by name in ``arrays``); TypeError for other types.
-
-    With ``modules`` (a key's exact description instead): dataclasses by every field, arrays by hash,
-    callables by name and anything else by repr; the modules of dataclasses and callables go into ``modules``.
-    """
+    """JSON for ``v``, reversible (arrays into ``arrays``; TypeError for what needs a pickle), or with ``modules``
+    exact for a key (every dataclass field, arrays by hash, callables by name, the rest by repr; modules met added)."""
     key = modules is not None
     if isinstance(v, np.ndarray) and not v.dtype.hasobject:
         if key:
@@ -274,8 +271,7 @@ class Cache:
     def pair_key(self, plant, plant_id: str, design, design_id: str, options) -> str | None:
         """The key of one pair (see the module docstring); None when it cannot be computed."""
         opts = {f.name: getattr(options, f.name) for f in dataclasses.fields(options) if f.name not in _NOT_RESULTS}
-        opts["sim"] = {f.name: getattr(options.sim, f.name) for f in dataclasses.fields(options.sim)
-                       if f.name not in _NOT_RESULTS}
+        opts["sim"] = {k: v for k, v in dataclasses.asdict(options.sim).items() if k not in _NOT_RESULTS}
         return self._build_key(f"{plant_id} x {design_id}", "pair", plant, plant_id, design=(design, design_id),
                                options=_encode(opts, {}, set()))
 
@@ -292,7 +288,6 @@ class Cache:
         try:
             arrays: dict[str, np.ndarray] = {}
             meta = json.dumps({"format": CACHE_FORMAT, "value": _encode(obj, arrays)})
-            arrays = {k: np.asarray(a) for k, a in arrays.items()}
             payload = {**arrays, "meta": np.array(meta), "sha256": np.array(_checksum(meta, arrays))}
             _atomic_write(path, lambda fh: np.savez_compressed(fh, **payload))
         except OSError as exc:  # an unwritable folder, a full disk: run on without the cache

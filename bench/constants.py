@@ -29,8 +29,7 @@ __all__ = ["ConstantsReport", "Knowledge", "check_trajectory", "compute_constant
 
 _REL_TOL = 1e-7  # a constant is flagged when a sample exceeds it by more than this (relative)
 
-#: A global estimate at ``||x|| >= 10`` more than this many times the one at ``||x|| <= 1`` is taken
-#: as unbounded (the constant is not provided).
+#: The growth with the sampled radius that :func:`_unbounded` takes as unbounded (the constant is not provided).
 GROWTH_FACTOR = 4.0
 
 #: Global declarations are sampled out to ``||x|| <= GLOBAL_RANGE`` and ``REACH_FACTOR`` times the
@@ -78,8 +77,6 @@ class Knowledge:
 
     def without(self, untrusted: dict[str, str]) -> "Knowledge":
         """This knowledge with the declarations named in ``untrusted`` (name -> why) removed."""
-        if not untrusted:
-            return self
         qib = {"beta", "gamma"} if {"beta", "gamma"} & set(untrusted) else set()  # both or neither
         consts = replace(self.constants, **dict.fromkeys({"alpha", "rho"} & set(untrusted) | qib))
         ch = None if "channels" in untrusted else self.channels
@@ -155,7 +152,7 @@ class ConstantsReport:
         return next((v for v in self.violations if v.name == name), None)
 
     def to_dict(self) -> dict:
-        """A JSON-ready description (for the cache and run.json); :meth:`from_dict` inverts it."""
+        """A JSON-ready description (for run.json); :meth:`from_dict` inverts it."""
         return {**asdict(self), "trust": self.trust}
 
     @classmethod
@@ -173,9 +170,8 @@ class ConstantsReport:
         """The trusted part for ``plant``: analytic constants no sample disproved, and the plant's
         channels unless a sample disproved their slopes."""
         untrusted = {v.name: v.describe("analytic") for v in self.disproved}
-        slopes = [v for v in self.channel_violations if NARROWED not in v.name]
-        narrowing = [v for v in self.channel_violations if NARROWED in v.name]
-        for key, what, vs in (("channels", "channels", slopes), ("channels.narrow", "narrowing", narrowing)):
+        for key, what, narrowed in (("channels", "channels", False), ("channels.narrow", "narrowing", True)):
+            vs = [v for v in self.channel_violations if (NARROWED in v.name) == narrowed]
             if vs and "channels" not in untrusted:
                 untrusted[key] = f"the declared {what}: " + "; ".join(v.describe("declared") for v in vs)
         sampled_only = ", ".join(k for k in ("alpha", "rho", "beta") if self.source.get(k, "").startswith("sampled"))
@@ -222,7 +218,7 @@ def _values(f: Callable, X: np.ndarray) -> np.ndarray:
 
 
 def _ratios(f: Callable, x1: np.ndarray, x2: np.ndarray, gamma: float):
-    """alpha, rho and beta(gamma) ratios for batches of pairs, shape (n, N) each."""
+    """alpha, rho and beta(gamma) ratios for batches of pairs, shape (N,) each, -inf where not finite."""
     dx = x1 - x2
     with np.errstate(over="ignore", invalid="ignore"):
         df = _values(f, x1) - _values(f, x2)
@@ -230,7 +226,8 @@ def _ratios(f: Callable, x1: np.ndarray, x2: np.ndarray, gamma: float):
         nx2 = np.where(nx2 > 0, nx2, np.nan)
         inner = np.sum(dx * df, axis=0)
         nf2 = np.sum(df * df, axis=0)
-        return np.sqrt(nf2 / nx2), inner / nx2, (nf2 - gamma * inner) / nx2
+        ratios = np.sqrt(nf2 / nx2), inner / nx2, (nf2 - gamma * inner) / nx2
+    return [np.where(np.isfinite(r), r, -np.inf) for r in ratios]
 
 
 def _project(x: np.ndarray, radius: float | None) -> np.ndarray:
@@ -261,9 +258,7 @@ def _local_max(f, which: int, gamma: float, x1, x2, radius, n):
     from scipy.optimize import minimize
 
     def unpack(z):
-        a = _project(z[:n, None], radius)
-        b = _project((z[:n] + z[n:])[:, None], radius)
-        return a, b
+        return _project(z[:n, None], radius), _project((z[:n] + z[n:])[:, None], radius)
 
     def neg(z):
         a, b = unpack(z)
@@ -285,10 +280,8 @@ def _local_max(f, which: int, gamma: float, x1, x2, radius, n):
 
 def _best_pairs(f, x1, x2, gamma, radius, n, n_refine) -> dict[str, tuple[float, np.ndarray, np.ndarray]]:
     """For alpha, rho and beta(gamma): the largest ratio over the pairs, refined locally."""
-    ratios = _ratios(f, x1, x2, gamma)
     best: dict[str, tuple[float, np.ndarray, np.ndarray]] = {}
-    for which, name in enumerate(("alpha", "rho", "beta")):
-        r = np.where(np.isfinite(ratios[which]), ratios[which], -np.inf)
+    for which, (name, r) in enumerate(zip(("alpha", "rho", "beta"), _ratios(f, x1, x2, gamma))):
         order = np.argsort(r)[::-1][:max(n_refine, 1)]
         top = (float(r[order[0]]), x1[:, order[0]], x2[:, order[0]])
         for k in order[:n_refine]:
@@ -304,7 +297,6 @@ def _unbounded(f, x1, x2, gamma) -> dict[str, str]:
     out = {}
     s1, s2 = np.linalg.norm(x1, axis=0), np.linalg.norm(x2, axis=0)
     for name, r in zip(("alpha", "rho", "beta"), _ratios(f, x1, x2, gamma)):
-        r = np.where(np.isfinite(r), r, -np.inf)
         small = float(r[np.maximum(s1, s2) <= 1.0].max(initial=-np.inf))
         large = float(r[np.minimum(s1, s2) >= 10.0].max(initial=-np.inf))
         if large > GROWTH_FACTOR * max(small, 1e-12) and large > 1e-9:
@@ -321,8 +313,7 @@ NARROWED = "narrowed"
 
 def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000,
                    far: float = GLOBAL_RANGE) -> list[Violation]:
-    """Sampled slopes of each channel against its bounds (on its region, or ``|z_i| <= ||H_i|| far``), then
-    on ``|z_i| <= r`` against a declared narrowing ``Channels.slopes_on(r)`` (r up to that range)."""
+    """Each channel's sampled slopes on its range (``_zmax``) against its bounds, on |z| <= r against slopes_on(r)."""
     ch = plant.channels
     if ch is None:
         return []
@@ -455,8 +446,7 @@ def _sampled_far(plant: Plant, channels: bool, scalars: dict[str, float], gamma:
 
 def _finite_instants(n: int, X, XH, max_points: int) -> tuple[np.ndarray, np.ndarray]:
     """The instants of a trajectory where state and estimate are finite, thinned evenly to ``max_points``."""
-    X = np.asarray(X, dtype=float).reshape(n, -1)
-    XH = np.asarray(XH, dtype=float).reshape(n, -1)
+    X, XH = (np.asarray(M, dtype=float).reshape(n, -1) for M in (X, XH))
     keep = np.all(np.isfinite(X), axis=0) & np.all(np.isfinite(XH), axis=0)
     X, XH = X[:, keep], XH[:, keep]
     if X.shape[1] > max_points:
@@ -499,10 +489,9 @@ def _scalar_violations(f: Callable, a: np.ndarray, b: np.ndarray, gamma: float |
         ratios = dict(zip(("alpha", "rho", "beta"), _ratios(f, a, b, gamma or 0.0)))
     out = {}
     for k, value in stated.items():
-        r = np.where(np.isfinite(ratios[k]), ratios[k], -np.inf)
-        j = int(np.argmax(r))
-        if _exceeds(r[j], value):
-            out[k] = Violation(k, value, float(r[j]), tuple(a[:, j]), tuple(b[:, j]))
+        j = int(np.argmax(ratios[k]))
+        if _exceeds(ratios[k][j], value):
+            out[k] = Violation(k, value, float(ratios[k][j]), tuple(a[:, j]), tuple(b[:, j]))
     return out
 
 
@@ -520,15 +509,14 @@ def _inside(X: np.ndarray, radius: float | None) -> np.ndarray:
 def linear_prechecks(plant: Plant) -> list[str]:
     """Why (A, B) is not stabilizable or (A, C) not detectable (PBH test, naming the eigenvalue); empty if both hold."""
     A, B, C = plant.A, plant.B, plant.C
-    n = plant.n
     scale = max(1.0, float(np.linalg.norm(A, 2)))
     out = []
     for lam in np.linalg.eigvals(A):
         if lam.real < -1e-9 * scale or lam.imag < -1e-12:  # one of each conjugate pair
             continue
         shown = f"{lam.real:.4g}" + (f" +- {lam.imag:.4g}j" if abs(lam.imag) > 1e-12 else "")
-        for name, M, what in (("(A, B)", np.hstack([lam * np.eye(n) - A, B]), "stabilizable"),
-                              ("(A, C)", np.vstack([lam * np.eye(n) - A, C]), "detectable")):
+        for name, M, what in (("(A, B)", np.hstack([lam * np.eye(plant.n) - A, B]), "stabilizable"),
+                              ("(A, C)", np.vstack([lam * np.eye(plant.n) - A, C]), "detectable")):
             if float(np.linalg.svd(M, compute_uv=False)[-1]) <= 1e-9 * scale:
                 word = "uncontrollable" if what == "stabilizable" else "unobservable"
                 msg = f"{name} is not {what}: eigenvalue {shown} of A is {word}"
@@ -569,19 +557,18 @@ def compute_constants(
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
     rng = np.random.default_rng(seed)
-    n = plant.n
     analytic = plant.bounds
     radius = (analytic.radius if analytic is not None else None) or plant.claimed.radius
     gamma = next((g.gamma for g in (analytic, plant.claimed) if g is not None and g.gamma is not None), 0.0)
 
     far = sampled_range(plant)
-    x1, x2 = _random_pairs(rng, n, n_samples, radius, far)
-    best = _best_pairs(plant.f, x1, x2, gamma, radius, n, n_refine)
+    x1, x2 = _random_pairs(rng, plant.n, n_samples, radius, far)
+    best = _best_pairs(plant.f, x1, x2, gamma, radius, plant.n, n_refine)
     sampled = Constants(
         alpha=max(best["alpha"][0], 0.0), rho=best["rho"][0], beta=best["beta"][0], gamma=gamma, radius=radius
     )
     unbounded = _unbounded(plant.f, x1, x2, gamma) if radius is None else {}
-    disproved = _violations(analytic, best, ("alpha", "rho", "beta"))
+    disproved = _violations(analytic, best)
     violations = _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine)
     valid, source = _trusted(analytic, sampled, {v.name for v in disproved}, unbounded, gamma, radius)
     return ConstantsReport(
@@ -592,12 +579,11 @@ def compute_constants(
     )
 
 
-def _violations(stated: Constants | None, best: dict, names: tuple[str, ...]) -> list[Violation]:
-    """The constants ``names`` of ``stated`` that the best sampled pair of each exceeds, with the pair."""
+def _violations(stated: Constants | None, best: dict) -> list[Violation]:
+    """The constants of ``stated`` that the best sampled pair of each (``best``: name -> value, x1, x2) exceeds."""
     out = []
-    for name in names:
+    for name, (val, a, b) in best.items():
         value = getattr(stated, name, None)
-        val, a, b = best[name]
         if value is not None and _exceeds(val, value):
             out.append(Violation(name, value, val, tuple(a), tuple(b)))
     return out
@@ -620,18 +606,17 @@ def _trusted(analytic: Constants | None, sampled: Constants, bad: set, unbounded
 def _claimed_violations(plant, best, x1, x2, gamma, radius, seed, n_samples, n_refine) -> list[Violation]:
     """Claimed constants a sample violates, checked on the region the source claims them for."""
     claimed = plant.claimed
-    n = plant.n
     c_radius = claimed.radius
     if c_radius != radius and any(getattr(claimed, k) is not None for k in ("alpha", "rho", "beta")):
         crng = np.random.default_rng([seed, 1])
-        x1, x2 = _random_pairs(crng, n, n_samples, c_radius, sampled_range(plant))
-        best = _best_pairs(plant.f, x1, x2, gamma, c_radius, n, n_refine)
+        x1, x2 = _random_pairs(crng, plant.n, n_samples, c_radius, sampled_range(plant))
+        best = _best_pairs(plant.f, x1, x2, gamma, c_radius, plant.n, n_refine)
     if claimed.beta is not None and claimed.gamma != gamma:  # beta is checked at the claimed gamma
         r = _ratios(plant.f, x1, x2, claimed.gamma)[2]
-        k = int(np.argmax(np.where(np.isfinite(r), r, -np.inf)))
-        a, b, val = _local_max(plant.f, 2, claimed.gamma, x1[:, k], x2[:, k], c_radius, n)
+        k = int(np.argmax(r))
+        a, b, val = _local_max(plant.f, 2, claimed.gamma, x1[:, k], x2[:, k], c_radius, plant.n)
         best = {**best, "beta": (val, a, b)}
-    return _violations(claimed, best, ("alpha", "rho", "beta"))
+    return _violations(claimed, best)
 
 
 def resolve_constants(report: ConstantsReport, *, use_claimed: bool = False) -> Constants:

@@ -24,8 +24,7 @@ from bench.limits import DeadlineExceeded, check_deadline, remaining_time
 
 __all__ = ["VERIFY_TOL", "Program", "cached_program", "classify", "conclude", "margin_program"]
 
-#: The verification tolerance: M is *verified* negative definite when its largest eigenvalue is
-#: below ``-VERIFY_TOL * max(1, max |M_ij|)``, *marginal* within that distance of zero.
+#: The verification tolerance of :func:`classify`, relative to ``max(1, max |M_ij|)`` (:func:`verify_tol`).
 VERIFY_TOL = 1e-7
 
 
@@ -102,12 +101,7 @@ _TIME_LIMIT_OPTION = {"CLARABEL": "time_limit", "SCS": "time_limit_secs"}
 
 
 def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
-    """Solve a cvxpy problem cold, splitting wall time into compile and solve seconds.
-
-    A solver failure is the status ``"solver_error"``. Inside a :func:`bench.limits.time_limit`
-    scope the solver gets the remaining time as its limit, and a solve that ran out of it raises
-    :class:`DeadlineExceeded`.
-    """
+    """Solve ``problem`` cold, timed, given the time left (module docstring); a solver failure: ``"solver_error"``."""
     import cvxpy as cp
 
     check_deadline("before an SDP solve")
@@ -139,13 +133,11 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     return out
 
 
-#: This process's solves since :func:`reset_solve_tally` (see :func:`solve_tally`).
 _tally = {"n": 0, "compile_s": 0.0, "solve_s": 0.0, "solver_s": 0.0}
 
 
 def solve_tally() -> dict:
-    """This process's SDP solves since :func:`reset_solve_tally`: ``n``, ``compile_s``, ``solve_s`` and
-    ``solver_s`` (the solver's own time, part of ``solve_s``)."""
+    """This process's SDP solves since :func:`reset_solve_tally`: ``n`` and the seconds of :class:`SolveOutcome`."""
     return dict(_tally)
 
 
@@ -384,9 +376,8 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
     t_build = time.perf_counter()
     allv = {**variables, **{k: (v.expr if isinstance(v, Pattern) else v) for k, v in parameters.items()}}
     M = sym(assemble(blocks_fn, allv, numeric=False))
-    N = M.shape[0]
     slack = variables["slack"]
-    cons = [M << -slack * np.eye(N), slack <= 1]
+    cons = [M << -slack * np.eye(M.shape[0]), slack <= 1]
     for name in positive:
         X = variables[name]
         k = X.shape[0]
@@ -397,8 +388,7 @@ def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple
     return Program(problem, variables, parameters, blocks_fn, positive, build_s=time.perf_counter() - t_build)
 
 
-#: A matrix with at least this fraction of nonzeros enters a cached program as a Parameter, a
-#: sparser one as a :class:`Pattern` (keyed by its pattern, so plants of one structure share a program).
+#: A matrix with this fraction of nonzeros or more enters a program as a Parameter, a sparser one as a Pattern.
 DENSE_FRACTION = 0.75
 
 
@@ -454,9 +444,7 @@ class Pattern:
 
 @dataclass(frozen=True)
 class Matrices:
-    """How a design's matrices enter a cached program (built by :func:`matrices`): dense ones as
-    Parameters, sparse ones as a :class:`Pattern`, all-zero ones baked in. ``key`` goes into the
-    :func:`cached_program` key, :meth:`parameters` into the build, :meth:`settable` into :meth:`Program.set`."""
+    """How a design's matrices (classified by :func:`matrices`) enter a program; ``key`` is part of its cache key."""
 
     values: dict
     dense: frozenset
@@ -479,8 +467,7 @@ class Matrices:
 
 
 def matrices(*, all_parameters: bool = False, **mats: np.ndarray) -> Matrices:
-    """Classify matrices (by the names the block functions read) for a cached program
-    (:data:`DENSE_FRACTION`; every one a dense Parameter with ``all_parameters``)."""
+    """:class:`Matrices` by the names the blocks read, dense by :data:`DENSE_FRACTION` (all with ``all_parameters``)."""
     vals = {k: np.asarray(M, dtype=float) for k, M in mats.items()}
     dense = frozenset(k for k, M in vals.items()
                       if all_parameters or (M.size and np.count_nonzero(M) >= DENSE_FRACTION * M.size))
@@ -511,8 +498,7 @@ def _cache() -> OrderedDict:
 def cached_program(key: tuple, build: Callable[[], Program]) -> Program:
     """The compiled :class:`Program` for ``key``, built by ``build()`` on first use, then reused.
 
-    The program comes back :meth:`Program.reset`. The cache is per thread (a problem holds its
-    last solution) and keeps :data:`PROGRAM_CACHE_SIZE` programs.
+    The program comes back :meth:`Program.reset`, from this thread's cache (:data:`PROGRAM_CACHE_SIZE`).
 
     Parameters
     ----------
@@ -529,7 +515,6 @@ def cached_program(key: tuple, build: Callable[[], Program]) -> Program:
     prog = cache.get(key)
     if prog is None:
         prog = build()
-        prog.reused = False
         prog.cache_key = key
         cache[key] = prog
         while len(cache) > PROGRAM_CACHE_SIZE:
@@ -595,19 +580,14 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
     return out
 
 
-#: SCS settings of :func:`solve_side`.
 SCS_OPTS = {"eps_abs": 1e-6, "eps_rel": 1e-6, "max_iters": 100_000}
 
-#: From this n on, ``solver="auto"`` tries SCS first.
 SCS_FROM_N = 8
 
 
 def solve_side(prog: Program, solver: str = "auto", n: int | None = None) -> str:
-    """Solve a program with the suite's solver policy; return a log of the solvers tried.
-
-    ``"auto"``: Clarabel when ``n < SCS_FROM_N``, else SCS, then Clarabel when SCS's point does not
-    verify (:meth:`Program.verified`); the log reads e.g. ``"SCS:optimal (not verified) -> CLARABEL:optimal"``.
-    """
+    """Solve ``prog``; ``"auto"``: Clarabel when ``n < SCS_FROM_N``, else SCS (:data:`SCS_OPTS`), then Clarabel
+    if SCS's point does not verify. Returns the solvers tried: ``"SCS:optimal (not verified) -> CLARABEL:optimal"``."""
     if solver == "auto" and n is not None and n < SCS_FROM_N:
         solver = "CLARABEL"
     if solver == "auto":
