@@ -105,8 +105,6 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
 
     if kl is None and start is not None and (kh is None or _index(start, rtol, up=False) < kh):
         probe(_index(start, rtol, up=False))
-    if kl is not None and kh is not None and kh <= kl:  # an upper bound at or below a passing value
-        return {"lo": _value(kl, lo, rtol, up=False), "hi": hi, "kind": "bracketed"}
     for _ in range(max_moves if kh is None else 0):
         if not probe(kl + moves):
             break
