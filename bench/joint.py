@@ -198,10 +198,8 @@ def verdict(M: np.ndarray, *, clear: float = 1.0) -> str:
 
 
 def _rate_bound(M0: np.ndarray, *blocks: np.ndarray, L: np.ndarray | None = None) -> float:
-    """Half the smallest generalised eigenvalue of ``(-M0, W)``, ``W = blkdiag(blocks)`` positive definite:
-    the largest lam with ``M0 + 2 lam W <= 0``. With ``W = L L'`` (block by block) it is the smallest
-    eigenvalue of ``L^-1 (-M0) L^-T``; by :func:`_lanczos_min` when ``L``, a Cholesky factor of ``-M0``, is
-    given."""
+    """The rate bound of the module docstring for ``W = blkdiag(blocks) = L L'`` (block by block): half the smallest
+    eigenvalue of ``L^-1 (-M0) L^-T``; by :func:`_lanczos_min` when ``L``, a Cholesky factor of ``-M0``, is given."""
     if not M0.shape[0]:
         return math.inf
     try:
