@@ -268,15 +268,12 @@ def _blocks(spec: _Spec, Gw: np.ndarray, Hc: np.ndarray | None, d: dict) -> list
     for side in ("x", "e"):
         for k in spec.scalars:
             tau = d[f"{k}_{side}"]
+            diag[side] = diag[side] + tau * d[{"osl": "rho", "qib": "beta", "lip": "a2"}[k]] * I
             if k == "osl":
-                diag[side] = diag[side] + tau * d["rho"] * I
                 cross[side] = cross[side] - (0.5 * tau) * Gw
             elif k == "qib":
-                diag[side] = diag[side] + tau * d["beta"] * I
                 cross[side] = cross[side] + (0.5 * tau * d["gamma"]) * Gw
-                ww[side] = ww[side] - tau * GtG
-            else:  # lip
-                diag[side] = diag[side] + tau * d["a2"] * I
+            if k != "osl":  # QIB and Lipschitz: - |df|^2
                 ww[side] = ww[side] - tau * GtG
         if spec.channels:
             tau = d[f"ch_{side}"]
@@ -478,8 +475,6 @@ def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Kno
     if spec is None:
         return LevelResult(lv, "inapplicable", reason=why)
     K, F = loop.K, loop.F
-    # a certificate of the level holds for every linear f = L x meeting its constraints: one whose loop
-    # is unstable settles the level without a solve
     unstable = witness.linear_witness(plant, K, F, knowledge, channels=spec.channels, scalars=spec.scalars)
     if unstable is not None:  # the strongest level's witness (its class is the smallest)
         cert.witnesses = [*[w for w in cert.witnesses if w.kind != unstable.kind], unstable]
@@ -509,9 +504,8 @@ def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
     ----------
     cert : Certificate
         From :func:`certify` (updated in place: ``witnesses``, ``local``, ``local_note``).
-    plant, K, F, knowledge
-    loop : ClosedLoop, optional
-        The checked gains and their spectra (:func:`bench.checks.closed_loop`), when the caller has them.
+    plant, K, F, knowledge, loop
+        As for :func:`certify`.
 
     Returns
     -------
@@ -597,7 +591,7 @@ FROM_X0_SHRINK = 1e-4
 FROM_X0_MORE = 2
 
 
-def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *, rate_rtol: float = RATE_RTOL,
+def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge, *,
                     r_max: float | None = None,
                     loop: checks.ClosedLoop | None = None) -> tuple[LevelResult | None, str]:
     """A certificate from the initial condition where the channel slopes narrow on a region.
@@ -607,22 +601,15 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     structured level's LMI with those slopes, plus the containment of the level set through
     ``z0 = (x0, x0 - x_hat0)`` in the region (Schur complements, :func:`_build`), proves
     ``V' <= -2 lam V`` on ``{V <= V(z0)}``, which the trajectory from z0 never leaves: the loop
-    converges from x0 at rate lam. r grows geometrically (:data:`FROM_X0_GROWTH`) from the
-    smallest region holding z0; the best rate among the first regions that certify is kept.
+    converges from x0 at rate lam. The regions are those of :data:`FROM_X0_GROWTH`; the best rate is kept.
 
     Parameters
     ----------
-    plant : Plant
-    K, F : ndarray
-    knowledge : Knowledge
-        Its channels must declare a narrowing (``Channels.narrow``).
-    rate_rtol : float
-        Relative tolerance of the rate search.
+    plant, K, F, knowledge, loop
+        As for :func:`certify`; the knowledge's channels must declare a narrowing (``Channels.narrow``).
     r_max : float, optional
         Regions are kept below this r (e.g. the size of an equilibrium of the loop, which no
         region with a certificate can hold).
-    loop : ClosedLoop, optional
-        The checked gains and their spectra (:func:`bench.checks.closed_loop`), when the caller has them.
 
     Returns
     -------
@@ -636,12 +623,11 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     if plant.n > LADDER_MAX_N:
         return None, f"no certificate from x0 searched: n = {plant.n} is beyond LADDER_MAX_N = {LADDER_MAX_N}"
     loop = loop if loop is not None else checks.closed_loop(plant, K, F)
-    K, F = loop.K, loop.F
     z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0])
     rows = _region_rows(ch.H)
     r0 = max(float(np.abs(rows @ z0).max()), 1e-3)
     spec = _Spec("structured", plant.n, ch.q, True, (), True)  # the channels' narrowed slopes only
-    prog = _set_program(spec, plant, K, F, knowledge, rows)
+    prog = _set_program(spec, plant, loop.K, loop.F, knowledge, rows)
     prog.set(Z0=np.outer(z0, z0))
     best: LevelResult | None = None
     tried, more = [], FROM_X0_MORE
@@ -651,7 +637,7 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
         prog.solve(lam=0.0)
         verdict, margin = prog.verdict()
         if verdict == "verified" and _contains(_full_p(prog, spec), z0, ch.H, r):
-            found = _rate_in_region(prog, spec, plant, loop, knowledge, z0, r, (lo, hi), margin, rate_rtol)
+            found = _rate_in_region(prog, spec, plant, loop, knowledge, z0, r, (lo, hi), margin)
             if best is None or found.decay_rate > best.decay_rate:
                 best = found
             more -= 1
@@ -695,13 +681,13 @@ def _regions(ch, r0: float, r_max: float | None):
 
 
 def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge,
-                    z0: np.ndarray, r: float, box: tuple, margin: float, rate_rtol: float) -> LevelResult:
+                    z0: np.ndarray, r: float, box: tuple, margin: float) -> LevelResult:
     """The certificate from x0 on a region where ``lam = 0`` verified, with the best rate whose set holds z0."""
     lo, hi = box
     ceiling, _ = witness.rate_ceiling(plant, loop.K, loop.F, knowledge, channels=True, scalars=(), box=(lo, hi))
     top = min(loop.linearised_rate, ceiling)
     P0 = _full_p(prog, spec)
-    lam, P = _rate(prog, spec, 0.0, top, rate_rtol) if top > 0 else (0.0, P0)
+    lam, P = _rate(prog, spec, 0.0, top, RATE_RTOL) if top > 0 else (0.0, P0)
     if not _contains(P, z0, knowledge.channels.H, r):
         lam, P = 0.0, P0
     return LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,

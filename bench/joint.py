@@ -101,8 +101,7 @@ def loop(A, B, C, G, H, lo, hi) -> Loop:
     """
     A, B, C, G, H = (np.asarray(v, dtype=float) for v in (A, B, C, G, H))
     q = G.shape[1]
-    lo = np.broadcast_to(np.asarray(lo, dtype=float), (q,))
-    hi = np.broadcast_to(np.asarray(hi, dtype=float), (q,))
+    lo, hi = (np.broadcast_to(np.asarray(b, dtype=float), (q,)) for b in (lo, hi))
     c0, r = (lo + hi) / 2, (hi - lo) / 2
     keep = r > 0
     return Loop(A + (G * c0) @ H, B, C, G[:, keep], r[keep, None] * H[keep, :], keep)
@@ -169,8 +168,7 @@ def _equilibrate(M: np.ndarray, sign: float = 1.0) -> np.ndarray:
 
 
 def equilibrated_max_eig(M: np.ndarray) -> float:
-    """Largest eigenvalue of ``D M D``, ``D = diag(|M_ii|^-1/2)`` (same inertia as M; in ``[-1, 0)``
-    for a negative definite M)."""
+    """Largest eigenvalue of the equilibrated ``D M D`` (module docstring; in ``[-1, 0)`` for M < 0)."""
     E = _equilibrate(np.asarray(M, dtype=float))
     k = E.shape[0]
     try:
@@ -200,12 +198,9 @@ def verdict(M: np.ndarray, *, clear: float = 1.0) -> str:
 
 
 def _rate_bound(M0: np.ndarray, *blocks: np.ndarray, L: np.ndarray | None = None) -> float:
-    """Half the smallest generalised eigenvalue of ``(-M0, W)``, ``W = blkdiag(blocks)`` positive definite:
-    the largest lam with ``M0 + 2 lam W <= 0``. With ``W = L L'`` (block by block) it is the smallest
-    eigenvalue of ``L^-1 (-M0) L^-T``; by :func:`_lanczos_min` when ``L``, a Cholesky factor of ``-M0``, is
-    given."""
-    k = M0.shape[0]
-    if not k:
+    """The rate bound of the module docstring for ``W = blkdiag(blocks) = L L'`` (block by block): half the smallest
+    eigenvalue of ``L^-1 (-M0) L^-T``; by :func:`_lanczos_min` when ``L``, a Cholesky factor of ``-M0``, is given."""
+    if not M0.shape[0]:
         return math.inf
     try:
         Ls = [sla.cholesky(B, lower=True, check_finite=False) for B in blocks]
@@ -229,10 +224,9 @@ def _lanczos_min(L: np.ndarray, *factors: np.ndarray) -> float:
     """Smallest generalised eigenvalue of ``(L L', W)``, ``W = blkdiag(B B' for B in factors)`` (the identity
     without factors), as ``1 / lambda_max(B' (L L')^-1 B)`` by Lanczos iteration (``eigsh``); NaN when it does
     not converge. ``L`` and the factors are lower triangular."""
-    from scipy.linalg.blas import get_blas_funcs
     from scipy.sparse.linalg import ArpackError, LinearOperator, eigsh
 
-    trmv = get_blas_funcs("trmv", (L,))
+    trmv = sla.get_blas_funcs("trmv", (L,))
     k = L.shape[0]
     at = np.cumsum([0] + [B.shape[0] for B in factors])
     parts = list(zip(factors, at[:-1], at[1:]))
@@ -249,14 +243,6 @@ def _lanczos_min(L: np.ndarray, *factors: np.ndarray) -> float:
     except (ArpackError, ValueError):  # ValueError: ARPACK needs a matrix larger than 2 x 2
         return math.nan
     return 1.0 / float(w[0]) if w[0] > 0 else math.nan
-
-
-def _neg_cholesky(M0: np.ndarray) -> np.ndarray | None:
-    """A Cholesky factor of ``-M0`` (None when M0 is not negative definite)."""
-    try:
-        return sla.cholesky(-M0, lower=True, check_finite=False)
-    except np.linalg.LinAlgError:
-        return None
 
 
 @dataclass
@@ -295,7 +281,7 @@ class JointCertificate:
         return self.status == "verified"
 
 
-def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool = True,
+def certify(lp: Loop, F, K, P, R, s, t, *,
             sides: tuple | None = None) -> JointCertificate:
     """Choose mu, verify the joint matrix and measure the rate it proves (see the module docstring).
 
@@ -304,10 +290,6 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
     lp : Loop
     F, K, P, R, s, t
         Gains, side Lyapunov matrices and multipliers (:func:`side_matrices`).
-    rtol : float
-        The rate grid (:mod:`bench.search`).
-    margin : bool
-        Also compute the equilibrated max eigenvalue at rate 0 (one more eigenvalue problem).
     sides : (ndarray, ndarray), optional
         ``side_matrices(lp, F, K, P, R, s, t)`` when the caller has them.
 
@@ -315,7 +297,6 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
     -------
     JointCertificate
     """
-    n = P.shape[0]
     try:
         Mx, Me = side_matrices(lp, F, K, P, R, s, t) if sides is None else sides
         sx, se = _rate_bound(Mx, P), _rate_bound(Me, R)
@@ -328,22 +309,26 @@ def certify(lp: Loop, F, K, P, R, s, t, *, rtol: float = RATE_RTOL, margin: bool
         return JointCertificate("violated")
     PBF = P @ lp.B @ F
     M0 = np.block([[Mx, -PBF], [-PBF.T, mu * Me]])
-    W = np.zeros_like(M0)
-    W[:n, :n], W[n:, n:] = P, mu * R
+    W = sla.block_diag(P, mu * R)
     out = JointCertificate(verdict(M0), mu=mu, side_rates=(sx, se), P=W)
-    L = _neg_cholesky(M0) if out.verified and 2 * n >= LANCZOS_FROM else None
-    if margin:  # D L is a Cholesky factor of -D M0 D
-        out.margin = -_lanczos_min(L / np.sqrt(np.abs(np.diag(M0)))[:, None]) if L is not None else math.nan
-        out.margin = out.margin if math.isfinite(out.margin) else equilibrated_max_eig(M0)
+    L = None  # a Cholesky factor of -M0 for Lanczos
+    if out.verified and M0.shape[0] >= LANCZOS_FROM:
+        try:
+            L = sla.cholesky(-M0, lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            pass
+    # D L is a Cholesky factor of -D M0 D
+    out.margin = -_lanczos_min(L / np.sqrt(np.abs(np.diag(M0)))[:, None]) if L is not None else math.nan
+    out.margin = out.margin if math.isfinite(out.margin) else equilibrated_max_eig(M0)
     if not out.verified:
         return out
     out.bound = _rate_bound(M0, P, mu * R, L=L)
     out.rate = 0.0
     if out.bound > 0:
-        lam = grid_floor(out.bound * (1 - 1e-9), rtol)
+        lam = grid_floor(out.bound * (1 - 1e-9))
         for _ in range(3):  # a grid point that verifies clearly (the first one, but for rounding)
             if verdict(M0 + 2 * lam * W, clear=CLEAR) == "verified":
                 out.rate = lam
                 break
-            lam = grid_floor(lam / (1 + rtol) * (1 + 1e-12), rtol)
+            lam = grid_floor(lam / (1 + RATE_RTOL) * (1 + 1e-12))
     return out

@@ -105,27 +105,22 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
 
     if kl is None and start is not None and (kh is None or _index(start, rtol, up=False) < kh):
         probe(_index(start, rtol, up=False))
-    if kl is not None and kh is not None and kh <= kl:  # an upper bound at or below a passing value
-        return {"lo": _value(kl, lo, rtol, up=False), "hi": hi, "kind": "bracketed"}
     for _ in range(max_moves if kh is None else 0):
         if not probe(kl + moves):
             break
-    if kh is None:
-        return {"lo": _value(kl, lo, rtol, up=False), "hi": math.nan, "kind": "above_range"}
     for _ in range(max_moves if kl is None else 0):
         last = kh
         if _point(kh - moves, rtol) < down_until or probe(kh - moves):
             break
-        if stop is not None and stop():  # the probe lay outside the valid range: hi stays the last valid one
+        if stop is not None and stop():
             kh = last
             break
-    if kl is None:
-        return {"lo": math.nan, "hi": _value(kh, hi, rtol, up=True), "kind": "below_range"}
-    while kh - kl > 1:
+    while kl is not None and kh is not None and kh - kl > 1:
         probe((kl + kh) // 2)
-    return {"lo": _value(kl, lo, rtol, up=False), "hi": _value(kh, hi, rtol, up=True), "kind": "bracketed"}
+    kind = "above_range" if kh is None else "below_range" if kl is None else "bracketed"
+    return {"lo": _value(kl, lo, rtol, up=False), "hi": _value(kh, hi, rtol, up=True), "kind": kind}
 
 
-def _value(k: int, given: float | None, rtol: float, up: bool) -> float:
-    """The value of grid index k, or the given bound it was taken from."""
-    return given if given is not None and k == _index(given, rtol, up) else _point(k, rtol)
+def _value(k: int | None, given: float | None, rtol: float, up: bool) -> float:
+    """The value of grid index k, or the given bound it was taken from (NaN without k)."""
+    return math.nan if k is None else given if given is not None and k == _index(given, rtol, up) else _point(k, rtol)

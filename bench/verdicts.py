@@ -13,8 +13,7 @@ from bench.metrics import CONVERGED_RATIO
 
 __all__ = ["certificate_scope", "certified_horizon", "convergence_note", "simulation_horizon"]
 
-#: An uncertified pair is simulated ``LINEAR_FACTOR * ln(1 / CONVERGED_RATIO) / rate`` seconds
-#: (its linearisation's rate: no bound on the transient, so a margin of 2).
+#: An uncertified pair is simulated this many times what its linearisation's rate needs (:func:`simulation_horizon`).
 LINEAR_FACTOR = 2.0
 
 

@@ -39,8 +39,7 @@ GRID = {1: 41, 2: 9, 3: 5}
 #: Seeded members for more channels (half at random vertices, half inside the box).
 SAMPLES = 128
 
-#: A member is unstable when its loop has an eigenvalue with real part above this, relative to the
-#: size of A, B F and K C (the certificate ladder's pre-check uses the same test).
+#: A member is unstable when its loop has an eigenvalue of real part above this, relative to the size of A, B F, K C.
 UNSTABLE_TOL = 1e-9
 
 
@@ -198,8 +197,7 @@ def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, s
 def _rhs(plant, K, F, z: np.ndarray) -> np.ndarray:
     """The true closed loop (9) in ``z = (x, e)``: ``x' = (A + B F) x - B F e + f(x)``,
     ``e' = (A - K C) e + f(x) - f(x - e)``."""
-    n = plant.n
-    x, e = z[:n], z[n:]
+    x, e = np.split(z, 2)
     BF = plant.B @ F
     fx = np.asarray(plant.f(x), float)
     return np.concatenate([(plant.A + BF) @ x - BF @ e + fx, (plant.A - K @ plant.C) @ e + fx
@@ -207,8 +205,7 @@ def _rhs(plant, K, F, z: np.ndarray) -> np.ndarray:
 
 
 def _jac(plant, K, F, z: np.ndarray) -> np.ndarray:
-    n = plant.n
-    x, e = z[:n], z[n:]
+    x, e = np.split(z, 2)
     BF = plant.B @ F
     Jx, Jh = np.asarray(plant.jacobian(x), float), np.asarray(plant.jacobian(x - e), float)
     return np.block([[plant.A + BF + Jx, -BF], [Jx - Jh, plant.A - K @ plant.C + Jh]])
