@@ -90,11 +90,9 @@ def load_plugin(path) -> list[str]:
         for did in designs:
             _build("design", DESIGNS, did, p)
     except PluginError as exc:  # undo: unregister what the file registered and forget its module
-        plants, designs = new_ids()
-        for i in plants:
-            PLANTS.unregister(i)
-        for i in designs:
-            DESIGNS.unregister(i)
+        for registry, ids in zip((PLANTS, DESIGNS), new_ids()):
+            for i in ids:
+                registry.unregister(i)
         sys.modules.pop(name, None)
         raise PluginError(f"plugin {shown}: {exc}") from None
     return plants + designs
