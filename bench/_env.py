@@ -1,9 +1,8 @@
 """Process-wide thread defaults for BLAS and Clarabel, whatever was imported first.
 
-One BLAS thread (the suite's matrices are small and its workers share the cores) and one Rayon
-thread (a worker forked after Clarabel's thread pool started would wait forever in its first
-solve): set in the environment unless already set, and applied by threadpoolctl to a BLAS that
-numpy loaded before :mod:`bench`.
+One BLAS thread and one Rayon thread (a worker forked after Clarabel's thread pool started would
+wait forever in its first solve): set in the environment unless already set, and applied by
+threadpoolctl to a BLAS that numpy loaded before :mod:`bench`.
 """
 
 import os

@@ -166,6 +166,7 @@ class _Run:
         cached = self.cache.load_pair(key) if key else None
         if cached is not None:
             self.results[(pid, did)] = cached
+            cached.plant = self.plants[pid]
             self.tick(f"{pid} x {did}: {_flags(cached.record)} (cached)")
             return True
         self.keys[(pid, did)] = key
@@ -198,16 +199,8 @@ class _Run:
         self.results[(pid, did)] = o
         if self.keys.get((pid, did)):
             self.cache.store_pair(self.keys[(pid, did)], o)
+        o.plant = self.plants.get(pid)  # the parent's own plant object (the worker dropped its copy)
         self.tick(f"{pid} x {did}: {_flags(o.record)}")
-
-    def outcomes(self) -> list[PairOutcome]:
-        out = []
-        for pid in self.plant_ids:
-            for did in self.design_ids:
-                o = self.results[(pid, did)]
-                o.plant = self.plants.get(pid) if pid not in self.errors else None
-                out.append(o)
-        return out
 
 
 def run(
@@ -262,7 +255,7 @@ def run(
             raise
     constants = {pid: state.constants[pid] for pid in plant_ids if pid in state.constants}  # in the order asked for
     errors = {pid: state.errors[pid] for pid in plant_ids if pid in state.errors}
-    outcomes = rejudge(state.outcomes(), constants, options)
+    outcomes = rejudge([state.results[pid, did] for pid in plant_ids for did in design_ids], constants, options)
     return RunResult(outcomes, constants, errors, options, time.perf_counter() - t_start,
                      cache_hits=cache.hits if cache is not None else 0,
                      cache_misses=cache.misses if cache is not None else 0,

@@ -1,10 +1,9 @@
 """Where a pair is judged: design -> verify -> certify -> simulate -> metrics -> verdicts.
 
-:func:`evaluate_pair` is the only place a (plant, design) pair is designed, checked, certified,
-simulated and measured; it returns one :class:`PairOutcome` whose ``record`` is a flat row with
-the columns :data:`COLUMNS` (NaN where a value does not apply). Every verdict is computed here
-(the rules are in :mod:`bench.verdicts`) and stored in the record, so results.csv says everything
-the report shows.
+:func:`evaluate_pair` is the only place a (plant, design) pair is judged; it returns one
+:class:`PairOutcome` whose ``record`` is a flat row with the columns :data:`COLUMNS` (NaN where a
+value does not apply). Every verdict is computed here (the rules are in :mod:`bench.verdicts`) and
+stored in the record, so results.csv says everything the report shows.
 """
 
 from __future__ import annotations
@@ -42,9 +41,8 @@ COLUMNS = [
     "constants", "checked_on", "disproved", "params",
 ]
 
-#: What the ``certificate`` option computes: every level with its rate, or only whether some
-#: level certifies at rate 0 (the strongest first; for bisections over a parameter), or only the
-#: design's own verified certificate (no SDP: for large n), or nothing.
+#: What the ``certificate`` option computes: every level with its rate, or only whether some level
+#: certifies at rate 0 (the strongest first), or only the design's own verified certificate, or nothing.
 CERTIFICATE_MODES = ("ladder", "verdict", "own", "none")
 
 
@@ -285,18 +283,6 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     return cert
 
 
-def _sim_options(options: RunOptions, T: float, t_plant: float) -> SimOptions:
-    """``options.sim`` with the plant horizon's grid density and what is left of the pair's time limit."""
-    sim = options.sim
-    if T > t_plant:
-        sim = replace(sim, n_points=int(min(20 * sim.n_points, math.ceil(sim.n_points * T / t_plant))))
-    left = remaining_time()
-    if left is not None:
-        own = sim.max_wall_s
-        sim = replace(sim, max_wall_s=max(min(left, own if own is not None else math.inf), 1e-3))
-    return sim
-
-
 def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, report: ConstantsReport) -> None:
     """Simulate (one trajectory or the scenario's batch), record the metrics, check the declarations."""
     rec, plant, res = out.record, out.plant, out.result
@@ -306,7 +292,13 @@ def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, 
                                  cert_rate=best.decay_rate if best is not None else math.nan,
                                  cond_p=_cond(best), linear_rate=out.loop.linearised_rate if own else math.nan)
     rec.update(horizon_s=T, horizon_rule=rule)
-    sim = _sim_options(options, T, plant.t_final)
+    sim = options.sim  # with the plant horizon's grid density and what is left of the pair's time limit
+    if T > plant.t_final:
+        sim = replace(sim, n_points=int(min(20 * sim.n_points, math.ceil(sim.n_points * T / plant.t_final))))
+    left = remaining_time()
+    if left is not None:
+        own = sim.max_wall_s
+        sim = replace(sim, max_wall_s=max(min(left, own if own is not None else math.inf), 1e-3))
     rec["noise"] = options.noise
     batch = scenario is not None and scenario.batch
     if batch:
