@@ -1,9 +1,8 @@
 """Process-wide thread defaults for BLAS and Clarabel, whatever was imported first.
 
-One BLAS thread (the suite's matrices are small and its workers share the cores) and one Rayon
-thread (a worker forked after Clarabel's thread pool started would wait forever in its first
-solve): set in the environment unless already set, and applied by threadpoolctl to a BLAS that
-numpy loaded before :mod:`bench`.
+One BLAS thread and one Rayon thread (a worker forked after Clarabel's thread pool started would
+wait forever in its first solve): set in the environment unless already set, and applied by
+threadpoolctl to a BLAS that numpy loaded before :mod:`bench`.
 """
 
 import os
@@ -13,23 +12,14 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "RAYO
     os.environ.setdefault(_var, "1")
 
 
-def blas_threads() -> int:
-    """The suite's BLAS thread count: ``OPENBLAS_NUM_THREADS`` (default 1)."""
-    try:
-        return max(1, int(os.environ.get("OPENBLAS_NUM_THREADS", "1")))
-    except ValueError:
-        return 1
-
-
-def limit_blas() -> None:
-    """Limit the BLAS libraries loaded in this process to :func:`blas_threads` (threadpoolctl)."""
+if "numpy" in sys.modules:  # too late for the environment: numpy's BLAS is loaded already
     from threadpoolctl import threadpool_limits
 
-    threadpool_limits(limits=blas_threads(), user_api="blas")
-
-
-if "numpy" in sys.modules:  # too late for the environment: numpy's BLAS is loaded already
-    limit_blas()
+    try:
+        _threads = max(1, int(os.environ.get("OPENBLAS_NUM_THREADS", "1")))
+    except ValueError:  # not an integer: one thread
+        _threads = 1
+    threadpool_limits(limits=_threads, user_api="blas")
 
 
 def cores() -> int:
@@ -47,9 +37,7 @@ PARALLEL_FROM_N = 256
 def parallel(calls: list, n: int = PARALLEL_FROM_N) -> list:
     """Run zero-argument callables concurrently in threads and return their results in order.
 
-    For independent dense linear algebra on matrices of size ``n``: LAPACK and BLAS release the
-    GIL, and with one BLAS thread each call keeps to its own core, so two calls on two cores take
-    the time of one without BLAS's own threads (which spin and stall when the cores are shared).
+    For independent dense linear algebra on matrices of size ``n`` (LAPACK and BLAS release the GIL).
     Serial on one core or below :data:`PARALLEL_FROM_N`. An exception in a call is raised here.
     """
     if len(calls) < 2 or cores() < 2 or n < PARALLEL_FROM_N:

@@ -1,13 +1,4 @@
-"""The suite as a library: :func:`run` from a notebook or a script, the command line on top of it.
-
-Example
--------
->>> import bench
->>> r = bench.run(plants=["flexible_link"], designs=["thm1", "structured"], jobs=1)  # doctest: +SKIP
->>> r.table[["design", "certified", "decay_rate", "converged"]]  # doctest: +SKIP
->>> r.gains["flexible_link", "thm1"]["K"]  # doctest: +SKIP
->>> r.write("my_report")  # doctest: +SKIP
-"""
+"""The suite as a library: :func:`run` from a notebook or a script (example: :mod:`bench`), the command line on top."""
 
 from __future__ import annotations
 

@@ -2,8 +2,7 @@
 
 Each check returns its input converted or raises an error whose message starts with the input's name
 (``"t_final: must be finite and > 0, got -1"``): a :class:`ValueError`, or ``error(name, message)`` when
-the caller passes one (e.g. ``StudyError``). :func:`argtype` makes a check an ``argparse`` type, so the
-command line and the library reject the same values with the same words.
+the caller passes one (e.g. ``StudyError``). :func:`argtype` makes a check an ``argparse`` type.
 """
 
 from __future__ import annotations

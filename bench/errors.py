@@ -70,10 +70,7 @@ class SimulationStopped(Exception):
 
 
 class DeadlineExceeded(BaseException):
-    """The time limit of the current :func:`bench.limits.time_limit` scope ran out (``where``: what was running).
-
-    A ``BaseException``, so that no ``except Exception`` in a design turns a timeout into an "infeasible" row.
-    """
+    """The time limit of the current :func:`bench.limits.time_limit` scope ran out (``where``: what was running)."""
 
     def __init__(self, where: str):
         super().__init__(where)

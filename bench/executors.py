@@ -92,10 +92,8 @@ def executor(jobs: int | None = None, scheduler: str | None = None, *, connect_t
             client = Client(scheduler, timeout=connect_timeout, set_as_default=False)
         except (OSError, TimeoutError, ValueError) as exc:
             raise ExecutorError(f"cannot reach the Dask scheduler at {scheduler!r} within {connect_timeout:g} s: {exc}") from None
-        try:
+        with client:  # closed on the way out
             yield client.get_executor()
-        finally:
-            client.close()
         return
     jobs = default_jobs() if jobs is None else jobs
     if not isinstance(jobs, int) or jobs < 1:

@@ -2,8 +2,7 @@
 
 The harness owns what is about many pairs: each plant's constants (computed once, shared by its
 pairs), the executor (:mod:`bench.executors`), the cache of finished pairs (:mod:`bench.cache`),
-time limits (a pair over ``RunOptions.timeout`` is a ``timeout`` row; a plant's constants get
-:data:`CONSTANTS_TIMEOUT_FACTOR` times it), progress, and the order of the results. It judges nothing.
+time limits (:data:`CONSTANTS_TIMEOUT_FACTOR`), progress, and the order of the results. It judges nothing.
 """
 
 from __future__ import annotations
@@ -78,13 +77,6 @@ def expected_cost(plant: Plant | None, design_id: str) -> float:
     n = plant.n if plant is not None else 4
     weight = 3.0 if "ekf" in design_id else 2.0 if design_id in ("thm1", "cor1", "thm1_scaled", "cor1_scaled") else 1.0
     return weight * n
-
-
-def _stop_workers(ex) -> None:
-    """Terminate a process pool's workers after a Ctrl-C, so shutting it down does not wait for them."""
-    for proc in list((getattr(ex, "_processes", None) or {}).values()):
-        with contextlib.suppress(Exception):  # already gone
-            proc.terminate()
 
 
 def _drain(ex, tasks) -> None:
@@ -174,6 +166,7 @@ class _Run:
         cached = self.cache.load_pair(key) if key else None
         if cached is not None:
             self.results[(pid, did)] = cached
+            cached.plant = self.plants[pid]
             self.tick(f"{pid} x {did}: {_flags(cached.record)} (cached)")
             return True
         self.keys[(pid, did)] = key
@@ -206,21 +199,8 @@ class _Run:
         self.results[(pid, did)] = o
         if self.keys.get((pid, did)):
             self.cache.store_pair(self.keys[(pid, did)], o)
+        o.plant = self.plants.get(pid)  # the parent's own plant object (the worker dropped its copy)
         self.tick(f"{pid} x {did}: {_flags(o.record)}")
-
-    def constants_in_order(self) -> tuple[dict, dict]:
-        """The constants and their errors in the order of the plants asked for."""
-        return ({pid: self.constants[pid] for pid in self.plant_ids if pid in self.constants},
-                {pid: self.errors[pid] for pid in self.plant_ids if pid in self.errors})
-
-    def outcomes(self) -> list[PairOutcome]:
-        out = []
-        for pid in self.plant_ids:
-            for did in self.design_ids:
-                o = self.results[(pid, did)]
-                o.plant = self.plants.get(pid) if pid not in self.errors else None
-                out.append(o)
-        return out
 
 
 def run(
@@ -268,12 +248,15 @@ def run(
     with executor(jobs, scheduler) as ex:
         try:
             _drain(ex, state.constants_tasks())
-        except KeyboardInterrupt:
-            _stop_workers(ex)
+        except KeyboardInterrupt:  # the pool's workers terminated, so that shutting it down does not wait for them
+            for proc in list((getattr(ex, "_processes", None) or {}).values()):
+                with contextlib.suppress(Exception):  # already gone
+                    proc.terminate()
             raise
-    constants = state.constants_in_order()
-    outcomes = rejudge(state.outcomes(), constants[0], options)
-    return RunResult(outcomes, *constants, options, time.perf_counter() - t_start,
+    constants = {pid: state.constants[pid] for pid in plant_ids if pid in state.constants}  # in the order asked for
+    errors = {pid: state.errors[pid] for pid in plant_ids if pid in state.errors}
+    outcomes = rejudge([state.results[pid, did] for pid in plant_ids for did in design_ids], constants, options)
+    return RunResult(outcomes, constants, errors, options, time.perf_counter() - t_start,
                      cache_hits=cache.hits if cache is not None else 0,
                      cache_misses=cache.misses if cache is not None else 0,
                      cache_dir=None if cache is None else str(cache.root))

@@ -1,11 +1,8 @@
 """Where a pair is judged: design -> verify -> certify -> simulate -> metrics -> verdicts.
 
-:func:`evaluate_pair` is the only place a (plant, design) pair is designed, checked, certified,
-simulated and measured; it returns one :class:`PairOutcome` whose ``record`` is a flat row with
-the columns :data:`COLUMNS` (NaN where a value does not apply). The harness maps it over every
-pair; each study maps it over its own parameter (the scale of f, the sample period, a batch of
-initial conditions, the noise level) with its own :class:`RunOptions` and :class:`Scenario`;
-perf times it. Every verdict is computed here (the rules are in :mod:`bench.verdicts`) and
+:func:`evaluate_pair` is the only place a (plant, design) pair is judged; it returns one
+:class:`PairOutcome` whose ``record`` is a flat row with the columns :data:`COLUMNS` (NaN where a
+value does not apply). Every verdict is computed here (the rules are in :mod:`bench.verdicts`) and
 stored in the record, so results.csv says everything the report shows.
 """
 
@@ -44,9 +41,8 @@ COLUMNS = [
     "constants", "checked_on", "disproved", "params",
 ]
 
-#: What the ``certificate`` option computes: every level with its rate, or only whether some
-#: level certifies at rate 0 (the strongest first; for bisections over a parameter), or only the
-#: design's own verified certificate (no SDP: for large n), or nothing.
+#: What the ``certificate`` option computes: every level with its rate, or only whether some level
+#: certifies at rate 0 (the strongest first), or only the design's own verified certificate, or nothing.
 CERTIFICATE_MODES = ("ladder", "verdict", "own", "none")
 
 
@@ -156,8 +152,7 @@ class PairOutcome:
         Declarations the pair's own or another pair's simulation disproved (name -> why): the
         certificate uses ``report.knowledge(plant).without(disproved)``.
     loop : ClosedLoop or None
-        The design's gains, checked, and the spectra of their linear closed loop
-        (:func:`bench.checks.closed_loop`): computed once, carried to the certificate and the simulation.
+        The design's gains, checked, and the spectra of their linear closed loop (:func:`bench.checks.closed_loop`).
     """
 
     record: dict
@@ -288,35 +283,22 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     return cert
 
 
-def _record_horizon(rec: dict, plant: Plant, res: DesignResult, cert: Certificate | None, options: RunOptions,
-                    loop: checks.ClosedLoop) -> float:
-    """The pair's simulation horizon (:func:`bench.verdicts.simulation_horizon`), stored in ``rec`` with its rule."""
+def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, report: ConstantsReport) -> None:
+    """Simulate (one trajectory or the scenario's batch), record the metrics, check the declarations."""
+    rec, plant, res = out.record, out.plant, out.result
     own = res.estimator is None  # a sampled-time estimator keeps the plant's horizon (a multiple of its dt)
-    best = cert.best if cert is not None and own else None
+    best = out.certificate.best if out.certificate is not None and own else None
     T, rule = simulation_horizon(plant.t_final, fixed=options.t_final, cap_factor=options.horizon_cap,
                                  cert_rate=best.decay_rate if best is not None else math.nan,
-                                 cond_p=_cond(best), linear_rate=loop.linearised_rate if own else math.nan)
+                                 cond_p=_cond(best), linear_rate=out.loop.linearised_rate if own else math.nan)
     rec.update(horizon_s=T, horizon_rule=rule)
-    return T
-
-
-def _sim_options(options: RunOptions, T: float, t_plant: float) -> SimOptions:
-    """``options.sim`` with the plant horizon's grid density and what is left of the pair's time limit."""
-    sim = options.sim
-    if T > t_plant:
-        sim = replace(sim, n_points=int(min(20 * sim.n_points, math.ceil(sim.n_points * T / t_plant))))
+    sim = options.sim  # with the plant horizon's grid density and what is left of the pair's time limit
+    if T > plant.t_final:
+        sim = replace(sim, n_points=int(min(20 * sim.n_points, math.ceil(sim.n_points * T / plant.t_final))))
     left = remaining_time()
     if left is not None:
         own = sim.max_wall_s
         sim = replace(sim, max_wall_s=max(min(left, own if own is not None else math.inf), 1e-3))
-    return sim
-
-
-def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, report: ConstantsReport) -> None:
-    """Simulate (one trajectory or the scenario's batch), record the metrics, check the declarations."""
-    rec, plant, res = out.record, out.plant, out.result
-    T = _record_horizon(rec, plant, res, out.certificate, options, out.loop)
-    sim = _sim_options(options, T, plant.t_final)
     rec["noise"] = options.noise
     batch = scenario is not None and scenario.batch
     if batch:
@@ -418,8 +400,7 @@ def _simulate_batch(out: PairOutcome, plant: Plant, res: DesignResult, T: float,
 
 
 def _in_region(max_norm: float, radius: float, H, tr) -> bool | None:
-    """Whether the trajectory stayed where the certificate holds: ``|H x|, |H x_hat| <= radius`` for a certificate
-    from x0 (its ``region_H``), else ``max_norm <= radius``; None without a finite radius, or without ``tr``."""
+    """Whether ``|H x|, |H x_hat| <= radius`` along ``tr`` (given H), else ``max_norm <= radius``; None if unknown."""
     if not math.isfinite(radius):
         return None
     if H is None:
@@ -499,8 +480,7 @@ def evaluate_pair(
         The id shown in the record (default: ``design`` when it is an id, else its class name).
     prior : PairOutcome, optional
         An earlier outcome of the same pair: its design result and certificate are re-used (they
-        do not depend on the scenario, the noise or the sample period), so a study sweeping one
-        of those designs and certifies once.
+        do not depend on the scenario, the noise or the sample period).
     scenario : Scenario, optional
         A batch of initial conditions or a digital implementation to simulate.
 

@@ -65,6 +65,8 @@ def load_plugin(path) -> list[str]:
         or a plant that cannot be built with its defaults or has another id; the message starts
         with ``plugin <path>:``.
     """
+    from plants import Plant
+
     shown = str(path)
     p = Path(path)
     if not p.exists():
@@ -85,16 +87,19 @@ def load_plugin(path) -> list[str]:
         if not plants and not designs:
             raise PluginError("registers no plant or design (decorate a keyword-only factory with "
                               "@register_plant(\"my_plant\") from bench.registry)")
-        for pid in plants:
-            _check_plant(pid, p)
+        for pid in plants:  # it builds, is a Plant and has the id it was registered under
+            plant = _build("plant", PLANTS, pid, p)
+            if not isinstance(plant, Plant):
+                raise PluginError(f"the factory of plant {pid!r} returned a {type(plant).__name__}, not a plants.Plant")
+            if plant.id != pid:
+                raise PluginError(f"plant registered as {pid!r} has id {plant.id!r}; "
+                                  "use the same id in @register_plant and Plant(id=...)")
         for did in designs:
             _build("design", DESIGNS, did, p)
     except PluginError as exc:  # undo: unregister what the file registered and forget its module
-        plants, designs = new_ids()
-        for i in plants:
-            PLANTS.unregister(i)
-        for i in designs:
-            DESIGNS.unregister(i)
+        for registry, ids in zip((PLANTS, DESIGNS), new_ids()):
+            for i in ids:
+                registry.unregister(i)
         sys.modules.pop(name, None)
         raise PluginError(f"plugin {shown}: {exc}") from None
     return plants + designs
@@ -128,18 +133,6 @@ def _build(kind: str, registry, rid: str, p: Path):
     except Exception as exc:
         raise PluginError(f"{kind} {rid!r} cannot be built with its defaults{_where(exc, p)}: "
                           f"{type(exc).__name__}: {exc}") from None
-
-
-def _check_plant(pid: str, p: Path) -> None:
-    """The plant builds, is a :class:`plants.Plant` and has the id it was registered under."""
-    from plants import Plant
-
-    plant = _build("plant", PLANTS, pid, p)
-    if not isinstance(plant, Plant):
-        raise PluginError(f"the factory of plant {pid!r} returned a {type(plant).__name__}, not a plants.Plant")
-    if plant.id != pid:
-        raise PluginError(f"plant registered as {pid!r} has id {plant.id!r}; "
-                          "use the same id in @register_plant and Plant(id=...)")
 
 
 def load_plugins(paths) -> list[str]:

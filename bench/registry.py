@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import difflib
 import fnmatch
+import functools
 import importlib
 import pkgutil
 import re
@@ -32,8 +33,7 @@ class Entry:
     order: int = 100
 
 
-#: The characters an id may hold: ids become parts of file names (``figures/<plant>__<design>.png``)
-#: and command-line globs, so no path separator, blank, glob or shell character.
+#: The characters an id may hold (ids name files: no path separator, blank, glob or shell character).
 ID_CHARS = "letters A-Z a-z, digits 0-9, '_', '-', '.', '+'"
 _ID_RE = re.compile(r"[A-Za-z0-9_.+-]+")
 
@@ -157,9 +157,7 @@ def register_design(id: str, summary: str | None = None, *, order: int = 100, **
     def deco(cls):
         factory = cls
         if fixed:
-            def factory(**overrides: Any):
-                return cls(**{**fixed, **overrides})
-
+            factory = functools.partial(cls, **fixed)
             factory.__doc__ = cls.__doc__
             factory.__module__ = cls.__module__
         DESIGNS.register(id, factory, summary, order=order)
