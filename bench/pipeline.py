@@ -444,10 +444,9 @@ def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> 
         best = o.certificate.best if o.certificate is not None else None
         if math.isfinite(rec["cert_horizon_s"]):
             rec["cert_horizon_s"] = certified_horizon(best.decay_rate, _cond(best)) if best is not None else math.nan
-        if math.isfinite(rec["cert_radius"]):
+        if rec["sim_status"]:
             rec["in_region"] = _in_region(rec["max_norm"], rec["cert_radius"],
                                           best.region_H if best is not None else None, o.trajectory)
-        if rec["sim_status"]:
             _note(rec, convergence_note(rec))
     return outcomes
 

@@ -228,6 +228,9 @@ def test_a_declaration_disproved_by_one_pair_is_dropped_for_every_pair_of_the_pl
     rec = outs[0].record
     assert rec["cert_structured"] != "certified" or "inherits" in rec["reason"]
     assert rec["cert_level"] != "structured" and "another pair's simulation" in rec["reason"]
+    # in_region speaks of the new certificate's region: unknown (None) where it has no finite radius
+    for o in outs:
+        assert (o.record["in_region"] is None) == (not np.isfinite(o.record["cert_radius"])), o.record
 
 
 def test_a_narrowing_a_sample_disproves_is_not_used_by_certificates():
