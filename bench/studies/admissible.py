@@ -19,8 +19,7 @@ from typing import Any
 import numpy as np
 
 from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_range,
-                                   check_rtol, evaluate, fmt, md_table, pyplot, save_figure, study, study_header,
-                                   write_study)
+                                   check_rtol, evaluate, fmt, md_table, pyplot, study, study_header, write_plant_study)
 from designs import GAIN_STATUSES
 
 __all__ = ["run_admissible", "write_admissible"]
@@ -277,35 +276,31 @@ def _interval(r: dict) -> str:
 
 def _draw_plant(pid: str, rows: list[dict], evals: list[dict]):
     """The figure of one plant: every evaluation per design on the knob's log axis."""
-    def draw(path):
-        plt = pyplot()
-        designs = [r["design"] for r in rows]
-        fig, ax = plt.subplots(figsize=(7.5, 0.45 * len(designs) + 1.6), constrained_layout=True)
-        styles = {"ok": ("o", "tab:green", "feasible and certified"),
-                  "nc": ("s", "tab:orange", "feasible, not certified"),
-                  "no": ("x", "tab:red", "infeasible / undecided / error"),
-                  "na": ("+", "tab:gray", "inapplicable / invalid value")}
-        seen = set()
-        for i, r in enumerate(rows):
-            for e in (e for e in evals if e["plant"] == pid and e["design"] == r["design"] and e["variant"] == r["variant"]):
-                key = ("ok" if e["ok"] else "nc" if e["status"] in GAIN_STATUSES else
-                       "na" if e["status"] in ("inapplicable", "invalid") else "no")
-                m, c, lab = styles[key]
-                ax.plot(e["value"], i, m, color=c, ms=6, label=None if key in seen else lab)
-                seen.add(key)
-            if math.isfinite(r["admissible_lo"]):
-                ax.plot([r["admissible_lo"]] * 2, [i - 0.35, i + 0.35], "-", color="k", lw=2)
-        ax.axvline(rows[0]["default"], ls="--", color="tab:blue", lw=1, label=f"default {rows[0]['knob']}")
-        ax.set_xscale("log")
-        ax.set_yticks(range(len(designs)), designs)
-        ax.invert_yaxis()
-        ax.set(xlabel=f"scale knob {rows[0]['knob']} of f (log)",
-               title=f"{pid}: feasibility vs {rows[0]['knob']} (black bar: admissible value)")
-        ax.grid(True, axis="x", which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        save_figure(fig, path)
-
-    return draw
+    plt = pyplot()
+    designs = [r["design"] for r in rows]
+    fig, ax = plt.subplots(figsize=(7.5, 0.45 * len(designs) + 1.6), constrained_layout=True)
+    styles = {"ok": ("o", "tab:green", "feasible and certified"),
+              "nc": ("s", "tab:orange", "feasible, not certified"),
+              "no": ("x", "tab:red", "infeasible / undecided / error"),
+              "na": ("+", "tab:gray", "inapplicable / invalid value")}
+    seen = set()
+    for i, r in enumerate(rows):
+        for e in (e for e in evals if e["plant"] == pid and e["design"] == r["design"] and e["variant"] == r["variant"]):
+            key = {"ok": "ok", "not certified": "nc", "inapplicable": "na", "invalid": "na"}.get(_outcome(e), "no")
+            m, c, lab = styles[key]
+            ax.plot(e["value"], i, m, color=c, ms=6, label=None if key in seen else lab)
+            seen.add(key)
+        if math.isfinite(r["admissible_lo"]):
+            ax.plot([r["admissible_lo"]] * 2, [i - 0.35, i + 0.35], "-", color="k", lw=2)
+    ax.axvline(rows[0]["default"], ls="--", color="tab:blue", lw=1, label=f"default {rows[0]['knob']}")
+    ax.set_xscale("log")
+    ax.set_yticks(range(len(designs)), designs)
+    ax.invert_yaxis()
+    ax.set(xlabel=f"scale knob {rows[0]['knob']} of f (log)",
+           title=f"{pid}: feasibility vs {rows[0]['knob']} (black bar: admissible value)")
+    ax.grid(True, axis="x", which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return fig
 
 
 def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "Path":  # noqa: F821
@@ -339,17 +334,11 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
         "",
         _compile_note(rows),
         "",
-        "## Figures",
-        "",
     ]
-    lines += [f"![{pid}](figures/study_admissible_{pid}.png)" for pid in plants]
-    lines.append("")
-    figs = {f"study_admissible_{pid}": _draw_plant(pid, [r for r in rows if r["plant"] == pid], result.evals)
-            for pid in plants}
     tables = {"study_admissible": rows, "study_admissible_evaluations": result.evals}
     if result.variant_rows:
         tables["study_admissible_variants"] = result.variant_rows
-    return write_study(out_dir, "admissible", "\n".join(lines), tables, figs)
+    return write_plant_study(out_dir, "admissible", lines, tables, rows, _draw_plant, result.evals)
 
 
 def _osl_section(osl: list[dict]) -> list[str]:
@@ -452,8 +441,7 @@ def _osl_rows(rows: list[dict], plants: list[str]) -> list[dict]:
                          if math.isfinite(ra["admissible_lo"]) and math.isfinite(rb["admissible_lo"]) else math.nan)
                 osl.append({"plant": pid, "pair": f"{a} vs {b}", "thm": _interval(ra), "cor": _interval(rb),
                             "ratio": ratio, "alpha_thm": ra.get("alpha_at_lo", math.nan),
-                            "alpha_cor": rb.get("alpha_at_lo", math.nan), "rho_thm": ra.get("rho_at_lo", math.nan),
-                            "gamma_thm": ra.get("gamma_at_lo", math.nan)})
+                            "alpha_cor": rb.get("alpha_at_lo", math.nan), "rho_thm": ra.get("rho_at_lo", math.nan)})
     osl.sort(key=lambda o: (not (o["rho_thm"] == 0 and o["alpha_thm"] > 0), plants.index(o["plant"])))
     return osl
 

@@ -113,10 +113,8 @@ def _options(args) -> dict:
                     rtol=args.rtol, t_final=args.t_final)
     if args.study == "montecarlo":
         return dict(n=args.n, box=args.box, seed=args.seed, t_final=args.t_final, method=args.method)
-    from bench.studies.noise import DEFAULT_LEVELS
-
-    return dict(levels=tuple(args.levels) if args.levels else DEFAULT_LEVELS, seed=args.seed,
-                matched_ekf=not args.no_matched_ekf, t_final=args.t_final)
+    levels = {"levels": tuple(args.levels)} if args.levels else {}  # none given: run_noise's DEFAULT_LEVELS
+    return dict(**levels, seed=args.seed, matched_ekf=not args.no_matched_ekf, t_final=args.t_final)
 
 
 def run_study(args, argv: list[str]) -> int:

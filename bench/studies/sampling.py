@@ -14,14 +14,14 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_box,
                                    check_count, check_horizon, check_range, check_rtol, default_box, evaluate, fmt,
-                                   map_tasks, md_table, pyplot, random_ics, save_figure, skipped_lines, study,
-                                   study_header, unsimulated_row, write_study)
+                                   map_tasks, md_table, pyplot, random_ics, skipped_lines, study, study_header,
+                                   unsimulated_row, write_plant_study)
 
 __all__ = ["run_sampling", "write_sampling"]
 
@@ -75,8 +75,6 @@ def _check_h(plant, prior, X, XH, h, disc, t_final) -> dict:
 
 def _design_task(plant_id: str, design_id: str, t_final: float | None):
     """The pair as the main table has it (design, certificate ladder, continuous simulation)."""
-    from dataclasses import replace
-
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
 
@@ -174,17 +172,21 @@ def run_sampling(run: StudyRun, *, required: list[str] | tuple[str, ...] = (), n
     StudyError
         Bad box, count, bounds, discretisation, or a required design without fixed gains.
     """
-    n_ics, box, h_range = _check_args(n_ics, box, h_range, discretisation, rtol, t_final)
-    args = (n_ics, box, seed, discretisation, h_range, rtol, t_final)
-    ordered, evals = _bisect_pairs(run, required, args)
-    return SamplingResult(ordered, _settings(*args, run.jobs), run.wall_s(), evals=evals)
+    from bench.batch import DISCRETISATIONS
 
-
-def _settings(n_ics, box, seed, discretisation, h_range, rtol, t_final, jobs) -> dict:
-    return {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
-            "seed": seed, "discretisation": discretisation,
-            "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
-            "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
+    n_ics = check_count("n_ics", n_ics)
+    box = check_box("box", box)
+    h_range = check_range("h_range", h_range)
+    if discretisation not in DISCRETISATIONS:
+        raise StudyError("discretisation", f"must be one of {DISCRETISATIONS}, got {discretisation!r}")
+    check_rtol(rtol)
+    check_horizon(t_final)
+    ordered, evals = _bisect_pairs(run, required, (n_ics, box, seed, discretisation, h_range, rtol, t_final))
+    settings = {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
+                "seed": seed, "discretisation": discretisation,
+                "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
+                "t_final": t_final if t_final is not None else "plant's", "jobs": run.jobs}
+    return SamplingResult(ordered, settings, run.wall_s(), evals=evals)
 
 
 def _bisect_pairs(run: StudyRun, required, args: tuple) -> tuple[list[dict], list[dict]]:
@@ -208,19 +210,6 @@ def _bisect_pairs(run: StudyRun, required, args: tuple) -> tuple[list[dict], lis
     return [rows[key] for key in pairs], evals
 
 
-def _check_args(n_ics, box, h_range, discretisation, rtol, t_final) -> tuple[int, float | None, tuple | None]:
-    from bench.batch import DISCRETISATIONS
-
-    n_ics = check_count("n_ics", n_ics)
-    box = check_box("box", box)
-    h_range = check_range("h_range", h_range)
-    if discretisation not in DISCRETISATIONS:
-        raise StudyError("discretisation", f"must be one of {DISCRETISATIONS}, got {discretisation!r}")
-    check_rtol(rtol)
-    check_horizon(t_final)
-    return n_ics, box, h_range
-
-
 def _check_required(designed: dict, required) -> None:
     """StudyError when a design the caller named has a controller without fixed gains on some plant."""
     for (pid, did), d in designed.items():
@@ -232,33 +221,29 @@ def _check_required(designed: dict, required) -> None:
 
 def _draw(pid: str, rows: list[dict], evals: list[dict]):
     """The figure of one plant: settling time vs h per design."""
-    def draw(path):
-        plt = pyplot()
-        fig, ax = plt.subplots(figsize=(7.5, 4.2), constrained_layout=True)
-        for i, r in enumerate(x for x in rows if "h_max" in x):
-            pts = sorted((e["h"], e["settling_x_plant"]) for e in evals
-                         if e["plant"] == pid and e["design"] == r["design"] and math.isfinite(e["settling_x_plant"]))
-            color = f"C{i % 10}"
-            if pts:
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=color, ms=4, label=r["design"])
-            if math.isfinite(r.get("settling_x_cont", math.nan)):
-                ax.axhline(r["settling_x_cont"], color=color, ls=":", lw=0.8)
-            if math.isfinite(r.get("h_max", math.nan)):
-                ax.axvline(r["h_max"], color=color, ls="--", lw=0.8)
-        ax.set_xscale("log")
-        ax.set(xlabel="sample period h [s] (log); dashed: largest converging h", ylabel="2 % settling time of ||x|| [s]",
-               title=f"{pid}: settling time vs h (dotted: continuous loop)")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        save_figure(fig, path)
-
-    return draw
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 4.2), constrained_layout=True)
+    for i, r in enumerate(x for x in rows if "h_max" in x):
+        pts = sorted((e["h"], e["settling_x_plant"]) for e in evals
+                     if e["plant"] == pid and e["design"] == r["design"] and math.isfinite(e["settling_x_plant"]))
+        color = f"C{i % 10}"
+        if pts:
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=color, ms=4, label=r["design"])
+        if math.isfinite(r.get("settling_x_cont", math.nan)):
+            ax.axhline(r["settling_x_cont"], color=color, ls=":", lw=0.8)
+        if math.isfinite(r.get("h_max", math.nan)):
+            ax.axvline(r["h_max"], color=color, ls="--", lw=0.8)
+    ax.set_xscale("log")
+    ax.set(xlabel="sample period h [s] (log); dashed: largest converging h", ylabel="2 % settling time of ||x|| [s]",
+           title=f"{pid}: settling time vs h (dotted: continuous loop)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return fig
 
 
 def write_sampling(result: SamplingResult, out_dir: str, command: str):
     """Write ``STUDY_sampling.md``, its CSVs and figures atomically; return the markdown's path."""
     rows = result.rows
-    plants = list(dict.fromkeys(r["plant"] for r in rows))
     trows = [{**r, "h_max_s": bracket_cell(r.get("kind", ""), r.get("h_max"), r.get("h_fail"))} for r in rows]
     cols = ["plant", "design", "status", "h_max_s", "h_fail", "h_lin", "settling_x_cont", "settling_x_at_hmax",
             "settling_x_median_at_hmax", "at_fail", "n_evals", "wall_s"]
@@ -294,10 +279,6 @@ def write_sampling(result: SamplingResult, out_dir: str, command: str):
                   "initial conditions, so no h can pass: " + ", ".join(f"{r['plant']} x {r['design']}" for r in slow)
                   + ".", ""]
     lines += skipped_lines(skipped, width=300)
-    lines += ["## Settling time vs h", ""]
-    lines += [f"![{pid}](figures/study_sampling_{pid}.png)" for pid in plants]
-    lines.append("")
-    figs = {f"study_sampling_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid], result.evals)
-            for pid in plants}
     tables = {"study_sampling": rows, "study_sampling_evaluations": result.evals}
-    return write_study(out_dir, "sampling", "\n".join(lines), tables, figs)
+    return write_plant_study(out_dir, "sampling", lines, tables, rows, _draw, result.evals,
+                             heading="## Settling time vs h")
