@@ -183,16 +183,15 @@ def _best_per_level(sub: list[dict], levels: list[float]) -> list[dict]:
 
 
 def _transient_dominated(by: dict, designs: list[str], levels: list[float]) -> list[str]:
-    """Designs whose RMS / sigma at the smallest level exceeds 3 x its value at the largest level."""
+    """Designs whose RMS / sigma at the smallest level exceeds 3 x its value at the largest (none with one level)."""
     slow = []
-    if len(levels) >= 2:
-        for did in designs:
-            if did == MATCHED_EKF:  # its tuning r = sigma^2 changes with the level: not comparable
-                continue
-            lo, hi = by.get((did, levels[0])), by.get((did, levels[-1]))
-            if lo and hi and all(math.isfinite(v) for v in (lo["rms_e"], hi["rms_e"])) and hi["rms_e"] > 0 and \
-                    lo["rms_e"] / levels[0] > 3 * hi["rms_e"] / levels[-1]:
-                slow.append(did)
+    for did in designs:
+        if did == MATCHED_EKF:  # its tuning r = sigma^2 changes with the level: not comparable
+            continue
+        lo, hi = by.get((did, levels[0])), by.get((did, levels[-1]))
+        if lo and hi and all(math.isfinite(v) for v in (lo["rms_e"], hi["rms_e"])) and hi["rms_e"] > 0 and \
+                lo["rms_e"] / levels[0] > 3 * hi["rms_e"] / levels[-1]:
+            slow.append(did)
     return slow
 
 
