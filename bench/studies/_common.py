@@ -123,8 +123,7 @@ def random_ics(plant, n_ics: int, box: float, seed: int) -> tuple[np.ndarray, np
     return tuple(rng.uniform(-box, box, size=(plant.n, n_ics)) for _ in range(2))
 
 
-#: Sampled pairs of a study's constants check (the catalog's constants are analytic; the
-#: sampler only checks them, and a bisection evaluates hundreds of scales of f).
+#: Sampled pairs of a study's constants check (fewer than a run's: a bisection evaluates hundreds of scales of f).
 STUDY_SAMPLES = 1000
 
 _CONSTANTS: dict[tuple, object] = {}
@@ -266,12 +265,6 @@ def study_header(title: str, command: str, settings: dict, wall_s: float) -> str
     ])
 
 
-def save_figure(fig, path) -> None:
-    """Save a study's figure at 100 dpi and close it."""
-    fig.savefig(path, dpi=100)
-    pyplot().close(fig)
-
-
 def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: dict[str, Any],
                 figures: dict[str, Callable[[Path], None]]) -> Path:
     """Write a study's files whole or not at all: ``STUDY_<name>.md``, each table (file stem -> DataFrame or
@@ -292,3 +285,22 @@ def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: di
         (tmp / md_name).write_text(markdown.rstrip("\n") + "\n", encoding="utf-8")
         publish(out, tmp, [*(f"figures/{stem}.png" for stem in figures), *(f"{stem}.csv" for stem in tables), md_name])
     return out / md_name
+
+
+def write_plant_study(out_dir: str | os.PathLike, name: str, lines: list[str], tables: dict[str, Any],
+                      rows: list[dict], draw: Callable[..., Any], *args, heading: str | None = "## Figures") -> Path:
+    """:func:`write_study` with a figure ``study_<name>_<plant>`` per plant of ``rows`` (in order): the figure
+    ``draw(plant, its rows, *args)`` returns, saved at 100 dpi; ``heading`` and the figures' image lines end the
+    markdown ``lines`` (None: the lines show them)."""
+    plants = list(dict.fromkeys(r["plant"] for r in rows))
+    if heading is not None:
+        lines = [*lines, heading, "", *(f"![{pid}](figures/study_{name}_{pid}.png)" for pid in plants), ""]
+    figs = {f"study_{name}_{pid}": functools.partial(_save_figure, draw, pid, rows, args) for pid in plants}
+    return write_study(out_dir, name, "\n".join(lines), tables, figs)
+
+
+def _save_figure(draw: Callable[..., Any], pid: str, rows: list[dict], args: tuple, path: Path) -> None:
+    """Save the figure ``draw(pid, the rows of pid, *args)`` at 100 dpi and close it."""
+    fig = draw(pid, [r for r in rows if r["plant"] == pid], *args)
+    fig.savefig(path, dpi=100)
+    pyplot().close(fig)

@@ -19,8 +19,7 @@ from typing import Any
 import numpy as np
 
 from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_range,
-                                   check_rtol, evaluate, fmt, md_table, pyplot, save_figure, study, study_header,
-                                   write_study)
+                                   check_rtol, evaluate, fmt, md_table, pyplot, study, study_header, write_plant_study)
 from designs import GAIN_STATUSES
 
 __all__ = ["run_admissible", "write_admissible"]
@@ -152,8 +151,7 @@ def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds
     fail = [e for e in ev if not e["ok"] and (e["value"] == out["hi"] or out["kind"] == "inapplicable")]
     row["fails_by"] = _outcome(fail[-1]) if fail else ""
     row["fail_reason"] = fail[-1]["reason"][:300] if fail else ""
-    default_ev = [e for e in ev if e["value"] == default]
-    row["at_default"] = _outcome(default_ev[0]) if default_ev else ""
+    row["at_default"] = next((_outcome(e) for e in ev if e["value"] == default), "")
     if math.isfinite(out["lo"]):
         b = PLANTS.create(plant_id, **{knob: out["lo"]}).bounds
         row.update(alpha_at_lo=b.alpha, rho_at_lo=b.rho, beta_at_lo=b.beta, gamma_at_lo=b.gamma)
@@ -277,41 +275,39 @@ def _interval(r: dict) -> str:
 
 def _draw_plant(pid: str, rows: list[dict], evals: list[dict]):
     """The figure of one plant: every evaluation per design on the knob's log axis."""
-    def draw(path):
-        plt = pyplot()
-        designs = [r["design"] for r in rows]
-        fig, ax = plt.subplots(figsize=(7.5, 0.45 * len(designs) + 1.6), constrained_layout=True)
-        styles = {"ok": ("o", "tab:green", "feasible and certified"),
-                  "nc": ("s", "tab:orange", "feasible, not certified"),
-                  "no": ("x", "tab:red", "infeasible / undecided / error"),
-                  "na": ("+", "tab:gray", "inapplicable / invalid value")}
-        seen = set()
-        for i, r in enumerate(rows):
-            for e in (e for e in evals if e["plant"] == pid and e["design"] == r["design"] and e["variant"] == r["variant"]):
-                key = ("ok" if e["ok"] else "nc" if e["status"] in GAIN_STATUSES else
-                       "na" if e["status"] in ("inapplicable", "invalid") else "no")
-                m, c, lab = styles[key]
-                ax.plot(e["value"], i, m, color=c, ms=6, label=None if key in seen else lab)
-                seen.add(key)
-            if math.isfinite(r["admissible_lo"]):
-                ax.plot([r["admissible_lo"]] * 2, [i - 0.35, i + 0.35], "-", color="k", lw=2)
-        ax.axvline(rows[0]["default"], ls="--", color="tab:blue", lw=1, label=f"default {rows[0]['knob']}")
-        ax.set_xscale("log")
-        ax.set_yticks(range(len(designs)), designs)
-        ax.invert_yaxis()
-        ax.set(xlabel=f"scale knob {rows[0]['knob']} of f (log)",
-               title=f"{pid}: feasibility vs {rows[0]['knob']} (black bar: admissible value)")
-        ax.grid(True, axis="x", which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        save_figure(fig, path)
-
-    return draw
+    plt = pyplot()
+    designs = [r["design"] for r in rows]
+    fig, ax = plt.subplots(figsize=(7.5, 0.45 * len(designs) + 1.6), constrained_layout=True)
+    styles = {"ok": ("o", "tab:green", "feasible and certified"),
+              "nc": ("s", "tab:orange", "feasible, not certified"),
+              "no": ("x", "tab:red", "infeasible / undecided / error"),
+              "na": ("+", "tab:gray", "inapplicable / invalid value")}
+    seen = set()
+    for i, r in enumerate(rows):
+        for e in (e for e in evals if e["plant"] == pid and e["design"] == r["design"] and e["variant"] == r["variant"]):
+            key = {"ok": "ok", "not certified": "nc", "inapplicable": "na", "invalid": "na"}.get(_outcome(e), "no")
+            m, c, lab = styles[key]
+            ax.plot(e["value"], i, m, color=c, ms=6, label=None if key in seen else lab)
+            seen.add(key)
+        if math.isfinite(r["admissible_lo"]):
+            ax.plot([r["admissible_lo"]] * 2, [i - 0.35, i + 0.35], "-", color="k", lw=2)
+    ax.axvline(rows[0]["default"], ls="--", color="tab:blue", lw=1, label=f"default {rows[0]['knob']}")
+    ax.set_xscale("log")
+    ax.set_yticks(range(len(designs)), designs)
+    ax.invert_yaxis()
+    ax.set(xlabel=f"scale knob {rows[0]['knob']} of f (log)",
+           title=f"{pid}: feasibility vs {rows[0]['knob']} (black bar: admissible value)")
+    ax.grid(True, axis="x", which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return fig
 
 
 def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "Path":  # noqa: F821
     """Write ``STUDY_admissible.md``, its CSVs and figures atomically; return the markdown's path."""
     rows = result.rows
-    plants = list(dict.fromkeys(r["plant"] for r in rows))
+    by_plant = {pid: {r["design"]: r for r in rows if r["plant"] == pid}  # plant -> design -> row, in order
+                for pid in dict.fromkeys(r["plant"] for r in rows)}
+    osl = _osl_rows(by_plant)
     lines = [
         study_header("Study: maximum admissible nonlinearity (conservatism)", command, result.settings, result.wall_s),
         _INTRO.format(percent=f"{100 * result.settings['rtol']:g}"),
@@ -322,7 +318,7 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
         "",
         "## Admissible value, plant x design",
         "",
-        _matrix(rows, plants),
+        _matrix(rows, by_plant),
         "",
         "`< v`: fails already at v (the smallest value tried); `>= v`: passes at every value tried; `n/a`: the "
         "design does not apply to the plant (reason in the details).",
@@ -333,28 +329,6 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
         "",
         _DETAILS_NOTE,
         "",
-        *_osl_section(_osl_rows(rows, plants)),
-        *_variant_section(result),
-        "## Compile vs solve",
-        "",
-        _compile_note(rows),
-        "",
-        "## Figures",
-        "",
-    ]
-    lines += [f"![{pid}](figures/study_admissible_{pid}.png)" for pid in plants]
-    lines.append("")
-    figs = {f"study_admissible_{pid}": _draw_plant(pid, [r for r in rows if r["plant"] == pid], result.evals)
-            for pid in plants}
-    tables = {"study_admissible": rows, "study_admissible_evaluations": result.evals}
-    if result.variant_rows:
-        tables["study_admissible_variants"] = result.variant_rows
-    return write_study(out_dir, "admissible", "\n".join(lines), tables, figs)
-
-
-def _osl_section(osl: list[dict]) -> list[str]:
-    """The markdown comparing Theorem 1's admissible value with Corollary 1's, per plant."""
-    return [
         "## Theorem 1 (OSL/QIB) vs Corollary 1 (Lipschitz)",
         "",
         _OSL_INTRO,
@@ -365,12 +339,6 @@ def _osl_section(osl: list[dict]) -> list[str]:
         "",
         _osl_verdict(osl),
         "",
-    ]
-
-
-def _variant_section(result: AdmissibleResult) -> list[str]:
-    """The markdown of the cap variants: the admissible value under each design hyperparameter."""
-    return [
         "## Sensitivity to the normalisation and to the designs' searches",
         "",
         (md_table([{**r, "admissible": _interval(r)} for r in result.variant_rows],
@@ -381,7 +349,15 @@ def _variant_section(result: AdmissibleResult) -> list[str]:
         "",
         "A value that changes with the variant is set by the normalisation or the search, not by the theorem alone.",
         "",
+        "## Compile vs solve",
+        "",
+        _compile_note(rows),
+        "",
     ]
+    tables = {"study_admissible": rows, "study_admissible_evaluations": result.evals}
+    if result.variant_rows:
+        tables["study_admissible_variants"] = result.variant_rows
+    return write_plant_study(out_dir, "admissible", lines, tables, rows, _draw_plant, result.evals)
 
 
 _INTRO = (
@@ -414,12 +390,11 @@ _OSL_INTRO = (
     "two must agree up to the joint designs' phi search.")
 
 
-def _matrix(rows: list[dict], plants: list[str]) -> str:
-    """The markdown matrix plant x design of the admissible values."""
+def _matrix(rows: list[dict], by_plant: dict[str, dict[str, dict]]) -> str:
+    """The markdown matrix plant x design of the admissible values (``by_plant``: plant -> design -> row)."""
     designs = list(dict.fromkeys(r["design"] for r in rows))
     table = []
-    for pid in plants:
-        sub = {r["design"]: r for r in rows if r["plant"] == pid}
+    for pid, sub in by_plant.items():
         first = next(iter(sub.values()))
         table.append({"plant": f"{pid} ({first['knob']}, {fmt(first['default'])})",
                       **{d: bracket_cell(r["kind"], r["admissible_lo"], r["failing_hi"]) for d, r in sub.items()}})
@@ -440,11 +415,10 @@ def _details_table(rows: list[dict]) -> str:
     return md_table(table_rows, cols, heads)
 
 
-def _osl_rows(rows: list[dict], plants: list[str]) -> list[dict]:
+def _osl_rows(by_plant: dict[str, dict[str, dict]]) -> list[dict]:
     """Theorem 1 vs Corollary 1 (joint and separated) per plant, the OSL plants (rho = 0, alpha > 0) first."""
     osl = []
-    for pid in plants:
-        sub = {r["design"]: r for r in rows if r["plant"] == pid}
+    for pid, sub in by_plant.items():
         for a, b in (("thm1", "cor1"), ("thm1_sep", "cor1_sep")):
             if a in sub and b in sub:
                 ra, rb = sub[a], sub[b]
@@ -452,9 +426,8 @@ def _osl_rows(rows: list[dict], plants: list[str]) -> list[dict]:
                          if math.isfinite(ra["admissible_lo"]) and math.isfinite(rb["admissible_lo"]) else math.nan)
                 osl.append({"plant": pid, "pair": f"{a} vs {b}", "thm": _interval(ra), "cor": _interval(rb),
                             "ratio": ratio, "alpha_thm": ra.get("alpha_at_lo", math.nan),
-                            "alpha_cor": rb.get("alpha_at_lo", math.nan), "rho_thm": ra.get("rho_at_lo", math.nan),
-                            "gamma_thm": ra.get("gamma_at_lo", math.nan)})
-    osl.sort(key=lambda o: (not (o["rho_thm"] == 0 and o["alpha_thm"] > 0), plants.index(o["plant"])))
+                            "alpha_cor": rb.get("alpha_at_lo", math.nan), "rho_thm": ra.get("rho_at_lo", math.nan)})
+    osl.sort(key=lambda o: not (o["rho_thm"] == 0 and o["alpha_thm"] > 0))  # stable: plant order within each group
     return osl
 
 

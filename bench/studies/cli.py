@@ -113,16 +113,15 @@ def _options(args) -> dict:
                     rtol=args.rtol, t_final=args.t_final)
     if args.study == "montecarlo":
         return dict(n=args.n, box=args.box, seed=args.seed, t_final=args.t_final, method=args.method)
-    from bench.studies.noise import DEFAULT_LEVELS
-
-    return dict(levels=tuple(args.levels) if args.levels else DEFAULT_LEVELS, seed=args.seed,
-                matched_ekf=not args.no_matched_ekf, t_final=args.t_final)
+    levels = {"levels": tuple(args.levels)} if args.levels else {}  # none given: run_noise's DEFAULT_LEVELS
+    return dict(**levels, seed=args.seed, matched_ekf=not args.no_matched_ekf, t_final=args.t_final)
 
 
 def run_study(args, argv: list[str]) -> int:
     """Run the study named by ``args.study``; returns the exit code."""
     from bench.selection import check_selection
     from bench.executors import default_jobs
+    from bench.progress import Progress
     from bench.studies._common import StudyError
 
     prog = f"python -m bench study {args.study}"
@@ -132,23 +131,16 @@ def run_study(args, argv: list[str]) -> int:
     plant_ids, design_ids = selected
     jobs = args.jobs or default_jobs()
     command = "python -m bench " + shlex.join(argv)
-    bar = None
-    if not args.quiet:
-        from bench.progress import Progress
-
-        bar = Progress(desc=f"study {args.study}", delay=1.0)
     t0 = time.perf_counter()
     try:
         module = importlib.import_module(f"bench.studies.{args.study}")
         run, write = getattr(module, f"run_{args.study}"), getattr(module, f"write_{args.study}")
-        result = run(plant_ids, design_ids, jobs=jobs, progress=bar, **_options(args))
+        with Progress(desc=f"study {args.study}", delay=1.0, disable=True if args.quiet else None) as bar:
+            result = run(plant_ids, design_ids, jobs=jobs, progress=bar, **_options(args))
     except StudyError as exc:
         option = "--range" if exc.param == "bounds" else "--" + exc.param.replace("_", "-")  # the parameter's option
         print(f"{prog}: error: {option}: {exc.message}", file=sys.stderr)
         return 2
-    finally:
-        if bar is not None:
-            bar.close()
     try:
         path = write(result, args.out, command)
     except Exception as exc:  # the previous files stay intact (atomic write)

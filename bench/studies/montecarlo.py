@@ -16,8 +16,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench.studies._common import (StudyResult, StudyRun, check_box, check_count, check_horizon, default_box, evaluate,
-                                   fmt, md_table, pyplot, random_ics, save_figure, skipped_lines, study, study_header,
-                                   unsimulated_row, write_study)
+                                   fmt, md_table, pyplot, random_ics, skipped_lines, study, study_header,
+                                   unsimulated_row, write_plant_study)
 
 __all__ = ["run_montecarlo", "write_montecarlo"]
 
@@ -59,18 +59,12 @@ def _mc_task(plant_id: str, design_id: str, n: int, box: float | None, seed: int
                peak_x_max=float(np.nanmax(m["peak_x"])), sim_s=tr.wall_s, nfev=tr.nfev, method=tr.method,
                design_s=rec["design_s"], wall_s=time.perf_counter() - t0)
     if rec["certified"] and math.isfinite(rec["cert_radius"]):
-        # a local certificate proves convergence only from its level set: count those members
-        inside = _inside_level_set(first, X, XH)
+        # a local certificate proves convergence only from its level set V <= level_set: count those members
+        Z = np.vstack([X, X - XH])
+        inside = np.einsum("ij,ij->j", Z, first.certificate.best.P @ Z) <= first.record["level_set"]
         row.update(n_in_level_set=int(inside.sum()), frac_converged_in_level_set=float(conv[inside].mean())
                    if inside.any() else math.nan)
     return {"row": row, "settling": sx}
-
-
-def _inside_level_set(first, X: np.ndarray, XH: np.ndarray) -> np.ndarray:
-    """Members whose initial (x, e) lies in the certified level set ``V <= level_set``."""
-    P = first.certificate.best.P
-    Z = np.vstack([X, X - XH])
-    return np.einsum("ij,ij->j", Z, P @ Z) <= first.record["level_set"]
 
 
 def _describe(key, r: dict) -> str:
@@ -129,45 +123,40 @@ def run_montecarlo(run: StudyRun, *, n: int = 1000, box: float | None = None, se
     return MonteCarloResult(rows, settings, run.wall_s(), settling=settling)
 
 
-def _draw(pid: str, rows: list[dict], settling: dict):
-    """The figure of one plant: fraction converging and settling times per design."""
-    def draw(path):
-        plt = pyplot()
-        sim = [r for r in rows if "frac_converged" in r]
-        fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 0.35 * max(len(sim), 3) + 1.8), constrained_layout=True,
-                                     gridspec_kw={"width_ratios": [1, 2]})
-        names = [r["design"] for r in sim]
-        y = np.arange(len(sim))
-        a1.barh(y, [r["frac_converged"] for r in sim], color=["tab:green" if r["certified"] else "tab:orange"
-                                                                for r in sim])
-        a1.set_yticks(y, names)
-        a1.invert_yaxis()
-        a1.set(xlim=(0, 1.05), xlabel="fraction converging", title="green: certified; orange: not")
-        data = [settling[(pid, r["design"])] for r in sim]
-        nonempty = [(i, d) for i, d in enumerate(data) if d.size]
-        if nonempty:
-            import matplotlib
+def _draw(pid: str, sim: list[dict], settling: dict):
+    """The figure of one plant: fraction converging and settling times per simulated design."""
+    plt = pyplot()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 0.35 * max(len(sim), 3) + 1.8), constrained_layout=True,
+                                 gridspec_kw={"width_ratios": [1, 2]})
+    names = [r["design"] for r in sim]
+    y = np.arange(len(sim))
+    a1.barh(y, [r["frac_converged"] for r in sim], color=["tab:green" if r["certified"] else "tab:orange"
+                                                            for r in sim])
+    a1.set_yticks(y, names)
+    a1.invert_yaxis()
+    a1.set(xlim=(0, 1.05), xlabel="fraction converging", title="green: certified; orange: not")
+    data = [settling[(pid, r["design"])] for r in sim]
+    nonempty = [(i, d) for i, d in enumerate(data) if d.size]
+    if nonempty:
+        import matplotlib
 
-            major, minor = (int(v) for v in matplotlib.__version__.split(".")[:2])
-            horiz = {"orientation": "horizontal"} if (major, minor) >= (3, 10) else {"vert": False}
-            a2.boxplot([d for _, d in nonempty], positions=[i for i, _ in nonempty], widths=0.6, whis=(0, 100),
-                       **horiz)
-        a2.set_yticks(y, names)
-        a2.set_ylim(len(sim) - 0.5, -0.5)
-        a2.set(xlabel="2 % settling time of ||x|| [s] (converging ICs; whiskers min-max)",
-               title=f"{pid}: {sim[0]['N']} initial conditions in "
-                     f"[-{fmt(sim[0]['box'])}, {fmt(sim[0]['box'])}]^n")
-        a2.grid(True, axis="x", alpha=0.3)
-        save_figure(fig, path)
-
-    return draw
+        major, minor = (int(v) for v in matplotlib.__version__.split(".")[:2])
+        horiz = {"orientation": "horizontal"} if (major, minor) >= (3, 10) else {"vert": False}
+        a2.boxplot([d for _, d in nonempty], positions=[i for i, _ in nonempty], widths=0.6, whis=(0, 100),
+                   **horiz)
+    a2.set_yticks(y, names)
+    a2.set_ylim(len(sim) - 0.5, -0.5)
+    a2.set(xlabel="2 % settling time of ||x|| [s] (converging ICs; whiskers min-max)",
+           title=f"{pid}: {sim[0]['N']} initial conditions in "
+                 f"[-{fmt(sim[0]['box'])}, {fmt(sim[0]['box'])}]^n")
+    a2.grid(True, axis="x", alpha=0.3)
+    return fig
 
 
 def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
     """Write ``STUDY_montecarlo.md``, its CSV and figures atomically; return the markdown's path."""
     rows = result.rows
     sim = [r for r in rows if "frac_converged" in r]
-    plants = list(dict.fromkeys(r["plant"] for r in sim))  # those with a figure
     skipped = [r for r in rows if "frac_converged" not in r]
     cols = ["plant", "design", "certified", "region", "frac_converged", "n_diverged", "worst_final_x",
             "settling_min", "settling_median", "settling_p90", "settling_max", "method", "sim_s"]
@@ -190,9 +179,4 @@ def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
                   "initial conditions, or a numerical issue): " + ", ".join(f"{r['plant']} x {r['design']}"
                                                                              for r in warn), ""]
     lines += skipped_lines(skipped, width=250)
-    lines += ["## Figures", ""]
-    lines += [f"![{pid}](figures/study_montecarlo_{pid}.png)" for pid in plants]
-    lines.append("")
-    figs = {f"study_montecarlo_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid], result.settling)
-            for pid in plants}
-    return write_study(out_dir, "montecarlo", "\n".join(lines), {"study_montecarlo": rows}, figs)
+    return write_plant_study(out_dir, "montecarlo", lines, {"study_montecarlo": rows}, sim, _draw, result.settling)

@@ -10,14 +10,14 @@ The gains are designed once per pair and reused at every level; the numbers equa
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from bench import checks
 from bench.studies._common import (StudyError, StudyResult, StudyRun, check_horizon, check_levels, evaluate, fmt,
-                                   md_table, pyplot, save_figure, skipped_lines, study, study_header, unsimulated_row,
-                                   write_study)
+                                   md_table, pyplot, skipped_lines, study, study_header, unsimulated_row,
+                                   write_plant_study)
 
 __all__ = ["run_noise", "write_noise"]
 
@@ -36,16 +36,12 @@ def _noise_task(prior, label: str, sigma: float, seed: int, noise_dt: float, t_f
     options = RunOptions(noise=sigma, seed=seed, noise_dt=noise_dt, t_final=t_final, certificate="none")
     rec = evaluate(plant, label, options, prior=prior).record
     est = "EKF" if prior.result.estimator is not None else "fixed K"
-    return {"plant": rec["plant"], "design": label, "noise": sigma, "estimator": est,
-            "sim_status": rec["sim_status"], "converged": rec["converged"], "rms_e": rec["rms_e"],
-            "final_x": rec["final_x"], "final_e": rec["final_e"], "settling_x_s": rec["settling_x_s"],
-            "peak_u": rec["peak_u"], "horizon_s": rec["horizon_s"], "sim_s": rec["sim_s"]}
+    keep = ("sim_status", "converged", "rms_e", "final_x", "final_e", "settling_x_s", "peak_u", "horizon_s", "sim_s")
+    return {"plant": rec["plant"], "design": label, "noise": sigma, "estimator": est, **{k: rec[k] for k in keep}}
 
 
 def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[list, list]:
     """Design and certify each pair once (the pipeline without simulation); the jobs per level."""
-    from dataclasses import replace
-
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
 
@@ -124,26 +120,23 @@ def run_noise(run: StudyRun, *, levels: tuple[float, ...] = DEFAULT_LEVELS, seed
 
 def _draw(pid: str, rows: list[dict]):
     """The figure of one plant: RMS error and final ||x|| vs the noise level per design."""
-    def draw(path):
-        plt = pyplot()
-        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.3), constrained_layout=True)
-        designs = list(dict.fromkeys(r["design"] for r in rows))
-        for i, did in enumerate(designs):
-            sub = sorted((r for r in rows if r["design"] == did), key=lambda r: r["noise"])
-            style = "--" if "ekf" in did else "-"
-            marker = "s" if "ekf" in did else "o"
-            kw = dict(ls=style, marker=marker, ms=4, color=plt.get_cmap("tab20")(i % 20), label=did)
-            a1.loglog([r["noise"] for r in sub], [r["rms_e"] for r in sub], **kw)
-            a2.loglog([r["noise"] for r in sub], [r["final_x"] for r in sub], **kw)
-        a1.set(xlabel="noise standard deviation sigma", ylabel="RMS ||e|| (second half of the horizon)",
-               title=f"{pid}: estimation error")
-        a2.set(xlabel="noise standard deviation sigma", ylabel="final ||x||", title=f"{pid}: final state norm")
-        for a in (a1, a2):
-            a.grid(True, which="both", alpha=0.3)
-        a2.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        save_figure(fig, path)
-
-    return draw
+    plt = pyplot()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.3), constrained_layout=True)
+    designs = list(dict.fromkeys(r["design"] for r in rows))
+    for i, did in enumerate(designs):
+        sub = sorted((r for r in rows if r["design"] == did), key=lambda r: r["noise"])
+        style = "--" if "ekf" in did else "-"
+        marker = "s" if "ekf" in did else "o"
+        kw = dict(ls=style, marker=marker, ms=4, color=plt.get_cmap("tab20")(i % 20), label=did)
+        a1.loglog([r["noise"] for r in sub], [r["rms_e"] for r in sub], **kw)
+        a2.loglog([r["noise"] for r in sub], [r["final_x"] for r in sub], **kw)
+    a1.set(xlabel="noise standard deviation sigma", ylabel="RMS ||e|| (second half of the horizon)",
+           title=f"{pid}: estimation error")
+    a2.set(xlabel="noise standard deviation sigma", ylabel="final ||x||", title=f"{pid}: final state norm")
+    for a in (a1, a2):
+        a.grid(True, which="both", alpha=0.3)
+    a2.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return fig
 
 
 def _plant_section(pid: str, sub: list[dict], levels: list[float]) -> list[str]:
@@ -190,16 +183,15 @@ def _best_per_level(sub: list[dict], levels: list[float]) -> list[dict]:
 
 
 def _transient_dominated(by: dict, designs: list[str], levels: list[float]) -> list[str]:
-    """Designs whose RMS / sigma at the smallest level exceeds 3 x its value at the largest level."""
+    """Designs whose RMS / sigma at the smallest level exceeds 3 x its value at the largest (none with one level)."""
     slow = []
-    if len(levels) >= 2:
-        for did in designs:
-            if did == MATCHED_EKF:  # its tuning r = sigma^2 changes with the level: not comparable
-                continue
-            lo, hi = by.get((did, levels[0])), by.get((did, levels[-1]))
-            if lo and hi and all(math.isfinite(v) for v in (lo["rms_e"], hi["rms_e"])) and hi["rms_e"] > 0 and \
-                    lo["rms_e"] / levels[0] > 3 * hi["rms_e"] / levels[-1]:
-                slow.append(did)
+    for did in designs:
+        if did == MATCHED_EKF:  # its tuning r = sigma^2 changes with the level: not comparable
+            continue
+        lo, hi = by.get((did, levels[0])), by.get((did, levels[-1]))
+        if lo and hi and all(math.isfinite(v) for v in (lo["rms_e"], hi["rms_e"])) and hi["rms_e"] > 0 and \
+                lo["rms_e"] / levels[0] > 3 * hi["rms_e"] / levels[-1]:
+            slow.append(did)
     return slow
 
 
@@ -222,5 +214,4 @@ def write_noise(result: NoiseResult, out_dir: str, command: str):
     for pid in plants:
         lines += _plant_section(pid, [r for r in rows if r["plant"] == pid], levels)
     lines += skipped_lines(result.skipped, heading="## Not simulated", width=250)
-    figs = {f"study_noise_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid]) for pid in plants}
-    return write_study(out_dir, "noise", "\n".join(lines), {"study_noise": rows}, figs)
+    return write_plant_study(out_dir, "noise", lines, {"study_noise": rows}, rows, _draw, heading=None)

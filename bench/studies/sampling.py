@@ -14,25 +14,24 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_box,
                                    check_count, check_horizon, check_range, check_rtol, default_box, evaluate, fmt,
-                                   map_tasks, md_table, pyplot, random_ics, save_figure, skipped_lines, study,
-                                   study_header, unsimulated_row, write_study)
+                                   map_tasks, md_table, pyplot, random_ics, skipped_lines, study, study_header,
+                                   unsimulated_row, write_plant_study)
 
 __all__ = ["run_sampling", "write_sampling"]
 
 DEFAULT_PLANTS = ("flexible_link", "random_lipschitz_v1", "moving_object_v1")
 
 
-def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1e-5, h_max: float = 10.0,
-                   n_grid: int = 400) -> float:
+def linear_h_bound(plant, K, F, discretisation: str = "zoh") -> float:
     """First sample period at which the sampled loop linearised at the origin loses stability: the first
-    crossing of ``rho(Phi(h)) = 1`` on a log grid of ``n_grid`` points in ``[h_min, h_max]``, refined by Brent's
-    method; ``0.0`` if unstable at ``h_min``, ``inf`` if stable on the whole grid.
+    crossing of ``rho(Phi(h)) = 1`` on a log grid of 400 points in ``[1e-5, 10]`` s, refined by Brent's
+    method; ``0.0`` if unstable at 1e-5 s, ``inf`` if stable on the whole grid.
     """
     from scipy.optimize import brentq
 
@@ -43,7 +42,7 @@ def linear_h_bound(plant, K, F, discretisation: str = "zoh", *, h_min: float = 1
     def rho(h: float) -> float:
         return float(np.abs(np.linalg.eigvals(digital_matrix(Alin, plant.B, plant.C, K, F, h, discretisation))).max())
 
-    grid = np.logspace(math.log10(h_min), math.log10(h_max), int(n_grid))
+    grid = np.logspace(-5, 1, 400)
     for i, h in enumerate(grid):
         if rho(h) >= 1.0:
             return 0.0 if i == 0 else float(brentq(lambda v: rho(v) - 1.0, grid[i - 1], h, rtol=1e-8))
@@ -75,8 +74,6 @@ def _check_h(plant, prior, X, XH, h, disc, t_final) -> dict:
 
 def _design_task(plant_id: str, design_id: str, t_final: float | None):
     """The pair as the main table has it (design, certificate ladder, continuous simulation)."""
-    from dataclasses import replace
-
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
 
@@ -122,9 +119,8 @@ def _sampling_task(prior, n_ics: int, box: float | None, seed: int, disc: str, h
     at = [e for e in evals if e["h"] == out["lo"]]
     if at:
         row.update(settling_x_at_hmax=at[0]["settling_x_plant"], settling_x_median_at_hmax=at[0]["settling_x_median"])
-    fail = [e for e in evals if e["h"] == out["hi"]]
-    if fail:
-        f = fail[0]
+    f = next((e for e in evals if e["h"] == out["hi"]), None)
+    if f is not None:
         row["at_fail"] = (f"{f['n_converged']}/{f['N']} converged, {f['n_diverged']} diverged, worst final "
                           f"||x|| {fmt(f['worst_final_x'])}")
     return {"row": row, "evals": evals}
@@ -174,17 +170,21 @@ def run_sampling(run: StudyRun, *, required: list[str] | tuple[str, ...] = (), n
     StudyError
         Bad box, count, bounds, discretisation, or a required design without fixed gains.
     """
-    n_ics, box, h_range = _check_args(n_ics, box, h_range, discretisation, rtol, t_final)
-    args = (n_ics, box, seed, discretisation, h_range, rtol, t_final)
-    ordered, evals = _bisect_pairs(run, required, args)
-    return SamplingResult(ordered, _settings(*args, run.jobs), run.wall_s(), evals=evals)
+    from bench.batch import DISCRETISATIONS
 
-
-def _settings(n_ics, box, seed, discretisation, h_range, rtol, t_final, jobs) -> dict:
-    return {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
-            "seed": seed, "discretisation": discretisation,
-            "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
-            "t_final": t_final if t_final is not None else "plant's", "jobs": jobs}
+    n_ics = check_count("n_ics", n_ics)
+    box = check_box("box", box)
+    h_range = check_range("h_range", h_range)
+    if discretisation not in DISCRETISATIONS:
+        raise StudyError("discretisation", f"must be one of {DISCRETISATIONS}, got {discretisation!r}")
+    check_rtol(rtol)
+    check_horizon(t_final)
+    ordered, evals = _bisect_pairs(run, required, (n_ics, box, seed, discretisation, h_range, rtol, t_final))
+    settings = {"n_ics": n_ics, "box": box if box is not None else "plant's initial-condition scale",
+                "seed": seed, "discretisation": discretisation,
+                "h_range": h_range or "automatic (from h_lin / 2)", "rtol": rtol,
+                "t_final": t_final if t_final is not None else "plant's", "jobs": run.jobs}
+    return SamplingResult(ordered, settings, run.wall_s(), evals=evals)
 
 
 def _bisect_pairs(run: StudyRun, required, args: tuple) -> tuple[list[dict], list[dict]]:
@@ -195,8 +195,12 @@ def _bisect_pairs(run: StudyRun, required, args: tuple) -> tuple[list[dict], lis
     pairs = [(pid, did) for pid in plant_ids for did in design_ids]
     with executor(run.jobs) as ex:
         designed = map_tasks(ex, _design_task, [((pid, did), (pid, did, t_final)) for pid, did in pairs])
-        _check_required(designed, required)
         rows = {key: row for key in pairs if (row := unsimulated_row(*key, designed[key])) is not None}
+        for (pid, did), row in rows.items():  # a design the caller named must have fixed gains on every plant
+            if did in required and row["status"] == "no fixed gains":
+                est = type(designed[(pid, did)].result.estimator).__name__
+                raise StudyError("design", f"{did!r} has no fixed gains (K, F) on {pid!r} (its estimator is {est}): "
+                                           "a sampling study needs fixed gains")
         tasks = [(key, (designed[key], *args)) for key in pairs if key not in rows]
         done = map_tasks(ex, _sampling_task, tasks, run.progress,
                          lambda key, r: f"{key[0]} x {key[1]}: h_max {fmt(r['row']['h_max'])}")
@@ -208,57 +212,31 @@ def _bisect_pairs(run: StudyRun, required, args: tuple) -> tuple[list[dict], lis
     return [rows[key] for key in pairs], evals
 
 
-def _check_args(n_ics, box, h_range, discretisation, rtol, t_final) -> tuple[int, float | None, tuple | None]:
-    from bench.batch import DISCRETISATIONS
-
-    n_ics = check_count("n_ics", n_ics)
-    box = check_box("box", box)
-    h_range = check_range("h_range", h_range)
-    if discretisation not in DISCRETISATIONS:
-        raise StudyError("discretisation", f"must be one of {DISCRETISATIONS}, got {discretisation!r}")
-    check_rtol(rtol)
-    check_horizon(t_final)
-    return n_ics, box, h_range
-
-
-def _check_required(designed: dict, required) -> None:
-    """StudyError when a design the caller named has a controller without fixed gains on some plant."""
-    for (pid, did), d in designed.items():
-        res = d.result
-        if res is not None and res.has_controller and not res.has_gains and did in required:
-            raise StudyError("design", f"{did!r} has no fixed gains (K, F) on {pid!r} (its estimator is "
-                                       f"{type(res.estimator).__name__}): a sampling study needs fixed gains")
-
-
 def _draw(pid: str, rows: list[dict], evals: list[dict]):
     """The figure of one plant: settling time vs h per design."""
-    def draw(path):
-        plt = pyplot()
-        fig, ax = plt.subplots(figsize=(7.5, 4.2), constrained_layout=True)
-        for i, r in enumerate(x for x in rows if "h_max" in x):
-            pts = sorted((e["h"], e["settling_x_plant"]) for e in evals
-                         if e["plant"] == pid and e["design"] == r["design"] and math.isfinite(e["settling_x_plant"]))
-            color = f"C{i % 10}"
-            if pts:
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=color, ms=4, label=r["design"])
-            if math.isfinite(r.get("settling_x_cont", math.nan)):
-                ax.axhline(r["settling_x_cont"], color=color, ls=":", lw=0.8)
-            if math.isfinite(r.get("h_max", math.nan)):
-                ax.axvline(r["h_max"], color=color, ls="--", lw=0.8)
-        ax.set_xscale("log")
-        ax.set(xlabel="sample period h [s] (log); dashed: largest converging h", ylabel="2 % settling time of ||x|| [s]",
-               title=f"{pid}: settling time vs h (dotted: continuous loop)")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        save_figure(fig, path)
-
-    return draw
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 4.2), constrained_layout=True)
+    for i, r in enumerate(x for x in rows if "h_max" in x):
+        pts = sorted((e["h"], e["settling_x_plant"]) for e in evals
+                     if e["plant"] == pid and e["design"] == r["design"] and math.isfinite(e["settling_x_plant"]))
+        color = f"C{i % 10}"
+        if pts:
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=color, ms=4, label=r["design"])
+        if math.isfinite(r.get("settling_x_cont", math.nan)):
+            ax.axhline(r["settling_x_cont"], color=color, ls=":", lw=0.8)
+        if math.isfinite(r.get("h_max", math.nan)):
+            ax.axvline(r["h_max"], color=color, ls="--", lw=0.8)
+    ax.set_xscale("log")
+    ax.set(xlabel="sample period h [s] (log); dashed: largest converging h", ylabel="2 % settling time of ||x|| [s]",
+           title=f"{pid}: settling time vs h (dotted: continuous loop)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return fig
 
 
 def write_sampling(result: SamplingResult, out_dir: str, command: str):
     """Write ``STUDY_sampling.md``, its CSVs and figures atomically; return the markdown's path."""
     rows = result.rows
-    plants = list(dict.fromkeys(r["plant"] for r in rows))
     trows = [{**r, "h_max_s": bracket_cell(r.get("kind", ""), r.get("h_max"), r.get("h_fail"))} for r in rows]
     cols = ["plant", "design", "status", "h_max_s", "h_fail", "h_lin", "settling_x_cont", "settling_x_at_hmax",
             "settling_x_median_at_hmax", "at_fail", "n_evals", "wall_s"]
@@ -268,8 +246,7 @@ def write_sampling(result: SamplingResult, out_dir: str, command: str):
     skipped = [r for r in rows if "h_max" not in r]
     disc = result.settings["discretisation"]
     lines = [
-        study_header("Study: digital implementation (largest sample period)", "python -m bench study sampling"
-                     if not command else command, result.settings, result.wall_s),
+        study_header("Study: digital implementation (largest sample period)", command, result.settings, result.wall_s),
         "The controller and the observer run at period h, the plant is continuous: at `t_k = k h` the output is "
         "sampled, `u_k = F x_hat_k` is held and the observer is advanced by its "
         + ("**zoh** discretisation (its model integrated over the period, input and output injection held)"
@@ -294,10 +271,6 @@ def write_sampling(result: SamplingResult, out_dir: str, command: str):
                   "initial conditions, so no h can pass: " + ", ".join(f"{r['plant']} x {r['design']}" for r in slow)
                   + ".", ""]
     lines += skipped_lines(skipped, width=300)
-    lines += ["## Settling time vs h", ""]
-    lines += [f"![{pid}](figures/study_sampling_{pid}.png)" for pid in plants]
-    lines.append("")
-    figs = {f"study_sampling_{pid}": _draw(pid, [r for r in rows if r["plant"] == pid], result.evals)
-            for pid in plants}
     tables = {"study_sampling": rows, "study_sampling_evaluations": result.evals}
-    return write_study(out_dir, "sampling", "\n".join(lines), tables, figs)
+    return write_plant_study(out_dir, "sampling", lines, tables, rows, _draw, result.evals,
+                             heading="## Settling time vs h")
