@@ -57,22 +57,18 @@ TAU_GRID = (1.0, 10.0, 1e2, 1e3, 1e4, 1e5)
 EPS_GRID = (1e-2, 1e-4)
 
 
-def _max_eig(M: np.ndarray) -> float:
-    """The largest eigenvalue of a symmetric M."""
-    i = M.shape[0] - 1
-    try:
-        return float(sla.eigvalsh(M, subset_by_index=[i, i], check_finite=False)[0])
-    except (np.linalg.LinAlgError, ValueError):  # LAPACK's subset driver can fail on clustered spectra
-        return float(np.linalg.eigvalsh(M)[i])
-
-
 def _norm2(X: np.ndarray) -> float:
-    """Spectral norm via the smaller Gram matrix."""
+    """Spectral norm via the largest eigenvalue of the smaller Gram matrix."""
     X = np.asarray(X, dtype=float)
     if X.size == 0:
         return 0.0
     Gm = X.T @ X if X.shape[0] >= X.shape[1] else X @ X.T
-    return float(math.sqrt(max(_max_eig(Gm), 0.0)))
+    i = Gm.shape[0] - 1
+    try:
+        top = float(sla.eigvalsh(Gm, subset_by_index=[i, i], check_finite=False)[0])
+    except (np.linalg.LinAlgError, ValueError):  # LAPACK's subset driver can fail on clustered spectra
+        top = float(np.linalg.eigvalsh(Gm)[i])
+    return float(math.sqrt(max(top, 0.0)))
 
 
 @dataclass(frozen=True)
@@ -87,12 +83,13 @@ class AREInfo:
     reason: str = ""
 
 
-def _are_residual(a, M, q, X) -> float:
+def _are_residual(a, M, q, X) -> tuple[float, np.ndarray]:
+    """X's relative residual (:class:`AREInfo`) and its residual matrix ``a'X + Xa - XMX + q``."""
     res = a.T @ X
     res = res + res.T - X @ M @ X + q
     nX = np.abs(X).sum(axis=0).max()
     den = 2 * np.abs(a).sum(axis=0).max() * nX + np.abs(M).sum(axis=0).max() * nX**2 + np.abs(q).sum(axis=0).max()
-    return float(np.abs(res).sum(axis=0).max() / max(den, 1e-300))
+    return float(np.abs(res).sum(axis=0).max() / max(den, 1e-300)), res
 
 
 def _sign_are(a, M, q, *, tol=1e-6, maxit=60, single=False):
@@ -179,20 +176,18 @@ def _newton(a, M, q, X, residual_tol, steps=5):
     go on to ``residual_tol / 100`` while each cuts the relative residual tenfold. Returns X (None unless
     it is within ``residual_tol``) and its relative residual."""
     X = lmi.sym(np.asarray(X, dtype=np.float64))
-    res_now = _are_residual(a, M, q, X)
+    res_now, res = _are_residual(a, M, q, X)
     for _ in range(steps):
         if not res_now > 1e-2 * residual_tol:
             break
-        res = a.T @ X
-        res = res + res.T - X @ M @ X + q
         D = _lyap_sign(a - M @ X, lmi.sym(res))
         if D is None:
             break
         X_new = X + lmi.sym(D)
-        res_new = _are_residual(a, M, q, X_new)
+        res_new, res_mat = _are_residual(a, M, q, X_new)
         if not res_new < res_now:
             break
-        X, res_now, cut = X_new, res_new, res_new < 0.1 * res_now
+        X, res_now, res, cut = X_new, res_new, res_mat, res_new < 0.1 * res_now
         if not cut:
             break
     return (X if res_now <= residual_tol else None), res_now
@@ -270,7 +265,7 @@ def _accurate(X: np.ndarray, a, M, q, max_re: float, res: float | None) -> tuple
         return None, math.inf, "non-finite solution"
     asym = float(np.abs(X - X.T).max() / max(np.abs(X).max(), 1e-300))
     X = lmi.sym(X)
-    res = _are_residual(a, M, q, X) if res is None else res
+    res = _are_residual(a, M, q, X)[0] if res is None else res
     reason = ""
     if asym > 1e-6:
         reason = f"solution not symmetric (relative asymmetry {asym:.2g})"
@@ -340,12 +335,6 @@ def _side_terms(inputs, acts, reads, mult, tau, eps) -> tuple[np.ndarray, np.nda
     return b, rr, reads.T @ reads / mult + eps * np.eye(inputs.shape[0])
 
 
-def _side_are(a, inputs, acts, reads, mult, tau, eps, method, X0=None):
-    """One side's ARE (:func:`_side_terms`) by :func:`solve_are`."""
-    b, rr, q = _side_terms(inputs, acts, reads, mult, tau, eps)
-    return solve_are(a, b, rr, q, method=method, X0=X0)
-
-
 def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign", X0=None) -> tuple[SideSolution | None, str]:
     """x-side: ``F = -tau B' P`` from the ARE with ``a = A0 + lam I``, ``b = [B, G]``, ``rr = (1/(2 tau), -1/s)``.
 
@@ -376,7 +365,7 @@ def solve_x_side(A0, B, G, H, r, lam, s, tau, eps, *, method: str = "sign", X0=N
     A0, B = np.asarray(A0, dtype=float), np.asarray(B, dtype=float)
     n = A0.shape[0]
     lp = _loop(A0, B, np.zeros((0, n)), G, H, r)
-    P, info = _side_are(A0 + lam * np.eye(n), B, lp.G, lp.DH, s, tau, eps, method, X0)
+    P, info = solve_are(A0 + lam * np.eye(n), *_side_terms(B, lp.G, lp.DH, s, tau, eps), method=method, X0=X0)
     if P is None:
         return None, f"x-side ARE: {info.reason}"
     pmin, pmax = _pos_def(P)
@@ -397,7 +386,7 @@ def solve_e_side(A0, C, G, H, r, lam, t, tau, eps, *, method: str = "sign", X0=N
     A0, C = np.asarray(A0, dtype=float), np.asarray(C, dtype=float)
     n = A0.shape[0]
     lp = _loop(A0, np.zeros((n, 0)), C, G, H, r)
-    X, info = _side_are((A0 + lam * np.eye(n)).T, C.T, lp.DH.T, lp.G.T, t, tau, eps, method, X0)
+    X, info = solve_are((A0 + lam * np.eye(n)).T, *_side_terms(C.T, lp.DH.T, lp.G.T, t, tau, eps), method=method, X0=X0)
     if X is None:
         return None, f"e-side ARE: {info.reason}"
     try:

@@ -368,3 +368,15 @@ def joint_result(prog: lmi.Program, concl: dict, params: dict, cost: tuple = (0.
         n_solves=prog.n_solves + cost[2], margin=concl["margin"], lmi_size=concl["lmi_size"], min_eig=concl["min_eig"],
         params={**params, "slack": concl.get("slack", float("nan"))},
     )
+
+
+def concluded(prog: lmi.Program, params: Callable[[dict], dict], *, what: str, cap: float, searched: str,
+              settle: Callable[..., tuple[dict, tuple]] | None = None) -> DesignResult:
+    """:func:`joint_result` of ``prog``'s best solve concluded (:func:`bench.lmi.conclude`) under the normalisation
+    ``Q, R << cap I``, with the scalars ``params(values)``; ``settle(concl, searched=..., normalisation=...)``
+    (:func:`settle_joint`) may re-decide the verdict, the cost of its solves added."""
+    prog.restore_best()
+    norm = f"the normalisation Q, R << {cap:g} I, slack <= 1"
+    concl = lmi.conclude(prog, what=what, normalisation=norm, searched=searched)
+    concl, cost = settle(concl, searched=searched, normalisation=norm) if settle else (concl, (0.0, 0.0, 0))
+    return joint_result(prog, concl, params(prog.values()), cost)

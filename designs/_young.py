@@ -10,11 +10,12 @@ separated solve) reports.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Callable, ClassVar
 
 from bench import lmi
 from designs._core import Design, DesignResult, check_choice, check_int, check_positive, check_range
-from designs._separated import YoungForm, joint_result, separated_design, settle_joint
+from designs._separated import YoungForm, concluded, separated_design, settle_joint
 from plants import Constants, Plant
 
 
@@ -66,10 +67,6 @@ class YoungDesign(Design):
     def _joint_solver(self) -> str:
         return "CLARABEL" if self.solver == "auto" else self.solver
 
-    @property
-    def _normalisation(self) -> str:
-        return f"the normalisation Q, R << {self.cap:g} I, slack <= 1"
-
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the design for ``plant`` with ``constants``; a failure's reason names the scaled variant."""
         res = self._design(plant, constants)
@@ -108,10 +105,7 @@ class YoungDesign(Design):
         """The joint LMI, the Young weight searched; a marginal verdict is settled side by side."""
         prog = form.joint_program(plant, cap=self.cap, phi_name=self.phi_name)
         phi, _, searched = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi))
-        prog.restore_best()
         if self._fixed_phi is None:
             searched += f" ({prog.n_solves} solves)"
-        concl = lmi.conclude(prog, what=form.what, normalisation=self._normalisation, searched=searched)
-        concl, cost = settle_joint(plant, form, concl, cap=self.cap, solver=self.solver, searched=searched,
-                                   normalisation=self._normalisation)
-        return joint_result(prog, concl, self.solved_params(prog.values(), constants, phi), cost)
+        return concluded(prog, lambda vals: self.solved_params(vals, constants, phi), what=form.what, cap=self.cap,
+                         searched=searched, settle=partial(settle_joint, plant, form, cap=self.cap, solver=self.solver))

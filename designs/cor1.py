@@ -12,11 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench import lmi
 from bench.registry import register_design
 from designs._core import Design, DesignResult, check_positive, check_values_in
-from designs._separated import (YoungForm, joint_program, joint_result, scalar, state_feedback_block,
-                                young_layout)
+from designs._separated import YoungForm, concluded, joint_program, scalar, state_feedback_block, young_layout
 from designs._young import YoungDesign
 from plants import Constants, Plant
 
@@ -135,11 +133,7 @@ class Cor1Printed(Design):
                              {"xi_a2": "xi_over_alpha2", "mu1_max": "mu1_max"}, {"a2": a2}, extra, cap=self.cap)
         best_xi = max(map(float, self.xis),
                       key=lambda xi: np.nan_to_num(prog.solve(xi_a2=xi / a2, mu1_max=min(1.0, 1.0 / xi)), nan=-np.inf))
-        prog.restore_best()
-        concl = lmi.conclude(prog, what="Corollary 1 as printed (Remarks 2-3)",
-                              normalisation=f"the normalisation Q, R << {self.cap:g} I, slack <= 1",
-                              searched=f"over xi in {tuple(self.xis)}")
-        sv = prog.values()
-        params = {"xi": best_xi, "alpha": constants.alpha, "cap": self.cap,
-                  **{k: scalar(sv, k) for k in ("mu1", "mu2", "alpha2", "beta2")}}
-        return joint_result(prog, concl, params)
+        return concluded(prog, lambda sv: {"xi": best_xi, "alpha": constants.alpha, "cap": self.cap,
+                                           **{k: scalar(sv, k) for k in ("mu1", "mu2", "alpha2", "beta2")}},
+                         what="Corollary 1 as printed (Remarks 2-3)", cap=self.cap,
+                         searched=f"over xi in {tuple(self.xis)}")

@@ -50,12 +50,6 @@ __all__ = ["Structured"]
 RICCATI_FROM_N = 64
 
 
-def _loop(plant: Plant) -> joint.Loop:
-    """The loop-transformed data of a plant with channels (:func:`bench.joint.loop`)."""
-    ch = plant.channels
-    return joint.loop(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi)
-
-
 @register_design("structured", order=17)
 @dataclass(frozen=True, kw_only=True)
 class Structured(Design):
@@ -101,8 +95,12 @@ class Structured(Design):
 
     # -- the sides -------------------------------------------------------------------------------
     def _programs(self, plant: Plant) -> tuple[lmi.Program, lmi.Program]:
-        d = _side_data(plant)
-        n, m, p, q = plant.n, plant.m, plant.p, plant.channels.q
+        """The x-side and e-side programs on the loop data ``A0, B, C, G, H, Dr`` (all channels, as the multipliers are
+        per channel)."""
+        ch = plant.channels
+        d = {"A0": plant.A + ch.G @ np.diag(ch.center) @ ch.H, "B": plant.B, "C": plant.C, "G": ch.G, "H": ch.H,
+             "Dr": np.diag(ch.spread)}
+        n, m, p, q = plant.n, plant.m, plant.p, ch.q
         # the side programs bake the loop data in (A0, G, H, Dr): the key must hold their values
         key = ("structured", n, m, p, q, tuple((k, lmi.digest(v)) for k, v in d.items()))
         return (lmi.cached_program((*key, "x"), lambda: _side_program("x", d, n, m, q)),
@@ -185,13 +183,6 @@ class Structured(Design):
         return DesignResult(status="feasible", K=rr.K, F=rr.F, certificate=cert, **base)
 
 
-def _side_data(plant: Plant) -> dict:
-    """The side programs' loop data ``A0, B, C, G, H, Dr`` (all channels, as the multipliers are per channel)."""
-    ch = plant.channels
-    return {"A0": plant.A + ch.G @ np.diag(ch.center) @ ch.H, "B": plant.B, "C": plant.C, "G": ch.G, "H": ch.H,
-            "Dr": np.diag(ch.spread)}
-
-
 def _x_blocks(d: dict, x: dict) -> list:
     """x-side: ``[[A0 Q + Q A0' + B Y + Y' B' + G S G' + 2 lam Q, Q H' Dr], [Dr H Q, -S]]``."""
     A0, B, G, H, Dr = d["A0"], d["B"], d["G"], d["H"], d["Dr"]
@@ -213,27 +204,20 @@ _SIDES = {"x": (_x_blocks, "Q", "Y", "s"), "e": (_e_blocks, "R", "Kh", "t")}
 
 
 def _side_program(side: str, d: dict, n: int, k: int, q: int) -> lmi.Program:
-    """The min-gain program of one side; the gain is ``Y`` (k = m inputs, m x n) or ``Kh`` (k = p outputs, n x p)."""
+    """The min-gain program of one side, ``min k`` s.t. ``M << -eps I``, ``pos >= I``, ``||gain|| <= k``, multipliers
+    >= 0; the gain is ``Y`` (k = m inputs, m x n) or ``Kh`` (k = p outputs, n x p)."""
     import cvxpy as cp
 
     blocks, pos, gain, mult = _SIDES[side]
+    blocks = partial(blocks, d)
     v = {pos: cp.Variable((n, n), symmetric=True), gain: cp.Variable((k, n) if side == "x" else (n, k)),
          mult: cp.Variable(q), "k": cp.Variable()}
     prm = {"lam": cp.Parameter(nonneg=True, name="lam")}
-    return _min_gain_program(partial(blocks, d), v, prm, pos, gain, mult, n + q,
-                             scale=1.0 + np.linalg.norm(d["A0"], 2))
-
-
-def _min_gain_program(blocks, v: dict, prm: dict, pos: str, gain: str, mult: str, size: int, *,
-                      scale: float) -> lmi.Program:
-    """``min k`` s.t. ``M << -eps I``, ``pos >= I``, ``||gain|| <= k``, multipliers >= 0."""
-    import cvxpy as cp
-
     M = lmi.sym(lmi.assemble(blocks, {**v, **prm}, numeric=False))
     g = v[gain]
     r, c = g.shape
-    eps = 1e-3 * scale
-    cons = [M << -eps * np.eye(size), v[pos] >> np.eye(v[pos].shape[0]), v[mult] >= 0,
+    eps = 1e-3 * (1.0 + np.linalg.norm(d["A0"], 2))
+    cons = [M << -eps * np.eye(n + q), v[pos] >> np.eye(n), v[mult] >= 0,
             cp.bmat([[v["k"] * np.eye(r), g], [g.T, v["k"] * np.eye(c)]]) >> 0]
     prob = cp.Problem(cp.Minimize(v["k"]), cons)
     return lmi.Program(prob, v, prm, blocks, (pos,))
@@ -243,8 +227,9 @@ def _conclude(plant: Plant, best: dict, tries: int, design: Structured, base: di
     """Certify the chosen gains by the joint certificate (:func:`bench.joint.certify`) and build the result."""
     P, R, F, K = best["P"], best["R"], best["F"], best["K"]
     s, t = np.maximum(best["s"], 1e-12), np.maximum(best["t"], 1e-12)
-    cert = joint.certify(_loop(plant), F, K, P, R, s, t)
-    n, q = plant.n, plant.channels.q
+    ch = plant.channels
+    cert = joint.certify(joint.loop(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi), F, K, P, R, s, t)
+    n, q = plant.n, ch.q
     params = {"decay_target": best["lam"], "rate_bound": cert.bound, "gain_norm": best["gain"],
               "max_gain": design.max_gain, "mu": cert.mu, "x_rate": cert.side_rates[0], "e_rate": cert.side_rates[1],
               "decay_searches": tries}
@@ -253,7 +238,7 @@ def _conclude(plant: Plant, best: dict, tries: int, design: Structured, base: di
             f"the gains exceed max_gain = {design.max_gain:g} already at decay 0 (||F||, ||K|| up to "
             f"{best['gain']:.3g}): the smallest gains found are returned")
         out = {"level": "structured", "P": cert.P, "decay_rate": cert.rate, "margin": cert.margin,
-               "radius": plant.channels.radius,
+               "radius": ch.radius,
                "how": "the design's own joint certificate (V = x'Q^-1 x + mu e'Re), its rate by a generalised eigenvalue"}
         return DesignResult(status="feasible", reason=note, K=K, F=F, margin=cert.margin, lmi_size=2 * n + 2 * q,
                             min_eig={"Q^-1": lmi.min_eig(P), "R": lmi.min_eig(R)}, params=params, certificate=out,

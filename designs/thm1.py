@@ -15,7 +15,7 @@ import numpy as np
 from bench import lmi
 from bench.registry import register_design
 from designs._core import Design, DesignError, DesignResult, check_int, check_positive, check_range, check_values_in
-from designs._separated import (YoungForm, append_schur_column, joint_program, joint_result, scalar,
+from designs._separated import (YoungForm, append_schur_column, concluded, joint_program, scalar,
                                 state_feedback_block, young_layout)
 from designs._young import YoungDesign
 from plants import Constants, Plant
@@ -169,14 +169,10 @@ class Thm1(YoungDesign):
             if val > best[0] or best[4] is None:
                 best = (val, eps2, eta1, phi, prog)
         _, eps2, eta1, phi, prog = best
-        prog.restore_best()
         for k in ("compile_s", "solve_s", "n_solves"):
             setattr(prog, k, sum(getattr(p, k) for p in progs.values()))
         lo, hi = self.phi1_range
         searched = f"over eps2 in {self.eps2_range} x phi1 in [{lo:g}, {hi:g}] ({prog.n_solves} solves)"
-        concl = lmi.conclude(prog, what="corrected Theorem 1 (fixed eps, gamma < 0)",
-                             normalisation=self._normalisation, searched=searched)
-        vals = prog.values()
         params = {
             "form": "fixed eps (gamma < 0)",
             "phi1": phi,
@@ -184,9 +180,9 @@ class Thm1(YoungDesign):
             "eps2": eps2,
             "eta1": eta1,
             "eta2": eps2 * c.gamma - eps1,
-            **self._multipliers(vals, c),
         }
-        return joint_result(prog, concl, params)
+        return concluded(prog, lambda vals: {**params, **self._multipliers(vals, c)},
+                         what="corrected Theorem 1 (fixed eps, gamma < 0)", cap=self.cap, searched=searched)
 
 
 @register_design("thm1_printed", order=11)
@@ -268,12 +264,7 @@ class Thm1Printed(Design):
         prog = self._program(plant, c)
         best = max(combos, key=lambda cb: np.nan_to_num(prog.solve(psi=cb[2], zeta=cb[3], two_eps2=2 * cb[1]), nan=-np.inf))
         eps1, eps2, psi, zeta = best
-        prog.restore_best()
-        concl = lmi.conclude(prog, what="Theorem 1 as printed (Remark 1)",
-                              normalisation=f"the normalisation Q, R << {self.cap:g} I, slack <= 1",
-                              searched=f"over {len(combos)} (eps1, eps2) pairs")
-        vals = prog.values()
-        params.update(eps1=eps1, eps2=eps2, psi=psi, zeta=zeta, cap=self.cap,
-                      alpha1=scalar(vals, "alpha1"), beta1=scalar(vals, "beta1"),
-                      eps3=scalar(vals, "eps3"), eps4=scalar(vals, "eps4"))
-        return joint_result(prog, concl, params)
+        params.update(eps1=eps1, eps2=eps2, psi=psi, zeta=zeta, cap=self.cap)
+        return concluded(prog, lambda v: {**params, **{k: scalar(v, k) for k in ("alpha1", "beta1", "eps3", "eps4")}},
+                         what="Theorem 1 as printed (Remark 1)", cap=self.cap,
+                         searched=f"over {len(combos)} (eps1, eps2) pairs")
