@@ -48,7 +48,7 @@ __all__ = ["structured_riccati"]
 
 #: Largest relative ARE residual accepted.
 RESIDUAL_TOL = 1e-8
-#: From this n on, the sign iteration starts in single precision (half the time) and Newton steps
+#: From this n on, the sign iteration starts in single precision and Newton steps
 #: refine its solution; the search's gain estimates stay in single precision.
 SINGLE_FROM_N = 256
 #: Default tau grid, relative to the natural scale (smallest gain first).

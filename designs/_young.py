@@ -15,7 +15,7 @@ from typing import Callable, ClassVar
 
 from bench import lmi
 from designs._core import Design, DesignResult, check_choice, check_int, check_positive, check_range
-from designs._separated import YoungForm, concluded, separated_design, settle_joint
+from designs._separated import concluded, separated_design, settle_joint
 from plants import Constants, Plant
 
 
@@ -76,9 +76,16 @@ class YoungDesign(Design):
         return res
 
     def _design(self, plant: Plant, constants: Constants) -> DesignResult:
+        """Separated, or the joint LMI with the Young weight searched (a marginal verdict settled side by side)."""
         if self.method == "separated":
             return self.separated(plant, constants)
-        return self._design_joint(plant, self.form(plant, constants), constants)
+        form = self.form(plant, constants)
+        prog = form.joint_program(plant, cap=self.cap, phi_name=self.phi_name)
+        phi, _, searched = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi))
+        if self._fixed_phi is None:
+            searched += f" ({prog.n_solves} solves)"
+        return concluded(prog, lambda vals: self.solved_params(vals, constants, phi), what=form.what, cap=self.cap,
+                         searched=searched, settle=partial(settle_joint, plant, form, cap=self.cap, solver=self.solver))
 
     def separated(self, plant: Plant, constants: Constants, *, decide: bool = True) -> DesignResult:
         """The sides solved apart and the joint certificate rebuilt; ``decide=False`` skips the scale-free solves."""
@@ -100,12 +107,3 @@ class YoungDesign(Design):
         phi, val = lmi.log_search(obj, lo, hi, n_grid=self.n_grid if n_grid is None else n_grid,
                                   n_refine=self.n_refine if n_refine is None else n_refine)
         return phi, val, f"over {self.phi_name} in [{lo:g}, {hi:g}]"
-
-    def _design_joint(self, plant: Plant, form: YoungForm, constants: Constants) -> DesignResult:
-        """The joint LMI, the Young weight searched; a marginal verdict is settled side by side."""
-        prog = form.joint_program(plant, cap=self.cap, phi_name=self.phi_name)
-        phi, _, searched = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi))
-        if self._fixed_phi is None:
-            searched += f" ({prog.n_solves} solves)"
-        return concluded(prog, lambda vals: self.solved_params(vals, constants, phi), what=form.what, cap=self.cap,
-                         searched=searched, settle=partial(settle_joint, plant, form, cap=self.cap, solver=self.solver))

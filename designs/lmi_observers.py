@@ -14,6 +14,7 @@ Sci. Numer. Simul. 17(12), 2012, and the LMI form of Abbaszadeh & Marquez (ACC 2
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -41,28 +42,29 @@ class _ObserverLMI(Part):
 
 
 def _solve_observer(part: "Part", plant: Plant, key: tuple, blocks, matrices: tuple[str, ...], mats: lmi.Matrices,
-                    constants: dict, nonneg: tuple[str, ...], *, what: str,
-                    searched: str) -> tuple[lmi.Program, dict, str]:
+                    constants: dict, nonneg: tuple[str, ...], *, what: str, searched: str,
+                    gain: Callable[[dict], np.ndarray], params: Callable[[dict], dict]) -> DesignResult:
     """Solve the LMI ``blocks`` in ``matrices`` and the scalars ``nonneg`` under ``P << cap I``, a marginal verdict
-    again under ``I << P << cap I``."""
+    again under ``I << P << cap I``; K is ``gain(values)`` when feasible, the scalars ``params(values)``."""
     def variables():
         return synthesis_variables(plant.n, plant.m, plant.p, nonneg, matrices)
 
     prog = side_program(key, blocks, variables, mats, constants, nonneg, "P", cap=part.cap, scale_free=False)
     log = lmi.solve_side(prog, part.solver, plant.n)
     concl = lmi.conclude(prog, what=what, normalisation=f"P << {part.cap:g} I, slack <= 1", searched=searched)
-    if concl["status"] != "marginal":
-        return prog, concl, log
-    sf = side_program(key, blocks, variables, mats, constants, nonneg, "P", cap=part.cap, scale_free=True)
-    lmi.solve_side(sf, "CLARABEL" if part.solver == "auto" else part.solver)
-    norm = f"I << P << {part.cap:g} I"
-    dec = lmi.conclude(sf, what=what, normalisation=norm, searched=f"{searched} (scale-free)")
-    if dec["status"] == "infeasible":
-        concl = {**concl, "status": "infeasible", "reason": (
-            f"{dec['reason']}; the LMI is homogeneous in its variables, so this loses only points with "
-            f"cond(P) > {part.cap:g} (under P << {part.cap:g} I alone the best margin shrinks to 0 with the "
-            f"variables: max eig {concl['margin']:.3g})")}
-    return prog, concl, log
+    if concl["status"] == "marginal":
+        sf = side_program(key, blocks, variables, mats, constants, nonneg, "P", cap=part.cap, scale_free=True)
+        lmi.solve_side(sf, "CLARABEL" if part.solver == "auto" else part.solver)
+        norm = f"I << P << {part.cap:g} I"
+        dec = lmi.conclude(sf, what=what, normalisation=norm, searched=f"{searched} (scale-free)")
+        if dec["status"] == "infeasible":
+            concl = {**concl, "status": "infeasible", "reason": (
+                f"{dec['reason']}; the LMI is homogeneous in its variables, so this loses only points with "
+                f"cond(P) > {part.cap:g} (under P << {part.cap:g} I alone the best margin shrinks to 0 with the "
+                f"variables: max eig {concl['margin']:.3g})")}
+    vals = prog.values()
+    K = gain(vals) if concl["status"] == "feasible" else None
+    return joint_result(prog, concl, params(vals), gains=(K, None), log=log)
 
 
 @register_estimator("rajamani")
@@ -88,12 +90,10 @@ class RajamaniLMI(_ObserverLMI):
             return [[S, P], [P, -d["eps"] * I]]
 
         mats = lmi.matrices(A=plant.A, C=plant.C)
-        prog, concl, log = _solve_observer(self, plant, ("rajamani", n, p, lam), blocks, ("P", "W"), mats, {"a2": a2},
-                                           ("eps",), what="Rajamani LMI observer", searched=f"with decay {lam:g}")
-        vals = prog.values()
-        K = np.linalg.solve(vals["P"], vals["W"]) if concl["status"] == "feasible" else None
-        return joint_result(prog, concl, {"alpha": constants.alpha, "decay": lam, "eps": scalar(vals, "eps")},
-                            gains=(K, None), log=log)
+        return _solve_observer(self, plant, ("rajamani", n, p, lam), blocks, ("P", "W"), mats, {"a2": a2}, ("eps",),
+                               what="Rajamani LMI observer", searched=f"with decay {lam:g}",
+                               gain=lambda vals: np.linalg.solve(vals["P"], vals["W"]),
+                               params=lambda vals: {"alpha": constants.alpha, "decay": lam, "eps": scalar(vals, "eps")})
 
 
 @register_estimator("zhang_osl")
@@ -128,13 +128,9 @@ class ZhangOSL(_ObserverLMI):
 
         # C'C is one parameter: sigma * (C' C) with C a parameter would not be DPP
         mats = lmi.matrices(A=plant.A, CtC=C.T @ C)
-        prog, concl, log = _solve_observer(self, plant, ("zhang_osl", n, lam), blocks, ("P",), mats,
-                                           {"rho": rho, "beta": beta, "gamma": gamma}, ("sigma", "eps1", "eps2"),
-                                           what="Zhang OSL LMI observer", searched=f"with decay {lam:g}")
-        vals = prog.values()
-        K = None
-        if concl["status"] == "feasible":
-            K = (float(vals["sigma"]) / 2) * np.linalg.solve(vals["P"], C.T)
-        sc = {k: scalar(vals, k) for k in ("sigma", "eps1", "eps2")}
-        return joint_result(prog, concl, {"rho": rho, "beta": beta, "gamma": gamma, "decay": lam, **sc},
-                            gains=(K, None), log=log)
+        return _solve_observer(self, plant, ("zhang_osl", n, lam), blocks, ("P",), mats,
+                               {"rho": rho, "beta": beta, "gamma": gamma}, ("sigma", "eps1", "eps2"),
+                               what="Zhang OSL LMI observer", searched=f"with decay {lam:g}",
+                               gain=lambda vals: (float(vals["sigma"]) / 2) * np.linalg.solve(vals["P"], C.T),
+                               params=lambda vals: {"rho": rho, "beta": beta, "gamma": gamma, "decay": lam,
+                                                    **{k: scalar(vals, k) for k in ("sigma", "eps1", "eps2")}})

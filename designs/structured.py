@@ -152,7 +152,29 @@ class Structured(Design):
         if best is None:
             return DesignResult(status="infeasible", reason=(
                 "structured design: a side is not strictly feasible at decay 0 (Q, R >= I normalisation)"), **base)
-        return _conclude(plant, best, tries, self, base)
+        P, R, F, K = best["P"], best["R"], best["F"], best["K"]
+        s, t = np.maximum(best["s"], 1e-12), np.maximum(best["t"], 1e-12)
+        ch = plant.channels
+        cert = joint.certify(joint.loop(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi), F, K, P, R, s, t)
+        n, q = plant.n, ch.q
+        params = {"decay_target": best["lam"], "rate_bound": cert.bound, "gain_norm": best["gain"],
+                  "max_gain": self.max_gain, "mu": cert.mu, "x_rate": cert.side_rates[0], "e_rate": cert.side_rates[1],
+                  "decay_searches": tries}
+        if cert.verified:
+            note = "" if best["gain"] <= self.max_gain else (
+                f"the gains exceed max_gain = {self.max_gain:g} already at decay 0 (||F||, ||K|| up to "
+                f"{best['gain']:.3g}): the smallest gains found are returned")
+            out = {"level": "structured", "P": cert.P, "decay_rate": cert.rate, "margin": cert.margin,
+                   "radius": ch.radius,
+                   "how": "the design's own joint certificate (V = x'Q^-1 x + mu e'Re), its rate by a generalised "
+                          "eigenvalue"}
+            return DesignResult(status="feasible", reason=note, K=K, F=F, margin=cert.margin, lmi_size=2 * n + 2 * q,
+                                min_eig={"Q^-1": lmi.min_eig(P), "R": lmi.min_eig(R)}, params=params, certificate=out,
+                                **base)
+        return DesignResult(status="undecided", reason=(
+            f"structured design: both sides verified at decay {best['lam']:.3g}, but the joint certificate with "
+            f"mu = {cert.mu:.3g} is {cert.status} (equilibrated max eig {cert.margin:.3g})"), margin=cert.margin,
+            params=params, **base)
 
     def _design_riccati(self, plant: Plant) -> DesignResult:
         """The Riccati route: the decay target searched side by side (or the fixed ``decay``)."""
@@ -221,29 +243,3 @@ def _side_program(side: str, d: dict, n: int, k: int, q: int) -> lmi.Program:
             cp.bmat([[v["k"] * np.eye(r), g], [g.T, v["k"] * np.eye(c)]]) >> 0]
     prob = cp.Problem(cp.Minimize(v["k"]), cons)
     return lmi.Program(prob, v, prm, blocks, (pos,))
-
-
-def _conclude(plant: Plant, best: dict, tries: int, design: Structured, base: dict) -> DesignResult:
-    """Certify the chosen gains by the joint certificate (:func:`bench.joint.certify`) and build the result."""
-    P, R, F, K = best["P"], best["R"], best["F"], best["K"]
-    s, t = np.maximum(best["s"], 1e-12), np.maximum(best["t"], 1e-12)
-    ch = plant.channels
-    cert = joint.certify(joint.loop(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi), F, K, P, R, s, t)
-    n, q = plant.n, ch.q
-    params = {"decay_target": best["lam"], "rate_bound": cert.bound, "gain_norm": best["gain"],
-              "max_gain": design.max_gain, "mu": cert.mu, "x_rate": cert.side_rates[0], "e_rate": cert.side_rates[1],
-              "decay_searches": tries}
-    if cert.verified:
-        note = "" if best["gain"] <= design.max_gain else (
-            f"the gains exceed max_gain = {design.max_gain:g} already at decay 0 (||F||, ||K|| up to "
-            f"{best['gain']:.3g}): the smallest gains found are returned")
-        out = {"level": "structured", "P": cert.P, "decay_rate": cert.rate, "margin": cert.margin,
-               "radius": ch.radius,
-               "how": "the design's own joint certificate (V = x'Q^-1 x + mu e'Re), its rate by a generalised eigenvalue"}
-        return DesignResult(status="feasible", reason=note, K=K, F=F, margin=cert.margin, lmi_size=2 * n + 2 * q,
-                            min_eig={"Q^-1": lmi.min_eig(P), "R": lmi.min_eig(R)}, params=params, certificate=out,
-                            **base)
-    return DesignResult(status="undecided", reason=(
-        f"structured design: both sides verified at decay {best['lam']:.3g}, but the joint certificate with "
-        f"mu = {cert.mu:.3g} is {cert.status} (equilibrated max eig {cert.margin:.3g})"), margin=cert.margin,
-        params=params, **base)
