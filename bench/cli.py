@@ -26,10 +26,10 @@ from bench.selection import check_selection
 __all__ = ["main"]
 
 
-_positive_float = argtype(checks.real, lo=0.0, strict=True)
-_nonneg_float = argtype(checks.real, lo=0.0)
-_positive_int = argtype(checks.integer, lo=1)
-_nonneg_int = argtype(checks.integer, lo=0)
+positive_float = argtype(checks.real, lo=0.0, strict=True)
+nonneg_float = argtype(checks.real, lo=0.0)
+positive_int = argtype(checks.integer, lo=1)
+nonneg_int = argtype(checks.integer, lo=0)
 
 
 def _scheduler_address(text: str) -> str:
@@ -48,25 +48,25 @@ def _build_parser() -> argparse.ArgumentParser:
     r.add_argument("--plant", action="append", metavar="GLOB", help="plant id or glob (repeatable; default all)")
     r.add_argument("--design", action="append", metavar="GLOB", help="design id or glob (repeatable; default all)")
     r.add_argument("--out", default="reports", metavar="DIR", help="report folder (default: reports)")
-    r.add_argument("--seed", type=_nonneg_int, default=0, help="seed of the constants sampler (default 0)")
+    r.add_argument("--seed", type=nonneg_int, default=0, help="seed of the constants sampler (default 0)")
     r.add_argument("--claimed-constants", action="store_true",
                    help="design with the constants the sources claim (the certificate still uses valid ones)")
-    r.add_argument("--t-final", type=_positive_float, default=None, metavar="SECONDS",
+    r.add_argument("--t-final", type=positive_float, default=None, metavar="SECONDS",
                    help="one simulation horizon for every pair (default: each pair's horizon follows its "
                         "certified rate, or its linearised rate when uncertified, from the plant's own "
                         "horizon up to ten times it)")
-    r.add_argument("--noise", type=_nonneg_float, default=0.0, metavar="SIGMA",
+    r.add_argument("--noise", type=nonneg_float, default=0.0, metavar="SIGMA",
                    help="standard deviation of a seeded Gaussian measurement noise (default 0)")
     r.add_argument("--no-figures", action="store_true", help="skip the figures")
     r.add_argument("--figure-format", action="append", choices=("png", "pdf"), default=None,
                    help="figure format, repeatable (default png; the report links the PNG)")
     r.add_argument("--fail-fast", action="store_true", help="stop at the first exception (for debugging)")
-    r.add_argument("-j", "--jobs", type=_positive_int, default=None, metavar="N",
+    r.add_argument("-j", "--jobs", type=positive_int, default=None, metavar="N",
                    help="local worker processes (default: all cores; 1 = serial)")
     r.add_argument("--scheduler", type=_scheduler_address, default=None, metavar="ADDRESS",
                    help="run on a Dask distributed cluster (pip install '.[dist]')")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
-    r.add_argument("--timeout", type=_positive_float, default=None, metavar="SECONDS",
+    r.add_argument("--timeout", type=positive_float, default=None, metavar="SECONDS",
                    help="wall-clock limit per pair; a pair that exceeds it becomes a 'timeout' row (default: none)")
     r.add_argument("--no-cache", action="store_true",
                    help="recompute every pair: neither read nor write the cache (.bench-cache/ next to --out)")
@@ -78,7 +78,7 @@ def _build_parser() -> argparse.ArgumentParser:
     pf.add_argument("--out", default="reports", metavar="DIR", help="folder for PERF.md (default: reports)")
     pf.add_argument("--sizes", type=_sizes, default="4,8,16,32,64", metavar="N,N,...",
                     help="state dimensions (default 4,8,16,32,64)")
-    pf.add_argument("--max-joint-n", type=_positive_int, default=32, metavar="N",
+    pf.add_argument("--max-joint-n", type=positive_int, default=32, metavar="N",
                     help="largest n for the joint 6n LMI (default 32)")
     pf.add_argument("--no-run", action="store_true", help="skip timing the default run with --jobs 1 and 2")
     pf.add_argument("--no-sweeps", action="store_true",
@@ -87,7 +87,7 @@ def _build_parser() -> argparse.ArgumentParser:
                     metavar="N,N,...",
                     help="chain sizes n for the structured design's Riccati and SDP routes ('' skips)")
     pf.add_argument("--no-sims", action="store_true", help="skip the n = 1000 trajectory and n = 100 batch")
-    pf.add_argument("--repeats", type=_positive_int, default=3, metavar="K",
+    pf.add_argument("--repeats", type=positive_int, default=3, metavar="K",
                     help="runs per job count when timing the default run (default 3)")
     from bench.studies.cli import add_study_parser
 

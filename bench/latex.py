@@ -101,11 +101,6 @@ def format_cell(value) -> str:
     return escape_tex(plain_cell(value))
 
 
-def _short(status, words: dict[str, str]) -> str:
-    """A status cell in the short ``words`` (a status not listed as it is), escaped; blank when missing."""
-    return "" if _is_missing(status) else escape_tex(words.get(str(status), str(status)))
-
-
 def _head(text: str) -> str:
     """A header cell: escaped, with a line break at each ``"\n"`` (a one-column tabular: no package)."""
     lines = [escape_tex(t) for t in text.split("\n")]
@@ -274,11 +269,12 @@ def _feasibility_tables(frame, caption_prefix: str, label: str, text_width_pt: f
     cells = {(r["plant"], r["design"]): r["status"] for r in frame.to_dict("records")}
     shown = {d: [cells.get((p, d)) for p in plants] for d in designs}  # None: not run
     used = {str(st) for col in shown.values() for st in col if not _is_missing(st)}
+    short = {d: ["" if _is_missing(st) else STATUS_SHORT.get(str(st), str(st)) for st in col]
+             for d, col in shown.items()}
     legend = ", ".join(f"{escape_tex(STATUS_SHORT[s])} = {escape_tex(s)}"
                        for s in STATUS_SHORT if s in used and STATUS_SHORT[s] != s)
     room = text_width_pt - _width(["plant", *plants])
-    widths = {d: _width([d] + [STATUS_SHORT.get(str(st), str(st)) for st in shown[d] if not _is_missing(st)])
-              for d in designs}
+    widths = {d: _width([d] + short[d]) for d in designs}
     groups: list[list] = [[]]
     for d in designs:
         if groups[-1] and sum(widths[g] for g in groups[-1]) + widths[d] > room:
@@ -286,7 +282,7 @@ def _feasibility_tables(frame, caption_prefix: str, label: str, text_width_pt: f
         groups[-1].append(d)
     parts = []
     for k, group in enumerate(groups):
-        rows = [[format_cell(p)] + [_short(shown[d][i], STATUS_SHORT) for d in group] for i, p in enumerate(plants)]
+        rows = [[format_cell(p)] + [escape_tex(short[d][i]) for d in group] for i, p in enumerate(plants)]
         part = f", designs {designs.index(group[0]) + 1}-{designs.index(group[-1]) + 1} of {len(designs)}"
         caption = (caption_prefix + "Feasibility of each design on each plant" + (part if len(groups) > 1 else "")
                    + (f" ({legend})." if legend else "."))

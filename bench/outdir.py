@@ -302,7 +302,12 @@ def publish(out_dir, stage_dir, files: Iterable[str], *, writer: str | None = No
         A path in ``files`` is absolute, climbs out, repeats, or was not rendered.
     """
     out, stage = Path(out_dir), Path(stage_dir)
-    files = _staged_files(stage, files)
+    files = [_relpath(f) for f in files]
+    if len(set(files)) != len(files):
+        raise ValueError(f"publish: a file is listed twice in {files}")
+    for rel in files:
+        if not (stage / rel).is_file():
+            raise ValueError(f"publish: {rel!r} was not rendered into {stage}")
     with locked(out, timeout):
         recover(out)
         stale = []
@@ -331,17 +336,6 @@ def _journal(out: Path, stale: list[str], files: list[str]) -> tuple[Path, dict]
         shutil.rmtree(backup, ignore_errors=True)
         raise
     return backup, doc
-
-
-def _staged_files(stage: Path, files: Iterable[str]) -> list[str]:
-    """``files`` as checked relative paths, each listed once and rendered into ``stage`` (else ValueError)."""
-    files = [_relpath(f) for f in files]
-    if len(set(files)) != len(files):
-        raise ValueError(f"publish: a file is listed twice in {files}")
-    for rel in files:
-        if not (stage / rel).is_file():
-            raise ValueError(f"publish: {rel!r} was not rendered into {stage}")
-    return files
 
 
 def sha_file(path) -> str | None:

@@ -45,18 +45,6 @@ class Progress:
         self._bar = None
         self._closed = False
 
-    def _make(self):
-        from tqdm.auto import tqdm
-
-        return tqdm(total=self.total, desc=self.desc or None, file=self.file, disable=self.disable,
-                    **{"unit": "task", "dynamic_ncols": True, **self.tqdm_kwargs})
-
-    def _short(self, label) -> str:
-        text = " ".join(str(label).split())  # one line
-        if len(text) > self.max_label:
-            text = text[: max(self.max_label - 3, 0)] + "..."
-        return text
-
     def __call__(self, done: int, total: int | None, label: str = "") -> None:
         """Show ``done`` (absolute) of ``total`` (None: unknown) tasks finished, the last being ``label``;
         nothing after :meth:`close`."""
@@ -67,11 +55,16 @@ class Progress:
         if total is not None:
             self.total = total
         if self._bar is None:
-            self._bar = self._make()
+            from tqdm.auto import tqdm
+
+            self._bar = tqdm(total=self.total, desc=self.desc or None, file=self.file, disable=self.disable,
+                             **{"unit": "task", "dynamic_ncols": True, **self.tqdm_kwargs})
         bar = self._bar
         if self.total is not None:
             bar.total = self.total
-        self.label = self._short(label)
+        self.label = " ".join(str(label).split())  # one line
+        if len(self.label) > self.max_label:
+            self.label = self.label[: max(self.max_label - 3, 0)] + "..."
         bar.set_postfix_str(self.label, refresh=False)
         if done >= bar.n:
             bar.update(done - bar.n)  # also redraws (subject to tqdm's mininterval)

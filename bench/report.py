@@ -478,13 +478,6 @@ def _run_json(result: RunResult, run_info: dict) -> dict:
     }
 
 
-def _formats(figure_format) -> tuple[str, ...]:
-    fmts = (figure_format,) if isinstance(figure_format, str) else tuple(figure_format)
-    if not fmts or any(f not in ("png", "pdf") for f in fmts):
-        raise ValueError(f"figure_format: each format must be 'png' or 'pdf', got {figure_format!r}")
-    return fmts
-
-
 def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: tuple[str, ...]) -> list[str]:
     (tmp / "figures").mkdir()
     df = result.frame()
@@ -529,7 +522,9 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
     """
     from bench.outdir import publish, staged
 
-    fmts = _formats(figure_format)
+    fmts = (figure_format,) if isinstance(figure_format, str) else tuple(figure_format)
+    if not fmts or any(f not in ("png", "pdf") for f in fmts):
+        raise ValueError(f"figure_format: each format must be 'png' or 'pdf', got {figure_format!r}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with staged(out, "report") as tmp:

@@ -16,13 +16,11 @@ import time
 
 from bench import checks
 from bench.checks import argtype
+from bench.cli import nonneg_int as _seed, positive_float as _positive, positive_int as _count
 
 __all__ = ["add_study_parser", "run_study"]
 
 _number = argtype(checks.real)
-_positive = argtype(checks.real, lo=0.0, strict=True)
-_count = argtype(checks.integer, lo=1)
-_seed = argtype(checks.integer, lo=0)
 
 
 def _float_list(*, allow_empty: bool):
@@ -98,17 +96,13 @@ def add_study_parser(sub) -> None:
     n.add_argument("--no-matched-ekf", action="store_true", help="skip the EKF with r = sigma^2")
 
 
-def _explicit(patterns: list[str] | None) -> list[str]:
-    """The patterns that name one id (no glob characters)."""
-    return [p for p in (patterns or []) if not any(ch in p for ch in "*?[]")]
-
-
 def _options(args) -> dict:
     """The study's own options from the parsed arguments."""
     if args.study == "admissible":
         return dict(bounds=tuple(args.range) if args.range else None, rtol=args.rtol, caps=tuple(args.caps))
     if args.study == "sampling":
-        return dict(required=_explicit(args.design), n_ics=args.n_ics, box=args.box, seed=args.seed,
+        required = [p for p in (args.design or []) if not any(ch in p for ch in "*?[]")]  # ids named without a glob
+        return dict(required=required, n_ics=args.n_ics, box=args.box, seed=args.seed,
                     discretisation=args.discretisation, h_range=tuple(args.h_range) if args.h_range else None,
                     rtol=args.rtol, t_final=args.t_final)
     if args.study == "montecarlo":
