@@ -313,31 +313,26 @@ NARROWED = "narrowed"
 
 def _channel_check(plant: Plant, rng: np.random.Generator, n_pairs: int = 2000,
                    far: float = GLOBAL_RANGE) -> list[Violation]:
-    """Each channel's sampled slopes on its range (``_zmax``) against its bounds, on |z| <= r against slopes_on(r)."""
+    """Each channel's sampled slopes on the range of its input (on its region, else out to ``||H_i|| far``, at least
+    ``far``) against its bounds, on |z| <= r against slopes_on(r)."""
     ch = plant.channels
     if ch is None:
         return []
     out = []
+    zmaxes = [ch.radius * h if ch.radius is not None else max(far * h, far) for h in map(np.linalg.norm, ch.H)]
     for i in range(ch.q):
-        zmax = _zmax(ch, i, far)
+        zmax = zmaxes[i]
         a = rng.uniform(-zmax, zmax, n_pairs)
         b = a + rng.normal(0, 1, n_pairs) * np.maximum(0.05 * zmax, 1e-3) * 10.0 ** rng.uniform(-4, 0, n_pairs)
         out += _pair_violations(ch, i, a, np.clip(b, -zmax, zmax))
     for i in range(ch.q if ch.narrow is not None else 0):
-        zmax = _zmax(ch, i, far)
-        for r in np.geomspace(min(1e-2, zmax), zmax, 9):
+        for r in np.geomspace(min(1e-2, zmaxes[i]), zmaxes[i], 9):
             lo, hi = ch.slopes_on(float(r))
             a = rng.uniform(-r, r, n_pairs // 4)
             b = np.clip(a + rng.normal(0, 1, a.size) * r * 10.0 ** rng.uniform(-4, 0, a.size), -r, r)
             out += [replace(v, name=f"{v.name} {NARROWED} on |z| <= {r:.3g}")
                     for v in _pair_violations(replace(ch, lo=lo, hi=hi, narrow=None), i, a, b)]
     return out
-
-
-def _zmax(ch: Channels, i: int, far: float) -> float:
-    """The range of channel ``i``'s input: on its region, or out to ``||H_i|| far`` (at least ``far``)."""
-    h = float(np.linalg.norm(ch.H[i]))
-    return ch.radius * h if ch.radius is not None else max(far * h, far)
 
 
 def _pair_violations(ch: Channels, i: int, a: np.ndarray, b: np.ndarray) -> list[Violation]:

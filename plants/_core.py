@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import numbers
 import warnings
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
 import numpy as np
@@ -70,10 +70,6 @@ class Constants:
             raise PlantError(f"constants.alpha: a Lipschitz constant is >= 0, got {self.alpha}")
         if (self.beta is None) != (self.gamma is None):
             raise PlantError("constants.beta/gamma: the QIB pair needs both beta and gamma (or neither)")
-
-    def as_dict(self) -> dict[str, float | None]:
-        """The constants as a plain dict (for tables and JSON)."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 @dataclass(frozen=True, kw_only=True)

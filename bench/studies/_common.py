@@ -129,25 +129,20 @@ STUDY_SAMPLES = 1000
 _CONSTANTS: dict[tuple, object] = {}
 
 
-def study_constants(plant, *, seed: int = 0, n_samples: int = STUDY_SAMPLES):
-    """The plant's :func:`bench.constants.compute_constants` with fewer samples, memoised per plant."""
-    from bench.constants import compute_constants
-
-    key = (plant.id, tuple(sorted(plant.params.items())), seed, n_samples)
-    if key not in _CONSTANTS:
-        _CONSTANTS[key] = compute_constants(plant, seed=seed, n_samples=n_samples, n_refine=2)
-    return _CONSTANTS[key]
-
-
 def evaluate(plant, design_id: str, options=None, *, overrides: dict | None = None, prior=None, scenario=None):
-    """One pair through :func:`bench.pipeline.evaluate_pair` with the study's constants; ``overrides`` are the
-    design's hyperparameters, ``prior`` an earlier outcome whose design and certificate are re-used.
+    """One pair through :func:`bench.pipeline.evaluate_pair` with the study's constants (the plant's
+    :func:`bench.constants.compute_constants` with :data:`STUDY_SAMPLES` pairs, memoised per plant); ``overrides``
+    are the design's hyperparameters, ``prior`` an earlier outcome whose design and certificate are re-used.
     """
+    from bench.constants import compute_constants
     from bench.pipeline import RunOptions, evaluate_pair
     from bench.registry import DESIGNS
 
+    key = (plant.id, tuple(sorted(plant.params.items())))
+    if key not in _CONSTANTS:
+        _CONSTANTS[key] = compute_constants(plant, seed=0, n_samples=STUDY_SAMPLES, n_refine=2)
     design = design_id if not overrides else DESIGNS.create(design_id, **overrides)
-    return evaluate_pair(plant, design, study_constants(plant), options or RunOptions(), design_id=design_id,
+    return evaluate_pair(plant, design, _CONSTANTS[key], options or RunOptions(), design_id=design_id,
                          prior=prior, scenario=scenario)
 
 

@@ -201,18 +201,15 @@ def run_admissible(run: StudyRun, *, bounds: tuple[float, float] | None = None, 
             raise StudyError("caps", f"each cap must be finite and > 0, got {c!r}")
     tasks = _tasks(run.plant_ids, run.design_ids, caps)
     results = run.map(_pair_task, [((pid, did, _label(ov)), (pid, k, did, ov, bounds, rtol))
-                                   for pid, k, did, ov in tasks], _progress_label)
+                                   for pid, k, did, ov in tasks],
+                      lambda key, r: f"{key[0]} x {key[1]} ({key[2]}): "
+                                     f"[{fmt(r['row']['admissible_lo'])}, {fmt(r['row']['failing_hi'])})")
     rows, variant_rows, evals = _gather(tasks, results)
     settings = {"rtol": rtol, "bounds": bounds or "automatic (doubling/halving from the plant's default)",
                 "cap": 1e3, "other caps": tuple(caps),
                 "certificate": "the pipeline's ladder at lam = 0 (strongest level first), trusted constants",
                 "jobs": run.jobs}
     return AdmissibleResult(rows, settings, run.wall_s(), variant_rows=variant_rows, evals=evals)
-
-
-def _progress_label(key: tuple[str, str, str], result: dict) -> str:
-    row = result["row"]
-    return f"{key[0]} x {key[1]} ({key[2]}): [{fmt(row['admissible_lo'])}, {fmt(row['failing_hi'])})"
 
 
 def _tasks(plant_ids: list[str], design_ids: list[str], caps) -> list[tuple[str, str, str, dict]]:

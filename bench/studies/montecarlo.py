@@ -67,10 +67,6 @@ def _mc_task(plant_id: str, design_id: str, n: int, box: float | None, seed: int
     return {"row": row, "settling": sx}
 
 
-def _describe(key, r: dict) -> str:
-    return f"{r['row']['plant']} x {r['row']['design']}: {fmt(r['row'].get('frac_converged', math.nan))}"
-
-
 @dataclass
 class MonteCarloResult(StudyResult):
     """What :func:`run_montecarlo` produced: the rows and the settling times per plant x design."""
@@ -114,7 +110,8 @@ def run_montecarlo(run: StudyRun, *, n: int = 1000, box: float | None = None, se
     box = check_box("box", box)
     check_horizon(t_final)
     pairs = [(pid, did) for pid in run.plant_ids for did in run.design_ids]
-    out = run.map(_mc_task, [(key, (*key, n, box, seed, t_final, method, rtol, atol)) for key in pairs], _describe)
+    out = run.map(_mc_task, [(key, (*key, n, box, seed, t_final, method, rtol, atol)) for key in pairs],
+                  lambda key, r: f"{key[0]} x {key[1]}: {fmt(r['row'].get('frac_converged', math.nan))}")
     rows = [out[key]["row"] for key in pairs]
     settling = {key: out[key]["settling"] for key in pairs}
     settings = {"N": n, "box": box if box is not None else "plant's initial-condition scale", "seed": seed,

@@ -64,10 +64,6 @@ def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[
     return skipped, jobs_list
 
 
-def _describe(key, r: dict) -> str:
-    return f"{r['plant']} x {r['design']} sigma {r['noise']:g}: rms_e {fmt(r['rms_e'])}"
-
-
 @dataclass
 class NoiseResult(StudyResult):
     """What :func:`run_noise` produced: the rows and the pairs not simulated (with why)."""
@@ -111,7 +107,8 @@ def run_noise(run: StudyRun, *, levels: tuple[float, ...] = DEFAULT_LEVELS, seed
     skipped, jobs_list = _priors(run.plant_ids, run.design_ids, levels, matched_ekf, t_final)
     tasks = [((prior.record["plant"], label, s), (prior, label, s, seed, noise_dt, t_final))
              for prior, label, s in jobs_list]
-    rows = run.map(_noise_task, tasks, _describe)
+    rows = run.map(_noise_task, tasks, lambda key, r: f"{r['plant']} x {r['design']} sigma {r['noise']:g}: "
+                                                      f"rms_e {fmt(r['rms_e'])}")
     ordered = [rows[(prior.record["plant"], label, s)] for prior, label, s in jobs_list]
     settings = {"levels": ", ".join(f"{v:.3g}" for v in levels), "seed": seed, "noise_dt": noise_dt,
                 "matched EKF": matched_ekf, "t_final": t_final if t_final is not None else "plant's", "jobs": run.jobs}
