@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -149,11 +150,7 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
                          timeout=timeout)
     jobs = min(jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
     store = None if cache is None else Cache(cache)
-    if progress is True:
-        from bench.progress import Progress
-
-        progress = Progress(desc="pairs")
-    result = _run_in_registry_order(plant_ids, design_ids, options, progress or None, jobs, scheduler, store)
+    result = _run_in_registry_order(plant_ids, design_ids, options, progress, jobs, scheduler, store)
     records = result.frame()
     info = {"plants": plant_ids, "designs": design_ids, "jobs": jobs, "scheduler": scheduler,
             "cache_errors": list(store.errors) if store is not None else []}
@@ -161,19 +158,18 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
                    findings(records, result.constants), result, command=command, info=info)
 
 
-def _run_in_registry_order(plant_ids: list[str], design_ids: list[str], options, bar, jobs: int,
+def _run_in_registry_order(plant_ids: list[str], design_ids: list[str], options, progress, jobs: int,
                            scheduler: str | None, store):
-    """The pairs computed in the registry's order, then put in the order asked for; ``bar`` closed."""
+    """The pairs computed in the registry's order, then put in the order asked for; the progress bar closed."""
     from bench.harness import run as run_pairs
+    from bench.progress import Progress
     from bench.registry import DESIGNS, PLANTS
 
-    try:
+    bar = Progress(desc="pairs") if progress is True else progress or None
+    with contextlib.closing(bar) if hasattr(bar, "close") else contextlib.nullcontext():
         result = run_pairs([p for p in PLANTS.ids() if p in plant_ids],
                            [d for d in DESIGNS.ids() if d in design_ids], options, progress=bar, jobs=jobs,
                            scheduler=scheduler, cache=store)
-    finally:
-        if hasattr(bar, "close"):
-            bar.close()
     result.outcomes.sort(key=lambda o: (plant_ids.index(o.record["plant"]),
                                         design_ids.index(o.record["design"])))
     result.constants = {p: result.constants[p] for p in plant_ids if p in result.constants}

@@ -377,19 +377,6 @@ def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: flo
     return out
 
 
-def _level(spec: _Spec, plant: Plant, K, F, know: Knowledge, **kw) -> LevelResult:
-    """One level; where the solver fails on channels with scalar constants, on the channels alone (still valid)."""
-    out = _solve_level(spec, plant, K, F, know, **kw)
-    if out.status == "undecided" and spec.channels and spec.scalars:
-        alt = _solve_level(replace(spec, scalars=()), plant, K, F, know, **kw)
-        alt.solve_s += out.solve_s
-        alt.n_solves += out.n_solves
-        if not alt.certified:
-            alt.reason = f"with the scalar constants: {out.reason}; with the channels alone: {alt.reason}"
-        return alt
-    return out
-
-
 def _inherit(out: LevelResult, prev: LevelResult | None) -> LevelResult:
     """The better of a level's own result and the certificate of the level below (which holds here too)."""
     if prev is None or not prev.certified or (out.certified and out.decay_rate >= prev.decay_rate):
@@ -485,7 +472,15 @@ def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Kno
         if eq is not None:
             return LevelResult(lv, "not certified", reason=f"{RULED_OUT} (equilibrium): {eq.text}")
     start = prev.decay_rate if prev is not None and prev.certified else 0.0
-    res = _level(spec, plant, K, F, knowledge, start=start, hi=loop.linearised_rate, rates=rates, rtol=rtol)
+    kw = {"start": start, "hi": loop.linearised_rate, "rates": rates, "rtol": rtol}
+    res = _solve_level(spec, plant, K, F, knowledge, **kw)
+    if res.status == "undecided" and spec.channels and spec.scalars:  # the channels alone (still valid)
+        alt = _solve_level(replace(spec, scalars=()), plant, K, F, knowledge, **kw)
+        alt.solve_s += res.solve_s
+        alt.n_solves += res.n_solves
+        if not alt.certified:
+            alt.reason = f"with the scalar constants: {res.reason}; with the channels alone: {alt.reason}"
+        res = alt
     return _inherit(res, prev) if inherit else res
 
 

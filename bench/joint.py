@@ -51,6 +51,7 @@ System and Control Theory, SIAM 1994, section 5.1 (decay rate as a generalised e
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -107,12 +108,6 @@ def loop(A, B, C, G, H, lo, hi) -> Loop:
     return Loop(A + (G * c0) @ H, B, C, G[:, keep], r[keep, None] * H[keep, :], keep)
 
 
-def _mult(lp: Loop, v) -> np.ndarray:
-    """Multipliers of the kept channels: a scalar broadcast, or a (q,) vector restricted."""
-    v = np.asarray(v, dtype=float)
-    return np.full(lp.G.shape[1], float(v)) if v.ndim == 0 else v[lp.keep]
-
-
 def side_matrices(lp: Loop, F, K, P, R, s, t, lam: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """``Mx`` and ``Me`` of the module docstring (channel blocks eliminated), symmetric.
 
@@ -128,7 +123,8 @@ def side_matrices(lp: Loop, F, K, P, R, s, t, lam: float = 0.0) -> tuple[np.ndar
     lam : float
         Decay rate tested.
     """
-    s, t = _mult(lp, s), _mult(lp, t)
+    s, t = (np.full(lp.G.shape[1], float(v)) if np.ndim(v) == 0 else np.asarray(v, dtype=float)[lp.keep]
+            for v in (s, t))  # the kept channels' multipliers: a scalar broadcast, or a (q,) vector restricted
     Mx = (lp.A0 + lp.B @ F).T @ P
     Mx = Mx + Mx.T + 2 * lam * P + (lp.DH.T / s) @ lp.DH + (P @ lp.G * s) @ (lp.G.T @ P)
     Me = (lp.A0 - K @ lp.C).T @ R
@@ -189,11 +185,9 @@ def verdict(M: np.ndarray, *, clear: float = 1.0) -> str:
     for shift, found in ((-clear * lmi.VERIFY_TOL, "verified"), (lmi.VERIFY_TOL, "marginal")):
         A = N.copy()
         np.fill_diagonal(A, diag + shift)
-        try:
+        with contextlib.suppress(np.linalg.LinAlgError):
             sla.cholesky(A, lower=True, overwrite_a=True, check_finite=False)
             return found
-        except np.linalg.LinAlgError:
-            pass
     return "violated"
 
 
@@ -313,10 +307,8 @@ def certify(lp: Loop, F, K, P, R, s, t, *,
     out = JointCertificate(verdict(M0), mu=mu, side_rates=(sx, se), P=W)
     L = None  # a Cholesky factor of -M0 for Lanczos
     if out.verified and M0.shape[0] >= LANCZOS_FROM:
-        try:
+        with contextlib.suppress(np.linalg.LinAlgError):
             L = sla.cholesky(-M0, lower=True, check_finite=False)
-        except np.linalg.LinAlgError:
-            pass
     # D L is a Cholesky factor of -D M0 D
     out.margin = -_lanczos_min(L / np.sqrt(np.abs(np.diag(M0)))[:, None]) if L is not None else math.nan
     out.margin = out.margin if math.isfinite(out.margin) else equilibrated_max_eig(M0)

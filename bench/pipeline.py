@@ -217,17 +217,6 @@ def _design(rec: dict, plant: Plant, design: Design, report: ConstantsReport,
     return res
 
 
-def _verify(rec: dict, plant: Plant, res: DesignResult) -> checks.ClosedLoop:
-    """The gains' shapes (:func:`bench.checks.closed_loop`) and the eigenvalues of their linear closed loop."""
-    loop = checks.closed_loop(plant, res.K, res.F, optional_K=True)
-    ex = float(loop.eig_x.real.max())
-    rec.update(max_re_eig_x=ex, norm_F=float(np.linalg.norm(loop.F, 2)))
-    if loop.K is not None:  # else a run-time estimator: no fixed observer matrix to check
-        ee = float(loop.eig_e.real.max())
-        rec.update(max_re_eig_e=ee, stabilizing=bool(ex < 0 and ee < 0), norm_K=float(np.linalg.norm(loop.K, 2)))
-    return loop
-
-
 def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport, options: RunOptions,
              loop: checks.ClosedLoop, know: Knowledge | None = None) -> Certificate | None:
     """The certificate ladder (or what ``options.certificate`` asks) of ``loop``'s gains, recorded level by level."""
@@ -296,9 +285,8 @@ def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, 
     if T > plant.t_final:
         sim = replace(sim, n_points=int(min(20 * sim.n_points, math.ceil(sim.n_points * T / plant.t_final))))
     left = remaining_time()
-    if left is not None:
-        own = sim.max_wall_s
-        sim = replace(sim, max_wall_s=max(min(left, own if own is not None else math.inf), 1e-3))
+    if left is not None:  # max_wall_s is None or > 0
+        sim = replace(sim, max_wall_s=max(min(left, sim.max_wall_s or math.inf), 1e-3))
     rec["noise"] = options.noise
     batch = scenario is not None and scenario.batch
     if batch:
@@ -524,18 +512,23 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
         if prior is not None:
             rec.update({k: prior.record[k] for k in COLUMNS if k not in _NOT_PRIOR})
             out.result, out.certificate, out.disproved = prior.result, prior.certificate, dict(prior.disproved)
-            if out.result is None or not out.result.has_controller:
-                return out
-            out.loop = checks.closed_loop(plant, out.result.K, out.result.F, optional_K=True)  # of this plant
         else:
             obj = DESIGNS.create(design) if isinstance(design, str) else design
             out.result = _design(rec, plant, obj, report, options)
-            if out.result is None or not out.result.has_controller:
-                return out
             phase = "verification"
-            out.loop = _verify(rec, plant, out.result)
+        if out.result is None or not out.result.has_controller:
+            return out
+        # the gains' shapes (of this plant) and, for a new design, the eigenvalues of their linear closed loop
+        out.loop = loop = checks.closed_loop(plant, out.result.K, out.result.F, optional_K=True)
+        if prior is None:
+            ex = float(loop.eig_x.real.max())
+            rec.update(max_re_eig_x=ex, norm_F=float(np.linalg.norm(loop.F, 2)))
+            if loop.K is not None:  # else a run-time estimator: no fixed observer matrix to check
+                ee = float(loop.eig_e.real.max())
+                rec.update(max_re_eig_e=ee, stabilizing=bool(ex < 0 and ee < 0),
+                           norm_K=float(np.linalg.norm(loop.K, 2)))
             phase = "certificate"
-            out.certificate = _certify(rec, plant, out.result, report, options, out.loop)
+            out.certificate = _certify(rec, plant, out.result, report, options, loop)
         if options.simulate:
             phase = "simulation"
             _simulate(out, options, scenario, report)

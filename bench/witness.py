@@ -151,8 +151,9 @@ def linear_witness(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool,
     c, L = cands[i]
     what = ("f = 0" if not np.any(L) else f"phi(s) = c s with slopes c = {vector(c, '.5g')}" if c is not None
             else f"f = {L[0, 0]:.4g} x")
+    imag = "" if abs(eig.imag) < 1e-12 else f" {'+' if eig.imag >= 0 else '-'} {abs(eig.imag):.4g}j"
     text = (f"the linear member {what} (in the class; searched: {how}) leaves the loop with the eigenvalue "
-            f"{_eig(eig)}")
+            f"{eig.real:+.4g}{imag}")
     return Witness("linear member", text, slopes=c, L=L, eig=eig)
 
 
@@ -308,8 +309,3 @@ def equilibrium_witness(plant, K: np.ndarray, F: np.ndarray, know, *, tol: float
     text = (f"the closed loop has an equilibrium besides the origin at z = (x, e) = {vector(z, '.5g')} (residual "
             f"{res:.1e}): it is not globally asymptotically stable")
     return Witness("equilibrium", text, z=z, residual=res)
-
-
-def _eig(w: complex) -> str:
-    w = complex(w)
-    return f"{w.real:+.4g}" if abs(w.imag) < 1e-12 else f"{w.real:+.4g} {'+' if w.imag >= 0 else '-'} {abs(w.imag):.4g}j"
