@@ -30,6 +30,8 @@ class Results:
         Everything, including the outcomes and timings.
     command : str
         How the run was asked for (recorded in run.json).
+    info : dict
+        The run's selection and settings (plants, designs, jobs, ...), recorded in run.json.
     """
 
     table: object
