@@ -512,6 +512,9 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
         if prior is not None:
             rec.update({k: prior.record[k] for k in COLUMNS if k not in _NOT_PRIOR})
             out.result, out.certificate, out.disproved = prior.result, prior.certificate, dict(prior.disproved)
+        elif plant.discrete:  # until the discrete-time pipeline lands: say so, never judge it as continuous
+            rec.update(status="inapplicable", reason=f"discrete-time plant (dt = {plant.dt:g} s): not supported yet")
+            return out
         else:
             obj = DESIGNS.create(design) if isinstance(design, str) else design
             out.result = _design(rec, plant, obj, report, options)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import re
 import warnings
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
@@ -313,6 +314,13 @@ class Plant:
         (checked against f on seeded samples when the plant is built).
     t_final : float
         Simulation horizon in seconds.
+    dt : float
+        Sample time in seconds: 0 (the default) for a continuous-time plant ``x' = A x + B u + f(x)``,
+        ``dt > 0`` for a discrete-time plant ``x_{k+1} = A x_k + B u_k + f(x_k)`` sampled every ``dt``
+        seconds (as python-control's ``StateSpace.dt``).
+    Bw, Dw : array_like, optional
+        Disturbance inputs, shapes (n, q) and (p, q): ``x' = A x + B u + f(x) + Bw w``,
+        ``y = C x + Dw w``. Either alone is allowed (the other is zero); None for both: no disturbance.
     family : str
         Plant family (e.g. ``"flexible_link"``); designs tied to one family check it.
     params : mapping
@@ -340,6 +348,9 @@ class Plant:
     bounds: Constants | None = None
     channels: Channels | None = None
     t_final: float = 20.0
+    dt: float = 0.0
+    Bw: np.ndarray | None = None
+    Dw: np.ndarray | None = None
     family: str = ""
     params: Mapping[str, float] = field(default_factory=dict)
     source: str = ""
@@ -365,6 +376,7 @@ class Plant:
         for name, value in (("A", A), ("B", B), ("C", C), ("x0", x0), ("x_hat0", xh0)):
             object.__setattr__(self, name, value)
         object.__setattr__(self, "t_final", check_real("t_final", self.t_final, lo=0.0, strict=True))
+        self._check_time_and_disturbance(n, B.shape[1], C.shape[0])
         if not isinstance(self.claimed, Constants):
             raise PlantError(f"claimed: expected a Constants, got {type(self.claimed).__name__}")
         if self.bounds is not None and not isinstance(self.bounds, Constants):
@@ -381,6 +393,32 @@ class Plant:
         self._check_jacobian(n)
         if self.channels is not None:
             self._check_channels(n)
+
+    def _check_time_and_disturbance(self, n: int, m: int, p: int) -> None:
+        """``dt`` a sample time (0: continuous) not longer than the horizon; ``Bw`` (n, q) and ``Dw`` (p, q)."""
+        if isinstance(self.dt, bool) or self.dt is None:
+            raise PlantError(f"dt: must be a number of seconds (0 for a continuous-time plant), got {self.dt!r}")
+        dt = check_real("dt", self.dt, lo=0.0)
+        if dt > self.t_final:
+            raise PlantError(f"dt: the sample time {dt:g} s is longer than the horizon t_final = {self.t_final:g} s")
+        object.__setattr__(self, "dt", dt)
+        if self.Bw is None and self.Dw is None:
+            return
+        Bw = _matrix("Bw", self.Bw) if self.Bw is not None else None
+        Dw = _matrix("Dw", self.Dw) if self.Dw is not None else None
+        if Bw is not None and Bw.shape[0] != n:
+            raise PlantError(f"Bw: must have n = {n} rows (A is {(n, n)}), got shape {Bw.shape}")
+        if Dw is not None and Dw.shape[0] != p:
+            raise PlantError(f"Dw: must have p = {p} rows (C is {(p, n)}), got shape {Dw.shape}")
+        q = (Bw if Bw is not None else Dw).shape[1]
+        if Bw is not None and Dw is not None and Bw.shape[1] != Dw.shape[1]:
+            raise PlantError(f"Bw/Dw: must have the same number of disturbance inputs (columns), got Bw {Bw.shape} "
+                             f"and Dw {Dw.shape}")
+        for name, M, rows in (("Bw", Bw, n), ("Dw", Dw, p)):
+            if M is None:
+                M = np.zeros((rows, q))
+                M.setflags(write=False)
+            object.__setattr__(self, name, M)
 
     def _check_f(self, n: int) -> None:
         if not callable(self.f):
@@ -489,13 +527,14 @@ class Plant:
 
     @classmethod
     def from_statespace(cls, sys, *, f: Callable[[np.ndarray], np.ndarray] | None = None, x0=None,
-                        x_hat0=None, id: str | None = None, **fields) -> "Plant":
-        """Build a plant from a python-control ``StateSpace`` (its A, B, C) and a nonlinearity.
+                        x_hat0=None, id: str | None = None, disturbances=None, **fields) -> "Plant":
+        """Build a plant from a python-control ``StateSpace`` (its A, B, C, D and dt) and a nonlinearity.
 
         Parameters
         ----------
         sys : control.StateSpace
-            Continuous-time system ``x' = A x + B u``, ``y = C x``; D must be zero.
+            ``x' = A x + B u`` (continuous, ``dt = 0``) or ``x_{k+1} = A x_k + B u_k`` (discrete, ``dt > 0``
+            seconds), ``y = C x + D u``. The columns of D for the control inputs must be zero.
         f : callable, optional
             The nonlinearity (default 0).
         x0 : array_like, optional
@@ -504,6 +543,9 @@ class Plant:
             Initial estimate (default: zeros).
         id : str, optional
             Plant id (default: the system's name).
+        disturbances : int, str or sequence, optional
+            The inputs of ``sys`` that are disturbances ``w`` (indices or input names): their columns of B
+            and D become ``Bw`` and ``Dw``; the others are the control inputs ``u``.
         **fields
             Any other :class:`Plant` field.
 
@@ -514,7 +556,8 @@ class Plant:
         Raises
         ------
         PlantError
-            If ``sys`` is not a state-space system, is discrete-time, or has a nonzero D.
+            If ``sys`` is not a state-space system, has an unspecified sample time (``dt = True``), a
+            nonzero D column for a control input, or names a disturbance input it does not have.
 
         Examples
         --------
@@ -528,17 +571,32 @@ class Plant:
         if not all(hasattr(sys, name) for name in "ABCD"):
             raise PlantError(f"sys: expected a control.StateSpace (with A, B, C, D), got {type(sys).__name__}")
         dt = getattr(sys, "dt", 0)
-        if dt not in (0, None):
-            raise PlantError(f"sys: must be a continuous-time system (dt = 0), got dt = {dt!r}")
-        D = _matrix("D", sys.D) if np.size(sys.D) else np.zeros((0, 0))
-        if np.any(D != 0):
-            raise PlantError(f"D: must be zero (no feedthrough from u to y), got max |D| = {np.abs(D).max():g}")
+        if dt is None:
+            dt = 0.0
+        if isinstance(dt, bool) or not isinstance(dt, numbers.Real):
+            raise PlantError(f"sys: a discrete-time system needs its sample time in seconds, got dt = {dt!r}")
         A = _matrix("A", sys.A)
         n = A.shape[0]
+        Ball = _real_array(sys.B).reshape(n, -1)
+        Dall = _real_array(sys.D).reshape(-1, Ball.shape[1]) if np.size(sys.D) else np.zeros((0, Ball.shape[1]))
+        w_idx = _input_indices(sys, disturbances, Ball.shape[1])
+        u_idx = [j for j in range(Ball.shape[1]) if j not in w_idx]
+        if not u_idx:
+            raise PlantError("disturbances: every input of sys is a disturbance; the plant needs a control input")
+        Du = Dall[:, u_idx] if Dall.size else Dall
+        if Du.size and np.any(Du != 0):
+            raise PlantError(f"D: the columns of the control inputs must be zero (no feedthrough from u to y), got "
+                             f"max |D| = {np.abs(Du).max():g}")
+        if w_idx:
+            fields.setdefault("Bw", Ball[:, w_idx])
+            fields.setdefault("Dw", Dall[:, w_idx] if Dall.size else np.zeros((np.shape(sys.C)[0], len(w_idx))))
         if f is None:
             f = _zero_f
-        name = id if id is not None else (getattr(sys, "name", None) or "statespace_plant")
-        return cls(id=name, A=A, B=sys.B, C=sys.C, f=f, x0=np.ones(n) if x0 is None else x0,
+        # python-control names systems "sys[3]": the default id keeps its letters, digits and _-.+ only
+        name = id if id is not None else (re.sub(r"[^A-Za-z0-9_.+-]+", "_", str(getattr(sys, "name", None) or ""))
+                                          .strip("_.-") or "statespace_plant")
+        fields.setdefault("dt", float(dt))
+        return cls(id=name, A=A, B=Ball[:, u_idx], C=sys.C, f=f, x0=np.ones(n) if x0 is None else x0,
                    x_hat0=np.zeros(n) if x_hat0 is None else x_hat0, **fields)
 
     @property
@@ -555,6 +613,16 @@ class Plant:
     def p(self) -> int:
         """Number of outputs."""
         return self.C.shape[0]
+
+    @property
+    def q(self) -> int:
+        """Number of disturbance inputs (0 without ``Bw``, ``Dw``)."""
+        return 0 if self.Bw is None else self.Bw.shape[1]
+
+    @property
+    def discrete(self) -> bool:
+        """True for a discrete-time plant (``dt > 0``)."""
+        return self.dt > 0
 
     def summary(self) -> str:
         """One line: id, dimensions and source."""
@@ -602,6 +670,27 @@ def _central_differences(f: Callable, x: np.ndarray, h: float) -> np.ndarray:
     E = np.eye(n) * h
     FX = _real_array(f(np.concatenate([x[:, None] + E, x[:, None] - E], axis=1)))
     return (FX[:, :n] - FX[:, n:]) / (2 * h)
+
+
+def _input_indices(sys, which, m_all: int) -> list[int]:
+    """The input indices of ``sys`` named by ``which`` (None, an index, a name, or a sequence of them)."""
+    if which is None:
+        return []
+    items = [which] if isinstance(which, (str, numbers.Integral)) else list(which)
+    labels = list(getattr(sys, "input_labels", []) or [])
+    out = []
+    for it in items:
+        if isinstance(it, str):
+            if it not in labels:
+                raise PlantError(f"disturbances: sys has no input named {it!r} (inputs: {', '.join(labels) or 'none'})")
+            j = labels.index(it)
+        elif isinstance(it, numbers.Integral) and not isinstance(it, bool) and 0 <= int(it) < m_all:
+            j = int(it)
+        else:
+            raise PlantError(f"disturbances: {it!r} is not an input of sys (indices 0..{m_all - 1} or input names)")
+        if j not in out:
+            out.append(j)
+    return out
 
 
 def _zero_f(x: np.ndarray) -> np.ndarray:

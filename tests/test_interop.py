@@ -142,9 +142,21 @@ def test_from_statespace_round_trip():
     np.testing.assert_allclose(lin0.A, A, atol=1e-8)
 
 
-def test_from_statespace_rejects_feedthrough_and_discrete_time():
+def test_from_statespace_rejects_feedthrough_and_takes_dt_and_disturbances():
     A, B, C = [[0.0, 1.0], [-1.0, -0.5]], [[0.0], [1.0]], [[1.0, 0.0]]
     with pytest.raises(PlantError, match=r"\bD\b"):
         Plant.from_statespace(control.ss(A, B, C, [[0.2]]), f=_osc_f)
-    with pytest.raises(PlantError, match="continuous-time|dt"):
-        Plant.from_statespace(control.ss(A, B, C, 0, dt=0.1), f=_osc_f)
+    # a discrete system keeps its sample time; an unspecified one (dt = True) is refused
+    assert Plant.from_statespace(control.ss(A, B, C, 0, dt=0.1), f=_osc_f).dt == 0.1
+    with pytest.raises(PlantError, match="sample time"):
+        Plant.from_statespace(control.ss(A, B, C, 0, dt=True), f=_osc_f)
+    # extra inputs named as disturbances become Bw and Dw; D may be nonzero there only
+    sys = control.ss(A, [[0.0, 1.0], [1.0, 0.2]], C, [[0.0, 0.5]], inputs=["u", "w"])
+    plant = Plant.from_statespace(sys, f=_osc_f, disturbances="w")
+    np.testing.assert_array_equal(plant.B, [[0.0], [1.0]])
+    np.testing.assert_array_equal(plant.Bw, [[1.0], [0.2]])
+    np.testing.assert_array_equal(plant.Dw, [[0.5]])
+    with pytest.raises(PlantError, match="no input named 'v'"):
+        Plant.from_statespace(sys, f=_osc_f, disturbances="v")
+    with pytest.raises(PlantError, match=r"\bD\b"):  # w not declared: its D column is a feedthrough from "u"
+        Plant.from_statespace(sys, f=_osc_f)
