@@ -64,7 +64,12 @@ class BatchTrajectory:
 
 
 def _check_inputs(plant, K, F, x0, x_hat0, t_final):
-    """``K, F, X, XH, T``: gains, initial conditions as (n, N) arrays and horizon, checked (ValueError)."""
+    """``K, F, X, XH, T``: gains, initial conditions as (n, N) arrays and horizon, checked (ValueError; a
+    discrete-time plant too: the batch simulators integrate continuous plants only)."""
+    if getattr(plant, "dt", 0) > 0:
+        raise ValueError(f"plant {plant.id!r} is discrete-time (dt = {plant.dt:g} s): the batch simulators integrate "
+                         "continuous-time plants; simulate it one trajectory at a time (bench.simulate."
+                         "simulate_controller steps it)")
     K, F = checks.gains(plant, K, F)
     n = plant.n
     X, XH = (np.asarray(v, dtype=float) for v in (x0, x_hat0))

@@ -149,11 +149,16 @@ class DesignResult:
 @dataclass(frozen=True, kw_only=True)
 class Configurable:
     """Base of designs and design parts: hyperparameters are keyword-only dataclass fields (unknown or
-    positional ones raise :class:`DesignError`); :attr:`needs` names the constants required.
+    positional ones raise :class:`DesignError`); :attr:`needs` names the constants required;
+    :attr:`time_domains` the plants it has a form for.
     """
 
     #: Constants required (names of :class:`plants.Constants` fields).
     needs = ()
+
+    #: The time domains this has a form for: ``"continuous"`` (``plant.dt == 0``) and/or ``"discrete"``
+    #: (``plant.dt > 0``); the pipeline marks a pair outside them ``inapplicable`` without calling it.
+    time_domains = ("continuous",)
 
     def __new__(cls, *args: Any, **kwargs: Any):
         # positional and unknown hyperparameters: a DesignError naming the parameter and a close match, before
