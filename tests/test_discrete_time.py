@@ -337,15 +337,22 @@ def test_an_estimator_at_another_period_is_refused():
         simulate_controller(p, F, estimator=est, t_final=1.0)
 
 
-def test_batch_simulators_refuse_a_discrete_plant():
+def test_a_batch_of_a_discrete_plant_is_stepped_member_by_member():
     from bench.batch import simulate_batch, simulate_digital_batch
 
     p = PLANTS.create("flexible_link_d10ms_v1")
     K, F = dlqg(p)
-    for call in (lambda: simulate_batch(p, K, F, p.x0, p.x_hat0),
-                 lambda: simulate_digital_batch(p, K, F, p.x0, p.x_hat0, h=0.01)):
-        with pytest.raises(ValueError, match="discrete-time"):
-            call()
+    rng = np.random.default_rng(0)
+    X, XH = rng.standard_normal((4, 3)), rng.standard_normal((4, 3))
+    b = simulate_batch(p, K, F, X, XH, t_final=2.0)
+    assert b.method == "stepped" and b.t.size == 201 and not b.diverged.any()
+    for j in range(3):
+        one = simulate_controller(p, F, K=K, t_final=2.0, x0=X[:, j], x_hat0=XH[:, j])
+        np.testing.assert_allclose(b.x[:, j, :], one.x, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(b.x_hat[:, j, :], one.x_hat, rtol=1e-9, atol=1e-12)
+    assert simulate_batch(p, K, np.array([[0.0, 300.0, 0.0, 0.0]]), X, XH, t_final=20.0).diverged.all()
+    with pytest.raises(ValueError, match="discrete-time"):
+        simulate_digital_batch(p, K, F, p.x0, p.x_hat0, h=0.01)
 
 
 # -- the pipeline's rows ------------------------------------------------------------------------------------
