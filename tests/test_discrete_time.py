@@ -415,3 +415,15 @@ def test_the_default_catalog_holds_a_discrete_flexible_link():
     assert p.dt == 0.01 and p.t_final == 20.0 and p.params["version"] == 1
     np.testing.assert_allclose(p.A, expm(0.01 * c.A), rtol=1e-12)
     assert "zero-order hold" in p.source and "h = 0.01 s" in p.source
+
+
+def test_python_control_views_of_a_discrete_plant_keep_its_dt():
+    from bench.interop import closed_loop_nlsys, controller_ss, plant_nlsys
+
+    p = PLANTS.create("flexible_link_d10ms_v1")
+    K, F = dlqg(p)
+    assert plant_nlsys(p).dt == p.dt and controller_ss(p, K, F).dt == p.dt
+    loop = closed_loop_nlsys(p, K, F)
+    ref = control.input_output_response(loop, np.arange(101) * p.dt, initial_state=np.concatenate([p.x0, p.x_hat0]))
+    tr = simulate_controller(p, F, K=K, t_final=1.0)
+    np.testing.assert_allclose(ref.outputs[:4], tr.x, rtol=1e-9, atol=1e-12)
