@@ -84,8 +84,7 @@ class Composite(Design):
     @property
     def time_domains(self) -> tuple[str, ...]:
         """The time domains both parts have a form for."""
-        theirs = getattr(self.estimator, "time_domains", ("continuous",))
-        return tuple(d for d in getattr(self.feedback, "time_domains", ("continuous",)) if d in theirs)
+        return tuple(d for d in self.feedback.time_domains if d in self.estimator.time_domains)
 
     def applicable(self, plant: Plant, constants: Constants) -> str | None:
         for role, part in (("feedback", self.feedback), ("estimator", self.estimator)):
