@@ -99,7 +99,7 @@ def _register_objects(items, registry, kind: str) -> list[str]:
 
 def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed: int = 0,
         claimed_constants: bool = False, t_final: float | None = None, noise: float = 0.0,
-        timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
+        disturbance: float = 0.0, timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
         cache: str | os.PathLike | None = None, progress: bool | Callable = True, fail_fast: bool = False,
         command: str = "") -> Results:
     """Run (plant, design) pairs and return the results (the library form of ``python -m bench run``).
@@ -117,6 +117,10 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
         A fixed horizon for every pair (default: :func:`bench.verdicts.simulation_horizon`).
     noise : float
         Standard deviation of a seeded measurement noise.
+    disturbance : float
+        Peak amplitude of the seeded L2 disturbance (:mod:`bench.disturbance`; 0: none): each pair of a
+        plant with disturbance inputs is simulated again from ``z(0) = 0`` with it, for the measured
+        ratios ``l2_measured_e``, ``l2_measured_x``.
     timeout : float, optional
         Wall-clock limit per pair, seconds.
     jobs : int, optional
@@ -153,7 +157,7 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     plant_ids = PLANTS.select(_register_objects(plants or [], PLANTS, "plant") or None, keep_order=True)
     design_ids = DESIGNS.select(_register_objects(designs or [], DESIGNS, "design") or None, keep_order=True)
     options = RunOptions(seed=seed, use_claimed=claimed_constants, fail_fast=fail_fast, t_final=t_final, noise=noise,
-                         timeout=timeout)
+                         disturbance=disturbance, timeout=timeout)
     jobs = min(jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
     store = None if cache is None else Cache(cache)
     result = _run_in_registry_order(plant_ids, design_ids, options, progress, jobs, scheduler, store)

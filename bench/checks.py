@@ -162,7 +162,16 @@ class ClosedLoop:
         Eigenvalues of ``A + B F`` and ``A - K C`` (``eig_e`` empty without K).
     linearised_rate : float
         ``-max Re`` of the eigenvalues of ``A + Df(0) + B F`` and ``A + Df(0) - K C``, the rate no
-        certificate can beat (NaN without K).
+        certificate can beat (NaN without K); for a discrete-time plant (``dt > 0``) ``-ln(max |eig|) / dt``,
+        per second as well, so discrete and continuous rows compare (``inf`` for a deadbeat loop).
+    dt : float
+        The plant's sample time (0: continuous time).
+
+    Notes
+    -----
+    In discrete time ``x_{k+1} = (A + B F) x_k`` decays like ``max |eig|^k = exp(-lam k dt)`` with
+    ``lam = -ln(max |eig|) / dt``: the continuous-time equivalent eigenvalue of ``z`` is ``ln(z) / dt``,
+    whose real part is ``ln|z| / dt``. :attr:`growth_x`, :attr:`growth_e` and :attr:`stable` use it.
     """
 
     K: Any
@@ -170,6 +179,36 @@ class ClosedLoop:
     eig_x: Any
     eig_e: Any
     linearised_rate: float
+    dt: float = 0.0
+
+    def _growth(self, eig) -> float:
+        import numpy as np
+
+        if len(eig) == 0:
+            return math.nan
+        if self.dt > 0:
+            with np.errstate(divide="ignore"):
+                return float(np.log(np.abs(eig)).max() / self.dt)
+        return float(np.real(eig).max())
+
+    @property
+    def growth_x(self) -> float:
+        """Growth rate per second of ``A + B F``: the largest real part of its eigenvalues (continuous) or
+        ``ln(max |eig|) / dt`` (discrete; ``-inf`` for a deadbeat loop). Negative iff ``A + B F`` is stable."""
+        return self._growth(self.eig_x)
+
+    @property
+    def growth_e(self) -> float:
+        """:attr:`growth_x` of ``A - K C`` (NaN without K)."""
+        return self._growth(self.eig_e)
+
+    @property
+    def stable(self) -> bool | None:
+        """Whether ``A + B F`` and ``A - K C`` are Hurwitz (continuous) or Schur (discrete: spectral radius
+        < 1); None without K."""
+        if self.K is None:
+            return None
+        return bool(self.growth_x < 0 and self.growth_e < 0)
 
 
 def closed_loop(plant, K: Any, F: Any, *, optional_K: bool = False) -> ClosedLoop:
@@ -179,15 +218,16 @@ def closed_loop(plant, K: Any, F: Any, *, optional_K: bool = False) -> ClosedLoo
     from bench._env import parallel
 
     K, F = gains(plant, K, F, optional_K=optional_K)
+    dt = float(getattr(plant, "dt", 0.0) or 0.0)
     if K is None:
-        return ClosedLoop(K, F, np.linalg.eigvals(plant.A + plant.B @ F), np.empty(0, dtype=complex), math.nan)
+        return ClosedLoop(K, F, np.linalg.eigvals(plant.A + plant.B @ F), np.empty(0, dtype=complex), math.nan, dt)
     J = plant.jacobian_at(np.zeros(plant.n))
     loops = [plant.A + plant.B @ F, plant.A - K @ plant.C]
     if np.any(J):
         loops += [plant.A + J + plant.B @ F, plant.A + J - K @ plant.C]
     eigs = parallel([lambda M=M: np.linalg.eigvals(M) for M in loops], plant.n)
-    lin = np.concatenate(eigs[-2:])
-    return ClosedLoop(K, F, eigs[0], eigs[1], float(-lin.real.max()))
+    lin = ClosedLoop(K, F, np.concatenate(eigs[-2:]), eigs[1], math.nan, dt).growth_x  # of both linearised loops
+    return ClosedLoop(K, F, eigs[0], eigs[1], -lin, dt)
 
 
 def argtype(check: Callable[..., Any], **bounds: Any) -> Callable[[str], Any]:

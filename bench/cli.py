@@ -57,6 +57,10 @@ def _build_parser() -> argparse.ArgumentParser:
                         "horizon up to ten times it)")
     r.add_argument("--noise", type=nonneg_float, default=0.0, metavar="SIGMA",
                    help="standard deviation of a seeded Gaussian measurement noise (default 0)")
+    r.add_argument("--disturbance", type=nonneg_float, default=0.0, metavar="AMPLITUDE",
+                   help="peak of a seeded L2 disturbance w (docs/results.md): each pair of a plant with "
+                        "disturbance inputs is simulated again from z(0) = 0 with w, for the measured ratios "
+                        "l2_measured_e, l2_measured_x (default 0: off)")
     r.add_argument("--no-figures", action="store_true", help="skip the figures")
     r.add_argument("--figure-format", action="append", choices=("png", "pdf"), default=None,
                    help="figure format, repeatable (default png; the report links the PNG)")
@@ -117,7 +121,8 @@ def _cmd_run(args, argv: list[str]) -> int:
     cache = None if args.no_cache else default_cache_dir(args.out)
     try:
         results = run(plant_ids, design_ids, seed=args.seed, claimed_constants=args.claimed_constants,
-                      t_final=args.t_final, noise=args.noise, timeout=args.timeout, jobs=args.jobs,
+                      t_final=args.t_final, noise=args.noise, disturbance=args.disturbance, timeout=args.timeout,
+                      jobs=args.jobs,
                       scheduler=args.scheduler, cache=cache, progress=not args.quiet, fail_fast=args.fail_fast,
                       command="python -m bench " + shlex.join(argv))
     except ExecutorError as exc:

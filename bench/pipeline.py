@@ -22,16 +22,18 @@ from bench.constants import ConstantsReport, Knowledge, check_trajectory, resolv
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
 from bench.metrics import trajectory_metrics
 from bench.simulate import SimOptions, simulate_controller
-from bench.verdicts import certificate_scope, certified_horizon, convergence_note, simulation_horizon
+from bench.verdicts import (attenuation_note, certificate_scope, certified_horizon, convergence_note,
+                            simulation_horizon)
 from designs import GAIN_STATUSES, Design, DesignResult
 from plants import Plant
 
-__all__ = ["PairOutcome", "RunOptions", "Scenario", "evaluate_pair"]
+__all__ = ["PairOutcome", "RunOptions", "Scenario", "evaluate_pair", "time_domain_mismatch"]
 
 #: Columns of every record, in order.
 COLUMNS = [
     "plant", "design", "status", "reason", "feasible", "stabilizing", "certified", "cert_level", "decay_rate",
     "cert_scope", "converged", "witness", "rate_ceiling", "rate_ratio", "ceiling_how",
+    "l2_gain_e", "l2_gain_x", "l2_measured_e", "l2_measured_x", "disturbance",
     *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")],
     "cert_margin", "cert_radius", "level_set", "level_x0", "in_region", "max_norm",
     "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "compile_s", "solve_s", "design_s",
@@ -70,7 +72,11 @@ class RunOptions:
     noise : float
         Standard deviation of a seeded Gaussian measurement noise (0: noise-free).
     noise_dt : float
-        Sample period of the noise for fixed-gain observers.
+        Sample period of the noise for fixed-gain observers (a discrete plant draws one per step).
+    disturbance : float
+        Peak amplitude of the seeded L2 disturbance (:mod:`bench.disturbance`; 0: none). With it, each pair
+        of a plant with disturbance inputs (``Bw``, ``Dw``) is simulated a second time from ``z(0) = 0``
+        with w (noise-free) for the measured ratios ``l2_measured_e``, ``l2_measured_x``.
     timeout : float, optional
         Wall-clock limit in seconds of each pair; a pair over it becomes a ``timeout`` row.
     certificate : {"ladder", "verdict", "own", "none"}
@@ -88,6 +94,7 @@ class RunOptions:
     horizon_cap: float = 10.0
     noise: float = 0.0
     noise_dt: float = 0.01
+    disturbance: float = 0.0
     timeout: float | None = None
     certificate: str = "ladder"
     simulate: bool = True
@@ -96,6 +103,7 @@ class RunOptions:
         checks.horizon(self.timeout, name="timeout")
         checks.horizon(self.t_final)
         checks.real("noise", self.noise, lo=0.0)
+        checks.real("disturbance", self.disturbance, lo=0.0)
         checks.real("noise_dt", self.noise_dt, lo=0.0, strict=True)
         checks.real("horizon_cap", self.horizon_cap, lo=1.0)  # a multiple of the plant's horizon
         checks.integer("n_samples", self.n_samples, lo=1)
@@ -227,6 +235,10 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
         _note(rec, "certificate: no fixed observer gain (the estimator is time-varying): no quadratic certificate "
                    "applies")
         return None
+    if plant.discrete:  # until the discrete-time ladder lands: say so, never certify it as continuous
+        rec.update({f"cert_{lv}": "inapplicable" for lv in LEVELS})
+        _note(rec, "certificate: the discrete-time certificate ladder is not available yet")
+        return None
     know = know if know is not None else report.knowledge(plant)
     t0 = time.perf_counter()
     if options.certificate == "ladder":
@@ -304,6 +316,7 @@ def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, 
         traj.dense = None  # measured: the rest of the run needs the grid only (and pickles it to the parent)
         if traj.status != "ok":
             _note(rec, f"simulation {traj.status}: {traj.message}")
+        _attenuation(out, options, T, sim)
     rec.update({k: m[k] for k in ("converged", "settling_x_s", "settling_e_s", "final_x", "final_e", "tail_rate",
                                   "iae_e", "rms_e", "peak_u", "max_norm")})
     tr = out.trajectory
@@ -318,6 +331,33 @@ def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, 
         not batch or (scenario.sample_period is None and rec["cert_scope"] == "global"))
     if applies:
         rec["cert_horizon_s"] = certified_horizon(best.decay_rate, _cond(best))
+
+
+def _attenuation(out: PairOutcome, options: RunOptions, T: float, sim: SimOptions) -> None:
+    """With ``options.disturbance``: the pair simulated from ``z(0) = 0`` with the seeded disturbance
+    (:mod:`bench.disturbance`, noise-free), its ratios ``l2_measured_e``, ``l2_measured_x`` and their verdict."""
+    from bench.disturbance import SeededDisturbance, measured_attenuation, window
+
+    rec, plant, res = out.record, out.plant, out.result
+    rec["disturbance"] = options.disturbance
+    if options.disturbance <= 0:
+        return
+    if plant.q == 0:
+        _note(rec, "disturbance: the plant has no disturbance input (Bw, Dw): no attenuation measured")
+        return
+    w = SeededDisturbance(options.disturbance, plant.q, window(plant.t_final, options.t_final), seed=options.seed,
+                          dt=plant.dt)
+    zero = np.zeros(plant.n)
+    traj = simulate_controller(plant, out.loop.F, K=out.loop.K, estimator=res.estimator, t_final=T, seed=options.seed,
+                               options=sim, loop=out.loop, x0=zero, x_hat0=zero, disturbance=w)
+    if traj.status == "timeout" and options.timeout is not None:
+        raise DeadlineExceeded(f"the disturbance simulation ({traj.message})")
+    rec["l2_measured_e"], rec["l2_measured_x"] = measured_attenuation(traj.t, traj.x, traj.x_hat, w(traj.t),
+                                                                      plant.dt)
+    if traj.status != "ok":
+        _note(rec, f"disturbance simulation {traj.status} ({traj.message}): the measured L2 ratios cover "
+                   f"[0, {float(traj.t[-1]):.4g} s] only")
+    _note(rec, attenuation_note(rec))
 
 
 def _cond(best: LevelResult | None) -> float:
@@ -439,6 +479,17 @@ def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> 
     return outcomes
 
 
+def time_domain_mismatch(design, plant: Plant, design_id: str) -> str:
+    """Why ``design`` does not apply to ``plant``'s time domain (empty if it does): a design lists the
+    domains it has a form for in ``time_domains`` (default ``("continuous",)``, :class:`designs.Design`)."""
+    domain = "discrete" if plant.discrete else "continuous"
+    domains = getattr(design, "time_domains", ("continuous",))
+    if domain in domains:
+        return ""
+    return f"{design_id} has no {domain}-time form" + (f" (the plant is sampled every dt = {plant.dt:g} s)"
+                                                       if plant.discrete else "")
+
+
 # -- the pair ----------------------------------------------------------------------------------
 def evaluate_pair(
     plant: Plant,
@@ -499,7 +550,8 @@ def _timed_out(rec: dict, exc: DeadlineExceeded, options: RunOptions, phase: str
 #: Record columns a ``prior`` does not give: the pair's ids and what the simulation measures.
 _NOT_PRIOR = {"plant", "design", "converged", "in_region", "max_norm", "sim_s", "horizon_s", "horizon_rule",
               "cert_horizon_s", "sim_status", "sim_witness", "settling_x_s", "settling_e_s", "final_x",
-              "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "checked_on", "disproved"}
+              "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "checked_on", "disproved",
+              "l2_measured_e", "l2_measured_x", "disturbance"}
 
 
 def _evaluate(plant, design, design_id, report, options, prior, scenario) -> PairOutcome:
@@ -512,11 +564,12 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
         if prior is not None:
             rec.update({k: prior.record[k] for k in COLUMNS if k not in _NOT_PRIOR})
             out.result, out.certificate, out.disproved = prior.result, prior.certificate, dict(prior.disproved)
-        elif plant.discrete:  # until the discrete-time pipeline lands: say so, never judge it as continuous
-            rec.update(status="inapplicable", reason=f"discrete-time plant (dt = {plant.dt:g} s): not supported yet")
-            return out
         else:
             obj = DESIGNS.create(design) if isinstance(design, str) else design
+            why = time_domain_mismatch(obj, plant, design_id)
+            if why:
+                rec.update(status="inapplicable", reason=why)
+                return out
             out.result = _design(rec, plant, obj, report, options)
             phase = "verification"
         if out.result is None or not out.result.has_controller:
@@ -524,11 +577,10 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
         # the gains' shapes (of this plant) and, for a new design, the eigenvalues of their linear closed loop
         out.loop = loop = checks.closed_loop(plant, out.result.K, out.result.F, optional_K=True)
         if prior is None:
-            ex = float(loop.eig_x.real.max())
-            rec.update(max_re_eig_x=ex, norm_F=float(np.linalg.norm(loop.F, 2)))
+            # max Re of the eigenvalues; discrete time: ln(max |eig|) / dt, the continuous equivalent's
+            rec.update(max_re_eig_x=loop.growth_x, norm_F=float(np.linalg.norm(loop.F, 2)))
             if loop.K is not None:  # else a run-time estimator: no fixed observer matrix to check
-                ee = float(loop.eig_e.real.max())
-                rec.update(max_re_eig_e=ee, stabilizing=bool(ex < 0 and ee < 0),
+                rec.update(max_re_eig_e=loop.growth_e, stabilizing=loop.stable,
                            norm_K=float(np.linalg.norm(loop.K, 2)))
             phase = "certificate"
             out.certificate = _certify(rec, plant, out.result, report, options, loop)

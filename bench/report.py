@@ -364,7 +364,9 @@ _LEGEND = (
     "How to read a row. *Status*: `feasible` (an LMI or Riccati condition solved and verified), `computed` "
     "(LQR/Kalman gains), `given` (printed gains), `infeasible` (under the stated normalisation), `marginal` (best "
     "margin within the verification tolerance of zero), `inapplicable`, `undecided` (solver trouble), `error`, "
-    "`timeout`. *Stabilizing*: A+BF and A-KC Hurwitz. **The certificate ladder** checks the gains (K, F) with "
+    "`timeout`. *Stabilizing*: A+BF and A-KC Hurwitz (Schur, spectral radius < 1, for a discrete-time plant, "
+    "dt > 0: stepped x_{k+1} = A x_k + B u_k + f(x_k), its rates per second, -ln(max |eig|) / dt, and "
+    "`max_re_eig_*` the continuous equivalent ln(max |eig|) / dt). **The certificate ladder** checks the gains (K, F) with "
     "quadratic Lyapunov functions V = z'Pz of z = (x, e) at three levels of what is known about f: *paper* is the "
     "paper's (20) (block-diagonal P, the OSL and QIB constants); *full* couples x and e in P and adds every scalar "
     "constant; *structured* adds the plant's declared channels f = G phi(Hx) with their slope bounds. Each level "
@@ -395,7 +397,10 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
     parts = [
         "# oslbench report",
         "",
-        f"Command: `{run_info['command']}`. Seed {o.seed}; measurement noise sigma = {o.noise:g}; designs use the "
+        f"Command: `{run_info['command']}`. Seed {o.seed}; measurement noise sigma = {o.noise:g}; "
+        + (f"disturbance peak {o.disturbance:g} (measured L2 ratios from z(0) = 0 in `l2_measured_e`, `l2_measured_x`); "
+           if o.disturbance > 0 else "")
+        + f"designs use the "
         f"{'constants claimed by the sources' if o.use_claimed else 'valid constants (analytic, else sampled)'}; "
         f"{len(df)} pairs. One row per pair in `results.csv` (every verdict below is a column there), gains and "
         "certificates in `gains.json`, settings, versions and these findings in `run.json`, LaTeX tables in "
@@ -536,6 +541,7 @@ def _run_json(result: RunResult, run_info: dict) -> dict:
         "horizon_cap": o.horizon_cap,
         "noise": o.noise,
         "noise_dt": o.noise_dt,
+        "disturbance": o.disturbance,
         "timeout": o.timeout,
         "sim": {k: getattr(o.sim, k) for k in ("method", "rtol", "atol", "n_points", "blowup", "max_nfev")},
         "constants": {pid: rep.to_dict() for pid, rep in result.constants.items()},

@@ -1,6 +1,7 @@
 """The judgements of a pair, each a pure function of numbers the pipeline already has: how long to
 simulate (:func:`simulation_horizon`), what a certificate proves from the initial condition
-(:func:`certificate_scope`), and why a pair did not converge (:func:`convergence_note`).
+(:func:`certificate_scope`), why a pair did not converge (:func:`convergence_note`), and whether a certified
+L2 gain contradicts the measured attenuation (:func:`attenuation_note`).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import numpy as np
 
 from bench.metrics import CONVERGED_RATIO
 
-__all__ = ["certificate_scope", "certified_horizon", "convergence_note", "simulation_horizon"]
+__all__ = ["attenuation_note", "certificate_scope", "certified_horizon", "convergence_note", "simulation_horizon"]
 
 #: An uncertified pair is simulated this many times what its linearisation's rate needs (:func:`simulation_horizon`).
 LINEAR_FACTOR = 2.0
@@ -145,3 +146,44 @@ def convergence_note(rec: dict) -> str:
                 f"needs {need:.3g} s to decay by {1 / CONVERGED_RATIO:g}, the horizon was {T:.3g} s ({rule}))")
     return (f"{note} (INCONSISTENT with the certificate: not converged after {T:.3g} s although the certified "
             f"rate needs {need:.3g} s; witness {witness})")
+
+
+#: A certified L2 gain below a measured ratio by more than this fraction of the ratio is INCONSISTENT: the
+#: margin of the norms' quadrature on the trajectory's grid (:mod:`bench.disturbance`).
+ATTENUATION_RTOL = 0.01
+
+
+def attenuation_note(rec: dict, rtol: float = ATTENUATION_RTOL) -> str:
+    """INCONSISTENT when a certified L2 gain is below its measured ratio (empty otherwise).
+
+    From ``z(0) = 0`` a certified gain ``g`` from w to ``zeta`` bounds ``||zeta||_L2 / ||w||_L2`` for every
+    w, so ``measured > g (1 + rtol)`` contradicts the certificate. Pairs compared: ``l2_gain_e`` with
+    ``l2_measured_e`` (``zeta = e``) and ``l2_gain_x`` with ``l2_measured_x`` (``zeta = x``); a NaN on
+    either side (nothing certified, nothing measured) proves nothing.
+
+    Parameters
+    ----------
+    rec : dict
+        A record with (some of) the four columns.
+    rtol : float
+        Relative tolerance of the measurement.
+
+    Returns
+    -------
+    str
+    """
+    out = []
+    for which, what in (("e", "the estimation error e"), ("x", "the state x")):
+        g, r = (_number(rec.get(f"{col}_{which}")) for col in ("l2_gain", "l2_measured"))
+        if math.isfinite(g) and math.isfinite(r) and r > g * (1 + rtol):
+            out.append(f"INCONSISTENT with the certificate: the measured L2 ratio from w to {what} is {r:.4g}, above "
+                       f"the certified gain {g:.4g} (run from z(0) = 0 with the seeded disturbance)")
+    return "; ".join(out)
+
+
+def _number(v) -> float:
+    """``v`` as a float (None, text or a missing value: NaN)."""
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan

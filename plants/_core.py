@@ -624,6 +624,92 @@ class Plant:
         """True for a discrete-time plant (``dt > 0``)."""
         return self.dt > 0
 
+    def discretise(self, h: float, method: str = "zoh", *, id: str | None = None) -> "Plant":
+        """The discrete-time plant ``x_{k+1} = A_d x_k + B_d u_k + f_d(x_k)`` sampled every ``h`` seconds.
+
+        Parameters
+        ----------
+        h : float
+            Sample time in seconds (> 0).
+        method : {"zoh", "euler"}
+            ``"euler"`` (forward difference): ``A_d = I + h A``, ``B_d = h B``, ``f_d = h f``,
+            ``Bw_d = h Bw``, Jacobian ``h J``. ``"zoh"``: the linear part exact under a zero-order hold,
+            ``A_d = expm(h A)``, ``B_d = Gamma B``, ``Bw_d = Gamma Bw`` with ``Gamma = int_0^h expm(A s) ds``
+            (what python-control's ``c2d(sys, h, "zoh")`` gives), and ``f_d = Gamma f``, Jacobian
+            ``Gamma J``: f held over the step like u (exact for the linear part only; for the nonlinear
+            plant it is the discrete model the suite then studies, not the sampled continuous flow).
+            C, Dw, x0, x_hat0 are kept.
+        id : str, optional
+            The new plant's id (default ``"<id>_d<h in ms>ms"``, e.g. ``flexible_link_d10ms``).
+
+        Returns
+        -------
+        Plant
+            With ``dt = h``, ``t_final`` rounded up to a multiple of ``h``, ``params`` adding ``h`` and
+            ``zoh`` (1 for zoh, 0 for Euler), the source and notes stating the discretisation.
+            Constants of ``f_d`` (``bounds`` transported, None where no rule applies, the radius kept;
+            ``claimed`` transported by Euler, whose rules are exact, so a claim stays right or wrong,
+            and dropped by zoh, whose rules are bounds nobody claimed), with ``g = ||Gamma||_2`` and
+            ``d = ||Gamma - h I||_2``:
+
+            - Euler (exact): Lipschitz ``h alpha``; OSL ``h rho``; QIB ``(h^2 beta, h gamma)`` (multiply
+              the QIB inequality by ``h^2``).
+            - zoh: Lipschitz ``g alpha`` (``|Gamma df| <= g |df|``); OSL the smaller of ``g alpha``
+              (Cauchy-Schwarz) and ``h rho + d alpha`` (``<Gamma df, dx> = h <df, dx> + <(Gamma - h I) df,
+              dx>``), so it tends to ``h rho`` as ``h -> 0``; QIB ``(g^2 alpha^2, 0)`` from the Lipschitz
+              bound. Without alpha, zoh gives no OSL or QIB constant.
+
+            Channels ``f_d = G_d phi(H x)`` with ``G_d = h G`` (Euler) or ``Gamma G`` (zoh), phi, H, the slopes
+            and their narrowing unchanged (exact). The suite's sampler checks the transported constants as
+            every plant's.
+
+        Raises
+        ------
+        PlantError
+            If the plant is already discrete, ``h`` is not a positive number or ``method`` is unknown.
+
+        Examples
+        --------
+        >>> from bench.registry import PLANTS
+        >>> d = PLANTS.create("flexible_link").discretise(0.01, "zoh")
+        >>> d.id, d.dt, d.discrete
+        ('flexible_link_d10ms', 0.01, True)
+        """
+        if self.discrete:
+            raise PlantError(f"discretise: plant {self.id!r} is already discrete (dt = {self.dt:g} s)")
+        h = check_real("h", h, lo=0.0, strict=True)
+        if method not in DISCRETISATIONS:
+            raise PlantError(f"method: must be one of {', '.join(map(repr, DISCRETISATIONS))}, got {checks.brief(method)}")
+        n = self.n
+        if method == "euler":
+            Ad, Gam = np.eye(n) + h * self.A, h * np.eye(n)
+        else:
+            from scipy.linalg import expm
+
+            M = np.zeros((2 * n, 2 * n))
+            M[:n, :n], M[:n, n:] = self.A, np.eye(n)
+            E = expm(h * M)  # [[expm(hA), Gamma], [0, I]] (Van Loan)
+            Ad, Gam = E[:n, :n], E[:n, n:]
+        scale = h if method == "euler" else Gam  # a scalar keeps f_d = h f exact
+        ch = self.channels
+        channels = None if ch is None else Channels(G=scale * ch.G if method == "euler" else Gam @ ch.G, H=ch.H,
+                                                    phi=ch.phi, lo=ch.lo, hi=ch.hi, radius=ch.radius,
+                                                    narrow=ch.narrow)
+        has_w = self.q > 0
+        steps = math.ceil(self.t_final / h - 1e-9)
+        how = f"{'Euler' if method == 'euler' else 'zero-order hold'} discretisation at h = {h:g} s"
+        return Plant(
+            id=id if id is not None else f"{self.id}_d{h * 1000:g}ms",
+            A=Ad, B=Gam @ self.B, C=self.C, f=_Mapped(self.f, scale), x0=self.x0, x_hat0=self.x_hat0,
+            jacobian=None if self.jacobian is None else _Mapped(self.jacobian, scale),
+            claimed=_discrete_constants(self.claimed, h, Gam, method) if method == "euler" else Constants(),
+            bounds=None if self.bounds is None else _discrete_constants(self.bounds, h, Gam, method),
+            channels=channels, t_final=max(steps, 1) * h, dt=h,
+            Bw=Gam @ self.Bw if has_w else None, Dw=self.Dw if has_w else None, family=self.family,
+            params={**self.params, "h": h, "zoh": float(method == "zoh")},
+            source=f"{self.source}; {how}" if self.source else how,
+            notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""))
+
     def summary(self) -> str:
         """One line: id, dimensions and source."""
         return f"{self.id}: n={self.n}, m={self.m}, p={self.p}; {self.source}"
@@ -634,6 +720,36 @@ class Plant:
         if self.jacobian is not None:
             return np.asarray(self.jacobian(x), dtype=float)
         return _central_differences(self.f, x, 1e-6)
+
+
+#: The discretisations of :meth:`Plant.discretise`.
+DISCRETISATIONS = ("zoh", "euler")
+
+
+class _Mapped:
+    """``x -> M @ g(x)`` (or ``M * g(x)`` for a scalar M): a discretised f or Jacobian (picklable when g is)."""
+
+    def __init__(self, g: Callable, M):
+        self.g, self.M = g, M
+
+    def __call__(self, x):
+        out = np.asarray(self.g(x), dtype=float)
+        return self.M * out if np.ndim(self.M) == 0 else self.M @ out
+
+
+def _discrete_constants(c: Constants, h: float, Gam: np.ndarray, method: str) -> Constants:
+    """The constants of ``f_d`` from those of ``f`` (the rules of :meth:`Plant.discretise`)."""
+    if method == "euler":
+        return Constants(alpha=None if c.alpha is None else h * c.alpha, rho=None if c.rho is None else h * c.rho,
+                         beta=None if c.beta is None else h * h * c.beta,
+                         gamma=None if c.gamma is None else h * c.gamma, radius=c.radius)
+    if c.alpha is None:
+        return Constants(radius=c.radius)
+    g = float(np.linalg.norm(Gam, 2))
+    rho = g * c.alpha
+    if c.rho is not None:
+        rho = min(rho, h * c.rho + float(np.linalg.norm(Gam - h * np.eye(Gam.shape[0]), 2)) * c.alpha)
+    return Constants(alpha=g * c.alpha, rho=rho, beta=(g * c.alpha) ** 2, gamma=0.0, radius=c.radius)
 
 
 def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: float = 1e-4) -> str | None:
