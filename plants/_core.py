@@ -92,10 +92,12 @@ class Channels:
     lo, hi : float or array_like, shape (q,)
         Slope bounds of each channel (a scalar applies to every channel); ``lo <= hi``.
     radius : float, optional
-        The slopes hold on the ball ``||x|| <= radius``; None means globally.
+        The slopes hold on the ball ``||x|| <= radius``, so channel i's on ``|z_i| <= radius ||H_i||``
+        (:attr:`reach`); None means globally.
     narrow : callable, optional
         ``narrow(r) -> (lo_r, hi_r)`` (scalars or shape (q,)): analytic slopes of each channel on
-        ``|z_i| <= r`` (e.g. :func:`sine_slopes`), for certificates on that region.
+        ``|z_i| <= r`` (e.g. :func:`sine_slopes`), for certificates on that region; beyond a channel's
+        reach they are all a certificate uses there (:meth:`slopes_on`).
     """
 
     G: np.ndarray

@@ -50,8 +50,7 @@ def test_a_certificate_holds_on_the_smallest_radius_of_what_it_uses(const_radius
 
 def test_an_equilibrium_witness_needs_a_residual_at_the_solvers_accuracy():
     """Catches a root accepted at a residual of 1e-3: f(x) = -x (1e-4 + (x - 2)^2) comes within 2e-4 of zero
-    at x = 2 but vanishes only at 0; with F = 0 and x = 0 the e-equation is e' = -e (1 + 1e-4 + (e + 2)^2)...,
-    so the origin is the loop's only equilibrium."""
+    at x = 2 but vanishes only at 0, so the origin is the loop's only equilibrium (worked out below)."""
     from bench.witness import equilibrium_witness
 
     def f(x):
@@ -60,7 +59,7 @@ def test_an_equilibrium_witness_needs_a_residual_at_the_solvers_accuracy():
 
     plant = Plant(id="near_root", A=[[0.0]], B=[[1.0]], C=[[1.0]], f=f, x0=[1.0], x_hat0=[0.0])
     K, F = np.array([[1.0]]), np.array([[0.0]])
-    # x' = f(x) is zero only at x = 0; there e' = -e + f(0) - f(-e) = -e (1 + 1e-4 + (e + 2)^2) is zero only at e = 0
+    # with F = 0: x' = f(x), zero only at x = 0; there e' = -e - f(-e) = -e (1 + 1e-4 + (e + 2)^2), zero only at e = 0
     assert equilibrium_witness(plant, K, F, Knowledge()) is None
     # and the search does find a true equilibrium when there is one: f(x) = -x (x - 2)^2 vanishes at x = 2
     plant2 = Plant(id="true_root", A=[[0.0]], B=[[1.0]], C=[[1.0]], f=lambda x: -np.asarray(x) * (np.asarray(x) - 2.0) ** 2,
