@@ -759,7 +759,7 @@ def adopt(cert: Certificate, candidate: dict | None, plant: Plant, loop: checks.
                 + (f" (the ladder's own LMI: {cur.status}: {cur.reason})" if cur.reason else "")))
         return ""
     rate = candidate.get("decay_rate")
-    if cur.certified and isinstance(rate, (int, float)) and cur.decay_rate >= ADOPT_RATIO * rate:
+    if cur.certified and isinstance(rate, (int, float, np.floating)) and cur.decay_rate >= ADOPT_RATIO * rate:
         return ""  # the ladder's own P (normalised, usually better conditioned) is kept
     own, why = verify_certificate(candidate, plant, loop, knowledge)
     if own is None:
@@ -822,8 +822,9 @@ def verify_certificate(candidate: dict, plant: Plant, loop: checks.ClosedLoop,
                                         scalars=spec.scalars)
         if lam > top:
             return None, f"its rate {lam:.4g} exceeds the rate ceiling {top:.4g} of the level's class ({how})"
-    if not _positive_definite(P):
-        return None, f"P is not positive definite (min eig {lmi.min_eig(P):.3g})"
+    why = _not_positive_definite(P)
+    if why:
+        return None, why
     if "joint" in candidate:
         if not spec.channels:
             return None, f"a joint certificate needs the channels, which the {lv} level does not use"
@@ -851,14 +852,18 @@ def _own_matrix(candidate: dict, n: int) -> np.ndarray:
     return (P + P.T) / 2
 
 
-def _positive_definite(P: np.ndarray) -> bool:
-    """:func:`bench.lmi.is_positive_definite` of ``D P D``, ``D = diag(P_ii)^-1/2`` (a congruence: same inertia,
-    any scaling of the coordinates)."""
+def _not_positive_definite(P: np.ndarray) -> str:
+    """Why P is not verified positive definite ("" when it is): :func:`bench.lmi.is_positive_definite` of
+    ``E = D P D``, ``D = diag(P_ii)^-1/2`` (a congruence: same inertia, whatever the coordinates' scales); from
+    :data:`bench.joint.LANCZOS_FROM` rows, the same test (``E > VERIFY_TOL I``) by a Cholesky factorisation."""
     d = np.diag(P)
     if not np.all(d > 0):
-        return False
+        return f"P is not positive definite (a diagonal entry is {d.min():.3g})"
     s = 1.0 / np.sqrt(d)
-    return lmi.is_positive_definite(P * s[:, None] * s[None, :])
+    E = P * s[:, None] * s[None, :]
+    if E.shape[0] >= joint.LANCZOS_FROM:
+        return "" if joint.verdict(-E) == "verified" else "P is not positive definite (its Cholesky test fails)"
+    return "" if lmi.is_positive_definite(E) else f"P is not positive definite (min eig {lmi.min_eig(P):.3g})"
 
 
 def _verified_margin(M: np.ndarray, W: np.ndarray, lam: float) -> tuple[float, str]:
