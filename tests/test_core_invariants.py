@@ -62,8 +62,8 @@ def test_an_equilibrium_witness_needs_a_residual_at_the_solvers_accuracy():
     # with F = 0: x' = f(x), zero only at x = 0; there e' = -e - f(-e) = -e (1 + 1e-4 + (e + 2)^2), zero only at e = 0
     assert equilibrium_witness(plant, K, F, Knowledge()) is None
     # and the search does find a true equilibrium when there is one: f(x) = -x (x - 2)^2 vanishes at x = 2
-    plant2 = Plant(id="true_root", A=[[0.0]], B=[[1.0]], C=[[1.0]], f=lambda x: -np.asarray(x) * (np.asarray(x) - 2.0) ** 2,
-                   x0=[1.0], x_hat0=[0.0])
+    plant2 = Plant(id="true_root", A=[[0.0]], B=[[1.0]], C=[[1.0]], x0=[1.0], x_hat0=[0.0],
+                   f=lambda x: -np.asarray(x) * (np.asarray(x) - 2.0) ** 2)
     w = equilibrium_witness(plant2, K, F, Knowledge())
     assert w is not None and np.allclose(w.z, [2.0, 0.0], atol=1e-4) and w.residual < 1e-9
 
