@@ -149,6 +149,19 @@ def exits_in_f():
                  x0=[0.5, 0.0], x_hat0=[0.0, 0.0])
 
 
+def g(x):
+    x = np.asarray(x, dtype=float)
+    if x.ndim == 2 and x.shape[1] > 100:  # the constants sampler's batches: the plugin exits
+        sys.exit(0)
+    return np.stack([0 * x[0], -0.2 * np.sin(x[0])])
+
+
+@register_plant("exits_in_sampler")
+def exits_in_sampler():
+    return Plant(id="exits_in_sampler", A=[[0.0, 1.0], [-1.0, -1.0]], B=[[0.0], [1.0]], C=[[1.0, 0.0]], f=g,
+                 x0=[0.5, 0.0], x_hat0=[0.0, 0.0])
+
+
 @register_design("exits_in_design")
 class ExitsInDesign(Design):
     def design(self, plant, constants):
@@ -158,16 +171,21 @@ class ExitsInDesign(Design):
 
 @pytest.mark.parametrize("jobs", ["1", "2"])
 def test_system_exit_in_f_or_in_a_design_is_an_error_row_and_the_report_is_written(tmp_path, jobs):
+    """sys.exit(0) in f during a pair's simulation, in f during the plant's constants, SystemExit(3) in a design."""
     plugin = tmp_path / "exits.py"
     plugin.write_text(PLUGIN, encoding="utf-8")
     out = tmp_path / "rep"
-    rc = main(["run", "--plugin", str(plugin), "--plant", "exits_in_f", "--plant", "flexible_link", "--design",
+    rc = main(["run", "--plugin", str(plugin), "--plant", "exits_in_f", "--plant", "flexible_link", "--plant",
+               "exits_in_sampler", "--design",
                "lqr+lqe", "--design", "exits_in_design", "--out", str(out), "--no-figures", "--no-cache", "-q",
                "--jobs", jobs])
     assert rc == 0
     assert (out / "REPORT.md").is_file()
     rows = {(r["plant"], r["design"]): r for r in csv.DictReader((out / "results.csv").open())}
-    assert len(rows) == 4
+    assert len(rows) == 6
+    for did in ("lqr+lqe", "exits_in_design"):  # the plant's constants failed: each of its pairs says so
+        r = rows["exits_in_sampler", did]
+        assert r["status"] == "error" and "SystemExit" in r["reason"] and "exits_in_sampler" in r["reason"]
     in_f = rows["exits_in_f", "lqr+lqe"]
     assert in_f["status"] == "error" and "SystemExit" in in_f["reason"] and "simulation" in in_f["reason"]
     for pid in ("exits_in_f", "flexible_link"):
