@@ -209,7 +209,7 @@ class Structured(Design):
                 f"the gains exceed max_gain = {self.max_gain:g} already at decay 0 (||F||, ||K|| up to "
                 f"{best['gain']:.3g}): the smallest gains found are returned")
             out = {"level": "structured", "P": cert.P, "decay_rate": cert.rate, "margin": cert.margin,
-                   "radius": ch.radius,
+                   "radius": ch.radius, "joint": {"P": P, "R": R, "mu": cert.mu, "s": s, "t": t},
                    "how": "the design's own joint certificate (V = x'Q^-1 x + mu e'Re), its rate by a generalised "
                           "eigenvalue"}
             return DesignResult(status="feasible", reason=note, K=K, F=F, margin=cert.margin, lmi_size=2 * n + 2 * q,
@@ -277,6 +277,7 @@ class Structured(Design):
         n = plant.n
         P = np.block([[rr.P, np.zeros((n, n))], [np.zeros((n, n)), rr.mu * rr.R]])
         cert = {"level": "structured", "P": P, "decay_rate": rr.rate, "margin": rr.margin, "radius": ch.radius,
+                "joint": {"P": rr.P, "R": rr.R, "mu": rr.mu, "s": rr.s, "t": rr.t},
                 "how": "the design's own joint certificate (Riccati route), its rate by a generalised eigenvalue"}
         return DesignResult(status="feasible", K=rr.K, F=rr.F, certificate=cert, **base)
 

@@ -92,10 +92,12 @@ class Channels:
     lo, hi : float or array_like, shape (q,)
         Slope bounds of each channel (a scalar applies to every channel); ``lo <= hi``.
     radius : float, optional
-        The slopes hold on the ball ``||x|| <= radius``; None means globally.
+        The slopes hold on the ball ``||x|| <= radius``, so channel i's on ``|z_i| <= radius ||H_i||``
+        (:attr:`reach`); None means globally.
     narrow : callable, optional
         ``narrow(r) -> (lo_r, hi_r)`` (scalars or shape (q,)): analytic slopes of each channel on
-        ``|z_i| <= r`` (e.g. :func:`sine_slopes`), for certificates on that region.
+        ``|z_i| <= r`` (e.g. :func:`sine_slopes`), for certificates on that region; beyond a channel's
+        reach they are all a certificate uses there (:meth:`slopes_on`).
     """
 
     G: np.ndarray
@@ -153,9 +155,18 @@ class Channels:
         """Half widths ``r = (hi - lo) / 2``: ``|psi_i(a) - psi_i(b)| <= r_i |a - b|``."""
         return (self.hi - self.lo) / 2
 
+    @property
+    def reach(self) -> np.ndarray:
+        """How far each channel's declared slopes ``[lo_i, hi_i]`` hold: ``|z_i| <= radius ||H_i||`` (the inputs
+        ``(H x)_i`` of ``||x|| <= radius``; phi acts channel-wise), infinite for global channels."""
+        if self.radius is None:
+            return np.full(self.q, np.inf)
+        return self.radius * np.linalg.norm(self.H, axis=1)
+
     def slopes_on(self, r: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """Slope bounds of each channel on ``|z_i| <= r``: ``narrow(r)`` intersected with ``[lo, hi]``
-        (None without a narrowing); PlantError when ``narrow(r)`` is not a valid pair."""
+        """Slope bounds of each channel on ``|z_i| <= r`` (None without a narrowing): ``narrow(r)`` intersected
+        with ``[lo, hi]`` where the declared slopes hold (``r <=`` :attr:`reach`), ``narrow(r)`` alone beyond;
+        PlantError when ``narrow(r)`` is not a valid pair."""
         if self.narrow is None:
             return None
         try:
@@ -163,7 +174,8 @@ class Channels:
         except Exception as exc:
             raise PlantError(f"channels.narrow: narrow({r:g}) must return (lo, hi), scalars or shape ({self.q},): "
                              f"{type(exc).__name__}: {exc}") from None
-        lo, hi = np.maximum(self.lo, lo_r), np.minimum(self.hi, hi_r)
+        held = r <= self.reach
+        lo, hi = np.where(held, np.maximum(self.lo, lo_r), lo_r), np.where(held, np.minimum(self.hi, hi_r), hi_r)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
             raise PlantError(f"channels.narrow: narrow({r:g}) gives slopes {lo_r.tolist()}, {hi_r.tolist()} that are "
                              f"not finite or leave no slope inside [lo, hi]")
