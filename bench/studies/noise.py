@@ -40,7 +40,7 @@ def _noise_task(prior, label: str, sigma: float, seed: int, noise_dt: float, t_f
     return {"plant": rec["plant"], "design": label, "noise": sigma, "estimator": est, **{k: rec[k] for k in keep}}
 
 
-def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[list, list]:
+def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final, seed: int = 0) -> tuple[list, list]:
     """Design and certify each pair once (the pipeline without simulation); the jobs per level."""
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
@@ -49,7 +49,7 @@ def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[
     for pid in plant_ids:
         plant = PLANTS.create(pid)
         for did in design_ids:
-            prior = evaluate(plant, did, RunOptions(simulate=False, t_final=t_final))
+            prior = evaluate(plant, did, RunOptions(simulate=False, t_final=t_final, seed=seed))
             skip = unsimulated_row(pid, did, prior, need_gains=False)
             if skip is not None:
                 skipped.append(skip)
@@ -104,7 +104,7 @@ def run_noise(run: StudyRun, *, levels: tuple[float, ...] = DEFAULT_LEVELS, seed
     levels = check_levels("levels", levels)
     checks.real("noise_dt", noise_dt, lo=0.0, strict=True, error=StudyError)
     check_horizon(t_final)
-    skipped, jobs_list = _priors(run.plant_ids, run.design_ids, levels, matched_ekf, t_final)
+    skipped, jobs_list = _priors(run.plant_ids, run.design_ids, levels, matched_ekf, t_final, seed)
     tasks = [((prior.record["plant"], label, s), (prior, label, s, seed, noise_dt, t_final))
              for prior, label, s in jobs_list]
     rows = run.map(_noise_task, tasks, lambda key, r: f"{r['plant']} x {r['design']} sigma {r['noise']:g}: "
@@ -192,7 +192,7 @@ def _transient_dominated(by: dict, designs: list[str], levels: list[float]) -> l
     return slow
 
 
-def write_noise(result: NoiseResult, out_dir: str, command: str):
+def write_noise(result: NoiseResult, out_dir: str, command: str, *, figures: bool = True):
     """Write ``STUDY_noise.md``, its CSV and figures atomically; return the markdown's path."""
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
@@ -211,4 +211,4 @@ def write_noise(result: NoiseResult, out_dir: str, command: str):
     for pid in plants:
         lines += _plant_section(pid, [r for r in rows if r["plant"] == pid], levels)
     lines += skipped_lines(result.skipped, heading="## Not simulated", width=250)
-    return write_plant_study(out_dir, "noise", lines, {"study_noise": rows}, rows, _draw, heading=None)
+    return write_plant_study(out_dir, "noise", lines, {"study_noise": rows}, rows, _draw, heading=None, figures=figures)
