@@ -242,8 +242,10 @@ def skipped_lines(rows: list[dict], *, heading: str = "Not simulated:", width: i
     """Markdown lines: ``heading`` and one bullet per pair not simulated, with its status and reason."""
     if not rows:
         return []
-    return [heading, "", *(f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r.get('reason', ''))[:width]}"
-                           for r in rows), ""]
+    from bench.report import clip_words
+
+    return [heading, "", *(f"- **{r['plant']} x {r['design']}** ({r['status']}): "
+                           f"{clip_words(fmt(r.get('reason', '')), width)}" for r in rows), ""]
 
 
 def study_header(title: str, command: str, settings: dict, wall_s: float) -> str:

@@ -20,6 +20,7 @@ import numpy as np
 
 from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_range,
                                    check_rtol, evaluate, fmt, md_table, pyplot, study, study_header, write_plant_study)
+from bench.report import clip_words
 from designs import GAIN_STATUSES
 
 __all__ = ["run_admissible", "write_admissible"]
@@ -138,7 +139,7 @@ def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds
            "wall_s": time.perf_counter() - t0}
     fail = [e for e in ev if not e["ok"] and (e["value"] == out["hi"] or out["kind"] == "inapplicable")]
     row["fails_by"] = _outcome(fail[-1]) if fail else ""
-    row["fail_reason"] = fail[-1]["reason"][:300] if fail else ""
+    row["fail_reason"] = clip_words(fail[-1]["reason"], 300) if fail else ""
     row["at_default"] = next((_outcome(e) for e in ev if e["value"] == default), "")
     if math.isfinite(out["lo"]):
         b = PLANTS.create(plant_id, **{knob: out["lo"]}).bounds

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench import checks
+from bench.report import design_styles
 from bench.studies._common import (StudyError, StudyResult, StudyRun, check_horizon, check_levels, evaluate, fmt,
                                    md_table, pyplot, skipped_lines, study, study_header, unsimulated_row,
                                    write_plant_study)
@@ -120,11 +121,11 @@ def _draw(pid: str, rows: list[dict]):
     plt = pyplot()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.3), constrained_layout=True)
     designs = list(dict.fromkeys(r["design"] for r in rows))
-    for i, did in enumerate(designs):
+    styles = design_styles(designs)  # distinct hues, line styles and markers (no light/dark pairs of one hue)
+    for did in designs:
         sub = sorted((r for r in rows if r["design"] == did), key=lambda r: r["noise"])
-        style = "--" if "ekf" in did else "-"
-        marker = "s" if "ekf" in did else "o"
-        kw = dict(ls=style, marker=marker, ms=4, color=plt.get_cmap("tab20")(i % 20), label=did)
+        st = styles[did]
+        kw = dict(ls=st["linestyle"], marker=st["marker"], ms=4, color=st["color"], label=did)
         a1.loglog([r["noise"] for r in sub], [r["rms_e"] for r in sub], **kw)
         a2.loglog([r["noise"] for r in sub], [r["final_x"] for r in sub], **kw)
     a1.set(xlabel="noise standard deviation sigma", ylabel="RMS ||e|| (second half of the horizon)",

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from bench.report import design_styles
 from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_box,
                                    check_count, check_horizon, check_range, check_rtol, default_box, evaluate, fmt,
                                    map_tasks, md_table, pyplot, random_ics, skipped_lines, study, study_header,
@@ -216,12 +217,16 @@ def _draw(pid: str, rows: list[dict], evals: list[dict]):
     """The figure of one plant: settling time vs h per design."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.2), constrained_layout=True)
-    for i, r in enumerate(x for x in rows if "h_max" in x):
+    drawn = [x for x in rows if "h_max" in x]
+    styles = design_styles(r["design"] for r in drawn)  # one colour per design, as in every figure of the suite
+    for r in drawn:
         pts = sorted((e["h"], e["settling_x_plant"]) for e in evals
                      if e["plant"] == pid and e["design"] == r["design"] and math.isfinite(e["settling_x_plant"]))
-        color = f"C{i % 10}"
+        st = styles[r["design"]]
+        color = st["color"]
         if pts:
-            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=color, ms=4, label=r["design"])
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=st["marker"], ls="-", color=color, ms=4,
+                    label=r["design"])
         if math.isfinite(r.get("settling_x_cont", math.nan)):
             ax.axhline(r["settling_x_cont"], color=color, ls=":", lw=0.8)
         if math.isfinite(r.get("h_max", math.nan)):
