@@ -34,7 +34,7 @@ from typing import Any, Callable, Iterator
 from bench.errors import ExecutorError
 from bench.threads import cores
 
-__all__ = ["START_METHODS", "default_jobs", "default_start_method", "executor", "use_start_method"]
+__all__ = ["START_METHODS", "check_start_method", "default_jobs", "default_start_method", "executor", "use_start_method"]
 
 
 #: All cores available to this process (the default number of local workers).
