@@ -395,9 +395,10 @@ _LEGEND = "\n".join([
     "verification tolerance of zero), `inapplicable`, `undecided` (solver trouble), `error`, `timeout`.",
     "- *Stabilizing*: A+BF and A-KC Hurwitz.",
     "- **The certificate ladder** checks the gains (K, F) with quadratic Lyapunov functions V = z'Pz of z = (x, e) "
-    "at three levels of what is known about f: *paper* is the paper's (20) (block-diagonal P, the OSL and QIB "
-    "constants); *full* couples x and e in P and adds every scalar constant; *structured* adds the plant's declared "
-    "channels f = G phi(Hx) with their slope bounds. Each level contains the one below.",
+    "at three levels of what is known about f, each containing the one below:",
+    "  *paper* is the paper's (20) (block-diagonal P, the OSL and QIB constants); *full* couples x and e in P and "
+    "adds every scalar constant; *structured* adds the plant's declared channels f = G phi(Hx) with their slope "
+    "bounds.",
     "- *Certified* is the strongest level that certifies and *decay rate* its rate lam (V' <= -2 lam V). Only "
     "analytic constants and channels no sample disproved are used (sampled constants are lower bounds and never "
     "certify).",
