@@ -223,10 +223,11 @@ def _figure_jobs(result: RunResult) -> list[_FigureJob]:
     return jobs
 
 
-#: Colours of the designs in every figure of the suite (the report's and the studies'): 20 distinct hues,
-#: matplotlib's ten then ten more, no light/dark pairs of one hue (:func:`design_styles`).
+#: Colours of the designs in every figure of the suite (the report's and the studies'): matplotlib's ten, then
+#: six more, each far from every other in CIELAB and of another hue (no light/dark pairs of one hue, as tab20
+#: has) (:func:`design_styles`).
 DESIGN_COLOURS = ("C0", "C1", "C2", "C3", "C4", "C5", "C6", "C7", "C8", "C9", "black", "#b8860b", "#000080",
-                  "#008080", "#ff1493", "#800000", "#4b0082", "#556b2f", "#00bfff", "#ff6347")
+                  "#ff00ff", "#556b2f", "#00ff7f")
 #: Line styles and markers cycled beside the colours: two designs never share all three.
 DESIGN_LINESTYLES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
 DESIGN_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "<", ">", "h")
@@ -239,7 +240,7 @@ def design_styles(design_ids) -> dict[str, dict]:
 
     A registered design keeps the slot of its place in the registry (so ``thm1`` has one colour in the report
     and in every study); another label (``lqr+ekf (r = sigma^2)``) takes the next free slots in the order given.
-    Slot ``k`` has colour ``k mod 20``, line style ``k mod 5`` and marker ``k mod 11``.
+    Slot ``k`` has colour ``k mod 16``, line style ``k mod 5`` and marker ``k mod 11``.
 
     Parameters
     ----------
