@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Iterator
 
 from bench.cli_common import (add_common, add_selection, error, nonneg_float, nonneg_int,  # noqa: F401
-                              positive_float, positive_int, program)
+                              plain_summary, positive_float, positive_int, program)
 from bench.registry import DESIGNS, PLANTS
 from bench.selection import check_selection
 
@@ -86,6 +86,10 @@ def _build_parser() -> argparse.ArgumentParser:
     ls = sub.add_parser("list", help="list plants and designs")
     ls.add_argument("--plugin", action="append", metavar="PATH",
                     help="a Python file registering your own plants or designs (repeatable)")
+    dp = sub.add_parser("docs-plants", help="print the plant catalogue page (docs/plants.md) from the registry")
+    dp.add_argument("--out", default=None, metavar="FILE", help="write it to FILE (default: print it)")
+    dp.add_argument("--plugin", action="append", metavar="PATH",
+                    help="a Python file registering your own plants (repeatable): documented beside the catalogue")
     from bench.studies.cli import add_study_parser
 
     add_study_parser(sub)  # python -m bench study {admissible,sampling,montecarlo,noise}
@@ -161,14 +165,17 @@ def _cmd_cache(args) -> int:
     return 0
 
 
-#: Sphinx roles in a docstring's first line (``:func:`~mod.name```): shown as the name alone.
-_ROLE = re.compile(r":(?:[a-z]+:)?[a-z]+:`~?([^`<]*?)(?: <[^`]*>)?`")
+def _cmd_docs_plants(args) -> int:
+    """``docs-plants``: :func:`bench.plantdoc.plants_markdown`, printed or written to ``--out``."""
+    from bench.plantdoc import plants_markdown
 
-
-def plain_summary(text: str) -> str:
-    """A docstring's summary without reStructuredText markup: roles as their target, ````literals```` as is."""
-    text = _ROLE.sub(lambda m: m.group(1).rsplit(".", 1)[-1] if m.group(0).find("~") >= 0 else m.group(1), text)
-    return text.replace("``", "`")
+    text = plants_markdown()
+    if args.out is None:
+        sys.stdout.write(text)
+        return 0
+    Path(args.out).write_text(text, encoding="utf-8")
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
 
 
 def _cmd_list() -> int:
@@ -404,4 +411,6 @@ def _main(argv: list[str]) -> int:
         return _cmd_list()
     if args.command == "cache":
         return _cmd_cache(args)
+    if args.command == "docs-plants":
+        return _cmd_docs_plants(args)
     return _cmd_run(args, argv)

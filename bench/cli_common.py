@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 
 from bench import checks
 from bench.checks import argtype
 
-__all__ = ["add_common", "add_selection", "error", "nonneg_float", "nonneg_int", "positive_float", "positive_int",
-           "program"]
+__all__ = ["add_common", "add_selection", "error", "nonneg_float", "nonneg_int", "plain_summary", "positive_float",
+           "positive_int", "program"]
 
 positive_float = argtype(checks.real, lo=0.0, strict=True)
 nonneg_float = argtype(checks.real, lo=0.0)
@@ -58,3 +59,13 @@ def add_common(p: argparse.ArgumentParser, *, seed_help: str, timeout: bool = Tr
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     p.add_argument("--plugin", action="append", metavar="PATH",
                    help="a Python file registering your own plants or designs (repeatable)")
+
+
+#: Sphinx roles in a docstring's first line (``:func:`~mod.name```): shown as the name alone.
+_ROLE = re.compile(r":(?:[a-z]+:)?[a-z]+:`~?([^`<]*?)(?: <[^`]*>)?`")
+
+
+def plain_summary(text: str) -> str:
+    """A docstring's summary without reStructuredText markup: roles as their target, ````literals```` as is."""
+    text = _ROLE.sub(lambda m: m.group(1).rsplit(".", 1)[-1] if m.group(0).find("~") >= 0 else m.group(1), text)
+    return text.replace("``", "`")
