@@ -229,7 +229,7 @@ def _figure_jobs(result: RunResult) -> list[_FigureJob]:
 DESIGN_COLOURS = ("C0", "C1", "C2", "C3", "C4", "C5", "C6", "C7", "C8", "C9", "black", "#b8860b", "#000080",
                   "#ff00ff", "#556b2f", "#00ff7f")
 #: Line styles and markers cycled beside the colours: two designs never share all three.
-DESIGN_LINESTYLES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
+DESIGN_LINESTYLES = ("-", "--", "-.", ":")
 DESIGN_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "<", ">", "h")
 #: The norms figure's colours and line styles (the design palette).
 NORM_COLOURS, NORM_STYLES = DESIGN_COLOURS, DESIGN_LINESTYLES
@@ -240,7 +240,7 @@ def design_styles(design_ids) -> dict[str, dict]:
 
     A registered design keeps the slot of its place in the registry (so ``thm1`` has one colour in the report
     and in every study); another label (``lqr+ekf (r = sigma^2)``) takes the next free slots in the order given.
-    Slot ``k`` has colour ``k mod 16``, line style ``k mod 5`` and marker ``k mod 11``.
+    Slot ``k`` has colour ``k mod 16``, line style ``k mod 4`` and marker ``k mod 11``.
 
     Parameters
     ----------
