@@ -146,8 +146,10 @@ def _cmd_cache(args) -> int:
     size = sum(f.stat().st_size for f in files)
     if args.action == "info":
         count = {sub: sum(f.parent.name == sub and f.suffix == ".npz" for f in files) for sub in _CACHE_ENTRIES}
-        state = "does not exist" if not root.exists() else f"{count['pairs']} pairs, {count['constants']} plants' " \
-                                                           f"constants, {size / 1e6:.1f} MB"
+        pairs, plants = count["pairs"], count["constants"]
+        state = "does not exist" if not root.exists() else (
+            f"{pairs} pair{'s' * (pairs != 1)}, the constants of {plants} plant{'s' * (plants != 1)}, "
+            f"{size / 1e6:.1f} MB")
         print(f"{root}: {state}")
         return 0
     if root.exists() and not root.is_dir():

@@ -215,7 +215,7 @@ def test_cache_folder_where_info_and_clear(capsys, tmp_path):
     assert not (out / ".oslbench.lock").exists()  # no empty lock file stays in the report folder
     capsys.readouterr()
     assert main(["cache", "info", "--out", str(out)]) == 0
-    assert capsys.readouterr().out.startswith(f"{cache}: 1 pairs, 1 plants' constants")
+    assert capsys.readouterr().out.startswith(f"{cache}: 1 pair, the constants of 1 plant, ")
     (cache / "notes.txt").write_text("mine")  # not the cache's: left alone
     assert main(["cache", "clear", "--out", str(out)]) == 0
     assert "removed 2 entries" in capsys.readouterr().out
