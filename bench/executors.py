@@ -143,11 +143,13 @@ class _Returns:
 def _main_importable() -> bool:
     """Whether a fresh worker can import this process's ``__main__`` (a script or ``-m`` module: yes; a
     notebook, a REPL or ``python -c``: no), as :mod:`multiprocessing` prepares spawned children."""
+    if "ipykernel" in sys.modules:  # a notebook: its cells are in no module a worker can import
+        return False
     main = sys.modules.get("__main__")
     if getattr(getattr(main, "__spec__", None), "name", None):
         return True
     path = getattr(main, "__file__", None)
-    return bool(path) and os.path.isfile(path) and "ipykernel" not in sys.modules
+    return bool(path) and os.path.isfile(path)
 
 
 class _Loadable(pickle.Unpickler):
