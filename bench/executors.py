@@ -253,7 +253,11 @@ def _worker_init(parent: int, method: str = "fork", setup: WorkerSetup | None = 
                 return False
             except PermissionError:
                 return True
-            return True
+            try:  # Linux: a killed parent not yet reaped is a zombie, which signal 0 still finds
+                with open(f"/proc/{parent}/stat", "rb") as fh:
+                    return fh.read().rpartition(b")")[2].split()[0] != b"Z"
+            except (OSError, IndexError):
+                return True
         return os.getppid() == parent
 
     def watch() -> None:

@@ -157,3 +157,41 @@ if __name__ == "__main__":
         else:
             assert list(x) == list(y), c
     assert any("my_flex" in m for m in messages)  # its closure f cannot be pickled: its pairs ran in the parent
+
+
+_ORPHANS = r'''
+import time
+from bench.executors import executor
+with executor(2, start_method="forkserver") as ex:
+    futs = [ex.submit(time.sleep, 120) for _ in range(2)]
+    time.sleep(2)
+    print(" ".join(str(p) for p in ex._processes), flush=True)
+    time.sleep(120)
+'''
+
+
+@pytest.mark.skipif(not LINUX, reason="/proc")
+def test_forkserver_workers_die_with_a_killed_parent():
+    """A forkserver's worker is not its parent's child: it watches the parent itself, and leaves once the parent is
+    killed, even before anyone reaps it (a zombie still answers signal 0)."""
+    import signal
+    import time
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-c", _ORPHANS], stdout=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True)
+    try:
+        pids = [int(x) for x in proc.stdout.readline().split()]
+        assert len(pids) == 2
+        os.kill(proc.pid, signal.SIGKILL)  # not reaped until proc.wait() below
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and any(os.path.exists(f"/proc/{p}") for p in pids):
+            time.sleep(0.2)
+        assert not [p for p in pids if os.path.exists(f"/proc/{p}")]
+    finally:
+        proc.kill()
+        proc.wait()
+        try:  # the fork server and anything left of the group
+            os.killpg(proc.pid, signal.SIGKILL)
+        except OSError:
+            pass
