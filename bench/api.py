@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,14 +19,17 @@ class Results:
     Attributes
     ----------
     table : pandas.DataFrame
-        results.csv: one row per pair in the order asked for (:func:`bench.report.results_table`).
+        results.csv: one row per pair in the order asked for (:func:`bench.report.results_table`); a copy, so
+        changing it changes nothing :meth:`write` writes.
     gains : dict
         ``(plant, design) -> {"K", "F", "result", "certificate", "trajectory", "plant"}`` for every pair
-        with a controller.
+        with a controller. Every array of the run's results (gains, certificates, trajectories, constants;
+        not the plants, which are the run's input) is read-only: what :meth:`write` writes is what the run
+        computed.
     constants : dict
         Plant id -> :class:`bench.constants.ConstantsReport`.
     findings : dict
-        :func:`bench.findings.findings`.
+        :func:`bench.findings.findings` (:meth:`write` computes them again from the records).
     run_result : bench.harness.RunResult
         Everything, including the outcomes and timings.
     command : str
@@ -51,7 +55,7 @@ class Results:
         from bench.report import write_report
 
         check_out_dir(out_dir)
-        info = {"command": self.command or "bench.run(...)", **self.info, "findings": self.findings}
+        info = {"command": self.command or "bench.run(...)", **self.info}
         return write_report(self.run_result, out_dir, info, figures=figures, figure_format=figure_format)
 
     def controller(self, plant: str, design: str):
@@ -149,7 +153,7 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     from bench.findings import findings
     from bench.harness import RunOptions
     from bench.registry import DESIGNS, PLANTS
-    from bench.report import results_table
+    from bench.report import check_cells, results_table
 
     check_start_method(start_method)
 
@@ -161,6 +165,8 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     store = None if cache is None else Cache(cache)
     with use_start_method(start_method):
         result = _run_in_registry_order(plant_ids, design_ids, options, progress, jobs, scheduler, store)
+    check_cells(result.outcomes)
+    _read_only([result.outcomes, result.constants], set())
     records = result.frame()
     info = {"plants": plant_ids, "designs": design_ids, "jobs": jobs, "scheduler": scheduler,
             "cache_errors": list(store.errors) if store is not None else []}
@@ -185,6 +191,31 @@ def _run_in_registry_order(plant_ids: list[str], design_ids: list[str], options,
     result.constants = {p: result.constants[p] for p in plant_ids if p in result.constants}
     result.constants_errors = {p: result.constants_errors[p] for p in plant_ids if p in result.constants_errors}
     return result
+
+
+def _read_only(obj, seen: set) -> None:
+    """Make every array reachable from ``obj`` (through dataclass fields, dicts, lists and tuples) read-only, in place;
+    plants are not entered (they are the run's input, not its results)."""
+    import numpy as np
+
+    from plants import Plant
+
+    if isinstance(obj, np.ndarray):
+        obj.flags.writeable = False
+        return
+    if id(obj) in seen or isinstance(obj, (Plant, str, bytes, type)):
+        return
+    seen.add(id(obj))
+    if dataclasses.is_dataclass(obj):
+        items = [getattr(obj, f.name) for f in dataclasses.fields(obj)]
+    elif isinstance(obj, dict):
+        items = list(obj.values())
+    elif isinstance(obj, (list, tuple)):
+        items = obj
+    else:
+        return
+    for item in items:
+        _read_only(item, seen)
 
 
 def _controllers(result) -> dict:

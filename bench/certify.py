@@ -97,6 +97,9 @@ class LevelResult:
     solve_s : float
         Compile and solve seconds of this level.
     n_solves : int
+    slopes : tuple of ndarray or None
+        ``(lo, hi)``, each channel's slope bounds narrowed on the region, when the certificate used them (a
+        certificate from x0), else None (the declared ones, or none).
     """
 
     level: str
@@ -109,6 +112,7 @@ class LevelResult:
     solve_s: float = 0.0
     n_solves: int = 0
     region_H: np.ndarray | None = None
+    slopes: tuple | None = None
 
     @property
     def certified(self) -> bool:
@@ -686,7 +690,8 @@ def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.C
     if not _contains(P, z0, knowledge.channels.H, r):
         lam, P = 0.0, P0
     return LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
-                       region_H=knowledge.channels.H, reason=(
+                       region_H=knowledge.channels.H, slopes=(np.array(lo, dtype=float), np.array(hi, dtype=float)),
+                       reason=(
                            f"certified from x0 on |Hx|, |Hx_hat| <= {r:.4g}, where the slopes narrow to "
                            f"[{_vec(lo)}, {_vec(hi)}]: the level set through z0 stays in that region"))
 

@@ -102,7 +102,8 @@ def gains(plant, K: Any, F: Any, *, optional_K: bool = False):
     Raises
     ------
     ValueError
-        Naming the matrix, the expected shape and the dimensions, or a non-finite entry.
+        Naming the matrix, the expected shape and the dimensions, a complex entry (never truncated to
+        its real part) or a non-finite entry.
     """
     import numpy as np  # here: the command line's argument types import this module, not numpy
 
@@ -112,11 +113,7 @@ def gains(plant, K: Any, F: Any, *, optional_K: bool = False):
         if value is None and name == "K" and optional_K:
             out.append(None)
             continue
-        try:
-            arr = np.array(value, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{name}: expected a real array of shape {shape} ({what}), could not convert ({exc})") \
-                from None
+        arr = _real_array(name, value, f"a real array of shape {shape} ({what})")
         if arr.shape != shape:
             raise ValueError(f"{name}: expected shape {shape} ({what} for plant {plant.id!r} with n={n}, m={m}, "
                              f"p={p}), got {arr.shape}")
@@ -124,6 +121,29 @@ def gains(plant, K: Any, F: Any, *, optional_K: bool = False):
             raise ValueError(f"{name}: entries must be finite, got {brief(arr.tolist())}")
         out.append(arr)
     return out[0], out[1]
+
+
+def _real_array(name: str, value: Any, what: str):
+    """``value`` as a new float array; ValueError naming ``name`` when it does not convert or has an entry with a
+    nonzero imaginary part (a complex dtype whose imaginary parts are all zero converts)."""
+    import numpy as np
+
+    try:
+        raw = np.asarray(value)
+        if raw.dtype.kind == "O":  # Python complex numbers among other objects
+            raw = np.asarray(raw.tolist())
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected {what}, could not convert ({exc})") from None
+    if raw.dtype.kind == "c":
+        imag = np.abs(raw.imag)
+        if np.any(imag > 0):
+            raise ValueError(f"{name}: complex entries (largest imaginary part {float(np.nanmax(imag)):.3g}, e.g. "
+                             f"{complex(raw.flat[int(np.nanargmax(imag))]):.4g}): the gains must be real")
+        raw = raw.real
+    try:
+        return np.array(raw, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected {what}, could not convert ({exc})") from None
 
 
 @dataclass(frozen=True)

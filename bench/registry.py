@@ -2,7 +2,7 @@
 
 The modules of the ``plants`` and ``designs`` packages (not those starting with ``_``) are imported on
 first use, so adding a plant or a design is adding one file. Ids name files and are matched by globs,
-so :func:`check_id` allows only :data:`ID_CHARS`; unknown ids raise :class:`UnknownIdError` with a
+so :func:`check_id` allows only :data:`ID_CHARS`, at most :data:`ID_MAX_CHARS` of them; unknown ids raise :class:`UnknownIdError` with a
 "did you mean".
 """
 
@@ -36,14 +36,21 @@ class Entry:
 #: The characters an id may hold (ids name files: no path separator, blank, glob or shell character).
 ID_CHARS = "letters A-Z a-z, digits 0-9, '_', '-', '.', '+'"
 _ID_RE = re.compile(r"[A-Za-z0-9_.+-]+")
+#: The longest id: the longest file name a report writes, ``<plant>__<design>.png``, stays within the usual
+#: 255-byte limit of a file name.
+ID_MAX_CHARS = 100
 
 
 def check_id(id: Any, kind: str = "id") -> str:
-    """``id`` if it is a non-empty string of :data:`ID_CHARS` not starting with '.' or '-', else a
-    :class:`RegistryError` naming the id, the offending character and the allowed ones (``kind`` starts the message).
+    """``id`` if it is a non-empty string of at most :data:`ID_MAX_CHARS` characters of :data:`ID_CHARS` not
+    starting with '.' or '-', else a :class:`RegistryError` naming the id, the offending character (or the length)
+    and the allowed ones (``kind`` starts the message).
     """
     if not isinstance(id, str) or not id:
         raise RegistryError(f"{kind} id {id!r}: must be a non-empty string of {ID_CHARS}")
+    if len(id) > ID_MAX_CHARS:
+        raise RegistryError(f"{kind} id {id[:40]!r}... ({len(id)} characters): at most {ID_MAX_CHARS} characters "
+                            "(ids name the report's files, and a file name has at most 255 bytes)")
     if not _ID_RE.fullmatch(id):
         bad = next(c for c in id if not _ID_RE.fullmatch(c))
         raise RegistryError(f"{kind} id {id!r}: the character {bad!r} is not allowed (ids name files); "

@@ -113,6 +113,34 @@ def clip_words(text, limit: int) -> str:
     return cut.rstrip(" ,;:(") + "..."
 
 
+def cell_fits(blank, value) -> bool:
+    """True when ``value`` is of the kind of a record column whose blank value is ``blank``
+    (:func:`bench.pipeline.blank_record`): text, a flag (True, False or None) or a number (or None)."""
+    if isinstance(blank, str):
+        return isinstance(value, str)
+    if blank is None or isinstance(blank, bool):
+        return value is None or isinstance(value, (bool, np.bool_))
+    return value is None or (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool))
+
+
+def check_cells(outcomes) -> None:
+    """Make every cell of the outcomes' records of the kind of its column (:func:`cell_fits`), in place: a cell holding
+    anything else (an object a plugin handed over, which results.csv and gains.json cannot hold) becomes its blank
+    value, and the pair's reason says which column and what it held."""
+    from bench.pipeline import blank_record
+
+    blank = blank_record("", "")
+    for o in outcomes:
+        rec = o.record
+        bad = [c for c, b in blank.items() if c in rec and not cell_fits(b, rec[c])]
+        notes = []
+        for c in bad:
+            notes.append(f"{c} held a {type(rec[c]).__name__}, which results.csv and gains.json cannot hold (blanked)")
+            rec[c] = blank[c]
+        if notes:
+            rec["reason"] = "; ".join(([rec["reason"]] if rec["reason"] else []) + notes)
+
+
 def results_table(df):
     """The results table as results.csv and :attr:`bench.api.Results.table` show it: the records of
     :meth:`bench.harness.RunResult.frame` (a DataFrame) with ``reason`` shortened by :func:`short_reason` and the
@@ -497,25 +525,68 @@ def _figure_lines(figures: list[tuple[str, str]]) -> list[str]:
     return parts
 
 
+def _num(v) -> float | None:
+    """A finite float, else None (JSON null)."""
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _arr(M) -> list | None:
+    return None if M is None else np.asarray(M).tolist()
+
+
+def _region(lr) -> str:
+    """Where a certificate's constraints hold, in words."""
+    if lr.radius is None:
+        return "everywhere"
+    return f"{'|Hx|, |Hx_hat|' if lr.region_H is not None else '||x||, ||x_hat||'} <= {lr.radius:.17g}"
+
+
+def _level_json(lr, plant) -> dict:
+    """One certificate of gains.json: what an outside script needs to check it (docs/results.md)."""
+    from bench.verdicts import certificate_scope
+
+    scope = certificate_scope(lr.P if lr.certified else None, lr.radius, plant.x0, plant.x_hat0, H=lr.region_H)
+    return {"level": lr.level, "status": lr.status, "decay_rate": _num(lr.decay_rate), "margin": _num(lr.margin),
+            "reason": lr.reason, "P": _arr(lr.P), "scope": scope["cert_scope"],
+            "radius": None if lr.radius is None else float(lr.radius), "region": _region(lr),
+            "region_H": _arr(lr.region_H), "level_set": _num(scope["level_set"]), "level_x0": _num(scope["level_x0"]),
+            "slopes": None if lr.slopes is None else {"lo": _arr(lr.slopes[0]), "hi": _arr(lr.slopes[1])}}
+
+
+def _pair_json(o) -> dict:
+    """gains.json's entry of one pair: its checked gains, verdicts and every certificate (none for an error or a
+    timeout row)."""
+    r, rec, cert, loop = o.result, o.record, o.certificate, o.loop
+    if rec["status"] in ("error", "timeout"):
+        cert = None
+    best = cert.best if cert is not None else None
+    return {**{k: rec[k] for k in ("plant", "design", "status", "reason", "route")},
+            "K": _arr(loop.K) if loop is not None else None, "F": _arr(loop.F) if loop is not None else None,
+            "estimator": None if r.estimator is None else repr(r.estimator),
+            "certified": bool(rec["certified"]), "cert_level": rec["cert_level"], "cert_scope": rec["cert_scope"],
+            "decay_rate": _num(rec["decay_rate"]),
+            "best": None if best is None else "from_x0" if best is cert.local else best.level,
+            "certificate": {} if cert is None else {lv: _level_json(lr, o.plant) for lv, lr in cert.levels.items()},
+            "from_x0": None if cert is None or cert.local is None else _level_json(cert.local, o.plant)}
+
+
 def _gains(result: RunResult) -> list[dict]:
-    """gains.json: per pair with a controller, its gains, verdicts and certificate levels."""
-    def num(v):
-        return float(v) if math.isfinite(v) else None
-
-    def arr(M):
-        return None if M is None else np.asarray(M).tolist()
-
+    """gains.json: per pair with a controller, :func:`_pair_json`; a pair whose entry cannot be written (a value JSON
+    cannot hold) is a note for that pair, never the loss of the file."""
     out = []
     for o in result.outcomes:
-        r, rec, cert = o.result, o.record, o.certificate
-        if r is None or not r.has_controller:
+        if o.result is None or not o.result.has_controller:
             continue
-        levels = {lv: {"status": lr.status, "decay_rate": num(lr.decay_rate), "P": arr(lr.P)}
-                  for lv, lr in (cert.levels.items() if cert is not None else ())}
-        out.append({**{k: rec[k] for k in ("plant", "design", "status", "reason", "route")}, "K": arr(r.K),
-                    "F": arr(r.F), "estimator": None if r.estimator is None else repr(r.estimator),
-                    "certified": bool(rec["certified"]), "cert_level": rec["cert_level"],
-                    "decay_rate": num(rec["decay_rate"]), "certificate": levels})
+        try:
+            entry = _pair_json(o)
+            json.dumps(entry)
+        except Exception as exc:  # noqa: BLE001 - a plugin's value: this pair's note, not the report's failure
+            rec = o.record
+            entry = {"plant": rec["plant"], "design": rec["design"], "status": rec["status"],
+                     "error": f"this pair's gains and certificates cannot be written to JSON: {type(exc).__name__}: "
+                              f"{exc}"}
+        out.append(entry)
     return out
 
 
@@ -545,6 +616,7 @@ def _run_json(result: RunResult, run_info: dict) -> dict:
 
 def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: tuple[str, ...]) -> list[str]:
     (tmp / "figures").mkdir()
+    check_cells(result.outcomes)
     df = result.frame()
     info = {**run_info, "findings": run_info.get("findings") or findings(df, result.constants)}
     figs = draw_figures(result, tmp / "figures", fmts) if figures else []

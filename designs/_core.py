@@ -110,7 +110,10 @@ class DesignResult:
         A run-time estimator (e.g. :class:`designs.ekf.EKFSpec`) instead of a fixed gain K.
     certificate : dict, optional
         The design's own verified joint certificate: ``level``, ``P`` (2n x 2n, ``V = z' P z``),
-        ``decay_rate``, ``margin``, ``radius``, ``how``; kept where the ladder certifies less.
+        ``decay_rate``, ``margin``, ``radius``, ``how``; kept where the ladder certifies less. On a discrete
+        plant also ``contraction`` (``r``: ``V(z_{k+1}) <= r^2 V(z_k)``; ``decay_rate = -ln(r) / dt``). An
+        H-infinity design's bounded-real certificate has ``level = "l2"`` (not a decay level: the ladder's
+        adoption ignores it) with ``P``, ``gamma_x`` and ``how``.
     """
 
     status: str
@@ -154,6 +157,10 @@ class Configurable:
 
     #: Constants required (names of :class:`plants.Constants` fields).
     needs = ()
+    #: The time domains this has a form for: ``"continuous"`` (``plant.dt == 0``) and/or ``"discrete"``
+    #: (``plant.dt > 0``, ``x_{k+1} = A x_k + B u_k + f(x_k)``). The pipeline marks a discrete plant's pair
+    #: "inapplicable: no discrete-time form" when ``"discrete"`` is missing.
+    time_domains = ("continuous",)
 
     def __new__(cls, *args: Any, **kwargs: Any):
         # positional and unknown hyperparameters: a DesignError naming the parameter and a close match, before
