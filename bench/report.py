@@ -252,10 +252,10 @@ def _figure_jobs(result: RunResult) -> list[_FigureJob]:
 
 
 #: Colours of the designs in every figure of the suite (the report's and the studies'): matplotlib's ten, then
-#: six more, each far from every other in CIELAB and of another hue (no light/dark pairs of one hue, as tab20
+#: eight more, each far from every other in CIELAB and of another hue (no light/dark pairs of one hue, as tab20
 #: has) (:func:`design_styles`).
 DESIGN_COLOURS = ("C0", "C1", "C2", "C3", "C4", "C5", "C6", "C7", "C8", "C9", "black", "#b8860b", "#000080",
-                  "#ff00ff", "#556b2f", "#00ff7f")
+                  "#ff00ff", "#556b2f", "#00ff7f", "#4169e1", "#ba55d3")
 #: Line styles and markers cycled beside the colours: two designs never share all three.
 DESIGN_LINESTYLES = ("-", "--", "-.", ":")
 DESIGN_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "<", ">", "h")
@@ -268,7 +268,8 @@ def design_styles(design_ids) -> dict[str, dict]:
 
     A registered design keeps the slot of its place in the registry (so ``thm1`` has one colour in the report
     and in every study); another label (``lqr+ekf (r = sigma^2)``) takes the next free slots in the order given.
-    Slot ``k`` has colour ``k mod 16``, line style ``k mod 4`` and marker ``k mod 11``.
+    Slot ``k`` has colour ``k mod 18``, line style ``k mod 4`` and marker ``k mod 11`` (beyond 18 designs a
+    colour comes back, with another line style or marker).
 
     Parameters
     ----------

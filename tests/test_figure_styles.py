@@ -20,10 +20,17 @@ def _rgb(c) -> tuple:
 
 
 def test_every_catalogue_design_has_its_own_colour_and_keeps_it():
+    from bench.report import DESIGN_COLOURS
+
     ids = DESIGNS.ids()
     styles = design_styles(ids)
     colours = [_rgb(styles[d]["color"]) for d in ids]
-    assert len(set(colours)) == len(ids) >= 15
+    assert len(ids) >= 15
+    if len(ids) <= len(DESIGN_COLOURS):
+        assert len(set(colours)) == len(ids)
+    else:  # more designs than colours: a colour comes back with another line style or marker
+        assert len(set(colours)) == len(DESIGN_COLOURS)
+        assert len({(c, styles[d]["linestyle"], styles[d]["marker"]) for c, d in zip(colours, ids)}) == len(ids)
     # the same design, drawn in another figure with other designs, in another order: the same style
     assert design_styles(["lqr+rh_riccati", "thm1"])["thm1"] == styles["thm1"]
     assert design_styles(["cor1"])["cor1"] == styles["cor1"]
@@ -55,7 +62,7 @@ def test_no_two_colours_of_the_palette_are_shades_of_one_hue():
             continue
         (h1, _, s1), (h2, _, s2) = (colorsys.rgb_to_hls(*mcolors.to_rgb(c)) for c in (a, b))
         assert np.linalg.norm(_lab(a) - _lab(b)) >= 25, (a, b)
-        assert min(s1, s2) < 0.15 or min(abs(h1 - h2), 1 - abs(h1 - h2)) >= 0.04, (a, b)
+        assert min(s1, s2) < 0.15 or min(abs(h1 - h2), 1 - abs(h1 - h2)) >= 0.03, (a, b)
     ids = DESIGNS.ids()
     styles = design_styles([*ids, "lqr+ekf (r = sigma^2)"])
     extra = styles["lqr+ekf (r = sigma^2)"]
