@@ -339,6 +339,9 @@ class Plant:
         The scalar parameters the plant was built with (e.g. the scale ``c`` of f).
     source, notes : str
         Citation and remarks.
+    state_names : sequence of str, optional
+        One label per state with its unit in brackets (``"theta_m [rad]"``; ``[-]``: no unit), for figures and
+        the plant's page; None: ``x1 ... xn``.
 
     Raises
     ------
@@ -367,6 +370,7 @@ class Plant:
     params: Mapping[str, float] = field(default_factory=dict)
     source: str = ""
     notes: str = ""
+    state_names: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -400,6 +404,15 @@ class Plant:
                              f"got {checks.brief(self.params)}") from None
         for key, val in self.params.items():
             check_real(f"params[{key!r}]", val)
+        if self.state_names is not None:
+            try:
+                names = None if isinstance(self.state_names, str) else tuple(self.state_names)
+            except TypeError:
+                names = None
+            if names is None or len(names) != n or not all(isinstance(s, str) and s.strip() for s in names):
+                raise PlantError(f"state_names: expected {n} non-empty strings (one per state), got "
+                                 f"{checks.brief(self.state_names)}")
+            object.__setattr__(self, "state_names", names)
         self._check_f(n)
         self._check_contract(n)
         self._check_jacobian(n)
