@@ -421,13 +421,13 @@ def _summary(found: dict) -> str:
 _LEGEND = "\n".join([
     "**How to read a row**",
     "",
-    "- *Status*: `feasible` (an LMI or Riccati condition solved and verified), `computed` (LQR/Kalman gains), "
-    "`given` (printed gains), `unverified` (a plugin's \"feasible\" the suite could not check), `infeasible` "
-    "(under the stated normalisation), `marginal` (best margin within the "
+    "- *Status* with gains: `feasible` (an LMI or Riccati condition solved and verified), `computed` (LQR/Kalman "
+    "gains), `given` (printed gains), `unverified` (a plugin's \"feasible\" the suite could not check).",
+    "- *Status* without gains: `infeasible` (under the stated normalisation), `marginal` (best margin within the "
     "verification tolerance of zero), `inapplicable`, `undecided` (solver trouble), `error`, `timeout`.",
-    "- *Stabilizing*: A+BF and A-KC Hurwitz (for a discrete-time plant, dt > 0, stepped x_{k+1} = A x_k + B u_k "
-    "+ f(x_k): Schur, spectral radius < 1; its rates are per second, -ln(max |eig|) / dt, and `max_re_eig_*` the "
-    "continuous equivalent ln(max |eig|) / dt).",
+    "- *Stabilizing*: A+BF and A-KC Hurwitz (Schur, spectral radius < 1, for a discrete-time plant).",
+    "- *Discrete time* (dt > 0): the plant is stepped, x_{k+1} = A x_k + B u_k + f(x_k); its rates are per "
+    "second, -ln(max |eig|) / dt, and `max_re_eig_*` is the continuous equivalent ln(max |eig|) / dt.",
     "- **The certificate ladder** checks the gains (K, F) with quadratic Lyapunov functions V = z'Pz of z = (x, e) "
     "at three levels of what is known about f, each containing the one below:",
     "  *paper* is the paper's (20) (block-diagonal P, the OSL and QIB constants); *full* couples x and e in P and "
