@@ -733,7 +733,8 @@ class Plant:
             Bw=Gam @ self.Bw if has_w else None, Dw=self.Dw if has_w else None, family=self.family,
             params={**self.params, "h": h, "zoh": float(method == "zoh")},
             source=f"{self.source}; {how}" if self.source else how,
-            notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""))
+            notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""),
+            state_names=self.state_names)
 
     def summary(self) -> str:
         """One line: id, dimensions and source."""
