@@ -25,7 +25,9 @@ class Results:
         ``(plant, design) -> {"K", "F", "result", "certificate", "trajectory", "plant"}`` for every pair
         with a controller. Every array of the run's results (gains, certificates, trajectories, constants;
         not the plants, which are the run's input) is read-only: what :meth:`write` writes is what the run
-        computed.
+        computed. Read from a folder (:meth:`load`): gains.json's entry of the pair (``K``, ``F``, ``status``,
+        ``certified``, ...), its arrays as read-only arrays, ``certificate`` as level -> that level's entry
+        (with its ``P``), and ``result``, ``trajectory`` and ``plant`` None (a folder holds none of them).
     constants : dict
         Plant id -> :class:`bench.constants.ConstantsReport`.
     findings : dict
@@ -36,6 +38,8 @@ class Results:
         How the run was asked for (recorded in run.json).
     info : dict
         The run's selection and settings (plants, designs, jobs, ...), recorded in run.json.
+    source : Path or None
+        The report folder these results were read from (:meth:`load`); None for a run's own.
     """
 
     table: object
@@ -45,15 +49,58 @@ class Results:
     run_result: object
     command: str = ""
     info: dict = field(default_factory=dict)
+    source: Path | None = None
+
+    @classmethod
+    def load(cls, folder: str | os.PathLike) -> "Results":
+        """The results of a report folder, read from its files (results.csv, gains.json, run.json), as
+        :func:`run` returned them, computing nothing (:func:`bench.reload.read_report`).
+
+        Parameters
+        ----------
+        folder : path
+            A folder written by ``python -m bench run`` or :meth:`write`.
+
+        Returns
+        -------
+        Results
+            ``table`` equal to the run's (each cell of its column's kind), ``gains`` from gains.json (see the
+            attribute), ``constants`` and ``findings`` from run.json, ``run_result`` holding the records,
+            constants and options (no design results or trajectories), ``command`` and ``info`` from run.json.
+
+        Raises
+        ------
+        bench.errors.OutDirError
+            Not a report folder.
+        ValueError
+            A file that cannot be read (the message names it).
+        """
+        from bench.reload import read_report
+
+        loaded = read_report(folder)
+        gains = {}
+        for entry in loaded.gains:
+            if isinstance(entry, dict) and "plant" in entry and "design" in entry:
+                g = _arrays(entry)
+                g.setdefault("K", None)
+                g.setdefault("F", None)
+                gains[entry["plant"], entry["design"]] = {**g, "result": None, "trajectory": None, "plant": None}
+        _read_only([gains, loaded.result.constants], set())
+        run = loaded.run_info
+        return cls(loaded.table.copy(), gains, dict(loaded.result.constants), run.get("findings") or {},
+                   loaded.result, command=str(run.get("command", "")), info=loaded.info, source=loaded.folder)
 
     def write(self, out_dir: str | os.PathLike = "reports", *, figures: bool = True,
               figure_format: str | Iterable[str] = "png") -> Path:
         """Write the report files of this run into ``out_dir`` (:func:`bench.report.write_report`, same options);
-        return the REPORT.md path.
+        return the REPORT.md path. Results read from a folder (:meth:`load`) are written by
+        :func:`bench.report.redraw`: the folder's result files copied, the pages and figures drawn again.
         """
         from bench.outdir import check_out_dir
-        from bench.report import write_report
+        from bench.report import redraw, write_report
 
+        if self.source is not None:
+            return redraw(self.source, out_dir, figures=figures, figure_format=figure_format)
         check_out_dir(out_dir)
         info = {"command": self.command or "bench.run(...)", **self.info}
         return write_report(self.run_result, out_dir, info, figures=figures, figure_format=figure_format)
@@ -62,15 +109,23 @@ class Results:
         """The observer-based controller of a pair as a python-control system (:func:`bench.interop.controller_ss`)."""
         from bench.interop import controller_ss
 
-        g = self.gains[plant, design]
+        g = self._with_plant(plant, design)
         return controller_ss(g["plant"], g["K"], g["F"])
 
     def closed_loop(self, plant: str, design: str):
         """The nonlinear closed loop of a pair as a python-control ``NonlinearIOSystem``."""
         from bench.interop import closed_loop_nlsys
 
-        g = self.gains[plant, design]
+        g = self._with_plant(plant, design)
         return closed_loop_nlsys(g["plant"], g["K"], g["F"])
+
+    def _with_plant(self, plant: str, design: str) -> dict:
+        g = self.gains[plant, design]
+        if g["plant"] is None or g["K"] is None:
+            raise ValueError(f"({plant!r}, {design!r}): no plant object or no fixed gain K here (results read from "
+                             f"{self.source}, or a run-time estimator); build the system with "
+                             "bench.interop.controller_ss(plant, K, F)")
+        return g
 
 
 def _selection(name: str, value, kind: str) -> tuple[list[str], dict]:
@@ -262,6 +317,24 @@ def _run_in_registry_order(plant_ids: list[str], design_ids: list[str], options,
     result.constants = {p: result.constants[p] for p in plant_ids if p in result.constants}
     result.constants_errors = {p: result.constants_errors[p] for p in plant_ids if p in result.constants_errors}
     return result
+
+
+def _arrays(v):
+    """A gains.json value with its matrices and vectors (lists of numbers, or of lists of numbers) as arrays."""
+    import numbers
+
+    import numpy as np
+
+    if isinstance(v, dict):
+        return {k: _arrays(x) for k, x in v.items()}
+    if isinstance(v, list) and v and all(isinstance(x, numbers.Real) and not isinstance(x, bool) or
+                                         isinstance(x, list) and all(isinstance(y, numbers.Real) and
+                                                                     not isinstance(y, bool) for y in x) for x in v):
+        try:
+            return np.array(v, dtype=float)
+        except ValueError:  # ragged
+            return v
+    return v
 
 
 def _read_only(obj, seen: set) -> None:

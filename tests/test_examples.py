@@ -83,15 +83,17 @@ def test_my_design_runs_through_bench_run_as_an_object():
     mod = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(mod)  # registers "my_poles"
-        r = bench.run(plants=["flexible_link"], designs=[mod.PolePlacement(rate=2.0), "lqr+lqe"], jobs=1,
-                      progress=False)
+        # named by its class's registered id and the hyperparameters that differ from the defaults (rate 2.0)
+        r = bench.run(plants=["flexible_link"], designs=[mod.PolePlacement(), mod.PolePlacement(rate=1.0), "lqr+lqe"],
+                      jobs=1, progress=False)
         rows = r.table.set_index("design")
-        assert list(rows.index) == ["poleplacement", "lqr+lqe"]
-        _check_like_builtin(rows.loc["poleplacement"].to_dict(), rows.loc["lqr+lqe"].to_dict())
-        assert r.gains["flexible_link", "poleplacement"]["certificate"] is not None  # the ladder ran
+        assert list(rows.index) == ["my_poles", "my_poles[rate=1.0]", "lqr+lqe"]
+        _check_like_builtin(rows.loc["my_poles"].to_dict(), rows.loc["lqr+lqe"].to_dict())
+        assert r.gains["flexible_link", "my_poles"]["certificate"] is not None  # the ladder ran
+        assert abs(rows.loc["my_poles[rate=1.0]", "max_re_eig_x"] + 1.0) < 1e-6  # eig(A + BF) = -1, -1.5, ...
+        assert "my_poles[rate=1.0]" not in DESIGNS  # not registered: the call's own
     finally:
         DESIGNS.unregister("my_poles")
-        DESIGNS.unregister("poleplacement")
 
 
 def test_readme_design_example_is_the_example_file():
