@@ -12,10 +12,11 @@ deadlock; Python 3.12+ warns about it).
 
 A forked worker inherits everything, the registries included. A worker started by spawn or forkserver is a
 fresh interpreter: it loads the plugin files again (:func:`bench.plugins.loaded_plugins`) and re-registers
-every other entry of the registries that pickles (a Plant or Design object given to :func:`bench.run`, an entry of
-the call's overlay of the registries, is sent pickled and put in the same overlay there). An entry that cannot be sent to a fresh process (a factory defined in a notebook cell or a
-``python -c`` script, an object holding a lambda) cannot be rebuilt there: the tasks that name it run in this
-process instead, with a warning naming the ids; the others still run in the workers.
+every other entry of the registries that pickles (a Plant or Design object given to :func:`bench.run`, an entry
+of the call's overlay of the registries, is sent pickled and put in the same overlay there). An entry that
+cannot be sent to a fresh process (a factory defined in a notebook cell or a ``python -c`` script, an object
+holding a lambda) cannot be rebuilt there: the tasks that name it run in this process instead, with a warning
+naming the ids; the others still run in the workers.
 """
 
 from __future__ import annotations

@@ -19,6 +19,11 @@ def test_notebook_tour_runs_and_its_loop_converges_in_python_control(tmp_path):
     # the table has the three designs the tour asked for
     for did in ("thm1", "structured", "lqr+lqe"):
         assert re.search(rf"^\s*{re.escape(did)}\s", done.stdout, re.M), did
+    # the sweep by objects: one row per object, named by its changed setting; a looser bound on the gains
+    # certifies at least the rate of a tighter one (its feasible set contains the tighter one's)
+    rates = [float(re.search(rf"^\s*structured\[max_gain={g}\]\s+feasible\s+True\s+(\S+)", done.stdout, re.M)
+                   .group(1)) for g in ("2.0", "5.0")]
+    assert 0 < rates[0] <= rates[1]
     # python-control's own simulation of the nonlinear closed loop (not the suite's simulator)
     # from x0 = (1, 0): after 10 s the state is far below its start
     final = float(re.search(r"python-control: \|\|x\(10\)\|\| = (\S+)", done.stdout).group(1))

@@ -4,7 +4,6 @@ rendered rows back from the DOM after the page's script ran."""
 
 from __future__ import annotations
 
-import re
 import shutil
 import subprocess
 from dataclasses import dataclass
