@@ -313,25 +313,29 @@ def _defaults(cls: type) -> dict[str, Any]:
     return out
 
 
+def _values(obj: Any) -> dict[str, Any]:
+    """A dataclass object's init fields by name."""
+    return {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj) if f.init}
+
+
 def _changed(obj: Any, defaults: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
     """``{name: value text}`` of ``obj``'s init fields that differ from ``defaults`` (a field without a default
-    always), a dataclass value by its own changed fields (``name.field``)."""
+    always); a dataclass value by its own changed fields (``name.field``), after its class's name when the default
+    is of another class."""
     out: dict[str, str] = {}
-    if not dataclasses.is_dataclass(obj):
-        return out
-    for f in dataclasses.fields(obj):
-        if not f.init:
-            continue
-        v = getattr(obj, f.name)
-        if f.name in defaults and _same(v, defaults[f.name]):
+    for name, v in _values(obj).items():
+        if name in defaults and _same(v, defaults[name]):
             continue
         if dataclasses.is_dataclass(v) and not isinstance(v, type):
-            default = defaults.get(f.name)
-            if type(default) is not type(v):
-                out[prefix + f.name] = type(v).__name__.lower()
-            out.update(_changed(v, _defaults(type(v)), f"{prefix}{f.name}."))
+            default = defaults.get(name)
+            if type(default) is type(v):
+                inner = _values(default)
+            else:
+                out[prefix + name] = _class_id(type(v))
+                inner = _defaults(type(v))
+            out.update(_changed(v, inner, f"{prefix}{name}."))
         else:
-            out[prefix + f.name] = _value_text(v)
+            out[prefix + name] = _value_text(v)
     return out
 
 
@@ -349,34 +353,33 @@ def _class_id(cls: type) -> str:
     return re.sub(r"[^A-Za-z0-9_.+-]", "_", cls.__name__.lower()).lstrip(".-") or "design"
 
 
-def _registered_as(registry: "Registry", cls: type) -> list[tuple[str, dict]]:
-    """The ids under which ``registry`` builds ``cls`` directly, each with its fixed keywords (registry order)."""
+def _registered_as(registry: "Registry", obj: Any) -> list[tuple[str, dict]]:
+    """The ids under which ``registry`` builds objects of ``obj``'s class, each with the hyperparameters its entry
+    builds by default (registry order): the class itself, the class with fixed keywords (``functools.partial``), or
+    a factory function declared to return the class (called without arguments: a pairing of parts)."""
+    cls = type(obj)
     out = []
     for i in registry.ids():
         if not registry.registered(i):
             continue
         f = registry[i].factory
         if f is cls:
-            out.append((i, {}))
+            out.append((i, _defaults(cls)))
         elif isinstance(f, functools.partial) and f.func is cls and not f.args:
-            out.append((i, dict(f.keywords)))
+            out.append((i, {**_defaults(cls), **f.keywords}))
+        elif not isinstance(f, type) and getattr(f, "__annotations__", {}).get("return") in (cls, cls.__name__):
+            try:
+                default = f()
+            except Exception:  # noqa: BLE001 - a factory that needs arguments: not this object's default
+                continue
+            if type(default) is cls:
+                out.append((i, _values(default)))
     return out
 
 
 def _design_id(obj: Any) -> tuple[str, bool]:
     """(id, whether the registry's entry of that id builds an equal design) of a Design object."""
-    from designs._parts import ESTIMATORS, FEEDBACKS, Composite
-
-    if isinstance(obj, Composite) and type(obj) is Composite:
-        changed, names = {}, []
-        for role, part, reg in (("feedback", obj.feedback, FEEDBACKS), ("estimator", obj.estimator, ESTIMATORS)):
-            found = _registered_as(reg, type(part))
-            names.append(found[0][0] if found else _class_id(type(part)))
-            changed.update(_changed(part, _defaults(type(part)), f"{role}."))
-        base = "+".join(names)
-        return _with_params(base, changed), not changed and DESIGNS.registered(base)
-    candidates = [(i, _changed(obj, {**_defaults(type(obj)), **fixed}))
-                  for i, fixed in _registered_as(DESIGNS, type(obj))]
+    candidates = [(i, _changed(obj, defaults)) for i, defaults in _registered_as(DESIGNS, obj)]
     if candidates:
         i, changed = min(candidates, key=lambda c: len(c[1]))  # min keeps the first of equals: registry order
         return _with_params(i, changed), not changed
@@ -403,8 +406,8 @@ def object_id(obj: Any, kind: str) -> tuple[str, bool]:
 
     A design is named by the id its class is registered under (the registration whose fixed keywords leave the
     fewest differences; an unregistered class: its name in lower case; a pairing of parts:
-    ``feedback+estimator``) and the hyperparameters that differ from those defaults, sorted by name, with
-    repr-like short values: ``thm1[phi1=0.05]``, ``lqr+lqe[feedback.Q=~1a2b3c4d]``. A plant keeps its ``id``.
+    the registered pairing of its parts) and the hyperparameters that differ from those defaults, sorted by name,
+    with repr-like short values: ``thm1[phi1=0.05]``, ``lqr+lqe[feedback.Q=~1a2b3c4d]``. A plant keeps its ``id``.
 
     Parameters
     ----------
