@@ -201,13 +201,13 @@ class StudyRun:
 def study(default_plants=None, default_designs=None):
     """Decorator making ``fn(run: StudyRun, **options)`` a study's
     ``fn(plant_ids=None, design_ids=None, *, jobs=1, progress=None, **options)``; without ids, the defaults
-    (None: every registered one)."""
+    (None: the registry's default selection, :meth:`bench.registry.Registry.defaults`)."""
     def deco(fn):
         def run(plant_ids=None, design_ids=None, *, jobs: int = 1, progress=None, **options):
             from bench.registry import DESIGNS, PLANTS
 
             def pick(ids, default, registry):
-                return list(ids) if ids else (list(default) if default is not None else registry.ids())
+                return list(ids) if ids else (list(default) if default is not None else registry.defaults())
 
             pairs = StudyRun(pick(plant_ids, default_plants, PLANTS), pick(design_ids, default_designs, DESIGNS), jobs,
                              progress)
