@@ -47,7 +47,7 @@ from plants._core import Plant
 from plants.flexible_joint import C_SOURCE, flexible_joint
 from plants.moving_object import R_SOURCE, moving_object
 
-__all__ = ["EX1_K", "EX1_L", "EX2_K", "EX2_L", "TS", "nguyen2018_ex1", "nguyen2018_ex2"]
+__all__ = ["EX1_K", "EX1_L", "EX2_K", "EX2_L", "TS", "nguyen2018_ex1", "nguyen2018_ex2", "paper_disturbance"]
 
 #: Sample time of both examples, seconds ("ts = 1ms = 0.001s").
 TS = 0.001
@@ -64,6 +64,31 @@ EX1_L = np.array([[0.0010, -0.0857], [0.0000, 0.6452], [0.0000, 0.3858], [0.0000
 EX2_K = np.array([[-5.8992, -637.0308]])
 #: Example 2, Theorem 1: observer gain L, 2 x 1, as printed.
 EX2_L = np.array([[0.0020], [0.0010]])
+
+
+def paper_disturbance(t) -> np.ndarray:
+    """The disturbance of both examples' simulations (Example 1; "omega(k) as in Example 1" in Example 2).
+
+    ``omega(k) = 0.1 cos(0.5 ts k)`` for ``k`` in ``((20 i - 3) / ts, 20 i / ts]``, ``i = 1, 2, ...``, and 0
+    otherwise: bursts of ``0.1 cos(0.5 t)`` over the last 3 s of every 20 s (Figure 1 plots it over 0-50 s).
+    The interval's brackets are lost in the text read (docs/literature.md); open on the left and closed on the
+    right here, which moves one sample per burst.
+
+    Parameters
+    ----------
+    t : float or array_like
+        Times ``t = k ts`` in seconds.
+
+    Returns
+    -------
+    ndarray
+        Shape (1,) for a scalar t, (1, N) for N times (one disturbance input, as the plants' ``Bw``).
+    """
+    tt = np.asarray(t, dtype=float)
+    phase = np.mod(tt, 20.0)
+    on = ((phase > 17.0) | (phase == 0.0)) & (tt > 17.0)  # (20 i - 3, 20 i] for i >= 1
+    w = np.where(on, 0.1 * np.cos(0.5 * tt), 0.0)
+    return w.reshape(1) if tt.ndim == 0 else w.reshape(1, -1)
 
 
 def _euler(plant: Plant, pid: str, source: str, notes: str) -> Plant:

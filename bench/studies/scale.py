@@ -31,7 +31,7 @@ import numpy as np
 from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_range,
                                    check_rtol, evaluate, fmt, md_table, pyplot, study, study_header, write_study)
 
-__all__ = ["run_scale", "write_scale", "design_colour", "circle_bound"]
+__all__ = ["run_scale", "write_scale", "design_style", "circle_bound"]
 
 #: Statuses of a design's own verified gains (criterion (a)).
 VERIFIED = ("feasible", "computed", "given")
@@ -46,15 +46,16 @@ class _NotApplicable(Exception):
     """Raised by a probe when no value of the factor can change the answer (the pair is n/a for a criterion)."""
 
 
-def design_colour(design_id: str) -> str:
-    """The colour of a design in the suite's figures: :data:`bench.report.NORM_COLOURS` by the design's place in
-    the registry's order (the same design, the same colour in every plant's group)."""
+def design_style(design_id: str) -> dict:
+    """The bar style of a design in the suite's figures: the colour :data:`bench.report.NORM_COLOURS` gives the
+    design's place in the registry's order (the same design, the same colour in every plant's group), and, past
+    the palette's length, a dotted hatch so that no two designs look alike."""
     from bench.registry import DESIGNS
     from bench.report import NORM_COLOURS
 
     ids = DESIGNS.ids()
     k = ids.index(design_id) if design_id in ids else len(ids) + sum(map(ord, design_id))
-    return NORM_COLOURS[k % len(NORM_COLOURS)]
+    return {"color": NORM_COLOURS[k % len(NORM_COLOURS)], "hatch": "..." if (k // len(NORM_COLOURS)) % 2 else None}
 
 
 def circle_bound(plant, K: np.ndarray, F: np.ndarray) -> float:
@@ -350,48 +351,52 @@ def _ranking(rows: list[dict]) -> list[str]:
 
 
 def _draw(rows: list[dict], path) -> None:
-    """Bars of the admissible factor per design, grouped by plant, log scale; (a) above, (b) below."""
+    """Bars of the admissible factor per design, grouped by plant, log scale; (a) above, (b) below. A design that
+    is n/a on every plant for both criteria is left out."""
+    from matplotlib.patches import Patch
+
     plt = pyplot()
     plants = list(dict.fromkeys(r["plant"] for r in rows))
-    designs = list(dict.fromkeys(r["design"] for r in rows))
-    width = 0.8 / max(1, len(designs))
-    fig, axes = plt.subplots(2, 1, figsize=(max(8.0, 0.9 * len(plants) * max(1, len(designs)) ** 0.5 + 4), 8.5),
+    designs = [d for d in dict.fromkeys(r["design"] for r in rows)
+               if any(r[f"{name}_kind"] != "inapplicable" for r in rows if r["design"] == d for _, name, _ in CRITERIA)]
+    width = 0.84 / max(1, len(designs))
+    fig, axes = plt.subplots(2, 1, figsize=(min(18.0, 4.0 + 1.2 * len(plants) * max(1.0, len(designs) / 8)), 9.0),
                              sharex=True, constrained_layout=True)
-    finite = [v for r in rows for k in ("designed", "certified") for v in (r[f"{k}_lo"], r[f"{k}_hi"])
+    finite = [v for r in rows for _, k, _ in CRITERIA for v in (r[f"{k}_lo"], r[f"{k}_hi"])
               if isinstance(v, float) and math.isfinite(v) and v > 0]
     floor = min([*finite, 1.0]) / 2
     for ax, (key, name, words) in zip(axes, CRITERIA):
         for j, did in enumerate(designs):
-            colour = design_colour(did)
+            style = design_style(did)
             for i, pid in enumerate(plants):
                 r = next((r for r in rows if r["plant"] == pid and r["design"] == did), None)
                 if r is None:
                     continue
-                x = i - 0.4 + (j + 0.5) * width
+                x = i - 0.42 + (j + 0.5) * width
                 kind, lo, hi = r[f"{name}_kind"], r[f"{name}_lo"], r[f"{name}_hi"]
                 if kind in ("bracketed", "above_range"):
-                    ax.bar(x, lo - floor, width, bottom=floor, color=colour, edgecolor="none",
-                           hatch="//" if kind == "above_range" else None)
+                    ax.bar(x, lo - floor, width, bottom=floor, color=style["color"], edgecolor="white", linewidth=0.3,
+                           hatch=style["hatch"])
                     if kind == "above_range":
-                        ax.plot(x, lo * 1.25, "^", color=colour, ms=4)
+                        ax.plot(x, lo * 1.6, "^", color=style["color"], ms=3.5)
                 elif kind == "below_range":
-                    ax.plot(x, hi, "v", color=colour, ms=5)
-                else:
-                    ax.text(x, floor * 1.08, "n/a", rotation=90, ha="center", va="bottom", fontsize=5, color="0.4")
+                    ax.plot(x, hi, "v", color=style["color"], ms=4)
+        for i in range(1, len(plants)):
+            ax.axvline(i - 0.5, color="0.85", lw=0.6)
         ax.axhline(1.0, color="0.3", lw=0.9, ls="--")
         ax.set_yscale("log")
         ax.set_ylim(bottom=floor)
         ax.set_ylabel("admissible factor c (log)")
-        ax.set_title(f"({key}) {name}: largest c at which {words}")
-        ax.grid(True, axis="y", which="both", alpha=0.3)
-    axes[1].set_xticks(range(len(plants)), plants, rotation=25, ha="right")
-    from matplotlib.patches import Patch
-
-    axes[0].legend(handles=[Patch(color=design_colour(d), label=d) for d in designs], fontsize=7, ncol=1,
-                   loc="upper left", bbox_to_anchor=(1.0, 1.0), title="design")
-    fig.suptitle("Largest admissible scale of each plant's class (c = 1: the plant itself, dashed)\nhatched with ^: "
-                 "passes at every factor tried; v: fails at every factor tried (drawn at the smallest); n/a: does "
-                 "not apply", fontsize=9)
+        ax.set_title(f"({key}) {name}: largest c at which {words}", fontsize=10)
+        ax.grid(True, axis="y", which="major", alpha=0.3)
+    axes[1].set_xticks(range(len(plants)), plants, rotation=20, ha="right")
+    axes[1].set_xlim(-0.5, len(plants) - 0.5)
+    axes[0].legend(handles=[Patch(facecolor=design_style(d)["color"], hatch=design_style(d)["hatch"],
+                                  edgecolor="white", label=d) for d in designs],
+                   fontsize=7, ncol=1, loc="upper left", bbox_to_anchor=(1.0, 1.0), title="design")
+    fig.suptitle("Largest admissible scale of each plant's class (dashed: c = 1, the plant itself); ^ above a bar: "
+                 "passes at every factor tried;\nv: fails at every factor tried (drawn at the smallest); no mark: n/a "
+                 "(details in the report)", fontsize=9)
     fig.savefig(path, dpi=100)
     plt.close(fig)
 
