@@ -101,7 +101,7 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
         claimed_constants: bool = False, t_final: float | None = None, noise: float = 0.0,
         disturbance: float = 0.0, timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
         cache: str | os.PathLike | None = None, progress: bool | Callable = True, fail_fast: bool = False,
-        command: str = "") -> Results:
+        command: str = "", start_method: str | None = None) -> Results:
     """Run (plant, design) pairs and return the results (the library form of ``python -m bench run``).
 
     Parameters
@@ -135,6 +135,9 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
         Raise the first exception instead of recording an ``error`` row.
     command : str
         Recorded in run.json.
+    start_method : {"fork", "forkserver", "spawn"}, optional
+        How local worker processes start (default: :func:`bench.executors.default_start_method`); results are
+        the same whichever.
 
     Returns
     -------
@@ -146,13 +149,17 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
         An id or glob that matches nothing.
     ValueError
         A bad option (the message names it).
+    bench.errors.ExecutorError
+        A start method this platform does not offer.
     """
     from bench.cache import Cache
-    from bench.executors import default_jobs
+    from bench.executors import check_start_method, default_jobs, use_start_method
     from bench.findings import findings
     from bench.harness import RunOptions
     from bench.registry import DESIGNS, PLANTS
     from bench.report import check_cells, results_table
+
+    check_start_method(start_method)
 
     plant_ids = PLANTS.select(_register_objects(plants or [], PLANTS, "plant") or None, keep_order=True)
     design_ids = DESIGNS.select(_register_objects(designs or [], DESIGNS, "design") or None, keep_order=True)
@@ -160,7 +167,8 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
                          disturbance=disturbance, timeout=timeout)
     jobs = min(jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
     store = None if cache is None else Cache(cache)
-    result = _run_in_registry_order(plant_ids, design_ids, options, progress, jobs, scheduler, store)
+    with use_start_method(start_method):
+        result = _run_in_registry_order(plant_ids, design_ids, options, progress, jobs, scheduler, store)
     check_cells(result.outcomes)
     _read_only([result.outcomes, result.constants], set())
     records = result.frame()

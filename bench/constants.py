@@ -22,8 +22,7 @@ from typing import Callable
 import numpy as np
 
 from bench.checks import vector
-from plants import Channels, Constants, Plant, PlantError
-from plants._core import jacobian_mismatch
+from plants import Channels, Constants, Plant, PlantError, jacobian_mismatch
 
 __all__ = ["ConstantsReport", "Knowledge", "check_trajectory", "compute_constants"]
 

@@ -192,7 +192,7 @@ def blank_record(plant_id: str, design_id: str, **values) -> dict:
     rec.update(plant=plant_id, design=design_id, status="", reason="", solver="", solver_status="", route="",
                sim_status="", constants="", params="", cert_level="", cert_scope="", horizon_rule="", witness="",
                sim_witness="", ceiling_how="", checked_on="", disproved="",
-               feasible=False, stabilizing=None, certified=False, converged=False, in_region=None,
+               feasible=False, stabilizing=None, certified=False, converged=None, in_region=None,
                **{f"cert_{lv}": "" for lv in LEVELS})
     rec.update(values)
     return rec

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 import re
@@ -339,6 +340,9 @@ class Plant:
         The scalar parameters the plant was built with (e.g. the scale ``c`` of f).
     source, notes : str
         Citation and remarks.
+    state_names : sequence of str, optional
+        One label per state with its unit in brackets (``"theta_m [rad]"``; ``[-]``: no unit), for figures and
+        the plant's page; None: ``x1 ... xn``.
 
     Raises
     ------
@@ -367,6 +371,7 @@ class Plant:
     params: Mapping[str, float] = field(default_factory=dict)
     source: str = ""
     notes: str = ""
+    state_names: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -400,6 +405,15 @@ class Plant:
                              f"got {checks.brief(self.params)}") from None
         for key, val in self.params.items():
             check_real(f"params[{key!r}]", val)
+        if self.state_names is not None:
+            try:
+                names = None if isinstance(self.state_names, str) else tuple(self.state_names)
+            except TypeError:
+                names = None
+            if names is None or len(names) != n or not all(isinstance(s, str) and s.strip() for s in names):
+                raise PlantError(f"state_names: expected {n} non-empty strings (one per state), got "
+                                 f"{checks.brief(self.state_names)}")
+            object.__setattr__(self, "state_names", names)
         self._check_f(n)
         self._check_contract(n)
         self._check_jacobian(n)
@@ -718,7 +732,7 @@ class Plant:
             bounds=None if self.bounds is None else _discrete_constants(self.bounds, h, Gam, method),
             channels=channels, t_final=max(steps, 1) * h, dt=h,
             Bw=Gam @ self.Bw if has_w else None, Dw=self.Dw if has_w else None, family=self.family,
-            params={**self.params, "h": h, "zoh": float(method == "zoh")},
+            params={**self.params, "h": h, "zoh": float(method == "zoh")}, state_names=self.state_names,
             source=f"{self.source}; {how}" if self.source else how,
             notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""))
 
@@ -764,14 +778,13 @@ class Plant:
         channels = None if ch is None else Channels(
             G=ch.G, H=ch.H, phi=_Mapped(ch.phi, c), lo=c * ch.lo, hi=c * ch.hi, radius=ch.radius,
             narrow=None if ch.narrow is None else _ScaledNarrow(ch.narrow, c))
-        how = f"f scaled by c = {c:g} (the class: Lipschitz c alpha, OSL c rho, QIB (c^2 beta, c gamma), slopes c [lo, hi])"
-        return Plant(
-            id=id if id is not None else f"{self.id}_scaled{c:g}", A=self.A, B=self.B, C=self.C,
-            f=_Mapped(self.f, c), x0=self.x0, x_hat0=self.x_hat0,
+        how = (f"f scaled by c = {c:g} (the class: Lipschitz c alpha, OSL c rho, QIB (c^2 beta, c gamma), "
+               "slopes c [lo, hi])")
+        return dataclasses.replace(  # every other field (A, B, C, Bw, Dw, x0, dt, state names, ...) kept
+            self, id=id if id is not None else f"{self.id}_scaled{c:g}", f=_Mapped(self.f, c),
             jacobian=None if self.jacobian is None else _Mapped(self.jacobian, c),
             claimed=_scaled_constants(self.claimed, c),
-            bounds=None if self.bounds is None else _scaled_constants(self.bounds, c),
-            channels=channels, t_final=self.t_final, dt=self.dt, Bw=self.Bw, Dw=self.Dw, family=self.family,
+            bounds=None if self.bounds is None else _scaled_constants(self.bounds, c), channels=channels,
             params={**self.params, "scale": c * float(self.params.get("scale", 1.0))},
             source=f"{self.source}; {how}" if self.source else how,
             notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""))

@@ -73,4 +73,5 @@ def flexible_joint(*, c: float = C_SOURCE, t_final: float = 20.0) -> Plant:
     claimed = Constants(alpha=C_SOURCE) if c == C_SOURCE else Constants()
     return Plant(id="flexible_joint_v1", A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity, claimed=claimed,
                  Bw=BW, Dw=DW, t_final=t_final, family="flexible_joint", params={"c": c, "version": 1}, source=SOURCE,
-                 notes="unscaled coordinates (x4 = omega_l); f4 = -c sin(x3); claimed: Lipschitz alpha only")
+                 notes="unscaled coordinates (x4 = omega_l); f4 = -c sin(x3); claimed: Lipschitz alpha only",
+                 state_names=("theta_m [rad]", "omega_m [rad/s]", "theta_l [rad]", "omega_l [rad/s]"))

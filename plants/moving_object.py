@@ -88,4 +88,5 @@ def moving_object(*, r: float = R_SOURCE, t_final: float = 20.0) -> Plant:
                  claimed=Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-4 * r**2, radius=r),
                  bounds=Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-3 * r**2, radius=r),
                  Bw=BW, Dw=DW, t_final=t_final, family="moving_object", params={"r": r, "version": 1}, source=SOURCE,
-                 notes="OSL with rho = 0 globally; Lipschitz only locally (3 r^2 on ||x|| <= r)")
+                 notes="OSL with rho = 0 globally; Lipschitz only locally (3 r^2 on ||x|| <= r)",
+                 state_names=("x1 [-]", "x2 [-]"))

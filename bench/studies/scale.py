@@ -31,7 +31,7 @@ import numpy as np
 from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_range,
                                    check_rtol, evaluate, fmt, md_table, pyplot, study, study_header, write_study)
 
-__all__ = ["run_scale", "write_scale", "design_style", "circle_bound"]
+__all__ = ["run_scale", "write_scale", "bar_styles", "circle_bound"]
 
 #: Statuses of a design's own verified gains (criterion (a)).
 VERIFIED = ("feasible", "computed", "given")
@@ -46,16 +46,17 @@ class _NotApplicable(Exception):
     """Raised by a probe when no value of the factor can change the answer (the pair is n/a for a criterion)."""
 
 
-def design_style(design_id: str) -> dict:
-    """The bar style of a design in the suite's figures: the colour :data:`bench.report.NORM_COLOURS` gives the
-    design's place in the registry's order (the same design, the same colour in every plant's group), and, past
-    the palette's length, a dotted hatch so that no two designs look alike."""
-    from bench.registry import DESIGNS
-    from bench.report import NORM_COLOURS
+def bar_styles(design_ids) -> dict[str, dict]:
+    """The bar colour of each design: the suite's palette (:func:`bench.report.design_styles`, the same design has
+    the same colour in the report and in every study), and a dotted hatch on a design whose colour an earlier
+    one in ``design_ids`` already has (the palette has 18 colours)."""
+    from bench.report import design_styles
 
-    ids = DESIGNS.ids()
-    k = ids.index(design_id) if design_id in ids else len(ids) + sum(map(ord, design_id))
-    return {"color": NORM_COLOURS[k % len(NORM_COLOURS)], "hatch": "..." if (k // len(NORM_COLOURS)) % 2 else None}
+    styles, seen = {}, set()
+    for did, st in design_styles(design_ids).items():
+        styles[did] = {"color": st["color"], "hatch": "..." if st["color"] in seen else None}
+        seen.add(st["color"])
+    return styles
 
 
 def circle_bound(plant, K: np.ndarray, F: np.ndarray) -> float:
@@ -92,7 +93,7 @@ def _base(plant_id: str):
     return _BASE[plant_id]
 
 
-def _probe(plant_id: str, c: float, design_id: str, certify: bool) -> dict:
+def _probe(plant_id: str, c: float, design_id: str, certify: bool, seed: int = 0) -> dict:
     """Design (and, with ``certify``, certify) ``design_id`` on the plant scaled by ``c``, without simulating: a
     record with the factor, the design's status, the gains, the certificate's outcome and the costs."""
     from bench.pipeline import LEVELS, RunOptions
@@ -107,7 +108,8 @@ def _probe(plant_id: str, c: float, design_id: str, certify: bool) -> dict:
     except PlantError as exc:
         rec.update(status="invalid", reason=f"the plant cannot be scaled by {c:.4g}: {exc}")
         return rec
-    out = evaluate(plant, design_id, RunOptions(certificate="verdict" if certify else "none", simulate=False))
+    out = evaluate(plant, design_id, RunOptions(certificate="verdict" if certify else "none", simulate=False,
+                                                seed=seed))
     row, res = out.record, out.result
     rec.update(status=row["status"], reason=str(row["reason"]), certified=bool(row["certified"]),
                cert_level=row["cert_level"] or "")
@@ -168,7 +170,7 @@ def _bisect(probe, key: str, bounds, rtol: float) -> dict:
     return out
 
 
-def _pair_task(plant_id: str, design_id: str, bounds, rtol: float) -> dict:
+def _pair_task(plant_id: str, design_id: str, bounds, rtol: float, seed: int = 0) -> dict:
     """Both bisections of one pair; (b)'s probes (design and certificate) are re-used by (a)."""
     from bench.studies import _common
 
@@ -181,10 +183,10 @@ def _pair_task(plant_id: str, design_id: str, bounds, rtol: float) -> dict:
         if c in full:
             return full[c]
         if certify:
-            full[c] = _probe(plant_id, c, design_id, True)
+            full[c] = _probe(plant_id, c, design_id, True, seed)
             return full[c]
         if c not in design_only:
-            design_only[c] = _probe(plant_id, c, design_id, False)
+            design_only[c] = _probe(plant_id, c, design_id, False, seed)
         return design_only[c]
 
     try:
@@ -239,7 +241,8 @@ class ScaleResult(StudyResult):
 
 
 @study()
-def run_scale(run: StudyRun, *, bounds: tuple[float, float] | None = None, rtol: float = 0.01) -> ScaleResult:
+def run_scale(run: StudyRun, *, bounds: tuple[float, float] | None = None, rtol: float = 0.01,
+              seed: int = 0) -> ScaleResult:
     """Bisect, for every (plant, design) pair, the largest factor of the plant's class at which (a) the design
     returns verified gains and (b) the ladder certifies them.
 
@@ -253,6 +256,8 @@ def run_scale(run: StudyRun, *, bounds: tuple[float, float] | None = None, rtol:
         Bisection bounds on the factor (default: doubling and halving from 1, at most 12 moves: 2^-12 to 2^12).
     rtol : float
         Relative tolerance of the bisection (the grid's step).
+    seed : int
+        Seed of the constants sampler (as ``python -m bench run --seed``).
     jobs, progress
         Worker processes; ``progress(done, total, label)``.
 
@@ -267,7 +272,7 @@ def run_scale(run: StudyRun, *, bounds: tuple[float, float] | None = None, rtol:
     """
     bounds = check_range("bounds", bounds)
     check_rtol(rtol)
-    tasks = [((pid, did), (pid, did, bounds, rtol)) for pid in run.plant_ids for did in run.design_ids]
+    tasks = [((pid, did), (pid, did, bounds, rtol, seed)) for pid in run.plant_ids for did in run.design_ids]
     results = run.map(_pair_task, tasks,
                       lambda key, r: f"{key[0]} x {key[1]}: designed {_cell(r['row'], 'designed')}, "
                                      f"certified {_cell(r['row'], 'certified')}")
@@ -278,7 +283,7 @@ def run_scale(run: StudyRun, *, bounds: tuple[float, float] | None = None, rtol:
     _rank(rows)
     settings = {"rtol": rtol, "bounds": bounds or "automatic (doubling/halving from c = 1, at most 12 moves)",
                 "cap": 1e3, "certificate": "the pipeline's ladder at lam = 0 (strongest level first), trusted "
-                                           "constants of the scaled class", "jobs": run.jobs}
+                                           "constants of the scaled class", "seed": seed, "jobs": run.jobs}
     return ScaleResult(rows, settings, run.wall_s(), evals=evals)
 
 
@@ -359,6 +364,7 @@ def _draw(rows: list[dict], path) -> None:
     plants = list(dict.fromkeys(r["plant"] for r in rows))
     designs = [d for d in dict.fromkeys(r["design"] for r in rows)
                if any(r[f"{name}_kind"] != "inapplicable" for r in rows if r["design"] == d for _, name, _ in CRITERIA)]
+    styles = bar_styles(designs)
     width = 0.84 / max(1, len(designs))
     fig, axes = plt.subplots(2, 1, figsize=(min(18.0, 4.0 + 1.2 * len(plants) * max(1.0, len(designs) / 8)), 9.0),
                              sharex=True, constrained_layout=True)
@@ -367,7 +373,7 @@ def _draw(rows: list[dict], path) -> None:
     floor = min([*finite, 1.0]) / 2
     for ax, (key, name, words) in zip(axes, CRITERIA):
         for j, did in enumerate(designs):
-            style = design_style(did)
+            style = styles[did]
             for i, pid in enumerate(plants):
                 r = next((r for r in rows if r["plant"] == pid and r["design"] == did), None)
                 if r is None:
@@ -391,7 +397,7 @@ def _draw(rows: list[dict], path) -> None:
         ax.grid(True, axis="y", which="major", alpha=0.3)
     axes[1].set_xticks(range(len(plants)), plants, rotation=20, ha="right")
     axes[1].set_xlim(-0.5, len(plants) - 0.5)
-    axes[0].legend(handles=[Patch(facecolor=design_style(d)["color"], hatch=design_style(d)["hatch"],
+    axes[0].legend(handles=[Patch(facecolor=styles[d]["color"], hatch=styles[d]["hatch"],
                                   edgecolor="white", label=d) for d in designs],
                    fontsize=7, ncol=1, loc="upper left", bbox_to_anchor=(1.0, 1.0), title="design")
     fig.suptitle("Largest admissible scale of each plant's class (dashed: c = 1, the plant itself); ^ above a bar: "
@@ -401,9 +407,9 @@ def _draw(rows: list[dict], path) -> None:
     plt.close(fig)
 
 
-def write_scale(result: ScaleResult, out_dir: str, command: str) -> "Path":  # noqa: F821
+def write_scale(result: ScaleResult, out_dir: str, command: str, *, figures: bool = True) -> "Path":  # noqa: F821
     """Write ``STUDY_scale.md``, ``study_scale.csv``, ``study_scale_probes.csv`` and ``figures/study_scale.png``
-    whole or not at all; return the markdown's path."""
+    (none with ``figures=False``) whole or not at all; return the markdown's path."""
     rows = result.rows
     checks = [r for r in rows if math.isfinite(r["circle_bound"])]
     lines = [
@@ -431,8 +437,7 @@ def write_scale(result: ScaleResult, out_dir: str, command: str) -> "Path":  # n
         "",
         *_ranking(rows),
         "",
-        "![largest admissible factor per design and plant](figures/study_scale.png)",
-        "",
+        *(["![largest admissible factor per design and plant](figures/study_scale.png)", ""] if figures else []),
         "## Fixed gains against the circle criterion",
         "",
         _CIRCLE,
@@ -454,13 +459,14 @@ def write_scale(result: ScaleResult, out_dir: str, command: str) -> "Path":  # n
         "",
         "`fails by`: the outcome at the first failing factor (`infeasible`, `marginal` = a design's margin within "
         "its tolerance, `undecided` = solver trouble, `not certified` = gains the ladder does not certify, "
-        "`marginal certificate` = the ladder's best margin within its tolerance of zero). `why`: the reason of the first failure "
-        "or of `n/a` (in full in `study_scale.csv`; every probe in `study_scale_probes.csv`). `alpha at lo`, "
+        "`marginal certificate` = the ladder's best margin within its tolerance of zero). `why`: the reason of the "
+        "first failure or of `n/a` (in full in `study_scale.csv`; every probe in `study_scale_probes.csv`). `alpha at lo`, "
         "`rho at lo`: the trusted constants of the class at the largest certified factor (designed where none).",
         "",
     ]
     tables = {"study_scale": rows, "study_scale_probes": result.evals}
-    return write_study(out_dir, "scale", "\n".join(lines), tables, {"study_scale": lambda p: _draw(rows, p)})
+    return write_study(out_dir, "scale", "\n".join(lines), tables,
+                       {"study_scale": lambda p: _draw(rows, p)} if figures else {})
 
 
 def _inside(r: dict) -> str:
