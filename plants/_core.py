@@ -787,8 +787,7 @@ class Plant:
             bounds=None if self.bounds is None else _scaled_constants(self.bounds, c), channels=channels,
             params={**self.params, "scale": c * float(self.params.get("scale", 1.0))},
             source=f"{self.source}; {how}" if self.source else how,
-            notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""),
-            state_names=self.state_names)
+            notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""))
 
     def summary(self) -> str:
         """One line: id, dimensions and source."""
