@@ -17,8 +17,8 @@ by Euler at ``ts = 1 ms``: ``A = I + ts Ac``, ``B = ts Bc``, ``f = ts fc``, ``W 
   ``(0, -3 r^2 ts)``, :mod:`plants.moving_object`).
 
 Horizon: 50 s (50,000 steps), the time axis of the paper's Figures 1-5. Both plants run on request only
-(``--plant 'nguyen2018*'``; registered with ``default=False``): together they would add about a quarter to
-the CPU time of the default run (docs/literature.md, "Cost").
+(``--plant 'nguyen2018*'``; registered with ``default=False``): together they would add about 30 % to the CPU
+time of the default run (docs/literature.md, "Cost").
 
 The printed gains (:data:`EX1_K`, :data:`EX1_L`, :data:`EX2_K`, :data:`EX2_L`) are in the paper's notation,
 ``u = -K x_hat`` and observer gain ``L``: oslbench's ``F = -K`` and ``K = L`` (the design

@@ -164,3 +164,21 @@ def test_the_papers_own_disturbance_is_attenuated_below_mu():
         assert tr.status == "ok" and tr.x.shape[1] == 50001
         ratio_e, ratio_x = measured_attenuation(tr.t, tr.x, tr.x_hat, paper_disturbance(tr.t), p.dt)
         assert 0.5 < ratio_x <= ex["mu"] and ratio_e < 1e-9
+
+
+def test_the_1ms_plants_run_only_on_request(capsys):
+    """Registered with default=False: out of the default selection (run, studies), in when a glob names them."""
+    from bench.cli import main
+    from bench.registry import Registry
+
+    assert set(PIDS.values()) <= set(PLANTS.ids())
+    assert not set(PIDS.values()) & set(PLANTS.select(None)) and "flexible_link_d10ms_v1" in PLANTS.select(None)
+    assert PLANTS.select(["nguyen2018*"]) == sorted(PIDS.values()) and set(PIDS.values()) <= set(PLANTS.select(["*"]))
+    reg = Registry("plant", "plants")
+    reg._discovered = True
+    reg.register("a", lambda: None)
+    reg.register("b", lambda: None, default=False)
+    assert reg.select(None) == reg.defaults() == ["a"] and reg.select([]) == ["a"] and reg.ids() == ["a", "b"]
+    assert main(["list"]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if PIDS["ex1"] in ln)
+    assert "on request" in line

@@ -229,3 +229,22 @@ def test_the_study_writes_its_report_table_and_figure(scalar_registry, tmp_path)
     df = pd.read_csv(tmp_path / "study_scale.csv")
     assert set(df["design"]) == {"_given_x_limited", "_given_e_limited"}
     assert main(["study", "scale", "-q", "--plant", "_scalar_sine", "--rtol", "2", "--out", str(tmp_path)]) == 2
+
+
+def test_a_pair_that_fails_is_a_row_with_its_error(scalar_registry, tmp_path):
+    from bench.studies.scale import run_scale, write_scale
+
+    def broken():
+        raise RuntimeError("cannot build")
+
+    PLANTS.register("_broken_plant", broken)
+    try:
+        res = run_scale(["_broken_plant", "_scalar_sine"], ["_given_e_limited"], jobs=1, rtol=0.05)
+    finally:
+        PLANTS.unregister("_broken_plant")
+    rows = {r["plant"]: r for r in res.rows}
+    assert rows["_broken_plant"]["certified_kind"] == "error" and "cannot build" in rows["_broken_plant"][
+        "certified_reason"]
+    assert rows["_scalar_sine"]["certified_kind"] == "bracketed"
+    md = write_scale(res, tmp_path, "test", figures=False).read_text()
+    assert "| _broken_plant | error |" in md and not (tmp_path / "figures" / "study_scale.png").exists()

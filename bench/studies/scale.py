@@ -192,6 +192,16 @@ def _pair_task(plant_id: str, design_id: str, bounds, rtol: float, seed: int = 0
     try:
         base = _base(plant_id)
         outs = {"b": _bisect(probe, "b", bounds, rtol), "a": _bisect(probe, "a", bounds, rtol)}
+    except Exception as exc:  # noqa: BLE001 - one failing pair never ends the study: a row with its error
+        why = f"{type(exc).__name__}: {exc}"[:300]
+        row = {"plant": plant_id, "design": design_id, "discrete": None, "circle_bound": math.nan, "n_probes": 0,
+               **{f"{k}_at_lo": math.nan for k in ("alpha", "rho", "beta", "gamma")},
+               "wall_s": time.perf_counter() - t0}
+        for _, name, _ in CRITERIA:
+            row.update({f"{name}_kind": "error", f"{name}_lo": math.nan, f"{name}_hi": math.nan,
+                        f"{name}_at_1": "error", f"{name}_fails_by": "error", f"{name}_reason": why,
+                        f"{name}_evals": 0})
+        return {"row": row, "evals": []}
     finally:
         for k in set(_common._CONSTANTS) - known:  # the scaled plants' constants are not needed again
             _common._CONSTANTS.pop(k, None)
@@ -288,6 +298,9 @@ def run_scale(run: StudyRun, *, bounds: tuple[float, float] | None = None, rtol:
 
 
 def _cell(row: dict, name: str) -> str:
+    """A criterion's bracket as a table cell (:func:`bracket_cell`; ``error`` for a pair that failed)."""
+    if row[f"{name}_kind"] == "error":
+        return "error"
     return bracket_cell(row[f"{name}_kind"], row[f"{name}_lo"], row[f"{name}_hi"]) or "?"
 
 
@@ -317,8 +330,8 @@ def _rank(rows: list[dict]) -> None:
 def _interval(row: dict, name: str) -> str:
     """A criterion's answer in words, with its first failure."""
     kind, lo, hi = row[f"{name}_kind"], row[f"{name}_lo"], row[f"{name}_hi"]
-    if kind == "inapplicable":
-        return "n/a"
+    if kind in ("inapplicable", "error"):
+        return "n/a" if kind == "inapplicable" else "error"
     if kind == "below_range":
         return f"< {fmt(hi, '.4g')} (fails at every factor tried)"
     if kind == "above_range":
