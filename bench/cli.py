@@ -217,7 +217,8 @@ def _cmd_list() -> int:
     for kind, registry in (("plants", PLANTS), ("designs", DESIGNS)):
         print(f"{kind}:")
         for i in registry.ids():
-            print(f"  {i:<24} {plain_summary(registry[i].summary)}")
+            extra = "" if registry[i].default else " [on request: not in the default run]"
+            print(f"  {i:<24} {plain_summary(registry[i].summary)}{extra}")
     return 0
 
 

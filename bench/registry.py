@@ -32,13 +32,15 @@ __all__ = ["DESIGNS", "PLANTS", "Registry", "object_id", "register_design", "reg
 
 @dataclass(frozen=True)
 class Entry:
-    """A registered factory with its id, one-line summary and defining module."""
+    """A registered factory with its id, one-line summary and defining module; ``default`` False: run only when
+    a glob names it (not in the default selection, :meth:`Registry.select`)."""
 
     id: str
     factory: Callable[..., Any]
     summary: str
     module: str
     order: int = 100
+    default: bool = True
 
 
 #: The characters an id may hold (ids name files: no path separator, blank, glob or shell character).
@@ -88,15 +90,17 @@ class Registry:
             out.update(layer)
         return out
 
-    def register(self, id: str, factory: Callable[..., Any], summary: str | None = None, *, order: int = 100) -> None:
-        """Register ``factory`` under ``id`` (sorted by ``order``, then id); RegistryError on a bad id."""
+    def register(self, id: str, factory: Callable[..., Any], summary: str | None = None, *, order: int = 100,
+                 default: bool = True) -> None:
+        """Register ``factory`` under ``id`` (sorted by ``order``, then id; ``default`` False: only on request, see
+        :meth:`select`); RegistryError on a bad id."""
         check_id(id, self.kind)
         if id in self._visible():
             other = self._visible()[id].module
             raise RegistryError(f"duplicate {self.kind} id {id!r} (already registered by {other})")
         module = getattr(factory, "__module__", "?")
         first_line = (getattr(factory, "__doc__", None) or "").strip().partition("\n")[0].strip()
-        self._entries[id] = Entry(id, factory, summary or first_line, module, order)
+        self._entries[id] = Entry(id, factory, summary or first_line, module, order, bool(default))
 
     def unregister(self, id: str) -> None:
         """Remove an id (used by plugin loading on failure and by tests)."""
@@ -121,6 +125,10 @@ class Registry:
         """Whether ``id`` is registered (an overlay's entry is not)."""
         self.discover()
         return id in self._entries
+
+    def defaults(self) -> list[str]:
+        """The default selection: the registered ids without ``default=False``, sorted as :meth:`ids`."""
+        return [i for i in self.ids() if self._visible()[i].default]
 
     def __contains__(self, id: str) -> bool:
         self.discover()
@@ -169,7 +177,8 @@ class Registry:
         return difflib.get_close_matches(pattern, self.ids(), n=2, cutoff=0.5)
 
     def select(self, patterns: list[str] | None, *, keep_order: bool = False) -> list[str]:
-        """Ids matching any of the glob ``patterns`` (all ids if None or empty).
+        """Ids matching any of the glob ``patterns`` (the default selection, :meth:`defaults`, if None or empty:
+        an id registered with ``default=False`` runs only when a pattern matches it).
 
         Parameters
         ----------
@@ -184,7 +193,7 @@ class Registry:
         """
         ids = self.ids()
         if not patterns:
-            return ids
+            return self.defaults()
         chosen: list[str] = []
         for pat in patterns:
             hits = [i for i in ids if fnmatch.fnmatchcase(i, pat)]
@@ -202,11 +211,12 @@ PLANTS = Registry("plant", "plants")
 DESIGNS = Registry("design", "designs")
 
 
-def register_plant(id: str, summary: str | None = None, *, order: int = 100):
-    """Decorator registering a keyword-only plant factory under ``id``."""
+def register_plant(id: str, summary: str | None = None, *, order: int = 100, default: bool = True):
+    """Decorator registering a keyword-only plant factory under ``id`` (``default`` False: not in the default
+    selection, run when a ``--plant`` glob names it, e.g. a plant whose simulation is long)."""
 
     def deco(factory):
-        PLANTS.register(id, factory, summary, order=order)
+        PLANTS.register(id, factory, summary, order=order, default=default)
         return factory
 
     return deco

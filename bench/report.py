@@ -270,7 +270,8 @@ def design_styles(design_ids) -> dict[str, dict]:
     """The colour, line style and marker of each design, the same in every figure of the suite.
 
     A registered design keeps the slot of its place in the registry (so ``thm1`` has one colour in the report
-    and in every study); another label (``lqr+ekf (r = sigma^2)``) takes the next free slots in the order given.
+    and in every study); another label (``lqr+ekf (r = sigma^2)``) takes the next free slot, in the order given,
+    whose colour none of ``design_ids`` has (when one is left).
     Slot ``k`` has colour ``k mod 18``, line style ``k mod 4`` and marker ``k mod 11`` (beyond 18 designs a
     colour comes back, with another line style or marker).
 
@@ -287,12 +288,17 @@ def design_styles(design_ids) -> dict[str, dict]:
 
     registered = DESIGNS.ids()
     slot = {d: k for k, d in enumerate(registered)}
+    ids = list(dict.fromkeys(design_ids))
+    taken = {slot[d] % len(DESIGN_COLOURS) for d in ids if d in slot}  # the colours of this figure's designs
     out = {}
     extra = len(registered)
-    for did in dict.fromkeys(design_ids):
+    for did in ids:
         k = slot.get(did)
-        if k is None:
-            k, extra = extra, extra + 1
+        if k is None:  # the next slot whose colour no design of this figure has (if any is left)
+            free = next((j for j in range(extra, extra + len(DESIGN_COLOURS))
+                         if j % len(DESIGN_COLOURS) not in taken), extra)
+            k, extra = free, free + 1
+            taken.add(k % len(DESIGN_COLOURS))
         out[did] = {"color": DESIGN_COLOURS[k % len(DESIGN_COLOURS)],
                     "linestyle": DESIGN_LINESTYLES[k % len(DESIGN_LINESTYLES)],
                     "marker": DESIGN_MARKERS[k % len(DESIGN_MARKERS)]}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 import re
@@ -731,10 +732,62 @@ class Plant:
             bounds=None if self.bounds is None else _discrete_constants(self.bounds, h, Gam, method),
             channels=channels, t_final=max(steps, 1) * h, dt=h,
             Bw=Gam @ self.Bw if has_w else None, Dw=self.Dw if has_w else None, family=self.family,
-            params={**self.params, "h": h, "zoh": float(method == "zoh")},
+            params={**self.params, "h": h, "zoh": float(method == "zoh")}, state_names=self.state_names,
             source=f"{self.source}; {how}" if self.source else how,
-            notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""),
-            state_names=self.state_names)
+            notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""))
+
+    def scaled(self, c: float, *, id: str | None = None) -> "Plant":
+        """The plant with its nonlinearity, and so its class, multiplied by ``c``: ``f -> c f``.
+
+        A, B, C, the disturbance inputs, x0, x_hat0, the horizon and the sample time are kept: this is the
+        axis of the largest admissible nonlinearity (``python -m bench study scale``), on which a design is
+        given the scaled class of the same linear part.
+
+        Parameters
+        ----------
+        c : float
+            The factor, finite and ``>= 0`` (``c = 0`` is the linear plant; a negative factor would flip f,
+            whose one-sided Lipschitz constant does not follow from rho).
+        id : str, optional
+            The new plant's id (default ``"<id>_scaled<c>"``, e.g. ``flexible_link_scaled2.5``).
+
+        Returns
+        -------
+        Plant
+            f and its Jacobian times c; ``params`` adding ``scale`` (the product with an earlier one); the
+            source and notes stating the factor. The constants scale as the class does, exactly, for
+            ``bounds`` and ``claimed`` alike (a claim stays right or wrong), the radius kept: Lipschitz
+            ``c alpha``, OSL ``c rho``, QIB ``(c^2 beta, c gamma)`` (multiply the QIB inequality by
+            ``c^2``: ``|c df|^2 <= c^2 beta |dx|^2 + c gamma <dx, c df>``). Channels ``G (c phi)(H x)``
+            with slopes ``[c lo, c hi]`` and the narrowing ``narrow(r)`` times c.
+
+        Raises
+        ------
+        PlantError
+            If ``c`` is not a finite number ``>= 0``, or the default id is too long (pass ``id``).
+
+        Examples
+        --------
+        >>> from bench.registry import PLANTS
+        >>> p = PLANTS.create("flexible_link").scaled(2.0)
+        >>> p.id, p.params["scale"], p.bounds.alpha, round(p.bounds.beta, 6)
+        ('flexible_link_scaled2', 2.0, 0.666, 0.443556)
+        """
+        c = check_real("c", c, lo=0.0)
+        ch = self.channels
+        channels = None if ch is None else Channels(
+            G=ch.G, H=ch.H, phi=_Mapped(ch.phi, c), lo=c * ch.lo, hi=c * ch.hi, radius=ch.radius,
+            narrow=None if ch.narrow is None else _ScaledNarrow(ch.narrow, c))
+        how = (f"f scaled by c = {c:g} (the class: Lipschitz c alpha, OSL c rho, QIB (c^2 beta, c gamma), "
+               "slopes c [lo, hi])")
+        return dataclasses.replace(  # every other field (A, B, C, Bw, Dw, x0, dt, state names, ...) kept
+            self, id=id if id is not None else f"{self.id}_scaled{c:g}", f=_Mapped(self.f, c),
+            jacobian=None if self.jacobian is None else _Mapped(self.jacobian, c),
+            claimed=_scaled_constants(self.claimed, c),
+            bounds=None if self.bounds is None else _scaled_constants(self.bounds, c), channels=channels,
+            params={**self.params, "scale": c * float(self.params.get("scale", 1.0))},
+            source=f"{self.source}; {how}" if self.source else how,
+            notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""))
 
     def summary(self) -> str:
         """One line: id, dimensions and source."""
@@ -761,6 +814,26 @@ class _Mapped:
     def __call__(self, x):
         out = np.asarray(self.g(x), dtype=float)
         return self.M * out if np.ndim(self.M) == 0 else self.M @ out
+
+
+class _ScaledNarrow:
+    """``r -> c narrow(r)``: the narrowed slopes of a channel scaled by ``c >= 0`` (picklable when narrow is)."""
+
+    def __init__(self, narrow: Callable[[float], tuple], c: float):
+        self.narrow, self.c = narrow, c
+
+    def __call__(self, r: float) -> tuple:
+        lo, hi = self.narrow(r)
+        return self.c * np.asarray(lo, dtype=float), self.c * np.asarray(hi, dtype=float)
+
+
+def _scaled_constants(k: Constants, c: float) -> Constants:
+    """The constants of ``c f`` from those of ``f`` (:meth:`Plant.scaled`, ``c >= 0``)."""
+    def times(v: float | None, by: float) -> float | None:
+        return None if v is None else by * v
+
+    return Constants(alpha=times(k.alpha, c), rho=times(k.rho, c), beta=times(k.beta, c * c),
+                     gamma=times(k.gamma, c), radius=k.radius)
 
 
 def _discrete_constants(c: Constants, h: float, Gam: np.ndarray, method: str) -> Constants:

@@ -203,8 +203,8 @@ class StudyRun:
 def study(default_plants=None, default_designs=None):
     """Decorator making ``fn(run: StudyRun, **options)`` a study's
     ``fn(plant_ids=None, design_ids=None, *, jobs=1, progress=None, start_method=None, **options)``; without ids,
-    the defaults (None: every registered one); ``start_method``: how worker processes start
-    (:func:`bench.executors.use_start_method`)."""
+    the defaults (None: the registry's default selection, :meth:`bench.registry.Registry.defaults`);
+    ``start_method``: how worker processes start (:func:`bench.executors.use_start_method`)."""
     def deco(fn):
         def run(plant_ids=None, design_ids=None, *, jobs: int = 1, progress=None, start_method: str | None = None,
                 **options):
@@ -212,7 +212,7 @@ def study(default_plants=None, default_designs=None):
             from bench.registry import DESIGNS, PLANTS
 
             def pick(ids, default, registry):
-                return list(ids) if ids else (list(default) if default is not None else registry.ids())
+                return list(ids) if ids else (list(default) if default is not None else registry.defaults())
 
             pairs = StudyRun(pick(plant_ids, default_plants, PLANTS), pick(design_ids, default_designs, DESIGNS), jobs,
                              progress)

@@ -1,4 +1,4 @@
-"""Command line of the studies: ``python -m bench study {admissible,sampling,montecarlo,noise}``.
+"""Command line of the studies: ``python -m bench study {admissible,scale,sampling,montecarlo,noise}``.
 
 :func:`add_study_parser` adds the ``study`` subcommand to the main parser (:mod:`bench.cli` calls it);
 :func:`run_study` runs one study from the parsed arguments. The options a study shares with ``run``
@@ -45,7 +45,7 @@ def _float_list(*, allow_empty: bool):
 
 def add_study_parser(sub) -> None:
     """Add ``study`` and its sub-subcommands to the main parser's subparsers ``sub``."""
-    st = sub.add_parser("study", help="studies after the tables: admissible, sampling, montecarlo, noise")
+    st = sub.add_parser("study", help="studies after the tables: admissible, scale, sampling, montecarlo, noise")
     ss = st.add_subparsers(dest="study", required=True, parser_class=type(st))
 
     def common(p, simulates: bool = True):
@@ -64,6 +64,7 @@ def add_study_parser(sub) -> None:
     a.add_argument("--rtol", type=_positive, default=0.01, help="relative tolerance of the bisection (default 0.01)")
     a.add_argument("--caps", type=_float_list(allow_empty=True), default=[10.0, 100.0, 1e4],
                    metavar="CAP,CAP,...", help="other normalisation caps for thm1/cor1 (default 10,100,10000; '' skips)")
+    _add_scale(ss, common)
 
     s = ss.add_parser("sampling", help="largest sample period of a digital implementation (ZOH, discrete observer)")
     common(s)
@@ -92,8 +93,20 @@ def add_study_parser(sub) -> None:
     n.add_argument("--no-matched-ekf", action="store_true", help="skip the EKF with r = sigma^2")
 
 
+def _add_scale(ss, common) -> None:
+    """``study scale``: the largest factor of any plant's class (:mod:`bench.studies.scale`)."""
+    c = ss.add_parser("scale", help="largest factor of each plant's class (constants and slopes times c) at which "
+                                    "each design returns verified gains, and the ladder certifies them (bisection)")
+    common(c, simulates=False)
+    c.add_argument("--range", nargs=2, type=_number, default=None, metavar=("LO", "HI"),
+                   help="bisection bounds on the factor c (default: doubling/halving from c = 1)")
+    c.add_argument("--rtol", type=_positive, default=0.01, help="relative tolerance of the bisection (default 0.01)")
+
+
 def _options(args) -> dict:
     """The study's own options from the parsed arguments."""
+    if args.study == "scale":
+        return dict(bounds=tuple(args.range) if args.range else None, rtol=args.rtol, seed=args.seed)
     if args.study == "admissible":
         return dict(bounds=tuple(args.range) if args.range else None, rtol=args.rtol, caps=tuple(args.caps),
                     seed=args.seed)
