@@ -13,7 +13,7 @@ import numbers
 from dataclasses import dataclass
 from typing import Any, Callable
 
-__all__ = ["ClosedLoop", "argtype", "closed_loop", "gains", "horizon", "integer", "real"]
+__all__ = ["ClosedLoop", "argtype", "closed_loop", "flag", "gains", "horizon", "integer", "real"]
 
 ErrorFactory = Callable[[str, str], Exception]
 
@@ -75,6 +75,20 @@ def integer(name: str, value: Any, *, lo: int, error: ErrorFactory = _value_erro
     if int(value) < lo:
         raise error(name, f"must be >= {lo}, got {value!r}")
     return int(value)
+
+
+def flag(name: str, value: Any, *, error: ErrorFactory = _value_error) -> bool:
+    """``value`` as a bool: True or False (Python or numpy) only, never another truthy or falsy object."""
+    if not isinstance(value, (bool, _np_bool())):
+        raise error(name, f"expected True or False, got {brief(value)}")
+    return bool(value)
+
+
+def _np_bool() -> type:
+    """numpy's bool type (imported here: the command line's argument types import this module, not numpy)."""
+    import numpy as np
+
+    return np.bool_
 
 
 def horizon(value: Any, *, default: float | None = None, name: str = "t_final",

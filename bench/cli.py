@@ -1,4 +1,5 @@
-"""Command line: ``python -m bench run``, ``list``, ``study``, ``cache`` and ``perf`` (also installed as ``oslbench``).
+"""Command line: ``python -m bench run``, ``report``, ``list``, ``study``, ``cache`` and ``perf`` (also installed as
+``oslbench``).
 
 Exit codes: 0 success, 1 a report that could not be written, a pair that is an error or a timeout under
 ``--strict`` (or an internal error, in one line), 2 bad usage, 130 interrupted; a run whose every pair is an
@@ -87,6 +88,16 @@ def _build_parser() -> argparse.ArgumentParser:
                       "--out /tmp/r)")
     r.add_argument("--no-cache", action="store_true",
                    help="recompute every pair: neither read nor write the cache")
+    rp = sub.add_parser("report", help="draw a report folder's REPORT.md, report.html, tables.tex and figures again "
+                                       "from its results (results.csv, gains.json, run.json, figure_data.npz), "
+                                       "computing nothing")
+    rp.add_argument("folder", metavar="FOLDER", help="a report folder written by run")
+    rp.add_argument("--out", default=None, metavar="DIR",
+                    help="write into DIR, with the result files copied (default: FOLDER itself)")
+    rp.add_argument("--no-figures", action="store_true", help="do not draw the figures")
+    rp.add_argument("--figure-format", action="append", choices=("png", "pdf"), default=None,
+                    help="figure format, repeatable (default: the formats the run drew)")
+    rp.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     ls = sub.add_parser("list", help="list plants and designs")
     ls.add_argument("--plugin", action="append", metavar="PATH",
                     help="a Python file registering your own plants or designs (repeatable)")
@@ -171,6 +182,24 @@ def _cmd_cache(args) -> int:
     return 0
 
 
+def _cmd_report(args) -> int:
+    """``python -m bench report FOLDER``: :func:`bench.report.redraw`."""
+    from bench.errors import OutDirError
+    from bench.report import redraw
+
+    try:
+        path = redraw(args.folder, args.out, figures=not args.no_figures, figure_format=args.figure_format)
+    except OutDirError as exc:
+        error("report", str(exc))
+        return 2
+    except ValueError as exc:
+        error("report", str(exc))
+        return 1
+    if not args.quiet:
+        print(f"wrote {path} (and report.html, tables.tex{'' if args.no_figures else ', figures'})", file=sys.stderr)
+    return 0
+
+
 def _cmd_docs_plants(args) -> int:
     """``docs-plants``: :func:`bench.plantdoc.plants_markdown`, printed or written to ``--out``."""
     from bench.plantdoc import plants_markdown
@@ -200,15 +229,13 @@ def _cmd_run(args, argv: list[str]) -> int:
     if selected is None:
         return 2
     plant_ids, design_ids = selected
-    from bench.api import run
+    from bench.api import progress_label, run
     from bench.executors import ExecutorError, use_start_method
     from bench.progress import Progress
 
     t0 = time.perf_counter()
     cache = None if args.no_cache else cache_dir(args)
-    pairs = len(plant_ids) * len(design_ids)
-    bar = False if args.quiet else Progress(desc=f"constants of {len(plant_ids)} plant{'s' * (len(plant_ids) != 1)} "
-                                                 f"+ {pairs} pair{'s' * (pairs != 1)}")
+    bar = False if args.quiet else Progress(desc=progress_label(len(plant_ids), len(plant_ids) * len(design_ids)))
     try:
         with use_start_method(args.start_method):
             results = run(plant_ids, design_ids, seed=args.seed, claimed_constants=args.claimed_constants,
@@ -423,4 +450,6 @@ def _main(argv: list[str]) -> int:
         return _cmd_cache(args)
     if args.command == "docs-plants":
         return _cmd_docs_plants(args)
+    if args.command == "report":
+        return _cmd_report(args)
     return _cmd_run(args, argv)

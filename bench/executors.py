@@ -12,10 +12,11 @@ deadlock; Python 3.12+ warns about it).
 
 A forked worker inherits everything, the registries included. A worker started by spawn or forkserver is a
 fresh interpreter: it loads the plugin files again (:func:`bench.plugins.loaded_plugins`) and re-registers
-every other entry of the registries that pickles (a Plant or Design object given to :func:`bench.run` is sent
-pickled). An entry that cannot be sent to a fresh process (a factory defined in a notebook cell or a
-``python -c`` script, an object holding a lambda) cannot be rebuilt there: the tasks that name it run in this
-process instead, with a warning naming the ids; the others still run in the workers.
+every other entry of the registries that pickles (a Plant or Design object given to :func:`bench.run`, an entry
+of the call's overlay of the registries, is sent pickled and put in the same overlay there). An entry that
+cannot be sent to a fresh process (a factory defined in a notebook cell or a ``python -c`` script, an object
+holding a lambda) cannot be rebuilt there: the tasks that name it run in this process instead, with a warning
+naming the ids; the others still run in the workers.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import pickle
 import sys
 import warnings
 from concurrent.futures import Executor, Future
-from contextlib import contextmanager, suppress
+from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -211,6 +212,10 @@ def worker_setup() -> WorkerSetup:
     return setup
 
 
+#: The overlays of the objects a fresh worker rebuilt (:func:`_rebuild`), open until the worker exits.
+_WORKER_OVERLAYS = ExitStack()
+
+
 def _rebuild(setup: WorkerSetup) -> None:
     """In a fresh worker: load the plugins, then register every entry the package's modules did not."""
     from bench.plugins import PluginError, load_plugins
@@ -221,15 +226,23 @@ def _rebuild(setup: WorkerSetup) -> None:
     except PluginError as exc:  # its pairs become error rows (unknown id) in the parent's table
         print(f"oslbench worker {os.getpid()}: {exc}", file=sys.stderr, flush=True)
     registries = {"plant": PLANTS, "design": DESIGNS}
+    objects: dict[str, dict[str, Any]] = {"plant": {}, "design": {}}
     for kind, i, blob, summary, order in setup.entries:
         reg = registries[kind]
         if i in reg:  # the package (or the re-imported __main__) registered it already
             continue
         try:
-            reg.register(i, pickle.loads(blob), summary, order=order)
+            factory = pickle.loads(blob)
+            if isinstance(factory, _Returns):  # an object given to bench.run: in the overlay, as in the parent
+                objects[kind][i] = factory.obj
+            else:
+                reg.register(i, factory, summary, order=order)
         except Exception as exc:  # noqa: BLE001 - its pairs become error rows (unknown id)
             print(f"oslbench worker {os.getpid()}: cannot rebuild {kind} {i!r}: {type(exc).__name__}: {exc}",
                   file=sys.stderr, flush=True)
+    for kind, found in objects.items():  # held for the worker's life (a worker serves one run)
+        if found:
+            _WORKER_OVERLAYS.enter_context(registries[kind].overlay(found, f"{kind} passed to bench.run"))
 
 
 def _worker_init(parent: int, method: str = "fork", setup: WorkerSetup | None = None) -> None:

@@ -2,7 +2,9 @@
 
 The report computes no verdict: every judgement comes from the records (:mod:`bench.pipeline`) and the
 findings (:mod:`bench.findings`). ``write_report`` renders everything into a staging folder and
-publishes it whole or not at all (:mod:`bench.outdir`).
+publishes it whole or not at all (:mod:`bench.outdir`). It saves what the figures plot in
+:data:`FIGURE_DATA`, so that :func:`redraw` renders REPORT.md, report.html (:mod:`bench.html`), the LaTeX
+tables and the figures again from a report folder's files, without computing anything.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from bench.harness import RunResult
 from bench.latex import level_cell, minimal_document, plain_cell, tables_tex
 from designs import GAIN_STATUSES
 
-__all__ = ["draw_figures", "results_table", "write_report"]
+__all__ = ["FIGURE_DATA", "draw_figures", "redraw", "results_table", "write_report"]
 
 #: Plants that get per-design figures of states, estimates and errors (like the paper's Figures
 #: 2-5); every plant gets the norm comparison figure.
@@ -378,13 +380,67 @@ def draw_figures(result: RunResult, figdir: Path, fmts: tuple[str, ...] = ("png"
     ``jobs`` at a time (default: all cores); returns (caption, path of the first format relative to the report)
     pairs in report order.
     """
+    return _draw_jobs(_figure_jobs(result), figdir, fmts, jobs)
+
+
+def _draw_jobs(todo: list[_FigureJob], figdir: Path, fmts: tuple[str, ...], jobs: int | None = None
+               ) -> list[tuple[str, str]]:
+    """Draw figure jobs (:func:`draw_figures`)."""
     from bench.executors import default_jobs, executor
 
-    todo = _figure_jobs(result)
     jobs = max(1, min(default_jobs() if jobs is None else jobs, len(todo)))
     with executor(jobs) as ex:
         names = list(ex.map(_draw, todo, [figdir] * len(todo), [fmts] * len(todo)))
     return [(job.caption, f"figures/{name}") for job, name in zip(todo, names)]
+
+
+#: What the figures of a report plot, beside gains.json: :func:`redraw` draws them again from it.
+FIGURE_DATA = "figure_data.npz"
+_FIGURE_DATA_FORMAT = 1
+
+
+def save_figure_data(jobs: list[_FigureJob], fmts: tuple[str, ...], path: Path) -> None:
+    """Write the figure jobs (their arrays as they are plotted, the rest as JSON) and the figure formats into the
+    compressed ``path`` (:data:`FIGURE_DATA`), readable without pickles (:func:`load_figure_data`)."""
+    arrays: dict[str, np.ndarray] = {}
+    meta = []
+    for k, job in enumerate(jobs):
+        doc = {"kind": job.kind, "stem": job.stem, "caption": job.caption, "title": job.title}
+        if job.kind == "norms":
+            doc["designs"] = [did for did, *_ in job.data]
+            for j, (_, *curves) in enumerate(job.data):
+                for name, a in zip(("t", "nx", "ne"), curves):
+                    arrays[f"j{k}_{j}_{name}"] = np.asarray(a)
+        else:
+            t, x, x_hat, t_show, names = job.data
+            doc.update(t_show=float(t_show), names=list(names))
+            for name, a in (("t", t), ("x", x), ("x_hat", x_hat)):
+                arrays[f"j{k}_{name}"] = np.asarray(a)
+        meta.append(doc)
+    arrays["meta"] = np.array(json.dumps({"format": _FIGURE_DATA_FORMAT, "formats": list(fmts), "jobs": meta}))
+    with open(path, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+def load_figure_data(path: Path) -> tuple[list[_FigureJob], tuple[str, ...]]:
+    """The figure jobs and formats :func:`save_figure_data` wrote; ValueError naming the file when it cannot be read."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        doc = json.loads(str(arrays.pop("meta")))
+        if doc.get("format") != _FIGURE_DATA_FORMAT:
+            raise ValueError(f"unknown format {doc.get('format')!r}")
+        jobs = []
+        for k, j in enumerate(doc["jobs"]):
+            if j["kind"] == "norms":
+                data = tuple((did, *(arrays[f"j{k}_{i}_{name}"] for name in ("t", "nx", "ne")))
+                             for i, did in enumerate(j["designs"]))
+            else:
+                data = (arrays[f"j{k}_t"], arrays[f"j{k}_x"], arrays[f"j{k}_x_hat"], j["t_show"], tuple(j["names"]))
+            jobs.append(_FigureJob(j["kind"], j["stem"], j["caption"], j["title"], data))
+        return jobs, tuple(doc["formats"])
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as exc:
+        raise ValueError(f"{path}: cannot read the figure data ({type(exc).__name__}: {exc})") from None
 
 
 def _summary(found: dict) -> str:
@@ -478,7 +534,8 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         f"{'constants claimed by the sources' if o.use_claimed else 'valid constants (analytic, else sampled)'}; "
         f"{len(df)} pairs. One row per pair in `results.csv` (every verdict below is a column there), gains and "
         "certificates in `gains.json`, settings, versions and these findings in `run.json`, LaTeX tables in "
-        "`tables.tex` (`pdflatex tables_standalone.tex` compiles them).",
+        "`tables.tex` (`pdflatex tables_standalone.tex` compiles them), this report as one page with sortable and "
+        "filterable tables in `report.html`.",
         "",
         "## What the suite found",
         "",
@@ -634,22 +691,39 @@ def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: t
     check_cells(result.outcomes)
     df = result.frame()
     info = {**run_info, "findings": run_info.get("findings") or findings(df, result.constants)}
-    figs = draw_figures(result, tmp / "figures", fmts) if figures else []
-    (tmp / "REPORT.md").write_text(render_markdown(result, figs, info), encoding="utf-8")
-    results_table(df).to_csv(tmp / "results.csv", index=False)
-    (tmp / "gains.json").write_text(json.dumps(_gains(result), indent=1) + "\n", encoding="utf-8")
+    jobs = _figure_jobs(result)
+    save_figure_data(jobs, fmts, tmp / FIGURE_DATA)
+    figs = _draw_jobs(jobs, tmp / "figures", fmts) if figures else []
+    table = results_table(df)
+    table.to_csv(tmp / "results.csv", index=False)
+    gains = _gains(result)
+    (tmp / "gains.json").write_text(json.dumps(gains, indent=1) + "\n", encoding="utf-8")
     (tmp / "run.json").write_text(json.dumps(_run_json(result, info), indent=1, default=str) + "\n",
                                   encoding="utf-8")
+    pages = _pages(result, table, gains, tmp, info, figs)
+    files = [f"figures/{p.name}" for p in sorted((tmp / "figures").iterdir())]
+    return files + ["results.csv", "gains.json", "run.json", FIGURE_DATA, *pages]
+
+
+def _pages(result: RunResult, table, gains: list[dict], tmp: Path, info: dict, figs: list[tuple[str, str]]
+           ) -> list[str]:
+    """Render the pages made from the results (REPORT.md last, for :func:`bench.outdir.publish`): the LaTeX tables,
+    report.html (:func:`bench.html.render_html`, with the figures drawn into ``tmp``) and REPORT.md."""
+    from bench.html import render_html
+
+    df = result.frame()
+    markdown = render_markdown(result, figs, info)
     (tmp / "tables.tex").write_text(tables_tex(df), encoding="utf-8")
     (tmp / "tables_standalone.tex").write_text(minimal_document(r"\input{tables.tex}"), encoding="utf-8")
-    files = [f"figures/{p.name}" for p in sorted((tmp / "figures").iterdir())]
-    return files + ["results.csv", "gains.json", "run.json", "tables.tex", "tables_standalone.tex", "REPORT.md"]
+    (tmp / "report.html").write_text(render_html(markdown, table, gains, tmp), encoding="utf-8")
+    (tmp / "REPORT.md").write_text(markdown, encoding="utf-8")
+    return ["tables.tex", "tables_standalone.tex", "report.html", "REPORT.md"]
 
 
 def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, *, figures: bool = True,
                  figure_format="png") -> Path:
-    """Write REPORT.md, results.csv, gains.json, run.json, tables.tex, tables_standalone.tex and figures/
-    into ``out_dir``, whole or not at all.
+    """Write REPORT.md, report.html, results.csv, gains.json, run.json, figure_data.npz, tables.tex,
+    tables_standalone.tex and figures/ into ``out_dir``, whole or not at all.
 
     Parameters
     ----------
@@ -682,4 +756,62 @@ def write_report(result: RunResult, out_dir: str | os.PathLike, run_info: dict, 
     with staged(out, "report") as tmp:
         files = _render(result, tmp, run_info, figures, fmts)
         publish(out, tmp, files, writer="report")
+    return out / "REPORT.md"
+
+
+#: The files :func:`redraw` reads and keeps as they are.
+RESULT_FILES = ("results.csv", "gains.json", "run.json")
+
+
+def redraw(folder: str | os.PathLike, out_dir: str | os.PathLike | None = None, *, figures: bool = True,
+           figure_format=None) -> Path:
+    """Render REPORT.md, report.html, tables.tex, tables_standalone.tex and the figures of a report folder again from
+    its files (results.csv, gains.json, run.json, figure_data.npz), computing nothing; whole or not at all.
+
+    Parameters
+    ----------
+    folder : path
+        A report folder (:func:`write_report`).
+    out_dir : path, optional
+        Where to write (default: ``folder`` itself); the result files are copied there unchanged.
+    figures : bool
+        Draw the figures (from :data:`FIGURE_DATA`).
+    figure_format : str or iterable of str, optional
+        ``"png"``, ``"pdf"`` or both (default: the formats the run drew).
+
+    Returns
+    -------
+    Path
+        The REPORT.md path.
+
+    Raises
+    ------
+    bench.errors.OutDirError
+        ``folder`` is not a report folder, or ``out_dir`` cannot be written.
+    ValueError
+        A file of the folder that cannot be read (the message names it), an unknown figure format.
+    """
+    import shutil
+
+    from bench.outdir import check_out_dir, publish, staged
+    from bench.reload import read_report
+
+    loaded = read_report(folder)
+    fmts = loaded.figure_formats if figure_format is None else (
+        (figure_format,) if isinstance(figure_format, str) else tuple(figure_format))
+    if not fmts or any(f not in ("png", "pdf") for f in fmts):
+        raise ValueError(f"figure_format: each format must be 'png' or 'pdf', got {figure_format!r}")
+    if figures and loaded.figure_jobs is None:
+        raise ValueError(f"{loaded.folder}: no {FIGURE_DATA} (written by an older oslbench): the figures cannot be "
+                         "redrawn; redraw without them (--no-figures), or run again")
+    out = check_out_dir(loaded.folder if out_dir is None else out_dir)
+    with staged(out, "report") as tmp:
+        (tmp / "figures").mkdir()
+        kept = [*RESULT_FILES, *([FIGURE_DATA] if loaded.figure_jobs is not None else [])]
+        for name in kept:
+            shutil.copyfile(loaded.folder / name, tmp / name)
+        figs = _draw_jobs(loaded.figure_jobs, tmp / "figures", fmts) if figures else []
+        pages = _pages(loaded.result, loaded.table, loaded.gains, tmp, loaded.run_info, figs)
+        files = [f"figures/{p.name}" for p in sorted((tmp / "figures").iterdir())]
+        publish(out, tmp, files + kept + pages, writer="report")
     return out / "REPORT.md"

@@ -19,6 +19,11 @@ def test_notebook_tour_runs_and_its_loop_converges_in_python_control(tmp_path):
     # the table has the three designs the tour asked for
     for did in ("thm1", "structured", "lqr+lqe"):
         assert re.search(rf"^\s*{re.escape(did)}\s", done.stdout, re.M), did
+    # the sweep by objects: one row per object, named by its changed setting; a looser bound on the gains
+    # certifies at least the rate of a tighter one (its feasible set contains the tighter one's)
+    rates = [float(re.search(rf"^\s*structured\[max_gain={g}\]\s+feasible\s+True\s+(\S+)", done.stdout, re.M)
+                   .group(1)) for g in ("2.0", "5.0")]
+    assert 0 < rates[0] <= rates[1]
     # python-control's own simulation of the nonlinear closed loop (not the suite's simulator)
     # from x0 = (1, 0): after 10 s the state is far below its start
     final = float(re.search(r"python-control: \|\|x\(10\)\|\| = (\S+)", done.stdout).group(1))
@@ -83,15 +88,17 @@ def test_my_design_runs_through_bench_run_as_an_object():
     mod = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(mod)  # registers "my_poles"
-        r = bench.run(plants=["flexible_link"], designs=[mod.PolePlacement(rate=2.0), "lqr+lqe"], jobs=1,
-                      progress=False)
+        # named by its class's registered id and the hyperparameters that differ from the defaults (rate 2.0)
+        r = bench.run(plants=["flexible_link"], designs=[mod.PolePlacement(), mod.PolePlacement(rate=1.0), "lqr+lqe"],
+                      jobs=1, progress=False)
         rows = r.table.set_index("design")
-        assert list(rows.index) == ["poleplacement", "lqr+lqe"]
-        _check_like_builtin(rows.loc["poleplacement"].to_dict(), rows.loc["lqr+lqe"].to_dict())
-        assert r.gains["flexible_link", "poleplacement"]["certificate"] is not None  # the ladder ran
+        assert list(rows.index) == ["my_poles", "my_poles[rate=1.0]", "lqr+lqe"]
+        _check_like_builtin(rows.loc["my_poles"].to_dict(), rows.loc["lqr+lqe"].to_dict())
+        assert r.gains["flexible_link", "my_poles"]["certificate"] is not None  # the ladder ran
+        assert abs(rows.loc["my_poles[rate=1.0]", "max_re_eig_x"] + 1.0) < 1e-6  # eig(A + BF) = -1, -1.5, ...
+        assert "my_poles[rate=1.0]" not in DESIGNS  # not registered: the call's own
     finally:
         DESIGNS.unregister("my_poles")
-        DESIGNS.unregister("poleplacement")
 
 
 def test_readme_design_example_is_the_example_file():

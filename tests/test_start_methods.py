@@ -121,22 +121,25 @@ def test_fresh_workers_rebuild_the_registries(method, tmp_path):
 
 
 def test_bench_run_objects_under_spawn_match_fork(tmp_path):
-    """bench.run with a Design object and a Plant object (whose f is a closure) under spawn: same table as
-    in-process."""
+    """bench.run with Design objects (one the registered design, one with a changed hyperparameter: an overlay entry,
+    sent pickled) and a Plant object (whose f is a closure) under spawn: same table as in-process; only the plant's
+    pairs stay in the parent, with a warning naming it; and the call runs again."""
     code = f"""
 import dataclasses, pickle, warnings, bench
-from bench.registry import PLANTS
+from bench.registry import DESIGNS, PLANTS
 from designs.paper_gains import PaperGains
 if __name__ == "__main__":
     mine = dataclasses.replace(PLANTS.create("flexible_link"), id="my_flex")
-    design = PaperGains()
-    kw = dict(plants=[mine, "flexible_link"], designs=[design], progress=False)
+    lqr = DESIGNS.create("lqr+lqe")
+    heavier = dataclasses.replace(lqr, feedback=dataclasses.replace(lqr.feedback, R=4.0))
+    kw = dict(plants=[mine, "flexible_link"], designs=[PaperGains(), heavier], progress=False)
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always")
         spawned = bench.run(jobs=2, start_method="spawn", **kw).table
+        again = bench.run(jobs=2, start_method="spawn", **kw).table
     serial = bench.run(jobs=1, **kw).table
     with open({str(tmp_path / "out.pkl")!r}, "wb") as fh:
-        pickle.dump((spawned, serial, [str(w.message) for w in seen]), fh)
+        pickle.dump((spawned, again, serial, [str(w.message) for w in seen]), fh)
 """
     script = tmp_path / "objects.py"
     script.write_text(code, encoding="utf-8")
@@ -146,17 +149,20 @@ if __name__ == "__main__":
     assert proc.returncode == 0, proc.stderr
     import pickle
 
-    spawned, serial, messages = pickle.loads((tmp_path / "out.pkl").read_bytes())
+    spawned, again, serial, messages = pickle.loads((tmp_path / "out.pkl").read_bytes())
     cols = [c for c in serial.columns if c not in TIMING]
-    assert list(spawned["plant"]) == ["my_flex", "flexible_link"]
-    assert set(spawned["status"]) == {"given"}
-    for c in cols:
-        x, y = spawned[c].to_numpy(), serial[c].to_numpy()
-        if x.dtype.kind == "f":
-            np.testing.assert_array_equal(x, y, err_msg=c)
-        else:
-            assert list(x) == list(y), c
-    assert any("my_flex" in m for m in messages)  # its closure f cannot be pickled: its pairs ran in the parent
+    assert list(spawned["plant"]) == ["my_flex", "my_flex", "flexible_link", "flexible_link"]
+    assert list(spawned["design"]) == ["paper_gains", "lqr+lqe[feedback.R=4.0]"] * 2
+    assert set(spawned["status"]) == {"given", "computed"}
+    for table in (spawned, again):
+        for c in cols:
+            x, y = table[c].to_numpy(), serial[c].to_numpy()
+            if x.dtype.kind == "f":
+                np.testing.assert_array_equal(x, y, err_msg=c)
+            else:
+                assert list(x) == list(y), c
+    stayed = [m for m in messages if "this process" in m]
+    assert stayed and all("my_flex" in m and "lqr+lqe[" not in m for m in stayed)  # the design object was sent
 
 
 _ORPHANS = r'''
