@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bench import checks
+from bench import checks, lmi
 from bench.certify import LEVELS, Certificate, LevelResult, adopt, ceiling, certify, explain
 from bench.constants import ConstantsReport, Knowledge, check_trajectory, resolve_constants
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
@@ -34,7 +34,8 @@ COLUMNS = [
     "cert_scope", "converged", "witness", "rate_ceiling", "rate_ratio", "ceiling_how",
     *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")],
     "cert_margin", "cert_radius", "level_set", "level_x0", "in_region", "max_norm",
-    "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "compile_s", "solve_s", "design_s",
+    "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "sdp_solves", "compile_s", "solve_s",
+    "design_s",
     "cert_s", "sim_s", "max_re_eig_x", "max_re_eig_e", "horizon_s", "horizon_rule", "cert_horizon_s", "sim_status", "sim_witness",
     "settling_x_s",
     "settling_e_s", "final_x", "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "norm_K", "norm_F",
@@ -508,6 +509,7 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
     rec = blank_record(plant.id, design_id)
     out = PairOutcome(rec, plant=plant)
     phase = "design"
+    solves = lmi.solve_tally()["n"]
     try:
         if prior is not None:
             rec.update({k: prior.record[k] for k in COLUMNS if k not in _NOT_PRIOR})
@@ -550,4 +552,6 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
         tb = traceback.extract_tb(exc.__traceback__)
         if tb:
             rec["reason"] += f" (at {tb[-1].filename.rsplit('/', 1)[-1]}:{tb[-1].lineno}, during the {phase})"
+    finally:
+        rec["sdp_solves"] = lmi.solve_tally()["n"] - solves
     return out
