@@ -274,7 +274,7 @@ def _attempt(spec: _Spec, plant: Plant, K, F, know: Knowledge, rtol: float, radi
             res = rel
         else:
             res.solve_s, res.n_solves = rel.solve_s, rel.n_solves
-    if not region and res.status in ("marginal", "undecided"):
+    if not region and (res.status == "undecided" or (res.status == "marginal" and lv.solver_errors)):
         res = _cascade(lv, res, radius, kw["hi"] if kw.get("rates") else 0.0)
     if res.certified or not (spec.channels and spec.scalars) or not (res.status == "undecided" or lv.solver_errors):
         return res
@@ -303,6 +303,12 @@ def _solve_in(lv: lyapunov.Level, radius: float | None, *, start: float, hi: flo
             out.reason = f"certifies no grid rate above the level below's {start:.4g}"
         out.solve_s, out.n_solves = lv.solve_s, lv.n_solves
         return out
+    if rates and top_first and hi > 0:  # a tight ceiling: just below it first; a pass there certifies the level
+        below = _below_ceiling(lv, hi)
+        if below is not None:
+            out.status, out.decay_rate, out.P, out.margin = "certified", below, lv.found[below], lv.lam0_margin
+            out.solve_s, out.n_solves = lv.solve_s, lv.n_solves
+            return out
     verdict, margin = lv.solve(0.0)
     out.margin = margin
     if verdict == "verified":
@@ -314,9 +320,12 @@ def _solve_in(lv: lyapunov.Level, radius: float | None, *, start: float, hi: flo
         out.status, out.reason = "marginal", (
             f"best max eig {margin:.3g} is within the verification tolerance of zero ({_normalisation(spec)}; "
             f"{lv.prog.tried})")
-    elif verdict == "violated":
+    elif verdict == "violated" and lv.prog.last_status == "optimal":
         out.reason = (f"no P > 0 and multipliers make the LMI negative definite: best max eig {margin:.3g} "
                       f"({_normalisation(spec)}; {lv.prog.tried})")
+    elif verdict == "violated":  # an inaccurate point proves nothing either way
+        out.status, out.reason = "undecided", (f"the solvers' best point is inaccurate and does not verify (max eig "
+                                               f"{margin:.3g}; {_normalisation(spec)}; {lv.prog.tried})")
     else:
         out.status, out.reason = "undecided", f"solver status {verdict!r} {lv.prog.last_error} ({lv.prog.tried})"
     out.solve_s, out.n_solves = lv.solve_s, lv.n_solves
@@ -327,8 +336,10 @@ def _cascade(lv: lyapunov.Level, res: LevelResult, radius: float | None, hi: flo
     """The level's cascade certificate (:func:`bench.lyapunov.cascade`) where its joint LMI was left within the
     tolerance or unsolved, verified by the level's own matrix; ``res`` when there is none."""
     got = lyapunov.cascade(lv.spec, lv.data, hi, lv.rtol)
-    if got is None:
+    if got["P"] is None:
         res.reason += "; no cascade certificate (a side is not certified, or no weight mu verifies)"
+        res.solve_s += got["solve_s"]
+        res.n_solves += got["n_solves"]
         return res
     rx, re_ = got["side_rates"]["x"], got["side_rates"]["e"]
     return LevelResult(lv.spec.level, "certified", decay_rate=got["rate"], margin=got["margin"], P=got["P"],
@@ -338,9 +349,28 @@ def _cascade(lv: lyapunov.Level, res: LevelResult, radius: float | None, hi: flo
                                f"{res.status}: {res.reason})"))
 
 
+#: A level searched from nothing under a tight ceiling first probes these many grid steps below it.
+CEILING_STEPS = (1, 3)
+
+
+def _below_ceiling(lv: lyapunov.Level, hi: float) -> float | None:
+    """The level's rate when a grid rate :data:`CEILING_STEPS` steps below its tight ceiling ``hi`` verifies
+    (then searched up to ``hi``), else None (the probes' failures stay known to the level's later search)."""
+    from bench.search import _index, _point
+
+    kh = _index(hi, lv.rtol, up=True)
+    for step in CEILING_STEPS:
+        lam = _point(kh - step, lv.rtol)
+        if lv.solve(lam)[0] == "verified":
+            return lv.search(lam, _point(kh - step + 1, lv.rtol) if step > 1 else hi)
+        lv.failed_at = min(lam, lv.failed_at)
+    return None
+
+
 def _rate_from_zero(lv: lyapunov.Level, hi: float, *, top_first: bool = False) -> float:
     """The level's rate after a verified solve at ``lam = 0``: from the grid rate that point reaches
     (:meth:`bench.lyapunov.Level.reach_grid`), or down from ``hi`` by factors of 4 when it reaches none."""
+    hi = min(hi, lv.failed_at)  # below the ceiling's failed probes the search goes on down (top_first)
     up = lv.reach_grid(0.0, hi)
     if up is not None:
         return lv.search(up, hi, top_first=top_first, seen=(0.0, lv.margin(0.0)), above_lo=False)
@@ -353,7 +383,9 @@ def _rate_from_zero(lv: lyapunov.Level, hi: float, *, top_first: bool = False) -
 
 
 def _normalisation(spec: _Spec) -> str:
-    return "V(z0) <= 1, the level set through z0 in the region" if spec.region else "trace(P) = 1"
+    if spec.region:
+        return "V(z0) <= 1, the level set through z0 in the region"
+    return "|M_ij|, |P_ij| <= 1" if spec.norm == "relative" else "trace(P) = 1"
 
 
 def _inherit(out: LevelResult, prev: LevelResult | None) -> LevelResult:
@@ -465,7 +497,7 @@ class _Bound:
         that the search probes just below it first)."""
         lin = self.loop.linearised_rate
         c = self.ceiling if lin > 0 else math.nan
-        if math.isfinite(c) and c < lin:
+        if math.isfinite(c) and c <= lin:
             return c, level == self.top
         return lin, False
 

@@ -358,6 +358,8 @@ class Level:
         Probes at which the first solver failed outright (``"solver_error"``).
     taus : dict
         The multipliers of :attr:`found`'s certificates, by the same rates.
+    failed_at : float
+        The least rate at which a probe outside :meth:`search` failed (inf: none).
     """
 
     spec: Spec
@@ -369,6 +371,7 @@ class Level:
     lam0_margin: float = math.nan
     solver_errors: int = 0
     taus: dict = field(default_factory=dict)
+    failed_at: float = math.inf
 
     def __post_init__(self) -> None:
         if self.T is None:
@@ -428,16 +431,18 @@ class Level:
         self.solver_errors += "solver_error" in self.prog.tried
         verdict, margin = self.prog.verdict()
         if verdict == "verified":
-            P = self.P()
-            self.found[lam] = P
-            self.taus[lam] = np.array(self.prog.values()["tau"], dtype=float)
+            self.found[lam], self.taus[lam] = self.point()
             if math.isnan(self.lam0_margin):
                 self.lam0_margin = lmi.max_eig(self.prog.numeric_matrix(lam=0.0))
         return verdict, margin
 
-    def P(self) -> np.ndarray:
-        """The last point's full P in the original coordinates."""
-        return _p(self.spec, self.prog.checked_values())
+    def point(self) -> tuple[np.ndarray, np.ndarray]:
+        """The last point's full P, in the original coordinates, and its multipliers, scaled to ``trace(P) = 1``
+        (the LMI is homogeneous in ``(P, tau)``: every program's P is reported alike, whatever its normalisation)."""
+        vals = self.prog.checked_values()
+        P = _p(self.spec, vals)
+        scale = float(np.trace(P))
+        return P / scale, np.array(vals["tau"], dtype=float) / scale
 
     def reach_grid(self, lam: float, hi: float) -> float | None:
         """The largest grid rate in ``(lam, hi)`` at which the last (verified) point's matrix verifies too, or None."""
@@ -447,15 +452,13 @@ class Level:
         if not top > lam:
             return None
         k = grid_floor(min(top, hi) * (1 - 1e-9), self.rtol)
-        P = self.P()
         for _ in range(3):  # the first grid point below the reach that verifies (rounding may spoil the very first)
             if k <= lam * (1 + 1e-12):
                 return None
             if k < hi * (1 - 1e-12):
                 M = self.prog.numeric_matrix(lam=k)
                 if lmi.classify(lmi.max_eig(M), M) == "verified":
-                    self.found[k] = P
-                    self.taus[k] = np.array(self.prog.values()["tau"], dtype=float)
+                    self.found[k], self.taus[k] = self.point()
                     return k
             k = grid_floor(k / (1 + self.rtol) * (1 + 1e-12), self.rtol)
         return None
@@ -487,10 +490,9 @@ class Level:
 
         The probes: the grid rate just above ``lo`` (a level often certifies no more than the level below); with
         ``top_first`` (``hi`` a tight ceiling) 1, 2, 4, ... grid steps below ``hi`` until one verifies; then where
-        the margins of the last two
-        verified points (:meth:`margin`) extrapolate to twice the tolerance (with one point, where it aims,
-        :meth:`aim`; not for a region's program, whose margins do not extrapolate); bisection when that lands beyond
-        a failed probe or after two failures in a row. Every
+        the margins of the last verified points (:meth:`margin`) extrapolate to twice the tolerance
+        (:func:`_extrapolate`; with one point, where it aims, :meth:`aim`; not for a region's program, whose margins
+        do not extrapolate); bisection when that lands beyond a failed probe or after two failures in a row. Every
         verified point is carried up by :meth:`reach_grid`. ``seen``: an earlier verified ``(lam, margin)``;
         ``above_lo=False``: no first probe just above ``lo`` (``lo`` is not a lower level's rate).
         """
@@ -615,18 +617,19 @@ def cascade(spec: Spec, data: Data, hi: float, rtol: float = RATE_RTOL) -> dict 
 
     Returns
     -------
-    dict or None
+    dict
         ``P``, ``tau``, ``rate``, ``mu``, ``margin`` (at rate 0), ``side_rates``, ``n_solves``, ``solve_s``;
-        None when a side does not verify at rate 0 or no mu verifies.
+        ``P`` None when a side does not verify at rate 0 or no mu verifies.
     """
     from bench.search import grid_floor as floor
 
     levels = {w: Level(*side(spec, data, w), rtol=rtol) for w in ("x", "e")}
     cost = lambda: (sum(lv.n_solves for lv in levels.values()), sum(lv.solve_s for lv in levels.values()))  # noqa: E731
     rates = {}
+    none = lambda: dict(zip(("n_solves", "solve_s"), cost()), P=None, side_rates=rates)  # noqa: E731
     for w, lv in levels.items():
         if lv.solve(0.0)[0] != "verified":
-            return None
+            return none()
         up = lv.reach_grid(0.0, hi) if hi > 0 else None
         rates[w] = lv.search(up, hi, seen=(0.0, lv.margin(0.0)), above_lo=False) if up is not None else 0.0
     lam = min(rates.values())
@@ -641,6 +644,7 @@ def cascade(spec: Spec, data: Data, hi: float, rtol: float = RATE_RTOL) -> dict 
             Pi = data.Pi.reshape(len(data.Pi), -1).T
             M0 = matrix(spec, _values(spec, P, tau, data, Pi, 0.0))[0][0]
             n_solves, solve_s = cost()
-            return {"P": P, "tau": tau, "rate": r, "mu": mu, "margin": lmi.max_eig(M0), "side_rates": rates,
+            scale = float(np.trace(P))
+            return {"P": P / scale, "tau": tau / scale, "rate": r, "mu": mu, "margin": lmi.max_eig(M0), "side_rates": rates,
                     "n_solves": n_solves, "solve_s": solve_s}
-    return None
+    return none()
