@@ -32,9 +32,12 @@ level is certified above it, with a rate no smaller):
   written in channel coordinates.
 
 Only *trusted* knowledge enters (:meth:`bench.constants.ConstantsReport.knowledge`); sampled
-constants are lower bounds and never certify. Decay rates are searched on the grid of
-:mod:`bench.search` (a marginal probe fails), from the rate of the level below up to the rate of
-the loop linearised at the origin, which no certificate can beat.
+constants are lower bounds and never certify. Each level's LMI is written, solved (in balanced coordinates,
+with a second solver) and its rate searched by :mod:`bench.lyapunov`; decay rates are searched on the grid of
+:mod:`bench.search` (a marginal probe fails), from the rate of the level below up to the smaller of the rate
+of the loop linearised at the origin and the class's rate ceiling, which no certificate can beat. A level left
+within the tolerance or unsolved is solved again normalised as the verification judges, then offered a cascade
+certificate; constraints that hold on a region choose P with the level set through x0 inside it.
 """
 
 from __future__ import annotations

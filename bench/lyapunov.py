@@ -437,11 +437,12 @@ class Level:
         return verdict, margin
 
     def point(self) -> tuple[np.ndarray, np.ndarray]:
-        """The last point's full P, in the original coordinates, and its multipliers, scaled to ``trace(P) = 1``
-        (the LMI is homogeneous in ``(P, tau)``: every program's P is reported alike, whatever its normalisation)."""
+        """The last point's full P, in the original coordinates, and its multipliers, scaled to ``trace(P) = 1``, or
+        for a region's program to ``V(z0) = 1`` (the LMI is homogeneous in ``(P, tau)``)."""
         vals = self.prog.checked_values()
         P = _p(self.spec, vals)
-        scale = float(np.trace(P))
+        z0 = self.data.z0
+        scale = float(z0 @ P @ z0) if self.spec.region else float(np.trace(P))
         return P / scale, np.array(vals["tau"], dtype=float) / scale
 
     def reach_grid(self, lam: float, hi: float) -> float | None:
