@@ -347,9 +347,9 @@ def _cascade(lv: lyapunov.Level, res: LevelResult, radius: float | None, hi: flo
     rx, re_ = got["side_rates"]["x"], got["side_rates"]["e"]
     return LevelResult(lv.spec.level, "certified", decay_rate=got["rate"], margin=got["margin"], P=got["P"],
                        radius=radius, solve_s=res.solve_s + got["solve_s"], n_solves=res.n_solves + got["n_solves"],
-                       reason=(f"cascade certificate V = x'Px x + mu e'Pe e, mu = {got['mu']:.3g} (the x side certified "
-                               f"at {rx:.4g} with B F e as an input, the e side at {re_:.4g}; the joint LMI: "
-                               f"{res.status}: {res.reason})"))
+                       reason=(f"cascade certificate V = x'Px x + mu e'Pe e, mu = {got['mu']:.3g} (the x side "
+                               f"certified at {rx:.4g} with B F e as an input, the e side at {re_:.4g}; the joint "
+                               f"LMI: {res.status}: {res.reason})"))
 
 
 #: A level searched from nothing under a tight ceiling first probes these many grid steps below it.

@@ -235,7 +235,8 @@ class Program:
         Decision matrices that must be positive definite.
     compile_s, solve_s, n_solves
         cvxpy's compile (with the expression tree's ``build_s``), the other solve seconds, and the
-        solves since :meth:`reset`.
+        solves since :meth:`reset` (those answered from :attr:`memo` included, so that a result never depends
+        on what this process solved before).
     last_status, last_error, solver : str
         The last solve's status, error message and solver.
     best : BestPoint or None
@@ -248,7 +249,8 @@ class Program:
         ``original(values) -> values`` maps the solver's values to the coordinates the LMI is verified in
         (None: the same); set by the caller for each use, cleared by :meth:`reset`.
     n_reused : int
-        Solves since :meth:`reset` answered from :attr:`memo` (not counted in ``n_solves``).
+        Solves since :meth:`reset` answered from :attr:`memo` (no solver called; :func:`solve_tally` counts those
+        called).
     tried : str
         The solvers the last :meth:`solve` tried, e.g. ``"CLARABEL:solver_error -> SCS:optimal"``.
     """
@@ -362,7 +364,11 @@ class Program:
     def _memo_key(self, solver: str, opts: dict | None) -> bytes:
         import hashlib
 
-        h = hashlib.blake2b(repr((solver.upper(), sorted((opts or {}).items()))).encode(), digest_size=20)
+        import cvxpy as cp
+
+        # the solve path's identity too: a solver swapped (a test's injected fault) never answers from another's memory
+        path = (id(solve_timed), id(cp.Problem.solve))
+        h = hashlib.blake2b(repr((solver.upper(), sorted((opts or {}).items()), path)).encode(), digest_size=20)
         for k in sorted(self.parameters):
             v = self.parameters[k].value
             h.update(k.encode())
@@ -375,6 +381,7 @@ class Program:
         hit = self.memo.get(key)
         if hit is not None:
             self.memo.move_to_end(key)
+            self.n_solves += 1
             self.n_reused += 1
             _tally["reused"] += 1
             value = self._restore(hit)
@@ -385,7 +392,7 @@ class Program:
                 if not isinstance(exc, Exception) and self.cache_key is not None:  # cut short: never reuse
                     _cache().pop(self.cache_key, None)
                 raise
-            if not self.reused and self.n_solves == 0:
+            if not self.reused and self.n_solves == self.n_reused:
                 self.compile_s += self.build_s
             self.compile_s += out.compile_s
             self.solve_s += out.solve_s

@@ -255,7 +255,7 @@ def _build(spec: Spec, mats: lmi.Matrices) -> lmi.Program:
     prm = {"lam": cp.Parameter(nonneg=True, name="lam"), **mats.parameters(),
            "s2": cp.Parameter(N, pos=True, name="s2"), "t2": cp.Parameter(n2, pos=True, name="t2")}
     exprs = {k: (p.expr if isinstance(p, lmi.Pattern) else p) for k, p in prm.items()}
-    M = matrix(spec, {**v, **exprs})[0][0]  # cvxpy constrains its symmetric part (no sym(): its COO backend fails on it)
+    M = matrix(spec, {**v, **exprs})[0][0]  # cvxpy constrains its symmetric part (sym() fails in its COO backend)
     slack = v["slack"]
     blocks = {"P": slice(0, n2)} if spec.full_p or spec.side else {"P1": slice(0, n), "P2": slice(n, n2)}
     cons = [M << -slack * cp.diag(prm["s2"]), v["tau"] >= 0]
@@ -646,6 +646,6 @@ def cascade(spec: Spec, data: Data, hi: float, rtol: float = RATE_RTOL) -> dict 
             M0 = matrix(spec, _values(spec, P, tau, data, Pi, 0.0))[0][0]
             n_solves, solve_s = cost()
             scale = float(np.trace(P))
-            return {"P": P / scale, "tau": tau / scale, "rate": r, "mu": mu, "margin": lmi.max_eig(M0), "side_rates": rates,
-                    "n_solves": n_solves, "solve_s": solve_s}
+            return {"P": P / scale, "tau": tau / scale, "rate": r, "mu": mu, "margin": lmi.max_eig(M0),
+                    "side_rates": rates, "n_solves": n_solves, "solve_s": solve_s}
     return none()

@@ -20,7 +20,7 @@ from bench.registry import DESIGNS
 from designs import Design
 
 ROOT = Path(__file__).resolve().parents[1]
-TIMING = {"compile_s", "solve_s", "design_s", "cert_s", "sim_s"}
+TIMING = {"compile_s", "solve_s", "design_s", "cert_s", "sim_s", "sdp_solves"}  # sdp_solves: the solver calls made
 SMALL = (["flexible_link"], ["thm1_printed", "paper_gains", "lqr+lqe"])
 OPTS = RunOptions(n_samples=500, t_final=5.0)
 #: the certificate's rate bisection stops within this relative tolerance (certify's rate_rtol)

@@ -78,7 +78,8 @@ def test_the_high_gain_loop_has_a_cascade_certificate_by_numpy_alone(joint):
         assert np.linalg.eigvalsh(P)[0] > 0
         for d in ds:
             assert np.linalg.eigvalsh((A + d * E).T @ P + P @ (A + d * E))[-1] < 0
-    ok = [mu for mu in 10.0 ** np.arange(0, 16) if _vertex_margin(joint, HIGH_K, HIGH_F, sla.block_diag(Px, mu * Pe), 0.0) < 0]
+    ok = [mu for mu in 10.0 ** np.arange(0, 16)
+          if _vertex_margin(joint, HIGH_K, HIGH_F, sla.block_diag(Px, mu * Pe), 0.0) < 0]
     assert ok, "no weight mu makes the cascade a joint certificate"
 
 

@@ -25,7 +25,7 @@ from bench.registry import DESIGNS, PLANTS
 from designs import Design, DesignResult
 
 ROOT = Path(__file__).resolve().parents[1]
-TIMING = ["compile_s", "solve_s", "design_s", "cert_s", "sim_s"]
+TIMING = ["compile_s", "solve_s", "design_s", "cert_s", "sim_s", "sdp_solves"]  # sdp_solves: solver calls made
 FAST = RunOptions(n_samples=500)
 
 
