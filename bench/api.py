@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,14 +19,17 @@ class Results:
     Attributes
     ----------
     table : pandas.DataFrame
-        results.csv: one row per pair in the order asked for (:func:`bench.report.results_table`).
+        results.csv: one row per pair in the order asked for (:func:`bench.report.results_table`); a copy, so
+        changing it changes nothing :meth:`write` writes.
     gains : dict
         ``(plant, design) -> {"K", "F", "result", "certificate", "trajectory", "plant"}`` for every pair
-        with a controller.
+        with a controller. Every array of the run's results (gains, certificates, trajectories, constants;
+        not the plants, which are the run's input) is read-only: what :meth:`write` writes is what the run
+        computed.
     constants : dict
         Plant id -> :class:`bench.constants.ConstantsReport`.
     findings : dict
-        :func:`bench.findings.findings`.
+        :func:`bench.findings.findings` (:meth:`write` computes them again from the records).
     run_result : bench.harness.RunResult
         Everything, including the outcomes and timings.
     command : str
@@ -51,7 +55,7 @@ class Results:
         from bench.report import write_report
 
         check_out_dir(out_dir)
-        info = {"command": self.command or "bench.run(...)", **self.info, "findings": self.findings}
+        info = {"command": self.command or "bench.run(...)", **self.info}
         return write_report(self.run_result, out_dir, info, figures=figures, figure_format=figure_format)
 
     def controller(self, plant: str, design: str):
@@ -95,9 +99,9 @@ def _register_objects(items, registry, kind: str) -> list[str]:
 
 def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed: int = 0,
         claimed_constants: bool = False, t_final: float | None = None, noise: float = 0.0,
-        timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
+        disturbance: float = 0.0, timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
         cache: str | os.PathLike | None = None, progress: bool | Callable = True, fail_fast: bool = False,
-        command: str = "") -> Results:
+        command: str = "", start_method: str | None = None) -> Results:
     """Run (plant, design) pairs and return the results (the library form of ``python -m bench run``).
 
     Parameters
@@ -113,6 +117,10 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
         A fixed horizon for every pair (default: :func:`bench.verdicts.simulation_horizon`).
     noise : float
         Standard deviation of a seeded measurement noise.
+    disturbance : float
+        Peak amplitude of the seeded L2 disturbance (:mod:`bench.disturbance`; 0: none): each pair of a
+        plant with disturbance inputs is simulated again from ``z(0) = 0`` with it, for the measured
+        ratios ``l2_measured_e``, ``l2_measured_x``.
     timeout : float, optional
         Wall-clock limit per pair, seconds.
     jobs : int, optional
@@ -127,6 +135,9 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
         Raise the first exception instead of recording an ``error`` row.
     command : str
         Recorded in run.json.
+    start_method : {"fork", "forkserver", "spawn"}, optional
+        How local worker processes start (default: :func:`bench.executors.default_start_method`); results are
+        the same whichever.
 
     Returns
     -------
@@ -138,21 +149,28 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
         An id or glob that matches nothing.
     ValueError
         A bad option (the message names it).
+    bench.errors.ExecutorError
+        A start method this platform does not offer.
     """
     from bench.cache import Cache
-    from bench.executors import default_jobs
+    from bench.executors import check_start_method, default_jobs, use_start_method
     from bench.findings import findings
     from bench.harness import RunOptions
     from bench.registry import DESIGNS, PLANTS
-    from bench.report import results_table
+    from bench.report import check_cells, results_table
+
+    check_start_method(start_method)
 
     plant_ids = PLANTS.select(_register_objects(plants or [], PLANTS, "plant") or None, keep_order=True)
     design_ids = DESIGNS.select(_register_objects(designs or [], DESIGNS, "design") or None, keep_order=True)
     options = RunOptions(seed=seed, use_claimed=claimed_constants, fail_fast=fail_fast, t_final=t_final, noise=noise,
-                         timeout=timeout)
+                         disturbance=disturbance, timeout=timeout)
     jobs = min(jobs or default_jobs(), max(1, len(plant_ids) * len(design_ids)))
     store = None if cache is None else Cache(cache)
-    result = _run_in_registry_order(plant_ids, design_ids, options, progress, jobs, scheduler, store)
+    with use_start_method(start_method):
+        result = _run_in_registry_order(plant_ids, design_ids, options, progress, jobs, scheduler, store)
+    check_cells(result.outcomes)
+    _read_only([result.outcomes, result.constants], set())
     records = result.frame()
     info = {"plants": plant_ids, "designs": design_ids, "jobs": jobs, "scheduler": scheduler,
             "cache_errors": list(store.errors) if store is not None else []}
@@ -177,6 +195,31 @@ def _run_in_registry_order(plant_ids: list[str], design_ids: list[str], options,
     result.constants = {p: result.constants[p] for p in plant_ids if p in result.constants}
     result.constants_errors = {p: result.constants_errors[p] for p in plant_ids if p in result.constants_errors}
     return result
+
+
+def _read_only(obj, seen: set) -> None:
+    """Make every array reachable from ``obj`` (through dataclass fields, dicts, lists and tuples) read-only, in place;
+    plants are not entered (they are the run's input, not its results)."""
+    import numpy as np
+
+    from plants import Plant
+
+    if isinstance(obj, np.ndarray):
+        obj.flags.writeable = False
+        return
+    if id(obj) in seen or isinstance(obj, (Plant, str, bytes, type)):
+        return
+    seen.add(id(obj))
+    if dataclasses.is_dataclass(obj):
+        items = [getattr(obj, f.name) for f in dataclasses.fields(obj)]
+    elif isinstance(obj, dict):
+        items = list(obj.values())
+    elif isinstance(obj, (list, tuple)):
+        items = obj
+    else:
+        return
+    for item in items:
+        _read_only(item, seen)
 
 
 def _controllers(result) -> dict:

@@ -6,7 +6,10 @@ batch) and one ``solve_ivp`` call; the step size is shared, chosen from the RMS 
 errors of all members. A member that blows up (``||z_j||`` above ``blowup * max(1, ||z_j(0)||)``,
 or non-finite) is frozen (derivative zero) and reported ``diverged``.
 
-Digital (:func:`simulate_digital_batch`): controller and observer at the sample period h, the
+A discrete-time plant (``dt > 0``) is stepped by :func:`simulate_batch` (no ODE): ``z_{k+1} = L z_k + (f(x_k),
+f(x_hat_k))`` for the whole batch, ``L`` the loop matrix.
+
+Digital (:func:`simulate_digital_batch`, continuous plants only): controller and observer at the sample period h, the
 plant continuous. At ``t_k = k h``, ``y_k = C x(t_k)`` is read, ``u_k = F x_hat_k`` held, and the
 observer advances by
 
@@ -128,8 +131,11 @@ def simulate_batch(
     Returns
     -------
     BatchTrajectory
+        For a discrete-time plant (``dt > 0``) the loop is stepped instead (:func:`_stepped_batch`).
     """
     K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
+    if plant.discrete:
+        return _stepped_batch(plant, K, F, X, XH, T)
     n, N = X.shape
     limit = options.blowup * np.maximum(1.0, _norms(X, XH))
     rhs = _BatchRHS(plant, K, F, N, limit, options)
@@ -211,6 +217,9 @@ def simulate_digital_batch(
         estimate used there); members above ``1e6 max(1, ||z_j(0)||)`` are frozen and reported diverged.
     """
     K, F, X, XH, T = _check_inputs(plant, K, F, x0, x_hat0, t_final)
+    if plant.discrete:
+        raise ValueError(f"plant {plant.id!r} is discrete-time (dt = {plant.dt:g} s): a digital controller samples a "
+                         "continuous-time plant; simulate a discrete plant with simulate_batch (stepped)")
     checks.real("h", h, lo=0.0, strict=True)
     if discretisation not in DISCRETISATIONS:
         raise ValueError(f"discretisation: must be one of {DISCRETISATIONS}, got {discretisation!r}")
@@ -226,6 +235,41 @@ def simulate_digital_batch(
     wall = time.perf_counter() - t0
     t = np.array([kk * h for kk in rec_idx])
     return BatchTrajectory(t, xs, xhs, diverged, "ok", "", wall, nfev, u=np.einsum("mi,ijk->mjk", F, xhs))
+
+
+def _stepped_batch(plant, K: np.ndarray, F: np.ndarray, X: np.ndarray, XH: np.ndarray, T: float) -> BatchTrajectory:
+    """The loop of a discrete-time plant stepped for a batch: ``ceil(T / dt)`` steps of
+    ``x_{k+1} = A x_k + B F x_hat_k + f(x_k)``, ``x_hat_{k+1} = A x_hat_k + B F x_hat_k + f(x_hat_k) + K C (x_k -
+    x_hat_k)``, at most :data:`MAX_RECORDS` instants recorded, members above ``1e6 max(1, ||z_j(0)||)`` frozen."""
+    from bench.simulate import discrete_steps
+
+    n_steps = discrete_steps(plant.dt, T)
+    stride = math.ceil((n_steps + 1) / MAX_RECORDS)
+    rec_idx = sorted({*range(0, n_steps + 1, stride), n_steps})
+    limit = 1e6 * np.maximum(1.0, np.linalg.norm(np.vstack([X, XH]), axis=0))
+    t0 = time.perf_counter()
+    xs, xhs, diverged, nfev = _march(_SteppedLoop(plant, K, F), X, XH, n_steps, rec_idx, limit)
+    wall = time.perf_counter() - t0
+    t = np.array([kk * plant.dt for kk in rec_idx])
+    return BatchTrajectory(t, xs, xhs, diverged, "ok", "", wall, nfev, method="stepped",
+                           u=np.einsum("mi,ijk->mjk", F, xhs))
+
+
+class _SteppedLoop:
+    """One step of a discrete-time plant's loop for a batch (:func:`_stepped_batch`)."""
+
+    def __init__(self, plant, K: np.ndarray, F: np.ndarray):
+        L = loop_matrix(plant, K, F)  # z_{k+1} = L z_k + (f(x_k), f(x_hat_k))
+        self.Px, self.Ph, self.f, self.n = L[:, :plant.n], L[:, plant.n:], plant.f, plant.n
+
+    def advance(self, x: np.ndarray, xh: np.ndarray, a) -> int:
+        """Step the members ``a`` of ``x`` and ``x_hat`` once, in place; one evaluation of f on the batch."""
+        n, xa, xha = self.n, x[:, a], xh[:, a]
+        M = xa.shape[1]
+        nl = np.asarray(self.f(np.concatenate([xa, xha], axis=1)), dtype=float)
+        lin = self.Px @ xa + self.Ph @ xha
+        x[:, a], xh[:, a] = lin[:n] + nl[:, :M], lin[n:] + nl[:, M:]
+        return 1
 
 
 def _march(loop: "_DigitalLoop", X: np.ndarray, XH: np.ndarray, n_steps: int, rec_idx: list[int],

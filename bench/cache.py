@@ -1,16 +1,34 @@
 """On-disk cache of finished pairs and plant constants, so that an interrupted run resumes.
 
 ``python -m bench run`` stores every finished pair and every plant's constants in ``.bench-cache/``
-beside the report folder; a re-run reuses them (``--no-cache``: neither read nor written).
+beside the report folder; a re-run reuses them (``--no-cache``: neither read nor written). A run from
+the cache reports what a ``--no-cache`` run would: the key and the pair's digest cover every callable
+of the plant wherever the run's own checks evaluate it.
 
 An entry's key is the SHA-256 of a JSON document of what its result depends on:
 ``kind`` (``"pair"`` or ``"constants"``), ``format`` (:data:`CACHE_FORMAT`), ``versions`` (Python and
 packages), ``code`` (the SHA-256 of every source file of bench/, designs/, plants/, of the registered
 plugin files, of the other non-installed files defining what the pair refers to, and of the loaded
-modules beside them), ``plant`` (its ``id``, every field in ``plant``, and a ``probe``: the SHA-256
-of f and its Jacobian at :data:`PROBE_POINTS` seeded states, x0 and x_hat0), ``design`` (``id`` and
-every hyperparameter in ``design``), ``options`` (pairs: the run options but the wall-clock limits)
-or ``seed`` and ``n_samples`` (constants).
+modules beside them), ``plant`` (its ``id``, every field in ``plant`` (callables by name, ``params`` and
+``notes`` by value), and a ``probe``: the SHA-256 of what f, its Jacobian, the channels' phi and
+narrowing compute at seeded states (:data:`PROBE_POINTS` inside the constants' radius, as many out to
+the samplers' reach :func:`bench.constants.sampled_range`, x0 and x_hat0), phi at H x of those states
+and along each channel's axis, the narrowing at radii out to the channels' reach and at the regions of
+the search from x0), ``design`` (``id`` and every hyperparameter in ``design``), ``options`` (pairs: the
+run options but the wall-clock limits) or ``seed`` and ``n_samples`` (constants).
+
+A pair's checks look further than the key can know beforehand: along its simulation and out to
+:data:`bench.constants.REACH_FACTOR` times the largest state it reached. A stored pair therefore carries
+its ``checked`` reach (that, at least the samplers' reach) and a digest of the same callables at seeded
+states out to it, at instants of its trajectory and at its witnesses' states; on load the digest is
+recomputed with the plant the key was computed from, and a different one (f changed only far away) is a
+miss, not an error.
+
+What the key cannot see: a plant's callables that read anything else (a file, an environment variable, a
+global changed between runs) give the same probe while computing something else elsewhere. Such a plugin
+must say what it read in the plant: a version number in ``params`` (e.g. ``params={"c": c,
+"table_version": 3}``) or a version string or the file's SHA-256 in ``notes``, both of which enter the
+key by value; or run with ``--no-cache``.
 
 Entries are ``pairs/<key>.npz`` and ``constants/<key>.npz``: the object's dataclass fields as JSON,
 its arrays, and a SHA-256 of both, read with ``allow_pickle=False`` and written atomically. Rows with
@@ -34,18 +52,24 @@ from typing import Any, Callable
 
 import numpy as np
 
+from bench.constants import REACH_FACTOR, sampled_range
 from bench.lmi import digest
 from bench.outdir import atomic_write as _atomic_write, sha_file as _sha_file
 
 __all__ = ["Cache"]
 
 #: Bumped when the layout or the meaning of an entry changes.
-CACHE_FORMAT = 4
+CACHE_FORMAT = 5
 
-#: Seeded probe states of f and of the Jacobian (8 directions x 8 scales), plus x0 and x_hat0.
+#: Seeded probe states of a key, per block (8 directions x 8 scales; :meth:`Cache._probe_points`).
 PROBE_POINTS = 64
 _PROBE_SEED = 7_2024
 _PROBE_SCALES = 8
+#: Radii at which a channel narrowing is probed (geometric), beside the regions of the search from x0.
+_NARROW_RADII = 16
+#: Instants of a trajectory, and states at which the Jacobian is evaluated, in a pair's own digest.
+_TRAJECTORY_POINTS = 64
+_JACOBIAN_POINTS = 16
 
 _PROJECT = ("bench", "designs", "plants")
 _PLUGIN_MODULE = "oslbench_plugin_"  # how bench.plugins names the module of a plugin file
@@ -148,19 +172,112 @@ def _checksum(meta: str, arrays: dict[str, np.ndarray]) -> str:
     return h.hexdigest()
 
 
+def _ball(n: int, scales: np.ndarray, stream: int) -> np.ndarray:
+    """Seeded states (n, PROBE_POINTS): PROBE_POINTS / len(scales) unit directions of the seed ``stream``, each at every
+    scale."""
+    rng = np.random.default_rng([_PROBE_SEED, n, stream])
+    D = rng.standard_normal((n, PROBE_POINTS))
+    D /= np.maximum(np.linalg.norm(D, axis=0), 1e-300)
+    return D * np.tile(scales, PROBE_POINTS // len(scales))
+
+
+def _reach_scales(reach: float) -> np.ndarray:
+    """The scales of a probe out to ``||x|| <= reach``: geometric from 1."""
+    return np.geomspace(1.0, max(reach, 1.0), _PROBE_SCALES)
+
+
+def _channel_reach(plant, reach: float) -> np.ndarray:
+    """How far each channel's input goes when x goes out to ``reach`` (as the channel sampler,
+    :func:`bench.constants._channel_check`: ``max(reach ||H_i||, reach)``); empty without channels."""
+    ch = plant.channels
+    return np.empty(0) if ch is None else np.maximum(reach * np.linalg.norm(ch.H, axis=1), reach)
+
+
+def _narrow_radii(plant, reach: float) -> np.ndarray:
+    """The radii at which a channel narrowing is probed: geometric out to the channels' reach, and the regions of
+    the search from x0 (:func:`bench.certify.certify_from_x0`); empty without a narrowing."""
+    from bench.certify import FROM_X0_GROWTH, FROM_X0_STEPS, _region_rows
+
+    ch = plant.channels
+    if ch is None or ch.narrow is None:
+        return np.empty(0)
+    z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0])
+    r0 = max(float(np.abs(_region_rows(ch.H) @ z0).max()), 1e-3)
+    regions = r0 * FROM_X0_GROWTH ** np.arange(1, FROM_X0_STEPS + 1)
+    return np.concatenate([np.geomspace(1e-3, _channel_reach(plant, reach).max(), _NARROW_RADII), regions])
+
+
+def _call(fn, *args) -> str:
+    """The digest of ``fn(*args)``, or how it raised (the harness reports a broken callable; a key only notes it)."""
+    try:
+        return digest(fn(*(a.copy() if isinstance(a, np.ndarray) else a for a in args)))
+    except Exception as exc:  # noqa: BLE001 - see above
+        return f"raised {type(exc).__name__}"
+
+
+def _fingerprint(plant, X: np.ndarray, radii: np.ndarray, jacobian_points: int | None = None) -> str:
+    """SHA-256 of what every callable of the plant computes: f at the states ``X`` (n, N) (column by column if the
+    batch raises), the Jacobian at each of them (or at ``jacobian_points`` of them, evenly spread), the channels'
+    phi at ``H X`` and along each channel's axis out to its reach, the narrowing at ``radii``."""
+    reach = float(np.linalg.norm(X, axis=0).max(initial=1.0))
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")
+        parts = [_call(plant.f, X)]
+        if parts[0].startswith("raised"):
+            parts += [_call(plant.f, X[:, j]) for j in range(X.shape[1])]
+        if plant.jacobian is not None:
+            cols = range(X.shape[1]) if jacobian_points is None else np.unique(
+                np.linspace(0, X.shape[1] - 1, jacobian_points).astype(int))
+            parts += [_call(plant.jacobian, X[:, j]) for j in cols]
+        ch = plant.channels
+        if ch is not None:
+            s = np.geomspace(1e-2, 1.0, _PROBE_SCALES)
+            axes = [np.outer(np.eye(ch.q)[i], np.concatenate([s, -s]) * z) for i, z in
+                    enumerate(_channel_reach(plant, reach))]
+            parts += [_call(ch.phi, np.asarray(ch.H, dtype=float) @ X), _call(ch.phi, np.concatenate(axes, axis=1))]
+            parts += [_call(lambda r: np.concatenate([np.ravel(b) for b in ch.narrow(r)]), float(r)) for r in radii]
+    return _sha("\n".join(parts).encode())
+
+
+def _pair_states(plant, outcome) -> tuple[float, np.ndarray]:
+    """How far a pair's own checks looked (its reach: the samplers' reach, and :data:`bench.constants.REACH_FACTOR`
+    times the largest state its simulation or its witnesses reached) and the states its digest evaluates: seeded
+    directions out to that reach, :data:`_TRAJECTORY_POINTS` instants of the trajectory (x and x_hat), the witnesses."""
+    n = plant.n
+    seen = [np.zeros((n, 0))]
+    tr = outcome.trajectory
+    if tr is not None:
+        X, XH = (np.asarray(v, dtype=float).reshape(n, -1) for v in (tr.x, tr.x_hat))
+        keep = np.all(np.isfinite(X), axis=0) & np.all(np.isfinite(XH), axis=0)
+        idx = np.flatnonzero(keep)[np.unique(np.linspace(0, keep.sum() - 1, _TRAJECTORY_POINTS).astype(int))] \
+            if keep.any() else []
+        seen += [X[:, idx], XH[:, idx]]
+    for w in getattr(outcome.certificate, "witnesses", None) or ():
+        z = getattr(w, "z", None)
+        if z is not None and np.all(np.isfinite(z)):
+            x, e = np.split(np.asarray(z, dtype=float), 2)
+            seen.append(np.stack([x, x - e], axis=1))
+    S = np.concatenate(seen, axis=1)
+    reach = max(sampled_range(plant), REACH_FACTOR * float(np.linalg.norm(S, axis=0).max(initial=0.0)))
+    return reach, np.concatenate([_ball(n, _reach_scales(reach), 2), S], axis=1)
+
+
+def _pair_digest(plant, outcome) -> dict[str, Any]:
+    """``{"reach", "digest"}`` of a pair: :func:`_fingerprint` at :func:`_pair_states` (module docstring)."""
+    reach, X = _pair_states(plant, outcome)
+    return {"reach": reach, "digest": _fingerprint(plant, X, _narrow_radii(plant, reach), _JACOBIAN_POINTS)}
+
+
 def _check_record(rec: Any) -> None:
     """ValueError unless ``rec`` has the record's columns, each of the kind of its blank value."""
     from bench.pipeline import COLUMNS, blank_record
+    from bench.report import cell_fits
 
     if not isinstance(rec, dict) or list(rec) != list(COLUMNS):
         raise ValueError("the record's columns are not the suite's")
     for col, blank in blank_record("", "").items():
-        v = rec[col]
-        ok = (isinstance(v, str) if isinstance(blank, str)
-              else v is None or isinstance(v, bool) if blank is None or isinstance(blank, bool)
-              else v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)))
-        if not ok:
-            raise ValueError(f"column {col!r} holds {v!r}")
+        if not cell_fits(blank, rec[col]):
+            raise ValueError(f"column {col!r} holds {rec[col]!r}")
 
 
 class Cache:
@@ -184,6 +301,7 @@ class Cache:
         self.hits = self.misses = self.stored = 0
         self.errors: list[str] = []
         self._files: dict[str, str] = {}
+        self._plants: dict[str, Any] = {}
         self._project: dict[str, str] | None = None
         self._versions: dict[str, str] | None = None
         self._writable = True
@@ -214,37 +332,21 @@ class Cache:
 
     @staticmethod
     def _probe_points(plant) -> np.ndarray:
-        """Seeded states (n, PROBE_POINTS + 2): directions x scales (inside the constants' radius), x0, x_hat0."""
-        rng = np.random.default_rng([_PROBE_SEED, plant.n])
-        D = rng.standard_normal((plant.n, PROBE_POINTS))
-        D /= np.maximum(np.linalg.norm(D, axis=0), 1e-300)
+        """Seeded states (n, 2 PROBE_POINTS + 2): directions x scales inside the constants' radius (without one, 0.01
+        to 10), directions x scales from 1 out to the samplers' reach (:func:`bench.constants.sampled_range`), x0,
+        x_hat0."""
         radii = [r for c in (plant.bounds, plant.claimed, plant.channels)
                  if (r := getattr(c, "radius", None)) is not None and np.isfinite(r) and r > 0]
-        scales = (np.geomspace(0.01, 10.0, _PROBE_SCALES) if not radii
-                  else min(radii) * np.linspace(0.05, 0.95, _PROBE_SCALES))
-        X = D * np.tile(scales, PROBE_POINTS // _PROBE_SCALES)
-        return np.concatenate([X, np.asarray(plant.x0, dtype=float)[:, None],
+        inner = (np.geomspace(0.01, 10.0, _PROBE_SCALES) if not radii
+                 else min(radii) * np.linspace(0.05, 0.95, _PROBE_SCALES))
+        return np.concatenate([_ball(plant.n, inner, 0), _ball(plant.n, _reach_scales(sampled_range(plant)), 1),
+                               np.asarray(plant.x0, dtype=float)[:, None],
                                np.asarray(plant.x_hat0, dtype=float)[:, None]], axis=1)
 
     @classmethod
     def _probe(cls, plant) -> str:
-        """Hash of f and of the Jacobian at the probe states (an exception is recorded by its type)."""
-
-        def call(fn, x) -> str:
-            try:
-                return digest(fn(x.copy()))
-            except Exception as exc:  # noqa: BLE001 - the harness reports a broken f; the key only notes it
-                return f"raised {type(exc).__name__}"
-
-        X = cls._probe_points(plant)
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore")
-            parts = [call(plant.f, X)]
-            if parts[0].startswith("raised"):
-                parts += [call(plant.f, X[:, j]) for j in range(X.shape[1])]
-            if plant.jacobian is not None:
-                parts += [call(plant.jacobian, X[:, j]) for j in range(X.shape[1])]
-        return _sha("\n".join(parts).encode())
+        """Hash of what the plant's callables compute out to the samplers' reach (:func:`_fingerprint`)."""
+        return _fingerprint(plant, cls._probe_points(plant), _narrow_radii(plant, sampled_range(plant)))
 
     def _key(self, doc: dict) -> str:
         """The key of a document: SHA-256 of its canonical JSON."""
@@ -269,25 +371,30 @@ class Cache:
             return None
 
     def pair_key(self, plant, plant_id: str, design, design_id: str, options) -> str | None:
-        """The key of one pair (see the module docstring); None when it cannot be computed."""
+        """The key of one pair (see the module docstring); None when it cannot be computed. The cache keeps ``plant``
+        for the pair's digest (:meth:`store_pair`, :meth:`load_pair`)."""
         opts = {f.name: getattr(options, f.name) for f in dataclasses.fields(options) if f.name not in _NOT_RESULTS}
         opts["sim"] = {k: v for k, v in dataclasses.asdict(options.sim).items() if k not in _NOT_RESULTS}
-        return self._build_key(f"{plant_id} x {design_id}", "pair", plant, plant_id, design=(design, design_id),
-                               options=_encode(opts, {}, set()))
+        key = self._build_key(f"{plant_id} x {design_id}", "pair", plant, plant_id, design=(design, design_id),
+                              options=_encode(opts, {}, set()))
+        if key:
+            self._plants[key] = plant
+        return key
 
     def constants_key(self, plant, plant_id: str, options) -> str | None:
         """The key of one plant's constants; None when it cannot be computed."""
         return self._build_key(f"the constants of {plant_id}", "constants", plant, plant_id, seed=options.seed,
                                n_samples=options.n_samples)
 
-    def _store(self, folder: str, key: str | None, obj) -> bool:
-        """Write ``obj`` as the entry ``folder/<key>.npz``; False (noted) when it cannot be stored."""
+    def _store(self, folder: str, key: str | None, obj, **extra) -> bool:
+        """Write ``obj`` (and the JSON values ``extra`` beside it) as the entry ``folder/<key>.npz``; False (noted) when
+        it cannot be stored."""
         if not key or not self._writable:
             return False
         path = self.root / folder / f"{key}.npz"
         try:
             arrays: dict[str, np.ndarray] = {}
-            meta = json.dumps({"format": CACHE_FORMAT, "value": _encode(obj, arrays)})
+            meta = json.dumps({"format": CACHE_FORMAT, "value": _encode(obj, arrays), **extra})
             payload = {**arrays, "meta": np.array(meta), "sha256": np.array(_checksum(meta, arrays))}
             _atomic_write(path, lambda fh: np.savez_compressed(fh, **payload))
         except OSError as exc:  # an unwritable folder, a full disk: run on without the cache
@@ -300,8 +407,10 @@ class Cache:
         self.stored += 1
         return True
 
-    def _load(self, folder: str, key: str | None, expected: type, check: Callable[[Any], None] | None = None):
-        """The object of the entry ``folder/<key>.npz``, or None (a damaged entry noted by its path)."""
+    def _load(self, folder: str, key: str | None, expected: type,
+              check: Callable[[Any], None] | None = None) -> tuple[Any, dict] | None:
+        """The object of the entry ``folder/<key>.npz`` and its JSON document, or None (a damaged entry noted by its
+        path)."""
         if not key:
             return None
         path = self.root / folder / f"{key}.npz"
@@ -321,25 +430,47 @@ class Cache:
                 raise TypeError(f"it holds a {type(obj).__name__}, not a {expected.__name__}")
             if check is not None:
                 check(obj)
-            return obj
+            return obj, doc
         except Exception as exc:  # noqa: BLE001 - a cache problem never fails a run
             self.errors.append(f"damaged cache entry {path} ignored (recomputed): {type(exc).__name__}: {exc}")
             return None
 
     def store_pair(self, key: str | None, outcome) -> bool:
-        """Store a finished pair (not its plant); False when not cacheable (error, timeout, no key) or not written."""
-        if outcome.record.get("status") in _TRANSIENT:
+        """Store a finished pair (not its plant) with its reach and digest (module docstring); False when not cacheable
+        (error, timeout, no key, a plant whose digest cannot be computed) or not written."""
+        if outcome.record.get("status") in _TRANSIENT or key not in self._plants:
             return False
-        return self._store("pairs", key, dataclasses.replace(outcome, plant=None))
+        try:
+            checked = _pair_digest(self._plants[key], outcome)
+        except Exception as exc:  # noqa: BLE001 - a cache problem never fails a run: not stored
+            self.errors.append(f"cannot compute the digest of the pair {key}: {type(exc).__name__}: {exc}")
+            return False
+        return self._store("pairs", key, dataclasses.replace(outcome, plant=None), checked=checked)
 
     def load_pair(self, key: str | None):
-        """The cached :class:`bench.pipeline.PairOutcome` (without its plant), or None; counts hits/misses."""
+        """The cached :class:`bench.pipeline.PairOutcome` (without its plant), or None; counts hits/misses.
+
+        An entry whose digest, recomputed with the plant the key was computed from out to the entry's reach, differs
+        (f changed where only this pair's checks looked) is a miss; so is an entry without a digest.
+        """
         from bench.pipeline import PairOutcome
 
-        out = self._load("pairs", key, PairOutcome, lambda o: _check_record(o.record))
+        found = self._load("pairs", key, PairOutcome, lambda o: _check_record(o.record))
+        out = found[0] if found is not None and self._same_checks(key, *found) else None
         self.hits += out is not None
         self.misses += out is None
         return out
+
+    def _same_checks(self, key: str, outcome, doc: dict) -> bool:
+        """True when the entry's digest is what the plant of ``key`` computes now out to the entry's reach (True for a
+        key this cache did not compute: no plant to compare with)."""
+        plant = self._plants.get(key)
+        if plant is None:
+            return True
+        try:
+            return doc.get("checked") == _pair_digest(plant, outcome)
+        except Exception:  # noqa: BLE001 - a digest that cannot be computed: a miss
+            return False
 
     def store_constants(self, key: str | None, report) -> bool:
         """Store a plant's :class:`bench.constants.ConstantsReport`; False when not written (or no key)."""
@@ -349,4 +480,5 @@ class Cache:
         """The cached :class:`bench.constants.ConstantsReport`, or None."""
         from bench.constants import ConstantsReport
 
-        return self._load("constants", key, ConstantsReport)
+        found = self._load("constants", key, ConstantsReport)
+        return None if found is None else found[0]

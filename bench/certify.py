@@ -47,13 +47,14 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import scipy.linalg as sla
 
-from bench import checks, lmi, lyapunov, witness
+from bench import checks, joint, lmi, lyapunov, witness
 from bench.constants import Knowledge
 from bench.search import RATE_RTOL, largest_passing
 from plants import Plant
 
-__all__ = ["Certificate", "certify", "certify_from_x0", "explain", "level_set"]
+__all__ = ["Certificate", "adopt", "certify", "certify_from_x0", "explain", "level_set", "verify_certificate"]
 
 #: The ladder, weakest first.
 LEVELS = ("paper", "full", "structured")
@@ -98,6 +99,9 @@ class LevelResult:
     solve_s : float
         Compile and solve seconds of this level.
     n_solves : int
+    slopes : tuple of ndarray or None
+        ``(lo, hi)``, each channel's slope bounds narrowed on the region, when the certificate used them (a
+        certificate from x0), else None (the declared ones, or none).
     from_x0 : bool
         The certificate was searched with its level set through ``z0`` inside the region (constraints that
         hold on a region), so it proves convergence from the initial condition.
@@ -113,6 +117,7 @@ class LevelResult:
     solve_s: float = 0.0
     n_solves: int = 0
     region_H: np.ndarray | None = None
+    slopes: tuple | None = None
     from_x0: bool = False
 
     @property
@@ -535,7 +540,9 @@ def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
             loop: checks.ClosedLoop | None = None) -> Certificate:
     """Complete a ladder's outcome with why it is what it is: witnesses, and a certificate from x0.
 
-    Where no level certified globally and a linear member already rules the ladder out, or no level
+    Where a level certified globally, a linear member that ruled out a lower level is dropped from the
+    witnesses (it concerns that level's larger class only; that level's reason gives it). Where no
+    level certified globally and a linear member already rules the ladder out, or no level
     certified at all, the true closed loop is searched for an equilibrium besides the origin
     (:func:`bench.witness.equilibrium_witness`; it rules out every global certificate), unless
     :func:`certify` already searched it before a global level's LMI. Where no
@@ -556,7 +563,8 @@ def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
     loop = loop if loop is not None else checks.closed_loop(plant, K, F)
     K, F = loop.K, loop.F
     ladder = [r for r in cert.levels.values() if r.certified]
-    if any(r.radius is None and r.region_H is None for r in ladder):
+    if any(r.radius is None and r.region_H is None for r in ladder):  # a lower level's linear member rules out
+        cert.witnesses = [w for w in cert.witnesses if w.kind != "linear member"]  # its class only (its reason)
         return cert
     eq = _search_equilibria(cert, plant, K, F, knowledge) if cert.witnesses or not ladder else None
     if not ladder:
@@ -733,7 +741,8 @@ def _rate_in_region(lv: lyapunov.Level, plant: Plant, loop: checks.ClosedLoop, k
     if not _contains(P, z0, knowledge.channels.H, r):
         lam, P = 0.0, lv.found[0.0]
     return LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
-                       region_H=knowledge.channels.H, from_x0=True, reason=(
+                       region_H=knowledge.channels.H, slopes=(np.array(lo, dtype=float), np.array(hi, dtype=float)),
+                       from_x0=True, reason=(
                            f"certified from x0 on |Hx|, |Hx_hat| <= {r:.4g}, where the slopes narrow to "
                            f"[{_vec(lo)}, {_vec(hi)}]: the level set through z0 stays in that region"))
 
@@ -752,36 +761,280 @@ def _vec(v) -> str:
 LEVEL_USES = {"paper": ("rho", "beta", "gamma"), "full": ("alpha", "rho", "beta", "gamma"),
               "structured": ("channels",)}
 
+#: How a refused design certificate's sentence begins (:func:`adopt`).
+REFUSED = "the design's certificate is refused"
 
-def adopt(cert: Certificate, candidate: dict | None, knowledge: Knowledge) -> None:
-    """Keep a design's own verified certificate where the ladder's LMI certifies less (``cert`` updated).
 
-    A design may verify a joint certificate of its own (``DesignResult.certificate``: ``level``, ``P``,
-    ``decay_rate``, ``margin``, ``radius``, ``how``, optionally ``uses``); it uses that level's knowledge,
-    so it is a certificate at that level (and, by inclusion, at every level above). Where the ladder's own
+def adopt(cert: Certificate, candidate: dict | None, plant: Plant, loop: checks.ClosedLoop,
+          knowledge: Knowledge) -> str:
+    """Keep a design's own certificate where the ladder's LMI certifies less, once the suite has verified it.
+
+    A design may hand over a certificate of its own (``DesignResult.certificate``: ``level``, ``P``,
+    ``decay_rate``, ``how``, optionally ``uses``, ``multipliers`` or ``joint``). Where the ladder's own
     LMI certified clearly less (below :data:`ADOPT_RATIO` of its rate: numerical trouble, or ``n`` beyond
-    :data:`LADDER_MAX_N`), the level takes it, and the levels above inherit it. A certificate that rests on
-    a declaration ``knowledge`` does not trust (``uses``, default :data:`LEVEL_USES` of its level; e.g.
-    channels whose slopes a sample disproved) is refused: the level is "not certified" and its reason
-    names the declaration.
+    :data:`LADDER_MAX_N`), the certificate is checked by :func:`verify_certificate`; verified, the level
+    takes it (with the suite's margin and the level's own radius) and the levels above inherit it.
+    Refused, the level keeps the ladder's own result. A certificate that rests on a declaration
+    ``knowledge`` does not trust (``uses``, default :data:`LEVEL_USES` of its level; e.g. channels whose
+    slopes a sample disproved) is refused too: the level is then "not certified" unless the ladder
+    certified it, and its reason names the declaration.
+
+    Parameters
+    ----------
+    cert : Certificate
+        The ladder's outcome (updated in place).
+    candidate : dict or None
+    plant : Plant
+    loop : ClosedLoop
+        The checked gains and their linearised rate (:func:`bench.checks.closed_loop`).
+    knowledge : Knowledge
+
+    Returns
+    -------
+    str
+        Why the design's certificate was refused (starting with :data:`REFUSED`), else "".
     """
-    if not candidate or candidate.get("level") not in cert.levels:
-        return
-    lv = candidate["level"]
+    if not candidate:
+        return ""
+    lv = candidate.get("level") if isinstance(candidate, dict) else None
+    if lv not in LEVELS:
+        return f"{REFUSED}: it names no level of the ladder ({checks.brief(lv)}; known: {', '.join(LEVELS)})"
+    if lv not in cert.levels:
+        return ""
     cur = cert.levels[lv]
-    bad = [knowledge.untrusted[k] for k in candidate.get("uses", LEVEL_USES[lv]) if k in knowledge.untrusted]
+    uses = candidate.get("uses", LEVEL_USES[lv])
+    bad = [knowledge.untrusted[k] for k in uses if k in knowledge.untrusted]
+    how = str(candidate.get("how", "the design's own certificate"))
     if bad:
         if not cur.certified:
             cert.levels[lv] = replace(cur, status="not certified", reason=(
-                f"{candidate['how']} is refused: it rests on {'; '.join(bad)}"
+                f"{how} is refused: it rests on {'; '.join(bad)}"
                 + (f" (the ladder's own LMI: {cur.status}: {cur.reason})" if cur.reason else "")))
-        return
-    if cur.certified and cur.decay_rate >= ADOPT_RATIO * candidate["decay_rate"]:
-        return  # the ladder's own P (normalised, usually better conditioned) is kept
-    own = f"the ladder's own LMI: {cur.status}" + (f", rate {cur.decay_rate:.3g}" if cur.certified else "")
-    cert.levels[lv] = replace(cur, status="certified", decay_rate=float(candidate["decay_rate"]),
-                              margin=float(candidate["margin"]), reason=f"{candidate['how']} ({own})",
-                              P=candidate["P"], radius=candidate.get("radius"))
+        return ""
+    rate = candidate.get("decay_rate")
+    if cur.certified and isinstance(rate, (int, float, np.floating)) and cur.decay_rate >= ADOPT_RATIO * rate:
+        return ""  # the ladder's own P (normalised, usually better conditioned) is kept
+    own, why = verify_certificate(candidate, plant, loop, knowledge)
+    if own is None:
+        return f"{REFUSED}: {why}"
+    ladder = f"the ladder's own LMI: {cur.status}" + (f", rate {cur.decay_rate:.3g}" if cur.certified else "")
+    cert.levels[lv] = replace(own, reason=f"{how}, verified by the suite ({ladder})", solve_s=cur.solve_s,
+                              n_solves=cur.n_solves)
     for up in LEVELS[LEVELS.index(lv) + 1:]:
         if up in cert.levels:
             cert.levels[up] = _inherit(cert.levels[up], cert.levels[lv])
+    return ""
+
+
+def verify_certificate(candidate: dict, plant: Plant, loop: checks.ClosedLoop,
+                       knowledge: Knowledge) -> tuple[LevelResult | None, str]:
+    """Check a certificate a design supplies with the suite's own numerics at its level.
+
+    The checks, in order: the level applies to the trusted ``knowledge`` (:func:`_spec`); the rate
+    ``lam = decay_rate`` is a finite number ``>= 0``, at most the linearised loop's rate and (up to
+    :data:`LADDER_MAX_N` states) at most the ceiling of the level's class (:func:`bench.witness.rate_ceiling`);
+    ``P`` (``2n x 2n``, ``V = z' P z``) is symmetric and positive definite
+    (:func:`bench.lmi.is_positive_definite`); and the level's matrix inequality holds at ``P`` and
+    ``lam`` with multipliers ``>= 0``: those the certificate names (``multipliers``, in the level's
+    variable names ``osl_x``, ``qib_e``, ``lip_x``, ``ch_x``, ``ch_e``, ...; a multiplier not named is 0),
+    else the best ones found with P and lam fixed (a small SDP, up to :data:`LADDER_MAX_N` states). A
+    certificate of the channel-structured joint form (``joint``: ``P``, ``R``, ``mu``, ``s``, ``t``, as
+    :mod:`bench.joint`; its ``V = x'P x + mu e'R e``) is checked by :mod:`bench.joint`'s Cholesky test at any size.
+
+    Parameters
+    ----------
+    candidate : dict
+        ``DesignResult.certificate``.
+    plant : Plant
+    loop : ClosedLoop
+    knowledge : Knowledge
+
+    Returns
+    -------
+    LevelResult or None, str
+        The verified certificate (status "certified", the suite's margin at rate 0, the level's radius),
+        or None and why it is refused.
+    """
+    lv, n = candidate.get("level"), plant.n
+    spec, why = _spec(lv, n, knowledge)
+    if spec is None:
+        return None, f"its level {lv!r} does not apply: {why}"
+    spec = replace(spec, full_p=True)  # a full P of the level's constraints: the same class
+    try:
+        lam = float(candidate.get("decay_rate"))
+        P = _own_matrix(candidate, n)
+    except (KeyError, TypeError, ValueError) as exc:
+        return None, f"{type(exc).__name__}: {exc}" if isinstance(exc, KeyError) else str(exc)
+    if not (math.isfinite(lam) and lam >= 0):
+        return None, f"its decay rate {lam!r} is not a finite number >= 0"
+    if lam > loop.linearised_rate:
+        return None, (f"its rate {lam:.4g} exceeds the rate {loop.linearised_rate:.4g} of the loop linearised at "
+                      "the origin, which no certificate can beat")
+    if n <= LADDER_MAX_N:
+        top, how = witness.rate_ceiling(plant, loop.K, loop.F, knowledge, channels=spec.channels,
+                                        scalars=spec.scalars)
+        if lam > top:
+            return None, f"its rate {lam:.4g} exceeds the rate ceiling {top:.4g} of the level's class ({how})"
+    why = _not_positive_definite(P)
+    if why:
+        return None, why
+    if "joint" in candidate:
+        if not spec.channels:
+            return None, f"a joint certificate needs the channels, which the {lv} level does not use"
+        spec = replace(spec, scalars=())
+        margin, why = _joint_margin(candidate["joint"], plant, loop, knowledge, lam)
+    else:
+        margin, why = _level_margin(candidate.get("multipliers"), spec, plant, loop, knowledge, P, lam)
+    if why:
+        return None, why
+    return LevelResult(lv, "certified", decay_rate=lam, margin=margin, P=P, radius=_radius(spec, knowledge)), ""
+
+
+def _own_matrix(candidate: dict, n: int) -> np.ndarray:
+    """The ``2n x 2n`` P of a design's certificate (``blkdiag(P, mu R)`` of a joint one), symmetrised;
+    ValueError when it is missing, of the wrong shape, not finite or not symmetric."""
+    if "joint" in candidate:
+        j = candidate["joint"]
+        P = sla.block_diag(np.asarray(j["P"], dtype=float), float(j["mu"]) * np.asarray(j["R"], dtype=float))
+    else:
+        P = np.asarray(candidate.get("P"), dtype=float)
+    if P.shape != (2 * n, 2 * n) or not np.all(np.isfinite(P)):
+        raise ValueError(f"P must be a finite {2 * n} x {2 * n} matrix (z = (x, e)), got shape {P.shape}")
+    if np.abs(P - P.T).max() > 1e-9 * max(1.0, float(np.abs(P).max())):
+        raise ValueError(f"P is not symmetric (max |P - P'| = {np.abs(P - P.T).max():.3g})")
+    return (P + P.T) / 2
+
+
+def _not_positive_definite(P: np.ndarray) -> str:
+    """Why P is not verified positive definite ("" when it is): :func:`bench.lmi.is_positive_definite` of
+    ``E = D P D``, ``D = diag(P_ii)^-1/2`` (a congruence: same inertia, whatever the coordinates' scales); from
+    :data:`bench.joint.LANCZOS_FROM` rows, the same test (``E > VERIFY_TOL I``) by a Cholesky factorisation."""
+    d = np.diag(P)
+    if not np.all(d > 0):
+        return f"P is not positive definite (a diagonal entry is {d.min():.3g})"
+    s = 1.0 / np.sqrt(d)
+    E = P * s[:, None] * s[None, :]
+    if E.shape[0] >= joint.LANCZOS_FROM:
+        return "" if joint.verdict(-E) == "verified" else "P is not positive definite (its Cholesky test fails)"
+    return "" if lmi.is_positive_definite(E) else f"P is not positive definite (min eig {lmi.min_eig(P):.3g})"
+
+
+def _verified_margin(M: np.ndarray, W: np.ndarray, lam: float) -> tuple[float, str]:
+    """A certificate's matrix ``M`` at rate ``lam`` judged by :func:`bench.joint.verdict` (Cholesky tests of the
+    equilibrated matrix), and its equilibrated margin at rate 0 (``M - 2 lam W``, W the rate's weight on the
+    leading block); the verdict when it is not "verified"."""
+    verdict = joint.verdict(M)
+    if verdict != "verified":
+        return math.nan, verdict
+    M0 = M.copy()
+    k = W.shape[0]
+    M0[:k, :k] -= 2 * lam * W
+    if k < joint.LANCZOS_FROM:
+        return joint.equilibrated_max_eig(M0), ""
+    try:  # as bench.joint.certify: Lanczos on a Cholesky factor of -D M0 D
+        L = sla.cholesky(-M0, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return joint.equilibrated_max_eig(M0), ""
+    margin = -joint._lanczos_min(L / np.sqrt(np.abs(np.diag(M0)))[:, None])
+    return (margin if math.isfinite(margin) else joint.equilibrated_max_eig(M0)), ""
+
+
+def _level_values(spec: _Spec, plant: Plant, loop: checks.ClosedLoop, know: Knowledge, P: np.ndarray,
+                  lam: float) -> dict:
+    """The numbers of a level's LMI at a given P and rate (:func:`bench.lyapunov.matrix`; the multipliers ``tau``
+    are added by the caller)."""
+    d = lyapunov.level_data(spec, plant.A, plant.B, plant.C, loop.K, loop.F, know)
+    return {"Acl": d.Acl, "Gb": d.Gb, "Pi": d.Pi.reshape(len(d.Pi), -1).T, "lam": lam, "P": P}
+
+
+def _multiplier_names(spec: _Spec) -> dict[str, int | None]:
+    """The level's multipliers: name -> length (None for a scalar)."""
+    out: dict[str, int | None] = {}
+    for side in ("x", "e"):
+        out.update({f"{k}_{side}": None for k in spec.scalars})
+        if spec.channels:
+            out[f"ch_{side}"] = spec.nw
+    return out
+
+
+def _tau(spec: _Spec, named: dict):
+    """The multipliers by name (:func:`_multiplier_names`) as the vector ``tau`` of :attr:`bench.lyapunov.Spec.
+    multipliers` (numpy or cvxpy values)."""
+    parts = []
+    for side in ("x", "e"):
+        parts += [named[f"{k}_{side}"] for k in spec.scalars]
+        if spec.channels:
+            parts.append(named[f"ch_{side}"])
+    if all(isinstance(v, (float, int, np.floating, np.ndarray)) for v in parts):
+        return np.concatenate([np.atleast_1d(np.asarray(v, dtype=float)) for v in parts])
+    import cvxpy as cp
+
+    return cp.hstack([cp.reshape(v, (1,), order="F") if v.ndim == 0 else v for v in parts])
+
+
+def _level_margin(named, spec: _Spec, plant: Plant, loop: checks.ClosedLoop, know: Knowledge, P: np.ndarray,
+                  lam: float) -> tuple[float, str]:
+    """The verified margin at rate 0 of the level's LMI at ``P`` and ``lam`` (``named`` multipliers, else found),
+    or NaN and why it does not hold."""
+    names, found = _multiplier_names(spec), named is None
+    if found:
+        if plant.n > LADDER_MAX_N:
+            return math.nan, (f"unverifiable: it names no multipliers and n = {plant.n} is beyond LADDER_MAX_N = "
+                              f"{LADDER_MAX_N}, where the suite does not search them")
+        named = _find_multipliers(spec, plant, loop, know, P, lam)
+        if named is None:
+            return math.nan, f"no multipliers >= 0 make the {spec.level} level's LMI hold at its P and rate {lam:.4g}"
+    elif not isinstance(named, dict) or set(named) - set(names):
+        return math.nan, (f"its multipliers must be a dict of the level's names ({', '.join(names)}), got "
+                          f"{checks.brief(named if not isinstance(named, dict) else sorted(named))}")
+    values = _level_values(spec, plant, loop, know, P, lam)
+    taus = {}
+    for k, size in names.items():
+        v = np.asarray(named.get(k, np.zeros(size) if size else 0.0), dtype=float)
+        if v.shape != (() if size is None else (size,)) or not np.all(np.isfinite(v)) or np.any(v < 0):
+            return math.nan, f"its multiplier {k} must be finite and >= 0 of shape {size or 'scalar'}, got {v!r}"
+        taus[k] = float(v) if size is None else v
+    M = lyapunov.matrix(spec, {**values, "tau": _tau(spec, taus)})[0][0]
+    margin, verdict = _verified_margin((M + M.T) / 2, P, lam)
+    if verdict:
+        return math.nan, (f"the {spec.level} level's LMI at its P and rate {lam:.4g} is {verdict} (bench.joint's "
+                          f"Cholesky test, with the multipliers {'the suite found' if found else 'it names'})")
+    return margin, ""
+
+
+def _find_multipliers(spec: _Spec, plant: Plant, loop: checks.ClosedLoop, know: Knowledge, P: np.ndarray,
+                      lam: float) -> dict | None:
+    """The multipliers ``>= 0`` that make the level's LMI at ``P`` and ``lam`` most negative (None: the solve
+    failed): maximise ``t`` with ``M << -t I``, ``t <= 1``, P scaled to a unit largest entry."""
+    import cvxpy as cp
+
+    scale = float(np.abs(P).max())
+    tau = {k: cp.Variable(nonneg=True, name=k) if size is None else cp.Variable(size, nonneg=True, name=k)
+           for k, size in _multiplier_names(spec).items()}
+    values = {**_level_values(spec, plant, loop, know, P / scale, lam), "tau": _tau(spec, tau)}
+    M = lmi.sym(lyapunov.matrix(spec, values)[0][0])
+    t = cp.Variable(name="t")
+    prob = cp.Problem(cp.Maximize(t), [M << -t * np.eye(M.shape[0]), t <= 1])
+    if not lmi.solve_timed(prob).solved:
+        return None
+    return {k: scale * np.maximum(np.asarray(v.value, dtype=float), 0.0) for k, v in tau.items()}
+
+
+def _joint_margin(j: dict, plant: Plant, loop: checks.ClosedLoop, know: Knowledge, lam: float) -> tuple[float, str]:
+    """The equilibrated margin at rate 0 of a joint certificate (:mod:`bench.joint`) verified at ``lam`` with the
+    trusted channels, or NaN and why it does not hold."""
+    ch = know.channels
+    lp = joint.loop(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi)
+    try:
+        Pj, Rj = (np.asarray(j[k], dtype=float) for k in ("P", "R"))
+        mu, s, t = float(j["mu"]), j["s"], j["t"]
+        if not (mu > 0 and np.all(np.asarray(s, float) > 0) and np.all(np.asarray(t, float) > 0)):
+            return math.nan, "its joint multipliers mu, s, t must be > 0"
+        Mx, Me = joint.side_matrices(lp, loop.F, loop.K, Pj, Rj, s, t, lam)
+    except (KeyError, TypeError, ValueError) as exc:
+        return math.nan, f"its joint multipliers cannot be used: {type(exc).__name__}: {exc}"
+    PBF = Pj @ plant.B @ loop.F
+    margin, verdict = _verified_margin(np.block([[Mx, -PBF], [-PBF.T, mu * Me]]), sla.block_diag(Pj, mu * Rj), lam)
+    if verdict:
+        return math.nan, f"its joint matrix at rate {lam:.4g} is {verdict} (bench.joint's Cholesky test)"
+    return margin, ""

@@ -102,7 +102,8 @@ def gains(plant, K: Any, F: Any, *, optional_K: bool = False):
     Raises
     ------
     ValueError
-        Naming the matrix, the expected shape and the dimensions, or a non-finite entry.
+        Naming the matrix, the expected shape and the dimensions, a complex entry (never truncated to
+        its real part) or a non-finite entry.
     """
     import numpy as np  # here: the command line's argument types import this module, not numpy
 
@@ -112,11 +113,7 @@ def gains(plant, K: Any, F: Any, *, optional_K: bool = False):
         if value is None and name == "K" and optional_K:
             out.append(None)
             continue
-        try:
-            arr = np.array(value, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{name}: expected a real array of shape {shape} ({what}), could not convert ({exc})") \
-                from None
+        arr = _real_array(name, value, f"a real array of shape {shape} ({what})")
         if arr.shape != shape:
             raise ValueError(f"{name}: expected shape {shape} ({what} for plant {plant.id!r} with n={n}, m={m}, "
                              f"p={p}), got {arr.shape}")
@@ -124,6 +121,29 @@ def gains(plant, K: Any, F: Any, *, optional_K: bool = False):
             raise ValueError(f"{name}: entries must be finite, got {brief(arr.tolist())}")
         out.append(arr)
     return out[0], out[1]
+
+
+def _real_array(name: str, value: Any, what: str):
+    """``value`` as a new float array; ValueError naming ``name`` when it does not convert or has an entry with a
+    nonzero imaginary part (a complex dtype whose imaginary parts are all zero converts)."""
+    import numpy as np
+
+    try:
+        raw = np.asarray(value)
+        if raw.dtype.kind == "O":  # Python complex numbers among other objects
+            raw = np.asarray(raw.tolist())
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected {what}, could not convert ({exc})") from None
+    if raw.dtype.kind == "c":
+        imag = np.abs(raw.imag)
+        if np.any(imag > 0):
+            raise ValueError(f"{name}: complex entries (largest imaginary part {float(np.nanmax(imag)):.3g}, e.g. "
+                             f"{complex(raw.flat[int(np.nanargmax(imag))]):.4g}): the gains must be real")
+        raw = raw.real
+    try:
+        return np.array(raw, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected {what}, could not convert ({exc})") from None
 
 
 @dataclass(frozen=True)
@@ -142,7 +162,16 @@ class ClosedLoop:
         Eigenvalues of ``A + B F`` and ``A - K C`` (``eig_e`` empty without K).
     linearised_rate : float
         ``-max Re`` of the eigenvalues of ``A + Df(0) + B F`` and ``A + Df(0) - K C``, the rate no
-        certificate can beat (NaN without K).
+        certificate can beat (NaN without K); for a discrete-time plant (``dt > 0``) ``-ln(max |eig|) / dt``,
+        per second as well, so discrete and continuous rows compare (``inf`` for a deadbeat loop).
+    dt : float
+        The plant's sample time (0: continuous time).
+
+    Notes
+    -----
+    In discrete time ``x_{k+1} = (A + B F) x_k`` decays like ``max |eig|^k = exp(-lam k dt)`` with
+    ``lam = -ln(max |eig|) / dt``: the continuous-time equivalent eigenvalue of ``z`` is ``ln(z) / dt``,
+    whose real part is ``ln|z| / dt``. :attr:`growth_x`, :attr:`growth_e` and :attr:`stable` use it.
     """
 
     K: Any
@@ -150,6 +179,36 @@ class ClosedLoop:
     eig_x: Any
     eig_e: Any
     linearised_rate: float
+    dt: float = 0.0
+
+    def _growth(self, eig) -> float:
+        import numpy as np
+
+        if len(eig) == 0:
+            return math.nan
+        if self.dt > 0:
+            with np.errstate(divide="ignore"):
+                return float(np.log(np.abs(eig)).max() / self.dt)
+        return float(np.real(eig).max())
+
+    @property
+    def growth_x(self) -> float:
+        """Growth rate per second of ``A + B F``: the largest real part of its eigenvalues (continuous) or
+        ``ln(max |eig|) / dt`` (discrete; ``-inf`` for a deadbeat loop). Negative iff ``A + B F`` is stable."""
+        return self._growth(self.eig_x)
+
+    @property
+    def growth_e(self) -> float:
+        """:attr:`growth_x` of ``A - K C`` (NaN without K)."""
+        return self._growth(self.eig_e)
+
+    @property
+    def stable(self) -> bool | None:
+        """Whether ``A + B F`` and ``A - K C`` are Hurwitz (continuous) or Schur (discrete: spectral radius
+        < 1); None without K."""
+        if self.K is None:
+            return None
+        return bool(self.growth_x < 0 and self.growth_e < 0)
 
 
 def closed_loop(plant, K: Any, F: Any, *, optional_K: bool = False) -> ClosedLoop:
@@ -159,15 +218,16 @@ def closed_loop(plant, K: Any, F: Any, *, optional_K: bool = False) -> ClosedLoo
     from bench._env import parallel
 
     K, F = gains(plant, K, F, optional_K=optional_K)
+    dt = float(getattr(plant, "dt", 0.0) or 0.0)
     if K is None:
-        return ClosedLoop(K, F, np.linalg.eigvals(plant.A + plant.B @ F), np.empty(0, dtype=complex), math.nan)
+        return ClosedLoop(K, F, np.linalg.eigvals(plant.A + plant.B @ F), np.empty(0, dtype=complex), math.nan, dt)
     J = plant.jacobian_at(np.zeros(plant.n))
     loops = [plant.A + plant.B @ F, plant.A - K @ plant.C]
     if np.any(J):
         loops += [plant.A + J + plant.B @ F, plant.A + J - K @ plant.C]
     eigs = parallel([lambda M=M: np.linalg.eigvals(M) for M in loops], plant.n)
-    lin = np.concatenate(eigs[-2:])
-    return ClosedLoop(K, F, eigs[0], eigs[1], float(-lin.real.max()))
+    lin = ClosedLoop(K, F, np.concatenate(eigs[-2:]), eigs[1], math.nan, dt).growth_x  # of both linearised loops
+    return ClosedLoop(K, F, eigs[0], eigs[1], -lin, dt)
 
 
 def argtype(check: Callable[..., Any], **bounds: Any) -> Callable[[str], Any]:

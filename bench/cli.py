@@ -1,15 +1,19 @@
-"""Command line: ``python -m bench run``, ``list``, ``perf`` and ``study``.
+"""Command line: ``python -m bench run``, ``list``, ``study``, ``cache`` and ``perf`` (also installed as ``oslbench``).
 
-Exit codes: 0 success, 1 a report that could not be written (or an internal error, in one line), 2 bad
-usage, 130 interrupted. ``run`` keeps finished pairs in ``.bench-cache/`` next to the report folder
-(:mod:`bench.cache`), so an interrupted run resumes when run again (``--no-cache`` ignores it); the
-previous report stays untouched until the new one is whole.
+Exit codes: 0 success, 1 a report that could not be written, a pair that is an error or a timeout under
+``--strict`` (or an internal error, in one line), 2 bad usage, 130 interrupted; a run whose every pair is an
+error or a timeout says so on its last line. ``run`` keeps finished pairs in a cache folder (default ``.bench-cache/`` beside the report
+folder: ``--out /tmp/r`` caches in ``/tmp/.bench-cache``; ``--cache-dir`` chooses, ``--no-cache`` ignores it,
+``cache clear`` empties it), so an interrupted run resumes when run again; the previous report stays
+untouched until the new one is whole. The options a run shares with the studies are in
+:mod:`bench.cli_common`.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import shlex
 import sys
 import time
@@ -18,37 +22,49 @@ from functools import partial
 from pathlib import Path
 from typing import Iterator
 
-from bench import checks
-from bench.checks import argtype
+from bench.cli_common import (add_common, add_selection, error, nonneg_float, nonneg_int,  # noqa: F401
+                              plain_summary, positive_float, positive_int, program)
 from bench.registry import DESIGNS, PLANTS
 from bench.selection import check_selection
 
-__all__ = ["main"]
-
-
-positive_float = argtype(checks.real, lo=0.0, strict=True)
-nonneg_float = argtype(checks.real, lo=0.0)
-positive_int = argtype(checks.integer, lo=1)
-nonneg_int = argtype(checks.integer, lo=0)
+__all__ = ["main", "summary_line"]
 
 
 def _scheduler_address(text: str) -> str:
     """An argparse type: a Dask scheduler address ``[scheme://]host:port``."""
-    import re
-
     if not re.fullmatch(r"([a-z][a-z0-9+.-]*://)?\S+:\d+", text):
         raise argparse.ArgumentTypeError(f"expected an address like tcp://host:8786, got {text!r}")
     return text
 
 
+def version_text() -> str:
+    """``oslbench <version>``, where the package is installed and the Python running it."""
+    import platform
+
+    import bench
+
+    where = Path(bench.__file__).resolve().parents[1]
+    return f"oslbench {bench.__version__} (packages bench, plants, designs in {where}; Python {platform.python_version()})"
+
+
+class _Version(argparse.Action):
+    """``--version``: :func:`version_text` on one line (argparse's own action wraps it), then exit 0."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(version_text())
+        parser.exit()
+
+
 def _build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m bench", description="oslbench: observer-based control of OSL/Lipschitz systems")
+    p = argparse.ArgumentParser(prog=program(), description="oslbench: observer-based control of OSL/Lipschitz systems")
+    p.add_argument("--version", action=_Version, help="print the version, where the package is installed, and exit")
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run (plant, design) pairs and write the report")
-    r.add_argument("--plant", action="append", metavar="GLOB", help="plant id or glob (repeatable; default all)")
-    r.add_argument("--design", action="append", metavar="GLOB", help="design id or glob (repeatable; default all)")
-    r.add_argument("--out", default="reports", metavar="DIR", help="report folder (default: reports)")
-    r.add_argument("--seed", type=nonneg_int, default=0, help="seed of the constants sampler (default 0)")
+    add_selection(r)
+    add_common(r, seed_help="seed of the constants sampler and of the measurement noise")
     r.add_argument("--claimed-constants", action="store_true",
                    help="design with the constants the sources claim (the certificate still uses valid ones)")
     r.add_argument("--t-final", type=positive_float, default=None, metavar="SECONDS",
@@ -57,23 +73,38 @@ def _build_parser() -> argparse.ArgumentParser:
                         "horizon up to ten times it)")
     r.add_argument("--noise", type=nonneg_float, default=0.0, metavar="SIGMA",
                    help="standard deviation of a seeded Gaussian measurement noise (default 0)")
-    r.add_argument("--no-figures", action="store_true", help="skip the figures")
+    r.add_argument("--disturbance", type=nonneg_float, default=0.0, metavar="AMPLITUDE",
+                   help="peak of a seeded L2 disturbance w (docs/results.md): each pair of a plant with "
+                        "disturbance inputs is simulated again from z(0) = 0 with w, for the measured ratios "
+                        "l2_measured_e, l2_measured_x (default 0: off)")
     r.add_argument("--figure-format", action="append", choices=("png", "pdf"), default=None,
                    help="figure format, repeatable (default png; the report links the PNG)")
     r.add_argument("--fail-fast", action="store_true", help="stop at the first exception (for debugging)")
-    r.add_argument("-j", "--jobs", type=positive_int, default=None, metavar="N",
-                   help="local worker processes (default: all cores; 1 = serial)")
+    r.add_argument("--strict", action="store_true", help="exit 1 when any pair is an error or a timeout")
     r.add_argument("--scheduler", type=_scheduler_address, default=None, metavar="ADDRESS",
-                   help="run on a Dask distributed cluster (pip install '.[dist]')")
-    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
-    r.add_argument("--timeout", type=positive_float, default=None, metavar="SECONDS",
-                   help="wall-clock limit per pair; a pair that exceeds it becomes a 'timeout' row (default: none)")
+                   help="run on a Dask distributed cluster (needs pip install 'oslbench[dist]')")
+    _cache_options(r, "folder of finished pairs (default: .bench-cache beside --out, e.g. /tmp/.bench-cache for "
+                      "--out /tmp/r)")
     r.add_argument("--no-cache", action="store_true",
-                   help="recompute every pair: neither read nor write the cache (.bench-cache/ next to --out)")
+                   help="recompute every pair: neither read nor write the cache")
     ls = sub.add_parser("list", help="list plants and designs")
-    for sp in (r, ls):
-        sp.add_argument("--plugin", action="append", metavar="PATH",
-                        help="a Python file registering your own plants or designs (repeatable)")
+    ls.add_argument("--plugin", action="append", metavar="PATH",
+                    help="a Python file registering your own plants or designs (repeatable)")
+    dp = sub.add_parser("docs-plants", help="print the plant catalogue page (docs/plants.md) from the registry")
+    dp.add_argument("--out", default=None, metavar="FILE", help="write it to FILE (default: print it)")
+    dp.add_argument("--plugin", action="append", metavar="PATH",
+                    help="a Python file registering your own plants (repeatable): documented beside the catalogue")
+    from bench.studies.cli import add_study_parser
+
+    add_study_parser(sub)  # python -m bench study {admissible,sampling,montecarlo,noise}
+    ca = sub.add_parser("cache", help="where the cache of finished pairs is, and clearing it")
+    ca_sub = ca.add_subparsers(dest="action", required=True)
+    for action, text in (("info", "print the cache folder, its entries and their size"),
+                         ("clear", "delete the cache's entries (nothing else in the folder)")):
+        c = ca_sub.add_parser(action, help=text)
+        c.add_argument("--out", default="reports", metavar="DIR",
+                       help="the report folder whose cache it is (default: reports; the cache is beside it)")
+        _cache_options(c, "the cache folder itself (overrides --out)")
     pf = sub.add_parser("perf", help="measure design time vs n, joint vs separated, and the parallel speed-up")
     pf.add_argument("--out", default="reports", metavar="DIR", help="folder for PERF.md (default: reports)")
     pf.add_argument("--sizes", type=_sizes, default="4,8,16,32,64", metavar="N,N,...",
@@ -89,44 +120,109 @@ def _build_parser() -> argparse.ArgumentParser:
     pf.add_argument("--no-sims", action="store_true", help="skip the n = 1000 trajectory and n = 100 batch")
     pf.add_argument("--repeats", type=positive_int, default=3, metavar="K",
                     help="runs per job count when timing the default run (default 3)")
-    from bench.studies.cli import add_study_parser
-
-    add_study_parser(sub)  # python -m bench study {admissible,sampling,montecarlo,noise}
     return p
+
+
+def _cache_options(p: argparse.ArgumentParser, text: str) -> None:
+    p.add_argument("--cache-dir", default=None, metavar="DIR", help=text)
+
+
+def cache_dir(args) -> Path:
+    """The cache folder of a ``run`` or ``cache`` command: ``--cache-dir``, else ``.bench-cache`` beside ``--out``."""
+    from bench.cache import default_cache_dir
+
+    return Path(os.path.abspath(args.cache_dir)) if args.cache_dir else default_cache_dir(args.out)
+
+
+#: The cache's entries inside its folder (bench.cache): pairs and constants, plus temporary files of a write.
+_CACHE_ENTRIES = ("pairs", "constants")
+
+
+def _cache_files(root: Path) -> list[Path]:
+    return [f for sub in _CACHE_ENTRIES if (root / sub).is_dir() for f in sorted((root / sub).iterdir())
+            if f.is_file() and (f.suffix == ".npz" or f.name.startswith(".tmp-"))]
+
+
+def _cmd_cache(args) -> int:
+    """``cache info``: the folder, its entries and size; ``cache clear``: delete the entries, then the empty folders."""
+    root = cache_dir(args)
+    files = _cache_files(root)
+    size = sum(f.stat().st_size for f in files)
+    if args.action == "info":
+        count = {sub: sum(f.parent.name == sub and f.suffix == ".npz" for f in files) for sub in _CACHE_ENTRIES}
+        pairs, plants = count["pairs"], count["constants"]
+        state = "does not exist" if not root.exists() else (
+            f"{pairs} pair{'s' * (pairs != 1)}, the constants of {plants} plant{'s' * (plants != 1)}, "
+            f"{size / 1e6:.1f} MB")
+        print(f"{root}: {state}")
+        return 0
+    if root.exists() and not root.is_dir():
+        error("cache clear", f"{root} is not a folder")
+        return 2
+    for f in files:
+        f.unlink(missing_ok=True)
+    for folder in (*(root / sub for sub in _CACHE_ENTRIES), root):
+        try:
+            folder.rmdir()  # only when empty: a folder holding anything else stays
+        except OSError:
+            pass
+    left = " (the folder holds other files, left alone)" if root.exists() else ""
+    print(f"{root}: removed {len(files)} entries, {size / 1e6:.1f} MB{left}")
+    return 0
+
+
+def _cmd_docs_plants(args) -> int:
+    """``docs-plants``: :func:`bench.plantdoc.plants_markdown`, printed or written to ``--out``."""
+    from bench.plantdoc import plants_markdown
+
+    text = plants_markdown()
+    if args.out is None:
+        sys.stdout.write(text)
+        return 0
+    Path(args.out).write_text(text, encoding="utf-8")
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
 
 
 def _cmd_list() -> int:
     for kind, registry in (("plants", PLANTS), ("designs", DESIGNS)):
         print(f"{kind}:")
         for i in registry.ids():
-            print(f"  {i:<24} {registry[i].summary}")
+            extra = "" if registry[i].default else " [on request: not in the default run]"
+            print(f"  {i:<24} {plain_summary(registry[i].summary)}{extra}")
     return 0
 
 
 def _cmd_run(args, argv: list[str]) -> int:
     """``python -m bench run``: :func:`bench.api.run`, then :meth:`bench.api.Results.write`."""
-    selected = check_selection("python -m bench run", args.plant, args.design, args.out, keep_order=True)
+    prog = f"{program()} run"
+    selected = check_selection(prog, args.plant, args.design, args.out, keep_order=True)
     if selected is None:
         return 2
     plant_ids, design_ids = selected
     from bench.api import run
-    from bench.cache import default_cache_dir
-    from bench.executors import ExecutorError
+    from bench.executors import ExecutorError, use_start_method
+    from bench.progress import Progress
 
     t0 = time.perf_counter()
-    cache = None if args.no_cache else default_cache_dir(args.out)
+    cache = None if args.no_cache else cache_dir(args)
+    pairs = len(plant_ids) * len(design_ids)
+    bar = False if args.quiet else Progress(desc=f"constants of {len(plant_ids)} plant{'s' * (len(plant_ids) != 1)} "
+                                                 f"+ {pairs} pair{'s' * (pairs != 1)}")
     try:
-        results = run(plant_ids, design_ids, seed=args.seed, claimed_constants=args.claimed_constants,
-                      t_final=args.t_final, noise=args.noise, timeout=args.timeout, jobs=args.jobs,
-                      scheduler=args.scheduler, cache=cache, progress=not args.quiet, fail_fast=args.fail_fast,
-                      command="python -m bench " + shlex.join(argv))
+        with use_start_method(args.start_method):
+            results = run(plant_ids, design_ids, seed=args.seed, claimed_constants=args.claimed_constants,
+                          t_final=args.t_final, noise=args.noise, disturbance=args.disturbance,
+                          timeout=args.timeout, jobs=args.jobs,
+                          scheduler=args.scheduler, cache=cache, progress=bar, fail_fast=args.fail_fast,
+                          command=f"{program()} {shlex.join(argv)}")
     except ExecutorError as exc:
-        print(f"python -m bench run: error: {exc}", file=sys.stderr)
+        error("run", str(exc))
         return 2
     except KeyboardInterrupt:
         kept = (f"finished pairs are kept in {cache}: run the same command again to resume" if cache is not None
                 else "nothing was cached (--no-cache)")
-        print(f"python -m bench run: interrupted; the previous report in {args.out!r}, if any, is unchanged; {kept}",
+        print(f"{prog}: interrupted; the previous report in {args.out!r}, if any, is unchanged; {kept}",
               file=sys.stderr)
         return 130
     except Exception as exc:  # --fail-fast re-raises the first failure: show where, then one line
@@ -135,34 +231,54 @@ def _cmd_run(args, argv: list[str]) -> int:
         import traceback
 
         traceback.print_exc()
-        print(f"python -m bench run: error (--fail-fast): {type(exc).__name__}: {exc}", file=sys.stderr)
+        print(f"{prog}: error (--fail-fast): {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
     return _write_run(results, args, t0)
 
 
 def _write_run(results, args, t0: float) -> int:
-    """Write a finished run's report (Ctrl-C deferred until it is whole) and print the summary."""
+    """Write a finished run's report (Ctrl-C deferred until it is whole), print the summary; the exit code."""
+    from bench.executors import use_start_method
+
+    prog = f"{program()} run"
     path = None
+    if not args.quiet:
+        n_fig = "" if args.no_figures else ", figures"
+        print(f"writing the report into {args.out} (tables{n_fig}) ...", file=sys.stderr, flush=True)
     try:
-        with _sigint_deferred("python -m bench run: finishing the report before stopping (Ctrl-C again to abort "
-                              "at once)"):
+        with _sigint_deferred(f"{prog}: finishing the report before stopping (Ctrl-C again to abort at once)"), \
+                use_start_method(args.start_method):
             path = results.write(args.out, figures=not args.no_figures, figure_format=args.figure_format or ("png",))
     except KeyboardInterrupt:
         where = (f"after writing {path}" if path is not None else
                  f"while writing the report; the previous report in {args.out!r}, if any, is unchanged")
-        print(f"python -m bench run: interrupted {where}", file=sys.stderr)
+        print(f"{prog}: interrupted {where}", file=sys.stderr)
         return 130
     except Exception as exc:  # the previous report stays intact (whole or nothing)
-        print(f"python -m bench run: error: could not write the report to {args.out!r} "
-              f"({type(exc).__name__}: {exc}); the previous report, if any, is unchanged", file=sys.stderr)
+        error("run", f"could not write the report to {args.out!r} ({type(exc).__name__}: {exc}); the previous "
+                     "report, if any, is unchanged")
         return 1
+    df = results.table
     if not args.quiet:
         rr = results.run_result
-        cached = f"; {rr.cache_hits} from the cache" if rr.cache_dir else ""
-        print(f"{summary_line(results.table)}{cached}; {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+        cached = f"; {rr.cache_hits} from the cache in {rr.cache_dir}" if rr.cache_dir else ""
+        print(f"{summary_line(df)}{cached}; {time.perf_counter() - t0:.1f} s", file=sys.stderr)
         for msg in results.info.get("cache_errors", [])[:3]:
-            print(f"python -m bench run: warning: {msg}", file=sys.stderr)
+            print(f"{prog}: warning: {msg}", file=sys.stderr)
         print(f"wrote {path}", file=sys.stderr)
+    failed = df[df["status"].isin(("error", "timeout"))]
+    if len(df) and len(failed) == len(df):  # the last line, even with -q: nothing was computed
+        first = str(failed["reason"].iloc[0])
+        kind = "error" if args.strict else "warning"
+        print(f"{prog}: {kind}: every pair is an error or a timeout ({len(df)} of {len(df)}; the first: {first}); "
+              f"see the reason column of {Path(args.out) / 'results.csv'}"
+              + ("" if args.strict else " (--strict makes this exit 1)"), file=sys.stderr)
+        return 1 if args.strict else 0
+    if args.strict and len(failed):
+        error("run", f"--strict: {len(failed)} of {len(df)} pairs are errors or timeouts: "
+                     + ", ".join(f"{r.plant} x {r.design}" for r in failed.head(5).itertuples())
+                     + (", ..." if len(failed) > 5 else ""))
+        return 1
     return 0
 
 
@@ -184,9 +300,9 @@ def summary_line(df) -> str:
     line = f"{len(df)} pairs: {with_gains} with gains" + (f" ({gains})" if gains else "")
     if len(df) - with_gains:
         line += f", {len(df) - with_gains} without ({without})"
-    if with_gains:
-        line += (f"; of the {with_gains} with gains, {int(df['certified'].sum())} certified and "
-                 f"{int(df['converged'].sum())} converged")
+    if with_gains:  # converged is blank (None) for a pair without gains: count the True ones
+        line += (f"; of the {with_gains} with gains, {int(df['certified'].eq(True).sum())} certified and "
+                 f"{int(df['converged'].eq(True).sum())} converged")
     return line
 
 
@@ -236,8 +352,8 @@ _BENCHMARKS_DIR = Path(__file__).resolve().parents[1] / "benchmarks"
 def _cmd_perf(args) -> int:
     """``python -m bench perf``: ``perf_main`` of ``benchmarks/perf_report.py`` with the checked sizes."""
     if not (_BENCHMARKS_DIR / "perf_report.py").is_file():
-        print("python -m bench perf: error: perf is a developer command, run from a checkout of oslbench "
-              f"(no {_BENCHMARKS_DIR / 'perf_report.py'} beside this bench package)", file=sys.stderr)
+        error("perf", "perf is a developer command, run from a checkout of oslbench "
+                      f"(no {_BENCHMARKS_DIR / 'perf_report.py'} beside this bench package)")
         return 2
     if str(_BENCHMARKS_DIR) not in sys.path:
         sys.path.insert(0, str(_BENCHMARKS_DIR))
@@ -259,7 +375,7 @@ def main(argv: list[str] | None = None) -> int:
         Arguments without the program name (default ``sys.argv[1:]``).
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    prog = f"python -m bench {next((a for a in argv if not a.startswith('-')), '')}".rstrip()
+    prog = f"{program()} {next((a for a in argv if not a.startswith('-')), '')}".rstrip()
     try:
         return _main(argv)
     except KeyboardInterrupt:
@@ -285,7 +401,15 @@ def _main(argv: list[str]) -> int:
         try:
             load_plugins(args.plugin)
         except PluginError as exc:
-            print(f"python -m bench {args.command}: error: {exc}", file=sys.stderr)
+            error(args.command, str(exc))
+            return 2
+    if getattr(args, "start_method", None):
+        from bench.executors import ExecutorError, check_start_method
+
+        try:
+            check_start_method(args.start_method)
+        except ExecutorError as exc:
+            error(args.command, f"--start-method: {exc}")
             return 2
     if args.command == "perf":
         return _cmd_perf(args)
@@ -295,4 +419,8 @@ def _main(argv: list[str]) -> int:
         return run_study(args, argv)
     if args.command == "list":
         return _cmd_list()
+    if args.command == "cache":
+        return _cmd_cache(args)
+    if args.command == "docs-plants":
+        return _cmd_docs_plants(args)
     return _cmd_run(args, argv)

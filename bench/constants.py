@@ -22,8 +22,7 @@ from typing import Callable
 import numpy as np
 
 from bench.checks import vector
-from plants import Channels, Constants, Plant, PlantError
-from plants._core import jacobian_mismatch
+from plants import Channels, Constants, Plant, PlantError, jacobian_mismatch
 
 __all__ = ["ConstantsReport", "Knowledge", "check_trajectory", "compute_constants"]
 
@@ -502,12 +501,18 @@ def _inside(X: np.ndarray, radius: float | None) -> np.ndarray:
 
 
 def linear_prechecks(plant: Plant) -> list[str]:
-    """Why (A, B) is not stabilizable or (A, C) not detectable (PBH test, naming the eigenvalue); empty if both hold."""
+    """Why (A, B) is not stabilizable or (A, C) not detectable (PBH test, naming the eigenvalue); empty if both hold.
+
+    The eigenvalues tested are the unstable ones: ``Re lam >= 0`` in continuous time, ``|lam| >= 1`` for a
+    discrete-time plant (``dt > 0``).
+    """
     A, B, C = plant.A, plant.B, plant.C
     scale = max(1.0, float(np.linalg.norm(A, 2)))
+    discrete = getattr(plant, "dt", 0) > 0
     out = []
     for lam in np.linalg.eigvals(A):
-        if lam.real < -1e-9 * scale or lam.imag < -1e-12:  # one of each conjugate pair
+        stable = abs(lam) < 1 - 1e-9 if discrete else lam.real < -1e-9 * scale
+        if stable or lam.imag < -1e-12:  # one of each conjugate pair
             continue
         shown = f"{lam.real:.4g}" + (f" +- {lam.imag:.4g}j" if abs(lam.imag) > 1e-12 else "")
         for name, M, what in (("(A, B)", np.hstack([lam * np.eye(plant.n) - A, B]), "stabilizable"),

@@ -30,14 +30,16 @@ class RegistryError(OslbenchError, ValueError):
 
 
 class UnknownIdError(OslbenchError, KeyError):
-    """An id or glob that matches nothing in a registry."""
+    """An id or glob that matches nothing in a registry ("unknown plant 'x'", "plant glob 'x*' matches nothing")."""
 
     def __init__(self, kind: str, pattern: str, suggestions: list[str]):
         self.kind = kind
         self.pattern = pattern
         self.suggestions = suggestions
         hint = f"; did you mean {' or '.join(repr(s) for s in suggestions)}?" if suggestions else ""
-        super().__init__(f"unknown {kind} {pattern!r}{hint}")
+        is_glob = isinstance(pattern, str) and any(ch in pattern for ch in "*?[")
+        what = f"{kind} glob {pattern!r} matches nothing" if is_glob else f"unknown {kind} {pattern!r}"
+        super().__init__(what + hint)
 
     def __str__(self) -> str:  # KeyError quotes its message otherwise
         return self.args[0]

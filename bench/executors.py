@@ -1,23 +1,53 @@
-"""One executor abstraction for pairs, sweeps and studies: serial in-process (``jobs == 1``), forked
-local workers that inherit the registries and never outlive their parent (``jobs > 1``), or a Dask
-distributed cluster (``scheduler``). Results are identical whatever the executor.
+"""One executor abstraction for pairs, sweeps and studies: serial in-process (``jobs == 1``), local worker
+processes that never outlive their parent (``jobs > 1``), or a Dask distributed cluster (``scheduler``).
+Results are identical whatever the executor.
+
+**Start methods.** Local workers start by ``fork``, ``forkserver`` or ``spawn`` (:mod:`multiprocessing`);
+``start_method=`` (``--start-method`` on the command line) chooses, and :func:`default_start_method` picks a
+safe one per platform: ``spawn`` on Windows (no fork) and macOS (Python's own default there: system
+frameworks are not fork-safe); elsewhere ``fork`` while this process runs a single thread (the suite pins
+BLAS and Rayon to one thread, and a command-line run forks before any solve), else ``forkserver`` (a notebook
+kernel, or a process that has solved an SDP, runs threads, and forking a multi-threaded process may
+deadlock; Python 3.12+ warns about it).
+
+A forked worker inherits everything, the registries included. A worker started by spawn or forkserver is a
+fresh interpreter: it loads the plugin files again (:func:`bench.plugins.loaded_plugins`) and re-registers
+every other entry of the registries that pickles (a Plant or Design object given to :func:`bench.run` is sent
+pickled). An entry that cannot be sent to a fresh process (a factory defined in a notebook cell or a
+``python -c`` script, an object holding a lambda) cannot be rebuilt there: the tasks that name it run in this
+process instead, with a warning naming the ids; the others still run in the workers.
 """
 
 from __future__ import annotations
 
+import io
 import os
+import pickle
+import sys
+import warnings
 from concurrent.futures import Executor, Future
 from contextlib import contextmanager, suppress
-from typing import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator
 
-from bench._env import cores
 from bench.errors import ExecutorError
+from bench.threads import cores
 
-__all__ = ["default_jobs", "executor"]
+__all__ = ["START_METHODS", "check_start_method", "default_jobs", "default_start_method", "executor", "use_start_method"]
 
 
 #: All cores available to this process (the default number of local workers).
 default_jobs = cores
+
+#: The start methods of local workers (those this platform offers: ``multiprocessing.get_all_start_methods()``).
+START_METHODS = ("fork", "forkserver", "spawn")
+
+#: Module names of plugin files (:mod:`bench.plugins`): a fresh worker knows them only by loading the file.
+PLUGIN_PREFIX = "oslbench_plugin_"
+
+#: The start method :func:`use_start_method` set for this process (None: :func:`default_start_method`).
+_chosen: str | None = None
 
 
 class SerialExecutor(Executor):
@@ -32,39 +62,260 @@ class SerialExecutor(Executor):
         return fut
 
 
-def _worker_init(parent: int) -> None:
-    """Set up a local worker: SIGINT ignored (the parent handles Ctrl-C), and death with the parent."""
+# -- start methods ----------------------------------------------------------------------------------
+def _threads() -> int:
+    """The threads of this process: the operating system's count where it gives one (Linux), else Python's."""
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:
+        import threading
+
+        return threading.active_count()
+
+
+def default_start_method() -> str:
+    """The start method local workers use unless told otherwise (see the module docstring).
+
+    Returns
+    -------
+    str
+        ``"spawn"`` on Windows and macOS; elsewhere ``"fork"`` while this process runs one thread, else
+        ``"forkserver"`` (``"spawn"`` where neither is available).
+    """
+    import multiprocessing
+
+    available = multiprocessing.get_all_start_methods()
+    if sys.platform in ("win32", "darwin") or "fork" not in available:
+        return "spawn"
+    if _threads() == 1:
+        return "fork"
+    return "forkserver" if "forkserver" in available else "spawn"
+
+
+def check_start_method(start_method: str | None) -> str | None:
+    """``start_method`` if it is None or a start method this platform offers, else :class:`ExecutorError`
+    naming the ones it offers."""
+    import multiprocessing
+
+    if start_method is None:
+        return None
+    available = [m for m in START_METHODS if m in multiprocessing.get_all_start_methods()]
+    if start_method not in START_METHODS:
+        raise ExecutorError(f"start_method: expected one of {', '.join(START_METHODS)} (or None: the default), "
+                            f"got {start_method!r}")
+    if start_method not in available:
+        raise ExecutorError(f"start_method: {start_method!r} is not available on this platform "
+                            f"({sys.platform}); use one of {', '.join(available)}")
+    return start_method
+
+
+@contextmanager
+def use_start_method(start_method: str | None) -> Iterator[str]:
+    """Within the block, local workers of every :func:`executor` that is not given a start method start by
+    ``start_method`` (None: :func:`default_start_method`); yields the method in force.
+
+    Raises
+    ------
+    ExecutorError
+        An unknown method, or one this platform does not offer.
+    """
+    global _chosen
+    start_method = check_start_method(start_method)
+    before = _chosen
+    _chosen = start_method if start_method is not None else before
+    try:
+        yield _chosen or default_start_method()
+    finally:
+        _chosen = before
+
+
+# -- what a fresh worker needs ----------------------------------------------------------------------
+class _Returns:
+    """A picklable factory returning one object (a Plant or Design object given to :func:`bench.run`)."""
+
+    def __init__(self, obj: Any):
+        self.obj = obj
+
+    def __call__(self, **overrides: Any) -> Any:
+        return self.obj
+
+
+def _main_importable() -> bool:
+    """Whether a fresh worker can import this process's ``__main__`` (a script or ``-m`` module: yes; a
+    notebook, a REPL or ``python -c``: no), as :mod:`multiprocessing` prepares spawned children."""
+    if "ipykernel" in sys.modules:  # a notebook: its cells are in no module a worker can import
+        return False
+    main = sys.modules.get("__main__")
+    if getattr(getattr(main, "__spec__", None), "name", None):
+        return True
+    path = getattr(main, "__file__", None)
+    return bool(path) and os.path.isfile(path)
+
+
+class _Loadable(pickle.Unpickler):
+    """Unpickles as a fresh worker would: names in a ``__main__`` it cannot import are missing."""
+
+    main_ok = True
+
+    def find_class(self, module: str, name: str):
+        if module == "__main__" and not self.main_ok:
+            raise pickle.UnpicklingError(f"{name} is defined in __main__ (a notebook or python -c)")
+        return super().find_class(module, name)
+
+
+def _portable(payload: Any, main_ok: bool) -> bytes | None:
+    """``payload`` pickled, if a fresh worker can unpickle it; else None."""
+    try:
+        blob = pickle.dumps(payload)
+        loader = _Loadable(io.BytesIO(blob))
+        loader.main_ok = main_ok
+        loader.load()
+    except Exception:  # noqa: BLE001 - whatever fails, the entry is not portable
+        return None
+    return blob
+
+
+@dataclass
+class WorkerSetup:
+    """What a worker started by spawn or forkserver rebuilds: the plugin files (in load order) and the other
+    registry entries as ``(kind, id, pickled factory, summary, order)``; ``local``: the ids that cannot be sent."""
+
+    plugins: list[str] = field(default_factory=list)
+    entries: list[tuple[str, str, bytes, str, int]] = field(default_factory=list)
+    local: set[str] = field(default_factory=set)
+
+
+def worker_setup() -> WorkerSetup:
+    """The :class:`WorkerSetup` of this process's registries and plugins."""
+    from bench.plugins import loaded_plugins
+    from bench.registry import DESIGNS, PLANTS
+
+    plugins = loaded_plugins()
+    setup = WorkerSetup(plugins=[str(p) for p in plugins])
+    main_ok = _main_importable()
+    for kind, reg in (("plant", PLANTS), ("design", DESIGNS)):
+        for i in reg.ids():
+            entry = reg[i]
+            where = getattr(sys.modules.get(entry.module), "__file__", None)
+            if where and Path(where).resolve() in plugins:  # the worker loads the file again
+                continue
+            obj = getattr(entry.factory, "_bench_object", None)
+            blob = None if entry.module.startswith(PLUGIN_PREFIX) else _portable(
+                _Returns(obj) if obj is not None else entry.factory, main_ok)
+            if blob is None and obj is None and entry.module.split(".")[0] in ("plants", "designs"):
+                continue  # registered when the package's modules are imported (the pairings' closures)
+            if blob is None:
+                setup.local.add(i)
+            else:
+                setup.entries.append((kind, i, blob, entry.summary, entry.order))
+    return setup
+
+
+def _rebuild(setup: WorkerSetup) -> None:
+    """In a fresh worker: load the plugins, then register every entry the package's modules did not."""
+    from bench.plugins import PluginError, load_plugins
+    from bench.registry import DESIGNS, PLANTS
+
+    try:
+        load_plugins(setup.plugins)
+    except PluginError as exc:  # its pairs become error rows (unknown id) in the parent's table
+        print(f"oslbench worker {os.getpid()}: {exc}", file=sys.stderr, flush=True)
+    registries = {"plant": PLANTS, "design": DESIGNS}
+    for kind, i, blob, summary, order in setup.entries:
+        reg = registries[kind]
+        if i in reg:  # the package (or the re-imported __main__) registered it already
+            continue
+        try:
+            reg.register(i, pickle.loads(blob), summary, order=order)
+        except Exception as exc:  # noqa: BLE001 - its pairs become error rows (unknown id)
+            print(f"oslbench worker {os.getpid()}: cannot rebuild {kind} {i!r}: {type(exc).__name__}: {exc}",
+                  file=sys.stderr, flush=True)
+
+
+def _worker_init(parent: int, method: str = "fork", setup: WorkerSetup | None = None) -> None:
+    """Set up a local worker: SIGINT ignored (the parent handles Ctrl-C), death with the parent, and (not forked)
+    the registries rebuilt."""
     import ctypes
     import signal
     import threading
     import time
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    with suppress(OSError, AttributeError):  # not Linux: the thread below alone
-        ctypes.CDLL(None).prctl(1, int(signal.SIGKILL))  # 1: PR_SET_PDEATHSIG
+    if method != "forkserver":  # a forkserver's worker is the server's child: the server dies with the parent
+        with suppress(OSError, AttributeError, TypeError):  # not Linux: the thread below alone
+            ctypes.CDLL(None).prctl(1, int(signal.SIGKILL))  # 1: PR_SET_PDEATHSIG
+
+    def alive() -> bool:
+        if method == "forkserver":  # not our parent process: ask the system whether it still runs (POSIX)
+            try:
+                os.kill(parent, 0)
+            except ProcessLookupError:
+                return False
+            except PermissionError:
+                return True
+            try:  # Linux: a killed parent not yet reaped is a zombie, which signal 0 still finds
+                with open(f"/proc/{parent}/stat", "rb") as fh:
+                    return fh.read().rpartition(b")")[2].split()[0] != b"Z"
+            except (OSError, IndexError):
+                return True
+        return os.getppid() == parent
 
     def watch() -> None:
-        while os.getppid() == parent:
+        while alive():
             time.sleep(0.5)
         os._exit(1)
 
-    if os.getppid() != parent:  # the parent died before this worker was set up
+    if not alive():  # the parent died before this worker was set up
         os._exit(1)
     threading.Thread(target=watch, name="oslbench-parent-watch", daemon=True).start()
+    if setup is not None:
+        _rebuild(setup)
+
+
+#: Modules a worker needs: imported before forking (inherited), or by the fork server before it forks workers.
+WARM_MODULES = ("control", "cvxpy", "filterpy.kalman", "scipy.integrate", "scipy.linalg", "scipy.optimize",
+                "bench.pipeline")
 
 
 def warm_imports() -> None:
     """Import the heavy modules before forking, so that workers inherit them."""
-    import control  # noqa: F401
-    import cvxpy  # noqa: F401
-    import filterpy.kalman  # noqa: F401
-    import scipy.integrate  # noqa: F401
-    import scipy.linalg  # noqa: F401
-    import scipy.optimize  # noqa: F401
+    import importlib
+
+    for name in WARM_MODULES:
+        importlib.import_module(name)
+
+
+class _Routed(Executor):
+    """A process pool whose tasks naming an id in ``local`` (or an outcome of such a pair) run in this process."""
+
+    def __init__(self, pool: Executor, local: set[str]):
+        self.pool, self.local = pool, local
+
+    @property
+    def _processes(self):  # the harness terminates the pool's workers on Ctrl-C
+        return getattr(self.pool, "_processes", None)
+
+    def _here(self, args: tuple) -> bool:
+        for a in args:
+            if isinstance(a, str) and a in self.local:
+                return True
+            rec = getattr(a, "record", None)
+            if isinstance(rec, dict) and (rec.get("plant") in self.local or rec.get("design") in self.local):
+                return True
+        return False
+
+    def submit(self, fn: Callable, /, *args, **kwargs) -> Future:
+        if self._here(args) or self._here(tuple(kwargs.values())):
+            return SerialExecutor().submit(fn, *args, **kwargs)
+        return self.pool.submit(fn, *args, **kwargs)
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self.pool.shutdown(wait=wait, cancel_futures=cancel_futures)
 
 
 @contextmanager
-def executor(jobs: int | None = None, scheduler: str | None = None, *, connect_timeout: float = 5.0) -> Iterator[Executor]:
+def executor(jobs: int | None = None, scheduler: str | None = None, *, connect_timeout: float = 5.0,
+             start_method: str | None = None) -> Iterator[Executor]:
     """Context manager yielding an executor.
 
     Parameters
@@ -75,17 +326,20 @@ def executor(jobs: int | None = None, scheduler: str | None = None, *, connect_t
         Address of a Dask distributed scheduler (``tcp://host:8786``); overrides ``jobs``.
     connect_timeout : float
         Seconds to wait for the scheduler before failing with :class:`ExecutorError`.
+    start_method : {"fork", "forkserver", "spawn"}, optional
+        How local workers start (default: the one :func:`use_start_method` set, else
+        :func:`default_start_method`).
 
     Raises
     ------
     ExecutorError
-        ``jobs < 1``, Dask not installed, or scheduler unreachable.
+        ``jobs < 1``, a start method this platform does not offer, Dask not installed, or scheduler unreachable.
     """
     if scheduler is not None:
         try:
             from distributed import Client
         except ImportError:
-            raise ExecutorError("--scheduler needs Dask distributed: pip install '.[dist]'") from None
+            raise ExecutorError("--scheduler needs Dask distributed: pip install 'oslbench[dist]'") from None
         try:
             client = Client(scheduler, timeout=connect_timeout, set_as_default=False)
         except (OSError, TimeoutError, ValueError) as exc:
@@ -94,18 +348,30 @@ def executor(jobs: int | None = None, scheduler: str | None = None, *, connect_t
             yield client.get_executor()
         return
     jobs = default_jobs() if jobs is None else jobs
-    if not isinstance(jobs, int) or jobs < 1:
+    if not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
         raise ExecutorError(f"jobs: must be an integer >= 1, got {jobs!r}")
+    method = check_start_method(start_method) or _chosen or default_start_method()
     if jobs == 1:
         yield SerialExecutor()
         return
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    warm_imports()
-    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"),
-                               initializer=_worker_init, initargs=(os.getpid(),))
+    ctx = multiprocessing.get_context(method)
+    setup = None
+    if method == "fork":
+        warm_imports()
+    else:
+        setup = worker_setup()
+        if method == "forkserver":  # the server imports them once; each worker forks from it (used at its start)
+            ctx.set_forkserver_preload(list(WARM_MODULES))
+        if setup.local:
+            warnings.warn(f"{', '.join(sorted(setup.local))}: cannot be sent to a worker started by {method} "
+                          "(defined in a notebook or python -c, or not picklable); their tasks run in this process",
+                          RuntimeWarning, stacklevel=3)
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init,
+                               initargs=(os.getpid(), method, setup))
     try:
-        yield pool
+        yield _Routed(pool, setup.local) if setup is not None and setup.local else pool
     finally:
         pool.shutdown(wait=True, cancel_futures=True)

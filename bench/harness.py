@@ -52,7 +52,9 @@ def _constants_task(pid: str, seed: int, n_samples: int, timeout: float | None =
             return compute_constants(PLANTS.create(pid), seed=seed, n_samples=n_samples), ""
     except DeadlineExceeded:
         return None, f"timeout: the constants took more than {timeout:g} s"
-    except Exception as exc:
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # plugin code (f, the plant's factory) never ends the run, SystemExit included
         return None, f"{type(exc).__name__}: {exc}"
 
 
@@ -114,8 +116,12 @@ class _Run:
         self.total = len(plant_ids) * (1 + len(design_ids))
         self.plants: dict[str, Plant] = {}
         for pid in plant_ids:  # the parent's own plant objects: for the report and the cache keys
-            with contextlib.suppress(Exception):  # the constants task reports it
+            try:
                 self.plants[pid] = PLANTS.create(pid)
+            except KeyboardInterrupt:
+                raise
+            except BaseException:  # noqa: BLE001 - the constants task reports it (SystemExit included)
+                pass
 
     def tick(self, label: str) -> None:
         self.done += 1
@@ -128,8 +134,8 @@ class _Run:
         for pid in self.plant_ids:
             key = None
             if self.cache is not None and pid in self.plants:
-                key = self.cache.constants_key(self.plants[pid], pid, self.options)
-                rep = self.cache.load_constants(key)
+                key = self._constants_key(pid)
+                rep = self.cache.load_constants(key) if key else None
                 if rep is not None:
                     self.constants[pid] = rep
                     self.tick(f"constants of {pid} (cached)")
@@ -140,11 +146,22 @@ class _Run:
             yield _constants_task, (pid, self.options.seed, self.options.n_samples, limit), partial(
                 self.finish_constants, pid)
 
+    def _constants_key(self, pid: str) -> str | None:
+        """The cache key of a plant's constants (None when the plant's own code fails while it is keyed)."""
+        try:
+            return self.cache.constants_key(self.plants[pid], pid, self.options)
+        except KeyboardInterrupt:
+            raise
+        except BaseException:  # noqa: BLE001 - the constants task reports the failure
+            return None
+
     def finish_constants(self, pid: str, fut):
         """Store a plant's constants; return the tasks of its pairs."""
         try:
             rep, err = fut.result()
-        except Exception as exc:  # a worker died
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:  # a worker died
             rep, err = None, f"{type(exc).__name__}: {exc}"
         if rep is None:
             if self.options.fail_fast:
@@ -161,7 +178,9 @@ class _Run:
     def _from_cache(self, pid: str, did: str) -> bool:
         try:
             key = self.cache.pair_key(self.plants[pid], pid, DESIGNS.create(did), did, self.options)
-        except Exception:  # noqa: BLE001 - a design that cannot be built errors in the pipeline; no key
+        except KeyboardInterrupt:
+            raise
+        except BaseException:  # noqa: BLE001 - a design that cannot be built errors in the pipeline; no key
             key = None
         cached = self.cache.load_pair(key) if key else None
         if cached is not None:
@@ -191,7 +210,9 @@ class _Run:
     def finish_pair(self, pid: str, did: str, fut) -> None:
         try:
             o = fut.result()
-        except Exception as exc:  # fail_fast re-raise, or a worker that died mid-run
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:  # fail_fast re-raise, or a worker that died mid-run
             if self.options.fail_fast:
                 raise
             o = PairOutcome(blank_record(pid, did, status="error",

@@ -2,7 +2,8 @@
 
 Plant (1) ``x' = A x + B u + f(x)``, ``y = C x`` and controller (6) ``x_hat' = A x_hat + B u +
 f(x_hat) + K (y - C x_hat)``, ``u = F x_hat`` as ``control.StateSpace`` / ``NonlinearIOSystem``, for
-python-control's tools (python-control's ``lqr`` gain is ``-F``). Signals: plant ``u[i]`` -> ``y[i]``,
+python-control's tools (python-control's ``lqr`` gain is ``-F``); a discrete-time plant (``dt > 0``) gives
+discrete-time systems with its ``dt`` (``x_{k+1} = ...``). Signals: plant ``u[i]`` -> ``y[i]``,
 states ``x[i]``; controller ``y[i]`` -> ``u[i]``, states ``xhat[i]``. Every function raises TypeError
 for a ``plant`` that is not a Plant and ValueError (naming it) for a K or F of the wrong shape or
 with non-finite entries.
@@ -64,14 +65,15 @@ def controller_ss(plant: Plant, K, F):
 
     plant, K, F = _check_gains(plant, K, F)
     A, B, C = plant.A, plant.B, plant.C
-    return control.ss(A + B @ F - K @ C, K, F, np.zeros((plant.m, plant.p)),
+    return control.ss(A + B @ F - K @ C, K, F, np.zeros((plant.m, plant.p)), plant.dt,
                       inputs=_names("y", plant.p), outputs=_names("u", plant.m),
                       states=_names("xhat", plant.n), name=_sysname(plant, "controller"))
 
 
 def _affine_system(M: np.ndarray, G: np.ndarray, H: np.ndarray, f, *, signals: tuple[str, str, str],
-                   state_outputs: bool, name: str):
-    """``s' = M s + G w + f(s)``, output ``H s`` (and ``s``), as a NonlinearIOSystem named by ``signals``."""
+                   state_outputs: bool, name: str, dt: float = 0.0):
+    """``s' = M s + G w + f(s)`` (``dt > 0``: ``s_{k+1} = ...``), output ``H s`` (and ``s``), as a
+    NonlinearIOSystem named by ``signals``."""
     import control
 
     k = G.shape[1]
@@ -87,17 +89,19 @@ def _affine_system(M: np.ndarray, G: np.ndarray, H: np.ndarray, f, *, signals: t
 
     outputs = _names(out, H.shape[0]) + (_names(st, M.shape[0]) if state_outputs else [])
     return control.nlsys(update, output, inputs=_names(inp, k), outputs=outputs, states=_names(st, M.shape[0]),
-                         name=name)
+                         name=name, dt=dt)
 
 
 def _observer_system(plant: Plant, K: np.ndarray, F: np.ndarray, *, state_outputs: bool, name: str):
     """The controller (6) with ``u = F x_hat`` substituted: input y, output u (and x_hat), state x_hat."""
     M = plant.A + plant.B @ F - K @ plant.C
-    return _affine_system(M, K, F, plant.f, signals=("y", "u", "xhat"), state_outputs=state_outputs, name=name)
+    return _affine_system(M, K, F, plant.f, signals=("y", "u", "xhat"), state_outputs=state_outputs, name=name,
+                          dt=plant.dt)
 
 
 def plant_nlsys(plant: Plant):
-    """The plant (1) ``x' = A x + B u + f(x)``, ``y = C x`` as a ``control.NonlinearIOSystem``.
+    """The plant (1) ``x' = A x + B u + f(x)``, ``y = C x`` as a ``control.NonlinearIOSystem`` (a discrete-time
+    plant as a discrete-time system with its ``dt``: ``x_{k+1} = A x_k + B u_k + f(x_k)``).
 
     Parameters
     ----------
@@ -109,7 +113,7 @@ def plant_nlsys(plant: Plant):
     """
     plant = _check_plant(plant)
     return _affine_system(plant.A, plant.B, plant.C, plant.f, signals=("u", "y", "x"), state_outputs=False,
-                          name=_sysname(plant, ""))
+                          name=_sysname(plant, ""), dt=plant.dt)
 
 
 def observer_nlsys(plant: Plant, K, F):
@@ -163,7 +167,7 @@ def closed_loop_nlsys(plant: Plant, K, F):
     plant, K, F = _check_gains(plant, K, F)
     n, m = plant.n, plant.m
     psys = _affine_system(plant.A, plant.B, plant.C, plant.f, signals=("u", "y", "x"), state_outputs=True,
-                          name=_sysname(plant, "plant"))
+                          name=_sysname(plant, "plant"), dt=plant.dt)
     osys = _observer_system(plant, K, F, state_outputs=True, name=_sysname(plant, "observer"))
     return control.interconnect(  # u and y connected by their names
         [psys, osys], inplist=[], outlist=["x", "xhat", "u"], inputs=0,

@@ -14,6 +14,7 @@ __all__ = ["minimal_document", "tables_tex"]
 STATUS_SHORT: dict[str, str] = {
     "feasible": "yes",
     "computed": "comp",
+    "unverified": "unver",
     "infeasible": "no",
     "marginal": "marg",
     "inapplicable": "n/a",

@@ -154,34 +154,70 @@ def staged(out_dir, label: str = "write") -> Iterator[Path]:
 @contextlib.contextmanager
 def locked(out_dir, timeout: float = LOCK_TIMEOUT) -> Iterator[None]:
     """Hold the exclusive lock of ``out_dir`` (``fcntl.flock`` on ``<out>/.oslbench.lock``); OutDirError when
-    the lock file cannot be opened or another writer holds it for ``timeout`` seconds."""
+    the lock file cannot be opened or another writer holds it for ``timeout`` seconds.
+
+    The holder deletes the lock file before releasing it, so that no empty file stays in a report folder; a
+    waiter that then gets the lock of the deleted file sees that the path no longer names its file and
+    opens the lock again.
+    """
     out = Path(out_dir)
     lock = out / LOCK_NAME
+    deadline = time.monotonic() + timeout
+    while True:
+        fd = _open_lock(out, lock)
+        try:
+            stale = _acquire(fd, out, lock, deadline, timeout) and not _same_file(fd, lock)
+        except BaseException:
+            os.close(fd)
+            raise
+        if not stale:
+            break
+        os.close(fd)  # the previous holder deleted this lock file: lock the one the path names now
     try:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
-    except OSError as exc:
-        raise OutDirError(f"{out}: cannot open the lock file {LOCK_NAME} ({_why(exc)})") from None
-    try:
-        if fcntl is not None:
-            deadline = time.monotonic() + timeout
-            while True:
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                    break
-                except BlockingIOError:
-                    if time.monotonic() >= deadline:
-                        raise OutDirError(
-                            f"{out}: another oslbench process has been writing into this folder for more "
-                            f"than {timeout:g} s (it holds {lock}); wait for it to finish or stop it, then "
-                            "run again") from None
-                    time.sleep(_POLL_S)
-                except OSError as exc:
-                    if exc.errno in _NO_LOCKING:  # a file system without flock: write unserialised
-                        break
-                    raise OutDirError(f"{out}: cannot lock {LOCK_NAME} ({_why(exc)})") from None
         yield
     finally:
+        with contextlib.suppress(OSError):
+            if _same_file(fd, lock):
+                lock.unlink()  # still held: nobody can lock it between the deletion and the release
         os.close(fd)  # releases the lock
+
+
+def _open_lock(out: Path, lock: Path) -> int:
+    try:
+        return os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as exc:
+        raise OutDirError(f"{out}: cannot open the lock file {LOCK_NAME} ({_why(exc)})") from None
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    """Whether ``path`` still names the file open as ``fd``."""
+    try:
+        st, cur = os.fstat(fd), os.stat(path)
+    except OSError:
+        return False
+    return (st.st_dev, st.st_ino) == (cur.st_dev, cur.st_ino)
+
+
+def _acquire(fd: int, out: Path, lock: Path, deadline: float, timeout: float) -> bool:
+    """``flock`` the open lock file, waiting until ``deadline``; False where the file system cannot lock (writes
+    then go unserialised)."""
+    if fcntl is None:
+        return False
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except BlockingIOError:
+            if time.monotonic() >= deadline:
+                raise OutDirError(
+                    f"{out}: another oslbench process has been writing into this folder for more "
+                    f"than {timeout:g} s (it holds {lock}); wait for it to finish or stop it, then "
+                    "run again") from None
+            time.sleep(_POLL_S)
+        except OSError as exc:
+            if exc.errno in _NO_LOCKING:  # a file system without flock: write unserialised
+                return False
+            raise OutDirError(f"{out}: cannot lock {LOCK_NAME} ({_why(exc)})") from None
 
 
 def atomic_write(path, write: Callable[[IO[bytes]], None], *, prefix: str = TMP_PREFIX, sync: bool = False) -> None:

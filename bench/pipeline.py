@@ -8,30 +8,37 @@ stored in the record, so results.csv says everything the report shows.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import json
 import math
+import sys
 import time
 import traceback
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
 from bench import checks, lmi
 from bench.certify import LEVELS, Certificate, LevelResult, adopt, ceiling, certify, explain
 from bench.constants import ConstantsReport, Knowledge, check_trajectory, resolve_constants
+from bench.errors import DesignError
 from bench.limits import DeadlineExceeded, hard_stop, remaining_time, time_limit
 from bench.metrics import trajectory_metrics
 from bench.simulate import SimOptions, simulate_controller
-from bench.verdicts import certificate_scope, certified_horizon, convergence_note, simulation_horizon
+from bench.verdicts import (attenuation_note, certificate_scope, certified_horizon, convergence_note, lyapunov_note,
+                            simulation_horizon)
 from designs import GAIN_STATUSES, Design, DesignResult
 from plants import Plant
 
-__all__ = ["PairOutcome", "RunOptions", "Scenario", "evaluate_pair"]
+__all__ = ["PairOutcome", "RunOptions", "Scenario", "evaluate_pair", "time_domain_mismatch"]
 
 #: Columns of every record, in order.
 COLUMNS = [
     "plant", "design", "status", "reason", "feasible", "stabilizing", "certified", "cert_level", "decay_rate",
     "cert_scope", "converged", "witness", "rate_ceiling", "rate_ratio", "ceiling_how",
+    "l2_gain_e", "l2_gain_x", "l2_measured_e", "l2_measured_x", "disturbance",
     *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")],
     "cert_margin", "cert_radius", "level_set", "level_x0", "in_region", "max_norm",
     "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "sdp_solves", "compile_s", "solve_s",
@@ -41,6 +48,11 @@ COLUMNS = [
     "settling_e_s", "final_x", "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "norm_K", "norm_F",
     "constants", "checked_on", "disproved", "params",
 ]
+
+#: The columns of what a certificate claims: blank in an ``error`` or ``timeout`` row (:func:`blank_record`).
+CERT_COLUMNS = ("certified", "cert_level", "decay_rate", "cert_scope", "witness", "rate_ceiling", "rate_ratio",
+                "ceiling_how", *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")], "cert_margin",
+                "cert_radius", "level_set", "level_x0", "in_region", "cert_horizon_s")
 
 #: What the ``certificate`` option computes: every level with its rate, or only whether some level
 #: certifies at rate 0 (the strongest first), or only the design's own verified certificate, or nothing.
@@ -71,7 +83,11 @@ class RunOptions:
     noise : float
         Standard deviation of a seeded Gaussian measurement noise (0: noise-free).
     noise_dt : float
-        Sample period of the noise for fixed-gain observers.
+        Sample period of the noise for fixed-gain observers (a discrete plant draws one per step).
+    disturbance : float
+        Peak amplitude of the seeded L2 disturbance (:mod:`bench.disturbance`; 0: none). With it, each pair
+        of a plant with disturbance inputs (``Bw``, ``Dw``) is simulated a second time from ``z(0) = 0``
+        with w (noise-free) for the measured ratios ``l2_measured_e``, ``l2_measured_x``.
     timeout : float, optional
         Wall-clock limit in seconds of each pair; a pair over it becomes a ``timeout`` row.
     certificate : {"ladder", "verdict", "own", "none"}
@@ -89,6 +105,7 @@ class RunOptions:
     horizon_cap: float = 10.0
     noise: float = 0.0
     noise_dt: float = 0.01
+    disturbance: float = 0.0
     timeout: float | None = None
     certificate: str = "ladder"
     simulate: bool = True
@@ -97,6 +114,7 @@ class RunOptions:
         checks.horizon(self.timeout, name="timeout")
         checks.horizon(self.t_final)
         checks.real("noise", self.noise, lo=0.0)
+        checks.real("disturbance", self.disturbance, lo=0.0)
         checks.real("noise_dt", self.noise_dt, lo=0.0, strict=True)
         checks.real("horizon_cap", self.horizon_cap, lo=1.0)  # a multiple of the plant's horizon
         checks.integer("n_samples", self.n_samples, lo=1)
@@ -154,6 +172,8 @@ class PairOutcome:
         certificate uses ``report.knowledge(plant).without(disproved)``.
     loop : ClosedLoop or None
         The design's gains, checked, and the spectra of their linear closed loop (:func:`bench.checks.closed_loop`).
+    lyapunov : str
+        The INCONSISTENT sentence of :func:`bench.verdicts.lyapunov_note` along the simulation (empty: none).
     """
 
     record: dict
@@ -164,6 +184,7 @@ class PairOutcome:
     metrics: dict | None = None
     disproved: dict = field(default_factory=dict)
     loop: checks.ClosedLoop | None = None
+    lyapunov: str = ""
 
 
 def blank_record(plant_id: str, design_id: str, **values) -> dict:
@@ -172,7 +193,7 @@ def blank_record(plant_id: str, design_id: str, **values) -> dict:
     rec.update(plant=plant_id, design=design_id, status="", reason="", solver="", solver_status="", route="",
                sim_status="", constants="", params="", cert_level="", cert_scope="", horizon_rule="", witness="",
                sim_witness="", ceiling_how="", checked_on="", disproved="",
-               feasible=False, stabilizing=None, certified=False, converged=False, in_region=None,
+               feasible=False, stabilizing=None, certified=False, converged=None, in_region=None,
                **{f"cert_{lv}": "" for lv in LEVELS})
     rec.update(values)
     return rec
@@ -184,10 +205,108 @@ def _note(rec: dict, text: str) -> None:
 
 
 def _jsonable(d: dict) -> str:
-    """``d`` as sorted JSON: numpy scalars as Python ones, a non-finite float as null."""
-    d = {k: v.item() if isinstance(v, np.generic) else v for k, v in d.items()}
-    return json.dumps({k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in d.items()},
-                      sort_keys=True)
+    """``d`` as sorted JSON: numpy scalars as Python ones, a non-finite float as null; a :class:`DesignError`
+    naming ``params`` when it cannot be written."""
+    try:
+        d = {k: v.item() if isinstance(v, np.generic) else v for k, v in dict(d).items()}
+        return json.dumps({k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in d.items()},
+                          sort_keys=True, allow_nan=False)
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise DesignError(f"params: the design's parameters cannot be written as JSON ({type(exc).__name__}: "
+                          f"{exc})") from None
+
+
+# -- the plant a design sees -------------------------------------------------------------------
+#: Seeded states at which f and its Jacobian are probed before and after a design (:func:`_probe`).
+PROBE_STATES = 3
+
+
+def _own_copy(obj):
+    """A copy of ``obj`` (a plant) whose arrays, dataclasses, dicts and lists are its own; callables are shared."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        new = copy.copy(obj)
+        for f in dataclasses.fields(obj):
+            object.__setattr__(new, f.name, _own_copy(getattr(obj, f.name)))
+        return new
+    if isinstance(obj, np.ndarray):
+        arr = obj.copy()
+        arr.setflags(write=obj.flags.writeable)
+        return arr
+    if isinstance(obj, dict):
+        return {k: _own_copy(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_own_copy(v) for v in obj]
+    return obj
+
+
+def _probe(plant: Plant) -> list:
+    """f and its Jacobian (when declared) at :data:`PROBE_STATES` seeded states of the initial condition's scale
+    (an exception raised there is recorded as its message)."""
+    rng = np.random.default_rng([0, 31])
+    scale = max(1e-3, float(np.abs(plant.x0).max()), float(np.abs(plant.x_hat0).max()))
+    out = []
+    for x in scale * rng.standard_normal((PROBE_STATES, plant.n)):
+        for fn in (plant.f, plant.jacobian):
+            try:
+                out.append(None if fn is None else np.array(fn(x), dtype=float))
+            except Exception as exc:  # noqa: BLE001 - compared, not raised: the pipeline's own steps report it
+                out.append(f"{type(exc).__name__}: {exc}")
+    return out
+
+
+def _differences(a, b, name: str) -> list[str]:
+    """The names of the fields in which ``a`` and ``b`` differ: arrays by value, callables by identity."""
+    if dataclasses.is_dataclass(a) and not isinstance(a, type):
+        if type(a) is not type(b):
+            return [name]
+        return [d for f in dataclasses.fields(a)
+                for d in _differences(getattr(a, f.name), getattr(b, f.name), f"{name}.{f.name}".lstrip("."))]
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        same = (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and a.dtype == b.dtype
+                and np.array_equal(a, b, equal_nan=a.dtype.kind in "fc"))
+        return [] if same else [name]
+    if callable(a) or callable(b):
+        return [] if a is b else [name]
+    if isinstance(a, (dict, list, tuple)):
+        if type(a) is not type(b) or len(a) != len(b) or (isinstance(a, dict) and a.keys() != b.keys()):
+            return [name]
+        pairs = ((f"{name}[{k!r}]", a[k], b[k]) for k in a) if isinstance(a, dict) else (
+            (f"{name}[{i}]", x, y) for i, (x, y) in enumerate(zip(a, b)))
+        return [d for key, x, y in pairs for d in _differences(x, y, key)]
+    if isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b):
+        return []
+    return [] if type(a) is type(b) and a == b else [name]
+
+
+def _check_unchanged(plant: Plant, seen: Plant, before: list[np.ndarray]) -> None:
+    """A :class:`DesignError` naming what differs between ``plant`` and the copy ``seen`` a design worked on
+    (every field, arrays by value, callables by identity; then f and its Jacobian probed by :func:`_probe`)."""
+    changed = _differences(plant, seen, "")
+    if not changed and not _same_probes(before, _probe(seen)):
+        changed = ["what f or its Jacobian computes"]
+    if changed:
+        raise DesignError(f"the design changed the plant: {', '.join(changed)} "
+                          f"{'differs' if len(changed) == 1 else 'differ'}")
+
+
+def _same_probes(a: list, b: list) -> bool:
+    """True when two :func:`_probe` results are equal (arrays by value, NaN equal to NaN)."""
+    def same(u, v) -> bool:
+        if isinstance(u, np.ndarray) and isinstance(v, np.ndarray):
+            return u.shape == v.shape and np.array_equal(u, v, equal_nan=True)
+        return type(u) is type(v) and u == v
+
+    return len(a) == len(b) and all(same(u, v) for u, v in zip(a, b))
+
+
+def _suite_design(design) -> bool:
+    """True when ``design``'s class is one of the suite's own (its module is a file of the ``designs`` package)."""
+    import designs
+
+    name = type(design).__module__
+    path = getattr(sys.modules.get(name), "__file__", None)
+    return (name.startswith("designs.") and path is not None
+            and Path(path).resolve().is_relative_to(Path(designs.__file__).resolve().parent))
 
 
 # -- the steps ---------------------------------------------------------------------------------
@@ -200,19 +319,30 @@ def _design(rec: dict, plant: Plant, design: Design, report: ConstantsReport,
                    + ": no observer-based controller stabilizes the linear part")
         return None
     consts = resolve_constants(report, use_claimed=options.use_claimed)
-    why = design.applicable(plant, consts)
+    seen, before = _own_copy(plant), _probe(plant)  # the design works on a copy, compared afterwards
+    why = design.applicable(seen, consts)
     if why is not None:
+        _check_unchanged(plant, seen, before)
         missing = [report.unbounded[k] for k in getattr(design, "needs", ()) if k in report.unbounded]
         rec.update(status="inapplicable", reason="; ".join([why, *missing]))
         return None
     t0 = time.perf_counter()
-    res = design.design(plant, consts)
+    res = design.design(seen, consts)
     rec["design_s"] = time.perf_counter() - t0
+    _check_unchanged(plant, seen, before)
+    if not isinstance(res, DesignResult):
+        raise DesignError(f"design: must return a DesignResult, got {checks.brief(res)}")
+    params = _jsonable(res.params)
+    if res.status == "feasible" and not _suite_design(design):
+        res = replace(res, status="unverified")
+        _note(rec, "the design says 'feasible', but the suite did not verify the design's own LMI (it is not one of "
+                   "the suite's designs): unverified")
     sampled = [k for k in getattr(design, "needs", ()) if report.source.get(k, "").startswith("sampled")]
-    rec.update(status=res.status, reason=res.reason, feasible=res.status == "feasible", route=res.route or "",
+    rec.update(status=res.status, reason="; ".join(r for r in (res.reason, rec["reason"]) if r),
+               feasible=res.status == "feasible", route=res.route or "",
                lmi_margin=res.margin, lmi_size=res.lmi_size or math.nan, solver=res.solver or "",
                solver_status=res.solver_status or "", n_solves=res.n_solves, compile_s=res.compile_s,
-               solve_s=res.solve_s, params=_jsonable(res.params))
+               solve_s=res.solve_s, params=params)
     if sampled and res.status in GAIN_STATUSES:
         _note(rec, f"designed with sampled {', '.join(sampled)} (lower bounds): the design itself guarantees nothing")
     return res
@@ -228,6 +358,10 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
         _note(rec, "certificate: no fixed observer gain (the estimator is time-varying): no quadratic certificate "
                    "applies")
         return None
+    if plant.discrete:  # until the discrete-time ladder lands: say so, never certify it as continuous
+        rec.update({f"cert_{lv}": "inapplicable" for lv in LEVELS})
+        _note(rec, "certificate: the discrete-time certificate ladder is not available yet")
+        return None
     know = know if know is not None else report.knowledge(plant)
     t0 = time.perf_counter()
     if options.certificate == "ladder":
@@ -242,7 +376,7 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
             if cert.levels[lv].certified:
                 break
         cert.levels = {lv: cert.levels[lv] for lv in LEVELS if lv in cert.levels}
-    adopt(cert, res.certificate, know)
+    refused = adopt(cert, res.certificate, plant, loop, know)
     if options.certificate == "ladder":
         explain(cert, plant, loop.K, loop.F, know, loop=loop)
         rec["rate_ceiling"], rec["ceiling_how"] = ceiling(cert, plant, loop.K, loop.F, know)
@@ -260,6 +394,7 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     rec["witness"] = "; ".join(w.kind for w in cert.witnesses)
     if best is not None and math.isfinite(rec["rate_ceiling"]):
         rec["rate_ratio"] = best.decay_rate / rec["rate_ceiling"] if rec["rate_ceiling"] > 0 else math.nan
+    _note(rec, refused)
     if cert.witnesses:
         _note(rec, "no global certificate exists: " + "; and ".join(w.text for w in cert.witnesses))
     if best is None:
@@ -305,6 +440,7 @@ def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, 
         traj.dense = None  # measured: the rest of the run needs the grid only (and pickles it to the parent)
         if traj.status != "ok":
             _note(rec, f"simulation {traj.status}: {traj.message}")
+        _attenuation(out, options, T, sim)
     rec.update({k: m[k] for k in ("converged", "settling_x_s", "settling_e_s", "final_x", "final_e", "tail_rate",
                                   "iae_e", "rms_e", "peak_u", "max_norm")})
     tr = out.trajectory
@@ -319,6 +455,61 @@ def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, 
         not batch or (scenario.sample_period is None and rec["cert_scope"] == "global"))
     if applies:
         rec["cert_horizon_s"] = certified_horizon(best.decay_rate, _cond(best))
+        opts = sim if not batch else (scenario.options or _batch_options())
+        out.lyapunov = _lyapunov(tr, best, opts)
+        _note(rec, out.lyapunov)
+
+
+def _batch_options() -> SimOptions:
+    from bench.batch import BATCH_OPTIONS
+
+    return BATCH_OPTIONS
+
+
+def _lyapunov(tr, best: LevelResult, sim: SimOptions) -> str:
+    """:func:`bench.verdicts.lyapunov_note` of a certificate along a simulation, inside its region."""
+    X, XH = np.asarray(tr.x, dtype=float), np.asarray(tr.x_hat, dtype=float)
+    inside = None
+    if best.radius is not None:
+        with np.errstate(invalid="ignore"):
+            inside = _region_size(X, XH, best.region_H) <= best.radius * (1 + 1e-9)
+    return lyapunov_note(np.asarray(tr.t, dtype=float), X, XH, best.P, best.decay_rate, inside=inside,
+                         atol=sim.atol, rtol=sim.rtol)
+
+
+def _region_size(X: np.ndarray, XH: np.ndarray, H: np.ndarray | None) -> np.ndarray:
+    """``max(||x||, ||x_hat||)``, or ``max |H x|, |H x_hat|`` with H, at each sample (axis 0 the state)."""
+    if H is None:
+        return np.maximum(np.linalg.norm(X, axis=0), np.linalg.norm(XH, axis=0))
+    return np.maximum(np.abs(np.tensordot(H, X, axes=(1, 0))).max(axis=0),
+                      np.abs(np.tensordot(H, XH, axes=(1, 0))).max(axis=0))
+
+
+def _attenuation(out: PairOutcome, options: RunOptions, T: float, sim: SimOptions) -> None:
+    """With ``options.disturbance``: the pair simulated from ``z(0) = 0`` with the seeded disturbance
+    (:mod:`bench.disturbance`, noise-free), its ratios ``l2_measured_e``, ``l2_measured_x`` and their verdict."""
+    from bench.disturbance import SeededDisturbance, measured_attenuation, window
+
+    rec, plant, res = out.record, out.plant, out.result
+    rec["disturbance"] = options.disturbance
+    if options.disturbance <= 0:
+        return
+    if plant.q == 0:
+        _note(rec, "disturbance: the plant has no disturbance input (Bw, Dw): no attenuation measured")
+        return
+    w = SeededDisturbance(options.disturbance, plant.q, window(plant.t_final, options.t_final), seed=options.seed,
+                          dt=plant.dt)
+    zero = np.zeros(plant.n)
+    traj = simulate_controller(plant, out.loop.F, K=out.loop.K, estimator=res.estimator, t_final=T, seed=options.seed,
+                               options=sim, loop=out.loop, x0=zero, x_hat0=zero, disturbance=w)
+    if traj.status == "timeout" and options.timeout is not None:
+        raise DeadlineExceeded(f"the disturbance simulation ({traj.message})")
+    rec["l2_measured_e"], rec["l2_measured_x"] = measured_attenuation(traj.t, traj.x, traj.x_hat, w(traj.t),
+                                                                      plant.dt)
+    if traj.status != "ok":
+        _note(rec, f"disturbance simulation {traj.status} ({traj.message}): the measured L2 ratios cover "
+                   f"[0, {float(traj.t[-1]):.4g} s] only")
+    _note(rec, attenuation_note(rec))
 
 
 def _cond(best: LevelResult | None) -> float:
@@ -353,10 +544,7 @@ def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float, H: np.
         X, XH = X[:, j, :], XH[:, j, :]
     if X.shape[1] == 0:
         return ""
-    if H is None:
-        size = np.maximum(np.linalg.norm(X, axis=0), np.linalg.norm(XH, axis=0))
-    else:
-        size = np.maximum(np.abs(H @ X).max(axis=0), np.abs(H @ XH).max(axis=0))
+    size = _region_size(X, XH, H)
     finite = np.isfinite(size)
     k = int(np.flatnonzero(finite)[-1]) if finite.any() else X.shape[1] - 1
     if math.isfinite(radius) and np.any(finite & (size > radius)):
@@ -396,8 +584,8 @@ def _in_region(max_norm: float, radius: float, H, tr) -> bool | None:
         return bool(max_norm <= radius)
     if tr is None:
         return None
-    Hz = (np.abs(np.tensordot(H, np.asarray(v, dtype=float), axes=(1, 0))).max() for v in (tr.x, tr.x_hat))
-    return bool(max(Hz) <= radius * (1 + 1e-9))
+    size = _region_size(np.asarray(tr.x, dtype=float), np.asarray(tr.x_hat, dtype=float), H)
+    return bool(size.max() <= radius * (1 + 1e-9))
 
 
 def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> list[PairOutcome]:
@@ -422,22 +610,53 @@ def rejudge(outcomes: list[PairOutcome], reports: dict, options: RunOptions) -> 
         extra = {k: v for k, v in found[pid].items() if k not in know.untrusted}
         if not extra:
             continue
-        old = convergence_note(rec) if rec["sim_status"] else ""
-        if old and rec["reason"].endswith(old):
-            rec["reason"] = rec["reason"][: -len(old)].rstrip("; ")
-        _note(rec, "DECLARATION DISPROVED by another pair's simulation: " + "; ".join(extra.values())
-              + ": the pair is re-certified without it")
-        o.disproved = {**o.disproved, **extra}
-        loop = o.loop if o.loop is not None else checks.closed_loop(plant, res.K, res.F)  # a cached outcome
-        o.certificate = _certify(rec, plant, res, reports[pid], options, loop, know=know.without(extra))
-        best = o.certificate.best if o.certificate is not None else None
-        if math.isfinite(rec["cert_horizon_s"]):
-            rec["cert_horizon_s"] = certified_horizon(best.decay_rate, _cond(best)) if best is not None else math.nan
-        if rec["sim_status"]:
-            rec["in_region"] = _in_region(rec["max_norm"], rec["cert_radius"],
-                                          best.region_H if best is not None else None, o.trajectory)
-            _note(rec, convergence_note(rec))
+        try:
+            _rejudge(o, reports[pid], options, know, extra)
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:  # plugin code (f in the equilibrium search) never ends the run
+            if options.fail_fast:
+                raise
+            _failed(o, exc, "re-certification")
     return outcomes
+
+
+def time_domain_mismatch(design, plant: Plant, design_id: str) -> str:
+    """Why ``design`` does not apply to ``plant``'s time domain (empty if it does): a design lists the
+    domains it has a form for in ``time_domains`` (default ``("continuous",)``, :class:`designs.Design`)."""
+    domain = "discrete" if plant.discrete else "continuous"
+    domains = getattr(design, "time_domains", ("continuous",))
+    if domain in domains:
+        return ""
+    return f"{design_id} has no {domain}-time form" + (f" (the plant is sampled every dt = {plant.dt:g} s)"
+                                                       if plant.discrete else "")
+
+
+def _rejudge(o: PairOutcome, report: ConstantsReport, options: RunOptions, know: Knowledge, extra: dict) -> None:
+    """Re-certify one pair without the declarations ``extra`` and judge its simulation again (:func:`rejudge`)."""
+    rec, plant, res = o.record, o.plant, o.result
+    old = convergence_note(rec) if rec["sim_status"] else ""
+    if old and rec["reason"].endswith(old):
+        rec["reason"] = rec["reason"][: -len(old)].rstrip("; ")
+    if o.lyapunov:
+        rec["reason"] = rec["reason"].replace(f"; {o.lyapunov}", "").replace(o.lyapunov, "")
+        o.lyapunov = ""
+    _note(rec, "DECLARATION DISPROVED by another pair's simulation: " + "; ".join(extra.values())
+          + ": the pair is re-certified without it")
+    o.disproved = {**o.disproved, **extra}
+    loop = o.loop if o.loop is not None else checks.closed_loop(plant, res.K, res.F)  # a cached outcome
+    o.certificate = _certify(rec, plant, res, report, options, loop, know=know.without(extra))
+    best = o.certificate.best if o.certificate is not None else None
+    if math.isfinite(rec["cert_horizon_s"]):
+        rec["cert_horizon_s"] = certified_horizon(best.decay_rate, _cond(best)) if best is not None else math.nan
+        tr = o.trajectory
+        if best is not None and tr is not None and np.ndim(tr.x) == 2:
+            o.lyapunov = _lyapunov(tr, best, options.sim)
+            _note(rec, o.lyapunov)
+    if rec["sim_status"]:
+        rec["in_region"] = _in_region(rec["max_norm"], rec["cert_radius"],
+                                      best.region_H if best is not None else None, o.trajectory)
+        _note(rec, convergence_note(rec))
 
 
 # -- the pair ----------------------------------------------------------------------------------
@@ -493,14 +712,32 @@ def _timed_out(rec: dict, exc: DeadlineExceeded, options: RunOptions, phase: str
     """Turn ``rec`` into a ``timeout`` row: no claim survives, the reason says how far it got."""
     got = [s for s in (rec["status"], "certified" if rec["certified"] else "") if s]
     note = f" (reached before: {', '.join(got)})" if got else ""
-    rec.update(status="timeout", feasible=False, certified=False, converged=False, stabilizing=None,
+    _no_claims(rec, status="timeout",
                reason=f"timeout: the pair exceeded {options.timeout:g} s during the {phase}, in {exc.where}{note}")
+
+
+def _failed(out: PairOutcome, exc: BaseException, phase: str) -> None:
+    """Turn ``out`` into an ``error`` row (any exception of plugin code, SystemExit included): no claim survives,
+    the reason names the exception and where it was raised."""
+    reason = f"{type(exc).__name__}: {exc}"
+    tb = traceback.extract_tb(exc.__traceback__)
+    if tb:
+        reason += f" (at {tb[-1].filename.rsplit('/', 1)[-1]}:{tb[-1].lineno}, during the {phase})"
+    _no_claims(out.record, status="error", reason=reason)
+    out.result = out.trajectory = out.certificate = None
+
+
+def _no_claims(rec: dict, **values) -> None:
+    """Blank every claim of ``rec`` (feasible, stabilizing, converged and :data:`CERT_COLUMNS`), then ``values``."""
+    blank = blank_record(rec["plant"], rec["design"])
+    rec.update({c: blank[c] for c in ("feasible", "stabilizing", "converged", *CERT_COLUMNS)}, **values)
 
 
 #: Record columns a ``prior`` does not give: the pair's ids and what the simulation measures.
 _NOT_PRIOR = {"plant", "design", "converged", "in_region", "max_norm", "sim_s", "horizon_s", "horizon_rule",
               "cert_horizon_s", "sim_status", "sim_witness", "settling_x_s", "settling_e_s", "final_x",
-              "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "checked_on", "disproved"}
+              "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "checked_on", "disproved",
+              "l2_measured_e", "l2_measured_x", "disturbance"}
 
 
 def _evaluate(plant, design, design_id, report, options, prior, scenario) -> PairOutcome:
@@ -514,11 +751,12 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
         if prior is not None:
             rec.update({k: prior.record[k] for k in COLUMNS if k not in _NOT_PRIOR})
             out.result, out.certificate, out.disproved = prior.result, prior.certificate, dict(prior.disproved)
-        elif plant.discrete:  # until the discrete-time pipeline lands: say so, never judge it as continuous
-            rec.update(status="inapplicable", reason=f"discrete-time plant (dt = {plant.dt:g} s): not supported yet")
-            return out
         else:
             obj = DESIGNS.create(design) if isinstance(design, str) else design
+            why = time_domain_mismatch(obj, plant, design_id)
+            if why:
+                rec.update(status="inapplicable", reason=why)
+                return out
             out.result = _design(rec, plant, obj, report, options)
             phase = "verification"
         if out.result is None or not out.result.has_controller:
@@ -526,11 +764,10 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
         # the gains' shapes (of this plant) and, for a new design, the eigenvalues of their linear closed loop
         out.loop = loop = checks.closed_loop(plant, out.result.K, out.result.F, optional_K=True)
         if prior is None:
-            ex = float(loop.eig_x.real.max())
-            rec.update(max_re_eig_x=ex, norm_F=float(np.linalg.norm(loop.F, 2)))
+            # max Re of the eigenvalues; discrete time: ln(max |eig|) / dt, the continuous equivalent's
+            rec.update(max_re_eig_x=loop.growth_x, norm_F=float(np.linalg.norm(loop.F, 2)))
             if loop.K is not None:  # else a run-time estimator: no fixed observer matrix to check
-                ee = float(loop.eig_e.real.max())
-                rec.update(max_re_eig_e=ee, stabilizing=bool(ex < 0 and ee < 0),
+                rec.update(max_re_eig_e=loop.growth_e, stabilizing=loop.stable,
                            norm_K=float(np.linalg.norm(loop.K, 2)))
             phase = "certificate"
             out.certificate = _certify(rec, plant, out.result, report, options, loop)
@@ -544,14 +781,12 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
             raise
         _timed_out(rec, exc, options, phase)
         out.result = out.trajectory = out.certificate = None
-    except Exception as exc:  # one failing pair never kills a run
+    except KeyboardInterrupt:  # the user's Ctrl-C stops the run
+        raise
+    except BaseException as exc:  # one failing pair never kills a run (nor a plugin's SystemExit)
         if options.fail_fast:
             raise
-        rec.update(status="error", reason=f"{type(exc).__name__}: {exc}", feasible=False, certified=False,
-                   converged=False, stabilizing=None)
-        tb = traceback.extract_tb(exc.__traceback__)
-        if tb:
-            rec["reason"] += f" (at {tb[-1].filename.rsplit('/', 1)[-1]}:{tb[-1].lineno}, during the {phase})"
+        _failed(out, exc, phase)
     finally:
         rec["sdp_solves"] = lmi.solve_tally()["n"] - solves
     return out

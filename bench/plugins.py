@@ -19,7 +19,10 @@ from pathlib import Path
 from bench.errors import PluginError
 from bench.registry import DESIGNS, PLANTS
 
-__all__ = ["load_plugin", "load_plugins"]
+__all__ = ["load_plugin", "load_plugins", "loaded_plugins"]
+
+#: The plugin files this process loaded, in order, each with the ids it registered (:func:`loaded_plugins`).
+_LOADED: dict[Path, list[str]] = {}
 
 
 def _module_name(path: Path) -> str:
@@ -102,7 +105,18 @@ def load_plugin(path) -> list[str]:
                 registry.unregister(i)
         sys.modules.pop(name, None)
         raise PluginError(f"plugin {shown}: {exc}") from None
+    _LOADED[p] = plants + designs
     return plants + designs
+
+
+def loaded_plugins() -> list[Path]:
+    """The plugin files this process loaded (resolved paths, in load order) whose ids are still registered.
+
+    A worker started by spawn or forkserver loads them again (:mod:`bench.executors`): unlike a forked one, it
+    does not inherit the registries.
+    """
+    ids = set(PLANTS.ids()) | set(DESIGNS.ids())
+    return [p for p, registered in _LOADED.items() if any(i in ids for i in registered)]
 
 
 def _execute(p: Path, name: str) -> None:

@@ -2,7 +2,7 @@
 
 The modules of the ``plants`` and ``designs`` packages (not those starting with ``_``) are imported on
 first use, so adding a plant or a design is adding one file. Ids name files and are matched by globs,
-so :func:`check_id` allows only :data:`ID_CHARS`; unknown ids raise :class:`UnknownIdError` with a
+so :func:`check_id` allows only :data:`ID_CHARS`, at most :data:`ID_MAX_CHARS` of them; unknown ids raise :class:`UnknownIdError` with a
 "did you mean".
 """
 
@@ -24,26 +24,35 @@ __all__ = ["DESIGNS", "PLANTS", "Registry", "register_design", "register_plant"]
 
 @dataclass(frozen=True)
 class Entry:
-    """A registered factory with its id, one-line summary and defining module."""
+    """A registered factory with its id, one-line summary and defining module; ``default`` False: run only when
+    a glob names it (not in the default selection, :meth:`Registry.select`)."""
 
     id: str
     factory: Callable[..., Any]
     summary: str
     module: str
     order: int = 100
+    default: bool = True
 
 
 #: The characters an id may hold (ids name files: no path separator, blank, glob or shell character).
 ID_CHARS = "letters A-Z a-z, digits 0-9, '_', '-', '.', '+'"
 _ID_RE = re.compile(r"[A-Za-z0-9_.+-]+")
+#: The longest id: the longest file name a report writes, ``<plant>__<design>.png``, stays within the usual
+#: 255-byte limit of a file name.
+ID_MAX_CHARS = 100
 
 
 def check_id(id: Any, kind: str = "id") -> str:
-    """``id`` if it is a non-empty string of :data:`ID_CHARS` not starting with '.' or '-', else a
-    :class:`RegistryError` naming the id, the offending character and the allowed ones (``kind`` starts the message).
+    """``id`` if it is a non-empty string of at most :data:`ID_MAX_CHARS` characters of :data:`ID_CHARS` not
+    starting with '.' or '-', else a :class:`RegistryError` naming the id, the offending character (or the length)
+    and the allowed ones (``kind`` starts the message).
     """
     if not isinstance(id, str) or not id:
         raise RegistryError(f"{kind} id {id!r}: must be a non-empty string of {ID_CHARS}")
+    if len(id) > ID_MAX_CHARS:
+        raise RegistryError(f"{kind} id {id[:40]!r}... ({len(id)} characters): at most {ID_MAX_CHARS} characters "
+                            "(ids name the report's files, and a file name has at most 255 bytes)")
     if not _ID_RE.fullmatch(id):
         bad = next(c for c in id if not _ID_RE.fullmatch(c))
         raise RegistryError(f"{kind} id {id!r}: the character {bad!r} is not allowed (ids name files); "
@@ -63,15 +72,17 @@ class Registry:
         self._entries: dict[str, Entry] = {}
         self._discovered = False
 
-    def register(self, id: str, factory: Callable[..., Any], summary: str | None = None, *, order: int = 100) -> None:
-        """Register ``factory`` under ``id`` (sorted by ``order``, then id); RegistryError on a bad id."""
+    def register(self, id: str, factory: Callable[..., Any], summary: str | None = None, *, order: int = 100,
+                 default: bool = True) -> None:
+        """Register ``factory`` under ``id`` (sorted by ``order``, then id; ``default`` False: only on request, see
+        :meth:`select`); RegistryError on a bad id."""
         check_id(id, self.kind)
         if id in self._entries:
             other = self._entries[id].module
             raise RegistryError(f"duplicate {self.kind} id {id!r} (already registered by {other})")
         module = getattr(factory, "__module__", "?")
         first_line = (getattr(factory, "__doc__", None) or "").strip().partition("\n")[0].strip()
-        self._entries[id] = Entry(id, factory, summary or first_line, module, order)
+        self._entries[id] = Entry(id, factory, summary or first_line, module, order, bool(default))
 
     def unregister(self, id: str) -> None:
         """Remove an id (used by plugin loading on failure and by tests)."""
@@ -92,6 +103,10 @@ class Registry:
         self.discover()
         return [e.id for e in sorted(self._entries.values(), key=lambda e: (e.order, e.id))]
 
+    def defaults(self) -> list[str]:
+        """The default selection: the registered ids without ``default=False``, sorted as :meth:`ids`."""
+        return [i for i in self.ids() if self._entries[i].default]
+
     def __contains__(self, id: str) -> bool:
         self.discover()
         return id in self._entries
@@ -108,7 +123,8 @@ class Registry:
         return difflib.get_close_matches(pattern, self.ids(), n=2, cutoff=0.5)
 
     def select(self, patterns: list[str] | None, *, keep_order: bool = False) -> list[str]:
-        """Ids matching any of the glob ``patterns`` (all ids if None or empty).
+        """Ids matching any of the glob ``patterns`` (the default selection, :meth:`defaults`, if None or empty:
+        an id registered with ``default=False`` runs only when a pattern matches it).
 
         Parameters
         ----------
@@ -123,7 +139,7 @@ class Registry:
         """
         ids = self.ids()
         if not patterns:
-            return ids
+            return self.defaults()
         chosen: list[str] = []
         for pat in patterns:
             hits = [i for i in ids if fnmatch.fnmatchcase(i, pat)]
@@ -141,11 +157,12 @@ PLANTS = Registry("plant", "plants")
 DESIGNS = Registry("design", "designs")
 
 
-def register_plant(id: str, summary: str | None = None, *, order: int = 100):
-    """Decorator registering a keyword-only plant factory under ``id``."""
+def register_plant(id: str, summary: str | None = None, *, order: int = 100, default: bool = True):
+    """Decorator registering a keyword-only plant factory under ``id`` (``default`` False: not in the default
+    selection, run when a ``--plant`` glob names it, e.g. a plant whose simulation is long)."""
 
     def deco(factory):
-        PLANTS.register(id, factory, summary, order=order)
+        PLANTS.register(id, factory, summary, order=order, default=default)
         return factory
 
     return deco

@@ -12,6 +12,7 @@ import json
 import math
 import os
 import platform
+import re
 import sys
 from dataclasses import dataclass
 from importlib import metadata
@@ -22,6 +23,7 @@ import numpy as np
 from bench.findings import constants_rows, findings
 from bench.harness import RunResult
 from bench.latex import level_cell, minimal_document, plain_cell, tables_tex
+from designs import GAIN_STATUSES
 
 __all__ = ["draw_figures", "results_table", "write_report"]
 
@@ -101,6 +103,45 @@ def short_reason(text, limit: int = REASON_CHARS) -> str:
     return cut.rstrip(" ,;:") + "..."
 
 
+def clip_words(text, limit: int) -> str:
+    """``text`` in at most ``limit`` characters: cut at the last word boundary before it, with ``"..."``."""
+    text = str(text)
+    if len(text) <= limit:
+        return text
+    cut = text[: max(limit - 3, 1)]
+    if " " in cut[limit // 2:]:
+        cut = cut[: cut.rindex(" ")]
+    return cut.rstrip(" ,;:(") + "..."
+
+
+def cell_fits(blank, value) -> bool:
+    """True when ``value`` is of the kind of a record column whose blank value is ``blank``
+    (:func:`bench.pipeline.blank_record`): text, a flag (True, False or None) or a number (or None)."""
+    if isinstance(blank, str):
+        return isinstance(value, str)
+    if blank is None or isinstance(blank, bool):
+        return value is None or isinstance(value, (bool, np.bool_))
+    return value is None or (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool))
+
+
+def check_cells(outcomes) -> None:
+    """Make every cell of the outcomes' records of the kind of its column (:func:`cell_fits`), in place: a cell holding
+    anything else (an object a plugin handed over, which results.csv and gains.json cannot hold) becomes its blank
+    value, and the pair's reason says which column and what it held."""
+    from bench.pipeline import blank_record
+
+    blank = blank_record("", "")
+    for o in outcomes:
+        rec = o.record
+        bad = [c for c, b in blank.items() if c in rec and not cell_fits(b, rec[c])]
+        notes = []
+        for c in bad:
+            notes.append(f"{c} held a {type(rec[c]).__name__}, which results.csv and gains.json cannot hold (blanked)")
+            rec[c] = blank[c]
+        if notes:
+            rec["reason"] = "; ".join(([rec["reason"]] if rec["reason"] else []) + notes)
+
+
 def results_table(df):
     """The results table as results.csv and :attr:`bench.api.Results.table` show it: the records of
     :meth:`bench.harness.RunResult.frame` (a DataFrame) with ``reason`` shortened by :func:`short_reason` and the
@@ -136,7 +177,7 @@ _SHORT = {"inapplicable": "n/a", "error": "ERROR"}
 
 def _cell(rec) -> str:
     s = _SHORT.get(rec["status"], rec["status"])
-    if rec["status"] not in ("feasible", "computed", "given"):
+    if rec["status"] not in GAIN_STATUSES:
         return s
     cert = f"cert {rec['cert_level']}" if rec["certified"] else "no cert"
     if rec["certified"] and rec["cert_scope"] in ("local", "from x0"):
@@ -204,17 +245,62 @@ def _figure_jobs(result: RunResult) -> list[_FigureJob]:
             t_show = min(float(tr.t[-1]), max(1.0, 2.0 * max(settle))) if settle else float(tr.t[-1])
             title = f"{pid} with {did} (cf. the paper's Figures 2-5; first {t_show:.3g} s of {tr.t[-1]:.3g} s)"
             keep = tr.t <= t_show
+            names = o.plant.state_names or tuple(f"x{i + 1}" for i in range(o.plant.n))
             jobs.append(_FigureJob("states", f"{pid}__{did}", f"{pid} with {did}: states, estimates (dashed) and "
-                                   "estimation errors", title, (tr.t[keep], tr.x[:, keep], tr.x_hat[:, keep], t_show)))
+                                   "estimation errors", title,
+                                   (tr.t[keep], tr.x[:, keep], tr.x_hat[:, keep], t_show, names)))
     return jobs
 
 
-#: Colours of the designs in a norms figure: 15 distinct ones (matplotlib's ten, then five more),
-#: each with its own line style too (:data:`NORM_STYLES`).
-NORM_COLOURS = ("C0", "C1", "C2", "C3", "C4", "C5", "C6", "C7", "C8", "C9", "black", "#b8860b", "#000080",
-                "#008080", "#ff1493")
-#: Line styles of a norms figure, cycled beside the colours (15 designs: 15 different pairs).
-NORM_STYLES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
+#: Colours of the designs in every figure of the suite (the report's and the studies'): matplotlib's ten, then
+#: eight more, each far from every other in CIELAB and of another hue (no light/dark pairs of one hue, as tab20
+#: has) (:func:`design_styles`).
+DESIGN_COLOURS = ("C0", "C1", "C2", "C3", "C4", "C5", "C6", "C7", "C8", "C9", "black", "#b8860b", "#000080",
+                  "#ff00ff", "#556b2f", "#00ff7f", "#4169e1", "#ba55d3")
+#: Line styles and markers cycled beside the colours: two designs never share all three.
+DESIGN_LINESTYLES = ("-", "--", "-.", ":")
+DESIGN_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "<", ">", "h")
+#: The norms figure's colours and line styles (the design palette).
+NORM_COLOURS, NORM_STYLES = DESIGN_COLOURS, DESIGN_LINESTYLES
+
+
+def design_styles(design_ids) -> dict[str, dict]:
+    """The colour, line style and marker of each design, the same in every figure of the suite.
+
+    A registered design keeps the slot of its place in the registry (so ``thm1`` has one colour in the report
+    and in every study); another label (``lqr+ekf (r = sigma^2)``) takes the next free slot, in the order given,
+    whose colour none of ``design_ids`` has (when one is left).
+    Slot ``k`` has colour ``k mod 18``, line style ``k mod 4`` and marker ``k mod 11`` (beyond 18 designs a
+    colour comes back, with another line style or marker).
+
+    Parameters
+    ----------
+    design_ids : iterable of str
+
+    Returns
+    -------
+    dict
+        Design id -> ``{"color", "linestyle", "marker"}`` (matplotlib keywords).
+    """
+    from bench.registry import DESIGNS
+
+    registered = DESIGNS.ids()
+    slot = {d: k for k, d in enumerate(registered)}
+    ids = list(dict.fromkeys(design_ids))
+    taken = {slot[d] % len(DESIGN_COLOURS) for d in ids if d in slot}  # the colours of this figure's designs
+    out = {}
+    extra = len(registered)
+    for did in ids:
+        k = slot.get(did)
+        if k is None:  # the next slot whose colour no design of this figure has (if any is left)
+            free = next((j for j in range(extra, extra + len(DESIGN_COLOURS))
+                         if j % len(DESIGN_COLOURS) not in taken), extra)
+            k, extra = free, free + 1
+            taken.add(k % len(DESIGN_COLOURS))
+        out[did] = {"color": DESIGN_COLOURS[k % len(DESIGN_COLOURS)],
+                    "linestyle": DESIGN_LINESTYLES[k % len(DESIGN_LINESTYLES)],
+                    "marker": DESIGN_MARKERS[k % len(DESIGN_MARKERS)]}
+    return out
 #: Norms below this are drawn on it (a log axis has no 0); the figure draws and names the floor.
 NORM_FLOOR = 1e-16
 
@@ -227,9 +313,9 @@ def _norms_figure(job: _FigureJob):
     axes = [fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1])]
     axes[1].sharex(axes[0])
     clipped = False
-    for k, (did, t, nx, ne) in enumerate(job.data):
-        style = dict(color=NORM_COLOURS[k % len(NORM_COLOURS)], linestyle=NORM_STYLES[k % len(NORM_STYLES)],
-                     linewidth=1.3)
+    styles = design_styles(did for did, *_ in job.data)
+    for did, t, nx, ne in job.data:
+        style = dict(color=styles[did]["color"], linestyle=styles[did]["linestyle"], linewidth=1.3)
         for ax, v in zip(axes, (nx, ne)):
             clipped |= bool(np.any(v < NORM_FLOOR))
             ax.semilogy(t, np.maximum(v, NORM_FLOOR), label=did, **style)
@@ -251,20 +337,25 @@ def _norms_figure(job: _FigureJob):
 
 
 def _states_figure(job: _FigureJob):
-    """One pair's states, estimates (dashed) and errors (the paper's Figures 2-5); returns (figure, dpi)."""
-    t, x, x_hat, t_show = job.data
+    """One pair's states, estimates (dashed) and errors (the paper's Figures 2-5), each state named with its unit
+    (:attr:`plants.Plant.state_names`); returns (figure, dpi)."""
+    t, x, x_hat, t_show, names = job.data
     n = x.shape[0]
     fig, axes = pyplot().subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
     fig.subplots_adjust(left=0.06, right=0.99, bottom=0.09, top=0.88, wspace=0.35, hspace=0.4)
     for i in range(n):
+        unit = re.search(r"\[[^\]]*\]\s*$", names[i])
+        unit = f" {unit.group(0).strip()}" if unit else ""
+        what = f"x{i + 1} and its estimate" if names[i] == f"x{i + 1}" else f"x{i + 1}: {names[i]}"
         ax = axes[0, i]
         ax.plot(t, x[i], label=f"x{i + 1}")
         ax.plot(t, x_hat[i], "--", label=f"x_hat{i + 1}")
-        ax.set(title=f"x{i + 1} and its estimate", xlabel="t [s]", ylabel=f"x{i + 1}, x_hat{i + 1}")
+        ax.set(title=what, xlabel="t [s]", ylabel=f"x{i + 1}, x_hat{i + 1}{unit}")
         ax.legend(fontsize=8, loc="upper right")
         ax = axes[1, i]
         ax.plot(t, x[i] - x_hat[i], color="C3")
-        ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]", ylabel=f"e{i + 1} = x{i + 1} - x_hat{i + 1}")
+        ax.set(title=f"estimation error e{i + 1}", xlabel="t [s]",
+               ylabel=f"e{i + 1} = x{i + 1} - x_hat{i + 1}{unit}")
     for ax in axes.flat:
         ax.set(xlim=(0, t_show))
         ax.grid(True, alpha=0.3)
@@ -326,31 +417,44 @@ def _summary(found: dict) -> str:
     for did, rows in by_design.items():
         plants = ", ".join(x["plant"] for x in rows)
         alike = len({x["reason"] for x in rows}) == 1
-        why = (f": {format_cell(rows[0]['reason'])[:300]}" if alike else
-               f"; on {rows[0]['plant']}: {format_cell(rows[0]['reason'])[:240]} (each plant's reason: \"Reasons, per plant\" below)")
+        why = (f": {clip_words(format_cell(rows[0]['reason']), 300)}" if alike else
+               f"; on {rows[0]['plant']}: {clip_words(format_cell(rows[0]['reason']), 240)} (each plant's reason: "
+               "\"Reasons, per plant\" below)")
         lines.append(f"- {did} (as printed) is infeasible on {plants}{why}")
     return "\n".join(lines)
 
 
-_LEGEND = (
-    "How to read a row. *Status*: `feasible` (an LMI or Riccati condition solved and verified), `computed` "
-    "(LQR/Kalman gains), `given` (printed gains), `infeasible` (under the stated normalisation), `marginal` (best "
-    "margin within the verification tolerance of zero), `inapplicable`, `undecided` (solver trouble), `error`, "
-    "`timeout`. *Stabilizing*: A+BF and A-KC Hurwitz. **The certificate ladder** checks the gains (K, F) with "
-    "quadratic Lyapunov functions V = z'Pz of z = (x, e) at three levels of what is known about f: *paper* is the "
-    "paper's (20) (block-diagonal P, the OSL and QIB constants); *full* couples x and e in P and adds every scalar "
-    "constant; *structured* adds the plant's declared channels f = G phi(Hx) with their slope bounds. Each level "
-    "contains the one below; *certified* is the strongest level that certifies and *decay rate* its rate lam "
-    "(V' <= -2 lam V). Only analytic constants and channels no sample disproved are used (sampled constants are "
-    "lower bounds and never certify). With constants that hold on ||x|| <= r the *scope* is `from x0` when the "
-    "level set of V through the initial condition stays in the region, else `local`. Where no global certificate "
-    "is found, a *witness* shows none can exist: a linear phi(s) = c s in the declared slope box whose loop is "
-    "unstable, or an equilibrium besides the origin; a certificate `from x0` is then searched on a region "
-    "|Hx|, |Hx_hat| <= r where the slopes narrow. *rate_ceiling* is the slowest linear member of the certified "
-    "class (no certificate over it can prove more), *rate_ratio* the certified rate over it. *Converged*: at the "
-    "end of the horizon ||x|| and ||e|| are below 1e-3 of the peak of ||z|| (with noise: settled). The horizon is "
-    "long enough for the certified rate (uncertified: twice the linearisation's) to decay by 1e-3, from the "
-    "plant's own to 10 times it (*horizon_rule*); a certified pair that does not converge says why in its reason.")
+_LEGEND = "\n".join([
+    "**How to read a row**",
+    "",
+    "- *Status* with gains: `feasible` (an LMI or Riccati condition solved and verified), `computed` (LQR/Kalman "
+    "gains), `given` (printed gains), `unverified` (a plugin's \"feasible\" the suite could not check).",
+    "- *Status* without gains: `infeasible` (under the stated normalisation), `marginal` (best margin within the "
+    "verification tolerance of zero), `inapplicable`, `undecided` (solver trouble), `error`, `timeout`.",
+    "- *Stabilizing*: A+BF and A-KC Hurwitz (Schur, spectral radius < 1, for a discrete-time plant).",
+    "- *Discrete time* (dt > 0): the plant is stepped, x_{k+1} = A x_k + B u_k + f(x_k); its rates are per "
+    "second, -ln(max |eig|) / dt, and `max_re_eig_*` is the continuous equivalent ln(max |eig|) / dt.",
+    "- **The certificate ladder** checks the gains (K, F) with quadratic Lyapunov functions V = z'Pz of z = (x, e) "
+    "at three levels of what is known about f, each containing the one below:",
+    "  *paper* is the paper's (20) (block-diagonal P, the OSL and QIB constants); *full* couples x and e in P and "
+    "adds every scalar constant; *structured* adds the plant's declared channels f = G phi(Hx) with their slope "
+    "bounds.",
+    "- *Certified* is the strongest level that certifies and *decay rate* its rate lam (V' <= -2 lam V). Only "
+    "analytic constants and channels no sample disproved are used (sampled constants are lower bounds and never "
+    "certify).",
+    "- *Scope*: with constants that hold on ||x|| <= r, `from x0` when the level set of V through the initial "
+    "condition stays in the region, else `local`.",
+    "- *Witness*: where no global certificate is found, a proof that none can exist: a linear phi(s) = c s in the "
+    "declared slope box whose loop is unstable, or an equilibrium besides the origin; a certificate `from x0` is "
+    "then searched on a region |Hx|, |Hx_hat| <= r where the slopes narrow.",
+    "- *rate_ceiling*: the slowest linear member of the certified class (no certificate over it can prove more); "
+    "*rate_ratio*: the certified rate over it.",
+    "- *Converged*: at the end of the horizon ||x|| and ||e|| are below 1e-3 of the peak of ||z|| (with noise: "
+    "settled); blank for a pair without gains.",
+    "- *Horizon*: long enough for the certified rate (uncertified: twice the linearisation's) to decay by 1e-3, "
+    "from the plant's own to 10 times it (*horizon_rule*); a certified pair that does not converge says why in its "
+    "reason.",
+])
 
 
 def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info: dict) -> str:
@@ -367,7 +471,10 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
     parts = [
         "# oslbench report",
         "",
-        f"Command: `{run_info['command']}`. Seed {o.seed}; measurement noise sigma = {o.noise:g}; designs use the "
+        f"Command: `{run_info['command']}`. Seed {o.seed}; measurement noise sigma = {o.noise:g}; "
+        + (f"disturbance peak {o.disturbance:g} (measured L2 ratios from z(0) = 0 in `l2_measured_e`, `l2_measured_x`); "
+           if o.disturbance > 0 else "")
+        + f"designs use the "
         f"{'constants claimed by the sources' if o.use_claimed else 'valid constants (analytic, else sampled)'}; "
         f"{len(df)} pairs. One row per pair in `results.csv` (every verdict below is a column there), gains and "
         "certificates in `gains.json`, settings, versions and these findings in `run.json`, LaTeX tables in "
@@ -432,25 +539,68 @@ def _figure_lines(figures: list[tuple[str, str]]) -> list[str]:
     return parts
 
 
+def _num(v) -> float | None:
+    """A finite float, else None (JSON null)."""
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _arr(M) -> list | None:
+    return None if M is None else np.asarray(M).tolist()
+
+
+def _region(lr) -> str:
+    """Where a certificate's constraints hold, in words."""
+    if lr.radius is None:
+        return "everywhere"
+    return f"{'|Hx|, |Hx_hat|' if lr.region_H is not None else '||x||, ||x_hat||'} <= {lr.radius:.17g}"
+
+
+def _level_json(lr, plant) -> dict:
+    """One certificate of gains.json: what an outside script needs to check it (docs/results.md)."""
+    from bench.verdicts import certificate_scope
+
+    scope = certificate_scope(lr.P if lr.certified else None, lr.radius, plant.x0, plant.x_hat0, H=lr.region_H)
+    return {"level": lr.level, "status": lr.status, "decay_rate": _num(lr.decay_rate), "margin": _num(lr.margin),
+            "reason": lr.reason, "P": _arr(lr.P), "scope": scope["cert_scope"],
+            "radius": None if lr.radius is None else float(lr.radius), "region": _region(lr),
+            "region_H": _arr(lr.region_H), "level_set": _num(scope["level_set"]), "level_x0": _num(scope["level_x0"]),
+            "slopes": None if lr.slopes is None else {"lo": _arr(lr.slopes[0]), "hi": _arr(lr.slopes[1])}}
+
+
+def _pair_json(o) -> dict:
+    """gains.json's entry of one pair: its checked gains, verdicts and every certificate (none for an error or a
+    timeout row)."""
+    r, rec, cert, loop = o.result, o.record, o.certificate, o.loop
+    if rec["status"] in ("error", "timeout"):
+        cert = None
+    best = cert.best if cert is not None else None
+    return {**{k: rec[k] for k in ("plant", "design", "status", "reason", "route")},
+            "K": _arr(loop.K) if loop is not None else None, "F": _arr(loop.F) if loop is not None else None,
+            "estimator": None if r.estimator is None else repr(r.estimator),
+            "certified": bool(rec["certified"]), "cert_level": rec["cert_level"], "cert_scope": rec["cert_scope"],
+            "decay_rate": _num(rec["decay_rate"]),
+            "best": None if best is None else "from_x0" if best is cert.local else best.level,
+            "certificate": {} if cert is None else {lv: _level_json(lr, o.plant) for lv, lr in cert.levels.items()},
+            "from_x0": None if cert is None or cert.local is None else _level_json(cert.local, o.plant)}
+
+
 def _gains(result: RunResult) -> list[dict]:
-    """gains.json: per pair with a controller, its gains, verdicts and certificate levels."""
-    def num(v):
-        return float(v) if math.isfinite(v) else None
-
-    def arr(M):
-        return None if M is None else np.asarray(M).tolist()
-
+    """gains.json: per pair with a controller, :func:`_pair_json`; a pair whose entry cannot be written (a value JSON
+    cannot hold) is a note for that pair, never the loss of the file."""
     out = []
     for o in result.outcomes:
-        r, rec, cert = o.result, o.record, o.certificate
-        if r is None or not r.has_controller:
+        if o.result is None or not o.result.has_controller:
             continue
-        levels = {lv: {"status": lr.status, "decay_rate": num(lr.decay_rate), "P": arr(lr.P)}
-                  for lv, lr in (cert.levels.items() if cert is not None else ())}
-        out.append({**{k: rec[k] for k in ("plant", "design", "status", "reason", "route")}, "K": arr(r.K),
-                    "F": arr(r.F), "estimator": None if r.estimator is None else repr(r.estimator),
-                    "certified": bool(rec["certified"]), "cert_level": rec["cert_level"],
-                    "decay_rate": num(rec["decay_rate"]), "certificate": levels})
+        try:
+            entry = _pair_json(o)
+            json.dumps(entry)
+        except Exception as exc:  # noqa: BLE001 - a plugin's value: this pair's note, not the report's failure
+            rec = o.record
+            entry = {"plant": rec["plant"], "design": rec["design"], "status": rec["status"],
+                     "error": f"this pair's gains and certificates cannot be written to JSON: {type(exc).__name__}: "
+                              f"{exc}"}
+        out.append(entry)
     return out
 
 
@@ -473,6 +623,7 @@ def _run_json(result: RunResult, run_info: dict) -> dict:
         "horizon_cap": o.horizon_cap,
         "noise": o.noise,
         "noise_dt": o.noise_dt,
+        "disturbance": o.disturbance,
         "timeout": o.timeout,
         "sim": {k: getattr(o.sim, k) for k in ("method", "rtol", "atol", "n_points", "blowup", "max_nfev")},
         "constants": {pid: rep.to_dict() for pid, rep in result.constants.items()},
@@ -489,6 +640,7 @@ def _run_json(result: RunResult, run_info: dict) -> dict:
 
 def _render(result: RunResult, tmp: Path, run_info: dict, figures: bool, fmts: tuple[str, ...]) -> list[str]:
     (tmp / "figures").mkdir()
+    check_cells(result.outcomes)
     df = result.frame()
     info = {**run_info, "findings": run_info.get("findings") or findings(df, result.constants)}
     figs = draw_figures(result, tmp / "figures", fmts) if figures else []

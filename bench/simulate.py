@@ -5,13 +5,22 @@ States ``z = (x, x_hat)`` (2n), ``u = F x_hat``::
     x'     = A x + B F x_hat + f(x)
     x_hat' = A x_hat + B F x_hat + f(x_hat) + K C (x - x_hat)
 
-integrated with scipy's ``solve_ivp``. A run stops with status ``"diverged"`` (non-finite, or
-``||z||`` above ``blowup * max(1, ||z(0)||)``), ``"budget"`` (``max_nfev`` right-hand sides) or
-``"timeout"`` (``max_wall_s`` seconds).
+integrated with scipy's ``solve_ivp``. A discrete-time plant (``plant.dt > 0``) is stepped instead, no ODE
+solver (:func:`simulate_controller` dispatches on ``plant.dt``)::
+
+    x_{k+1}     = A x_k + B u_k + f(x_k) (+ Bw w_k),    y_k = C x_k (+ Dw w_k) (+ v_k),    u_k = F x_hat_k
+    x_hat_{k+1} = A x_hat_k + B u_k + f(x_hat_k) + K (y_k - C x_hat_k)
+
+A run stops with status ``"diverged"`` (non-finite, or ``||z||`` above ``blowup * max(1, ||z(0)||)``),
+``"budget"`` (``max_nfev`` right-hand sides, or steps) or ``"timeout"`` (``max_wall_s`` seconds).
+
+A disturbance ``w(t)`` (a callable returning shape (q,), :mod:`bench.disturbance`) enters as
+``x' = ... + Bw w``, ``y = C x + Dw w``; a discrete plant takes ``w_k = w(k dt)``.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -21,7 +30,7 @@ from bench import checks
 from bench.errors import SimulationStopped as _Stop
 from plants import Plant
 
-__all__ = ["SimOptions", "Trajectory", "simulate", "simulate_controller"]
+__all__ = ["SimOptions", "Trajectory", "discrete_steps", "disturbance_input", "simulate", "simulate_controller"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -181,6 +190,38 @@ class _LoopRHS(Budget):
         return self.L @ z + nl
 
 
+def disturbance_input(plant, K: np.ndarray | None) -> np.ndarray:
+    """How a disturbance w enters the loop in ``z = (x, x_hat)``: ``[Bw; K Dw]`` (2n, q) (``y = C x + Dw w``
+    reaches the observer through K); ``[Bw; 0]`` without K (a run-time estimator sees ``Dw w`` in ``y``)."""
+    lower = np.zeros_like(plant.Bw) if K is None else K @ plant.Dw
+    return np.vstack([plant.Bw, lower])
+
+
+def _check_disturbance(plant, disturbance):
+    """``disturbance`` (None or a callable ``w(t) -> (q,)``) for ``plant``; ValueError when it cannot enter."""
+    if disturbance is None:
+        return None
+    if not callable(disturbance):
+        raise ValueError(f"disturbance: expected a callable w(t) -> (q,), got {checks.brief(disturbance)}")
+    if plant.q == 0:
+        raise ValueError(f"disturbance: plant {plant.id!r} has no disturbance input (Bw, Dw are None)")
+    w0 = np.asarray(disturbance(0.0), dtype=float)
+    if w0.shape != (plant.q,):
+        raise ValueError(f"disturbance: w(0) must have shape ({plant.q},) (the plant's q), got {w0.shape}")
+    return disturbance
+
+
+class _DisturbedRHS(_LoopRHS):
+    """:class:`_LoopRHS` plus ``Bd w(t)``, ``Bd`` from :func:`disturbance_input`."""
+
+    def __init__(self, L, f, n: int, options: SimOptions, Bd: np.ndarray, w):
+        super().__init__(L, f, n, options)
+        self.Bd, self.w = Bd, w
+
+    def __call__(self, t, z):
+        return super().__call__(t, z) + self.Bd @ np.asarray(self.w(t), dtype=float)
+
+
 def simulate(
     plant: Plant,
     K: np.ndarray,
@@ -191,6 +232,7 @@ def simulate(
     x_hat0: np.ndarray | None = None,
     options: SimOptions = SimOptions(),
     loop: checks.ClosedLoop | None = None,
+    disturbance=None,
 ) -> Trajectory:
     """Simulate the nonlinear closed loop plant + observer (6) from the plant's initial conditions.
 
@@ -206,19 +248,33 @@ def simulate(
     options : SimOptions
     loop : ClosedLoop, optional
         The checked gains and their spectra (:func:`bench.checks.closed_loop`).
+    disturbance : callable, optional
+        ``w(t) -> (q,)``: ``x' = ... + Bw w``, ``y = C x + Dw w`` (the plant needs ``Bw``, ``Dw``).
 
     Returns
     -------
     Trajectory
         Truncated where the run stopped.
+
+    Raises
+    ------
+    ValueError
+        For a discrete-time plant (:func:`simulate_controller` steps those), bad gains or disturbance.
     """
+    if plant.discrete:
+        raise ValueError(f"plant {plant.id!r} is discrete-time (dt = {plant.dt:g} s): simulate it with "
+                         "simulate_controller, which steps it")
     n = plant.n
     K, F = (loop.K, loop.F) if loop is not None else checks.gains(plant, K, F)
     T = checks.horizon(t_final, default=plant.t_final)
     x0 = np.asarray(plant.x0 if x0 is None else x0, dtype=float)
     xh0 = np.asarray(plant.x_hat0 if x_hat0 is None else x_hat0, dtype=float)
     z0 = np.concatenate([x0, xh0])
-    rhs = _LoopRHS(_loop_operator(plant, K, F), plant.f, n, options)
+    w = _check_disturbance(plant, disturbance)
+    if w is None:
+        rhs = _LoopRHS(_loop_operator(plant, K, F), plant.f, n, options)
+    else:
+        rhs = _DisturbedRHS(_loop_operator(plant, K, F), plant.f, n, options, disturbance_input(plant, K), w)
     limit = options.blowup * max(1.0, float(np.linalg.norm(z0)))
 
     def blowup(t, z):  # a terminal event
@@ -264,13 +320,23 @@ def simulate_controller(
     seed: int = 0,
     options: SimOptions = SimOptions(),
     loop: checks.ClosedLoop | None = None,
+    x0: np.ndarray | None = None,
+    x_hat0: np.ndarray | None = None,
+    disturbance=None,
 ) -> Trajectory:
-    """Simulate an observer-based controller, whatever its estimator.
+    """Simulate an observer-based controller, whatever its estimator and the plant's time domain.
 
-    A gain ``K`` without noise: :func:`simulate`; with noise ``v_k`` held over each ``noise_dt``
-    (``y = C x + v_k``) the loop (6) stays continuous. A run-time ``estimator`` (a specification, or a
-    filter with ``dt``, ``x``, ``update(y)``, ``predict(u)``) runs at its own period, ``u_k`` held.
-    Sampled paths return the samples (``x_hat`` the estimate used at ``t_k``).
+    Continuous plant: a gain ``K`` without noise: :func:`simulate`; with noise ``v_k`` held over each
+    ``noise_dt`` (``y = C x + v_k``) the loop (6) stays continuous. A run-time ``estimator`` (a
+    specification, or a filter with ``dt``, ``x``, ``update(y)``, ``predict(u)``) runs at its own period,
+    ``u_k`` held. Sampled paths return the samples (``x_hat`` the estimate used at ``t_k``).
+
+    Discrete plant (``plant.dt > 0``): stepped, ``N = ceil(t_final / dt)`` steps (module docstring), one
+    noise sample ``v_k`` per step (``noise_dt`` is not used). A run-time estimator must have ``dt ==
+    plant.dt``; at each step ``update(y_k)``, ``x_hat_k = estimator.x``, ``u_k = F x_hat_k``, then
+    ``predict(u_k)``, or ``predict(u_k, x_next=A x_hat_k + B u_k + f(x_hat_k))`` for an estimator whose
+    ``predicts_with_model`` is True (the simulator supplies the model's step, as it supplies the
+    model's flow in continuous time).
 
     Parameters
     ----------
@@ -286,6 +352,10 @@ def simulate_controller(
     options : SimOptions
     loop : ClosedLoop, optional
         As for :func:`simulate`.
+    x0, x_hat0 : ndarray (n,), optional
+        Initial state and estimate (default the plant's).
+    disturbance : callable, optional
+        ``w(t) -> (q,)`` entering through the plant's ``Bw``, ``Dw`` (:mod:`bench.disturbance`).
 
     Returns
     -------
@@ -294,22 +364,40 @@ def simulate_controller(
     if (K is None) == (estimator is None):
         raise ValueError("simulate_controller: give exactly one of K and estimator")
     checks.real("noise", noise, lo=0.0)
+    x0 = np.asarray(plant.x0 if x0 is None else x0, dtype=float).copy()
+    x_hat0 = np.asarray(plant.x_hat0 if x_hat0 is None else x_hat0, dtype=float).copy()
+    w = _check_disturbance(plant, disturbance)
+    if plant.discrete:
+        t_final = discrete_steps(plant.dt, t_final) * plant.dt
     if estimator is not None:
         if not hasattr(estimator, "update"):  # a specification: build the filter
             from bench.estimators import runtime_estimator
 
-            estimator = runtime_estimator(estimator, plant, plant.x_hat0, t_final=t_final)
-        return _SampledLoop(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options).run()
+            estimator = runtime_estimator(estimator, plant, x_hat0, t_final=t_final)
+        if plant.discrete:
+            return _DiscreteLoop(plant, F, None, estimator, t_final, noise, seed, options, x0, x_hat0, w).run()
+        return _SampledLoop(plant, F, None, estimator, estimator.dt, t_final, noise, seed, options, x0, x_hat0,
+                            w).run()
+    if plant.discrete:
+        K, F = (loop.K, loop.F) if loop is not None else checks.gains(plant, K, F)
+        return _DiscreteLoop(plant, F, K, None, t_final, noise, seed, options, x0, x_hat0, w).run()
     if noise > 0:
-        return _SampledLoop(plant, F, K, None, noise_dt, t_final, noise, seed, options).run()
-    return simulate(plant, K, F, t_final=t_final, options=options, loop=loop)
+        return _SampledLoop(plant, F, K, None, noise_dt, t_final, noise, seed, options, x0, x_hat0, w).run()
+    return simulate(plant, K, F, t_final=t_final, options=options, loop=loop, x0=x0, x_hat0=x_hat0, disturbance=w)
+
+
+def discrete_steps(dt: float, t_final: float) -> int:
+    """The number of steps ``N = ceil(t_final / dt)`` (at least 1) of a discrete-time run over ``t_final``."""
+    checks.real("dt", dt, lo=0.0, strict=True)
+    T = checks.horizon(t_final)
+    return max(1, math.ceil(T / dt - 1e-9))
 
 
 class _SampledLoop:
     """The sampled paths of :func:`simulate_controller`: ``N = t_final / dt`` intervals, noise drawn once."""
 
     def __init__(self, plant: Plant, F, K, estimator, dt: float, t_final: float, noise: float, seed: int,
-                 options: SimOptions):
+                 options: SimOptions, x0=None, x_hat0=None, disturbance=None):
         import scipy.integrate
 
         checks.real("dt", dt, lo=0.0, strict=True)
@@ -323,9 +411,14 @@ class _SampledLoop:
         self.F = np.asarray(F, dtype=float)
         self.K = None if K is None else np.asarray(K, dtype=float)
         self.L = None if K is None else loop_matrix(plant, self.K, self.F)
-        self.x0 = np.asarray(plant.x0, dtype=float).copy()
-        self.xh0 = np.asarray(plant.x_hat0, dtype=float).copy()
+        self.x0 = np.asarray(plant.x0 if x0 is None else x0, dtype=float).copy()
+        self.xh0 = np.asarray(plant.x_hat0 if x_hat0 is None else x_hat0, dtype=float).copy()
         self.estimator, self.dt, self.options = estimator, dt, options
+        # a disturbance w(t_k + s) over the interval starting at t_k: Bw w on the plant, K Dw w on the observer
+        self.w, self.tk = disturbance, 0.0
+        if disturbance is not None:
+            self.Bw, self.Dw = plant.Bw, plant.Dw
+            self.Bd = disturbance_input(plant, self.K)
         # "auto": RK45 for the smooth plant and model flow of an estimator, DOP853 with an observer gain
         method = options.method if options.method != "auto" else ("RK45" if estimator is not None else "DOP853")
         self.method = getattr(scipy.integrate, method) if isinstance(method, str) else method
@@ -333,18 +426,27 @@ class _SampledLoop:
         self.first = None  # the first step of the next interval (see _solve)
         self.nfev = 0
 
+    def _w(self, t) -> np.ndarray:
+        """The disturbance at ``t`` within the current interval."""
+        return np.asarray(self.w(self.tk + t), dtype=float)
+
     def _model_rhs(self, t, s):
         """Plant and the estimator's model flow, ``s`` the (n, 2) array ``[x, x_hat]`` raveled."""
         S = s.reshape(self.n, 2)
-        return _finite(self.A @ S + self.held + np.asarray(self.f(S), dtype=float), t).ravel()
+        d = self.A @ S + self.held + np.asarray(self.f(S), dtype=float)
+        if self.w is not None:  # on the plant only: the model does not know w
+            d[:, 0] += self.Bw @ self._w(t)
+        return _finite(d, t).ravel()
 
     def _plant_rhs(self, t, s):
         """The plant alone, ``B u_k`` held."""
-        return _finite(self.A @ s + self.held + self.f(s), t)
+        d = self.A @ s + self.held + self.f(s)
+        return _finite(d if self.w is None else d + self.Bw @ self._w(t), t)
 
     def _observer_rhs(self, t, s):
         """Plant and continuous observer (6) in ``z = (x, x_hat)``, the noise injection held."""
-        return _finite(self.L @ s + self.held + np.asarray(self.f(s.reshape(2, self.n).T), dtype=float).T.ravel(), t)
+        d = self.L @ s + self.held + np.asarray(self.f(s.reshape(2, self.n).T), dtype=float).T.ravel()
+        return _finite(d if self.w is None else d + self.Bd @ self._w(t), t)
 
     def _solve(self, fun, y0) -> tuple[np.ndarray, int]:
         """One interval with scipy's solver stepped directly: the end state and the right-hand sides used."""
@@ -393,9 +495,9 @@ class _SampledLoop:
         t0 = time.perf_counter()
         wall_end = None if o.max_wall_s is None else t0 + o.max_wall_s
         for k in range(N + 1):
-            tk = k * dt
+            tk = self.tk = k * dt
             if est is not None:
-                est.update(C @ x + V[k])
+                est.update(C @ x + V[k] + (0.0 if self.w is None else self.Dw @ self._w(0.0)))
                 xh = est.x
             u = F @ xh
             ts.append(tk)
@@ -422,3 +524,91 @@ class _SampledLoop:
         wall = time.perf_counter() - t0
         return Trajectory(np.array(ts), np.array(xs).T, np.array(xhs).T, np.array(us).T, status, message, wall,
                           self.nfev)
+
+
+class _DiscreteLoop:
+    """The stepped loop of a discrete-time plant (module docstring): ``N = t_final / dt`` steps, noise drawn once.
+
+    With a gain K the step is ``z_{k+1} = L z_k + (f(x_k), f(x_hat_k)) + [Bw; K Dw] w_k + (0, K v_k)`` in
+    ``z = (x, x_hat)``, ``L`` the matrix :func:`loop_matrix` (the same as in continuous time: the loop (6)
+    with ``z'`` read as ``z_{k+1}``). With a run-time estimator, the plant steps and the estimator updates
+    and predicts (:func:`simulate_controller`).
+    """
+
+    def __init__(self, plant: Plant, F, K, estimator, t_final: float, noise: float, seed: int,
+                 options: SimOptions, x0: np.ndarray, x_hat0: np.ndarray, disturbance=None):
+        dt = plant.dt
+        if estimator is not None and abs(float(estimator.dt) - dt) > 1e-12 * dt:
+            raise ValueError(f"estimator: its sample time {float(estimator.dt):g} s differs from the discrete "
+                             f"plant's dt = {dt:g} s (a discrete plant's estimator runs at the plant's steps)")
+        self.N = discrete_steps(dt, t_final)
+        # the same stream as the continuous sampled paths: v_k ~ N(0, noise^2 I), one per sample
+        self.V = noise * np.random.default_rng(seed).standard_normal((self.N + 1, plant.p))
+        self.plant, self.dt, self.options, self.estimator = plant, dt, options, estimator
+        self.F = np.asarray(F, dtype=float)
+        self.K = None if K is None else np.asarray(K, dtype=float)
+        self.x0, self.xh0 = x0, x_hat0
+        self.W = None
+        if disturbance is not None:
+            self.W = np.array([np.asarray(disturbance(k * dt), dtype=float) for k in range(self.N + 1)])
+
+    def run(self) -> Trajectory:
+        """Step ``N`` times; the trajectory at every step ``t_k = k dt``."""
+        p, o, N, dt = self.plant, self.options, self.N, self.dt
+        n, A, B, C, f = p.n, p.A, p.B, p.C, p.f
+        F, K, est, V, W = self.F, self.K, self.estimator, self.V, self.W
+        X = np.full((n, N + 1), np.nan)
+        XH = np.full((n, N + 1), np.nan)
+        U = np.full((p.m, N + 1), np.nan)
+        x, xh = self.x0.copy(), self.xh0.copy()
+        limit = o.blowup * max(1.0, float(np.linalg.norm(np.concatenate([x, xh]))))
+        if K is not None:
+            L = loop_matrix(p, K, F)
+            inject = np.vstack([np.zeros((n, p.p)), K])  # (0, K v_k)
+            Bd = disturbance_input(p, K) if W is not None else None
+        status, message, steps = "ok", "", 0
+        t0 = time.perf_counter()
+        wall_end = None if o.max_wall_s is None else t0 + o.max_wall_s
+        z = np.concatenate([x, xh])
+        k = 0
+        for k in range(N + 1):
+            if est is not None:
+                y = C @ x + V[k] + (0.0 if W is None else p.Dw @ W[k])
+                est.update(y)
+                xh = est.x
+                z = np.concatenate([x, xh])
+            u = F @ xh
+            X[:, k], XH[:, k], U[:, k] = x, xh, u
+            if not np.linalg.norm(z) <= limit:  # above the limit, or not finite (a NaN norm)
+                status, message = "diverged", f"||z|| exceeded {limit:.3g} (or became non-finite) at t = {k * dt:.4g}"
+                break
+            if k == N:
+                break
+            if wall_end is not None and time.perf_counter() > wall_end:
+                status, message = "timeout", f"more than {o.max_wall_s:.3g} s of wall time by t = {k * dt:.4g}"
+                break
+            try:
+                if K is not None:
+                    nl = np.asarray(f(np.stack([x, xh], axis=1)), dtype=float)  # one batch call: f(x), f(x_hat)
+                    z = L @ z + np.concatenate([nl[:, 0], nl[:, 1]]) + inject @ V[k]
+                    if W is not None:
+                        z = z + Bd @ W[k]
+                    x, xh = z[:n], z[n:]
+                else:
+                    Bu = B @ u
+                    nl = np.asarray(f(np.stack([x, xh], axis=1)), dtype=float)
+                    x = A @ x + Bu + nl[:, 0] + (0.0 if W is None else p.Bw @ W[k])
+                    if getattr(est, "predicts_with_model", False):
+                        est.predict(u, x_next=A @ xh + Bu + nl[:, 1])
+                    else:
+                        est.predict(u)
+            except (FloatingPointError, OverflowError, np.linalg.LinAlgError) as exc:
+                status, message = "diverged", f"{type(exc).__name__} at t = {k * dt:.4g}: {exc}"
+                break
+            steps += 1
+            if steps > o.max_nfev:
+                status, message = "budget", f"more than {o.max_nfev} steps by t = {(k + 1) * dt:.4g}"
+                break
+        wall = time.perf_counter() - t0
+        keep = k + 1
+        return Trajectory(np.arange(keep) * dt, X[:, :keep], XH[:, :keep], U[:, :keep], status, message, wall, steps)

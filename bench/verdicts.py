@@ -1,6 +1,8 @@
 """The judgements of a pair, each a pure function of numbers the pipeline already has: how long to
 simulate (:func:`simulation_horizon`), what a certificate proves from the initial condition
-(:func:`certificate_scope`), and why a pair did not converge (:func:`convergence_note`).
+(:func:`certificate_scope`), why a pair did not converge (:func:`convergence_note`), whether a simulation
+keeps the decay its certificate proves (:func:`lyapunov_note`), and whether a certified L2 gain
+contradicts the measured attenuation (:func:`attenuation_note`).
 """
 
 from __future__ import annotations
@@ -11,7 +13,8 @@ import numpy as np
 
 from bench.metrics import CONVERGED_RATIO
 
-__all__ = ["certificate_scope", "certified_horizon", "convergence_note", "simulation_horizon"]
+__all__ = ["attenuation_note", "certificate_scope", "certified_horizon", "convergence_note", "lyapunov_note",
+           "simulation_horizon"]
 
 #: An uncertified pair is simulated this many times what its linearisation's rate needs (:func:`simulation_horizon`).
 LINEAR_FACTOR = 2.0
@@ -145,3 +148,103 @@ def convergence_note(rec: dict) -> str:
                 f"needs {need:.3g} s to decay by {1 / CONVERGED_RATIO:g}, the horizon was {T:.3g} s ({rule}))")
     return (f"{note} (INCONSISTENT with the certificate: not converged after {T:.3g} s although the certified "
             f"rate needs {need:.3g} s; witness {witness})")
+
+
+#: A certified L2 gain below a measured ratio by more than this fraction of the ratio is INCONSISTENT: the
+#: margin of the norms' quadrature on the trajectory's grid (:mod:`bench.disturbance`).
+ATTENUATION_RTOL = 0.01
+
+
+def attenuation_note(rec: dict, rtol: float = ATTENUATION_RTOL) -> str:
+    """INCONSISTENT when a certified L2 gain is below its measured ratio (empty otherwise).
+
+    From ``z(0) = 0`` a certified gain ``g`` from w to ``zeta`` bounds ``||zeta||_L2 / ||w||_L2`` for every
+    w, so ``measured > g (1 + rtol)`` contradicts the certificate. Pairs compared: ``l2_gain_e`` with
+    ``l2_measured_e`` (``zeta = e``) and ``l2_gain_x`` with ``l2_measured_x`` (``zeta = x``); a NaN on
+    either side (nothing certified, nothing measured) proves nothing.
+
+    Parameters
+    ----------
+    rec : dict
+        A record with (some of) the four columns.
+    rtol : float
+        Relative tolerance of the measurement.
+
+    Returns
+    -------
+    str
+    """
+    out = []
+    for which, what in (("e", "the estimation error e"), ("x", "the state x")):
+        g, r = (_number(rec.get(f"{col}_{which}")) for col in ("l2_gain", "l2_measured"))
+        if math.isfinite(g) and math.isfinite(r) and r > g * (1 + rtol):
+            out.append(f"INCONSISTENT with the certificate: the measured L2 ratio from w to {what} is {r:.4g}, above "
+                       f"the certified gain {g:.4g} (run from z(0) = 0 with the seeded disturbance)")
+    return "; ".join(out)
+
+
+def _number(v) -> float:
+    """``v`` as a float (None, text or a missing value: NaN)."""
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+#: :func:`lyapunov_note` allows each sample of z this many times the integrator's own tolerance
+#: (``atol + rtol |z_i|`` per component), for the error accumulated over the steps.
+LYAPUNOV_SAFETY = 1e3
+
+#: and this relative slack on ``V(z0) exp(-2 lam t)`` (the sum of rounding errors in V).
+LYAPUNOV_RTOL = 1e-6
+
+
+def lyapunov_note(t: np.ndarray, x: np.ndarray, x_hat: np.ndarray, P: np.ndarray, lam: float, *,
+                  inside: np.ndarray | None, atol: float, rtol: float) -> str:
+    """Whether a simulation keeps the decay its certificate proves: ``V(z(t)) <= V(z0) exp(-2 lam t)``.
+
+    A certificate ``V = z' P z`` with rate ``lam`` proves ``V' <= -2 lam V`` wherever its constraints hold,
+    so along a trajectory that stays in its region ``V(z(t)) <= V(z0) exp(-2 lam t)`` at every t. Each
+    stored sample up to the first one outside the region is checked against that bound times
+    ``1 + LYAPUNOV_RTOL``, plus what the integrator's error can add to V: with
+    ``dz = LYAPUNOV_SAFETY (atol sqrt(2n) + rtol ||z||)``, ``||P|| (2 ||z|| dz + dz^2)``.
+
+    Parameters
+    ----------
+    t : ndarray (T,)
+    x, x_hat : ndarray (n, T) or (n, N, T)
+        The states and estimates (a batch: N initial conditions).
+    P : ndarray (2n, 2n)
+        ``V = z' P z``, ``z = (x, x - x_hat)``.
+    lam : float
+        The certified rate.
+    inside : ndarray of bool, (T,) or (N, T), optional
+        Samples in the certified region (None: a global certificate, every sample).
+    atol, rtol : float
+        The integrator's tolerances.
+
+    Returns
+    -------
+    str
+        ``""``, or the INCONSISTENT sentence with the largest ratio ``V(z(t)) / (V(z0) exp(-2 lam t))`` beyond the
+        tolerance and its time.
+    """
+    x, x_hat = np.asarray(x, dtype=float), np.asarray(x_hat, dtype=float)
+    if x.ndim == 2:
+        x, x_hat = x[:, None, :], x_hat[:, None, :]
+        inside = None if inside is None else np.asarray(inside)[None, :]
+    z = np.concatenate([x, x - x_hat])  # (2n, N, T)
+    with np.errstate(all="ignore"):
+        V = np.einsum("inT,ij,jnT->nT", z, P, z)
+        bound = V[:, :1] * np.exp(-2.0 * lam * np.asarray(t, dtype=float))[None, :]
+        size = np.linalg.norm(z, axis=0)
+        dz = LYAPUNOV_SAFETY * (atol * math.sqrt(z.shape[0]) + rtol * size)
+        allowed = bound * (1 + LYAPUNOV_RTOL) + np.linalg.norm(P, 2) * (2 * size * dz + dz**2)
+        checked = np.isfinite(V) & (True if inside is None else np.cumprod(np.asarray(inside, dtype=bool), axis=1) > 0)
+        excess = np.where(checked & (V > allowed), V / np.maximum(bound, np.finfo(float).tiny), -np.inf)
+    if not np.any(np.isfinite(excess)):
+        return ""
+    j, k = np.unravel_index(int(np.argmax(excess)), excess.shape)
+    member = f" (member {j})" if excess.shape[0] > 1 else ""
+    return (f"INCONSISTENT with the certificate: V(z(t)) exceeds V(z0) e^(-2 lam t) by a factor {excess[j, k]:.4g} "
+            f"at t = {t[k]:.4g} s{member} (lam = {lam:.4g})")

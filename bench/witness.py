@@ -39,6 +39,12 @@ GRID = {1: 41, 2: 9, 3: 5}
 #: Seeded members for more channels (half at random vertices, half inside the box).
 SAMPLES = 128
 
+#: Seeded random directions of the low-rank members of a scalar class (:func:`_subspaces`).
+DIRECTIONS = 16
+
+#: Low-rank members of a scalar class are searched up to this many states (``s I`` beyond).
+SUBSPACE_MAX_N = 16
+
 #: A member is unstable when its loop has an eigenvalue of real part above this, relative to the size of A, B F, K C.
 UNSTABLE_TOL = 1e-9
 
@@ -101,27 +107,93 @@ def _slope_points(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, str]:
     return pts, f"{len(pts)} seeded members (random vertices and interior points of the box, q = {q})"
 
 
-def members(plant, know, *, channels: bool, scalars: tuple[str, ...],
-            box: tuple | None = None) -> tuple[list[tuple[np.ndarray | None, np.ndarray]], str]:
+def eigen_interval(constants, scalars: tuple[str, ...]) -> tuple[float, float] | None:
+    """The eigenvalues ``s`` a symmetric member ``L`` of a scalar class may have (None: no member).
+
+    For a symmetric L every constant reads eigenvalue by eigenvalue: OSL ``s <= rho``, QIB
+    ``s^2 - gamma s - beta <= 0``, Lipschitz ``|s| <= alpha``; so ``L`` is a member exactly when its
+    eigenvalues lie in the interval returned. An end the constants leave open is put at ``-span`` or
+    ``span`` (alpha, else the size of the constants and of A).
+    """
+    c = constants
+    span = c.alpha if c.alpha is not None else max(abs(c.rho or 0.0), math.sqrt(abs(c.beta or 0.0)),
+                                                   abs(c.gamma or 0.0), 1.0)
+    lo, hi = -span, span
+    if "osl" in scalars:
+        hi = min(hi, c.rho)
+    if "qib" in scalars:
+        disc = c.gamma**2 + 4.0 * c.beta
+        if disc < 0:
+            return None
+        lo, hi = max(lo, (c.gamma - math.sqrt(disc)) / 2), min(hi, (c.gamma + math.sqrt(disc)) / 2)
+    return (lo, hi) if lo <= hi else None
+
+
+def _subspaces(plant, K: np.ndarray, F: np.ndarray) -> list[np.ndarray]:
+    """Orthonormal bases (n, 1) or (n, 2) of the directions a low-rank member acts on: the right and left
+    eigenvectors of ``A + B F`` and ``A - K C`` (the plane of a complex pair, and each of its real and imaginary
+    parts), the eigenvectors of their symmetric parts, and :data:`DIRECTIONS` seeded random directions."""
+    n, out = plant.n, []
+    for M in (plant.A + plant.B @ F, plant.A - K @ plant.C):
+        for X in (M, M.T):
+            for v in np.linalg.eig(X)[1].T:
+                out += [v.real[:, None], v.imag[:, None], np.column_stack([v.real, v.imag])]
+        out += [v[:, None] for v in np.linalg.eigh((M + M.T) / 2)[1].T]
+    out += [v[:, None] for v in np.random.default_rng([0, 31]).standard_normal((DIRECTIONS, n))]
+    bases, seen = [], []
+    for V in out:
+        Q, R = np.linalg.qr(V)
+        Q = Q[:, np.abs(np.diag(R)) > 1e-9 * max(1.0, float(np.abs(V).max()))]
+        key = np.round(Q @ Q.T, 9).tobytes()
+        if Q.shape[1] and key not in seen:
+            seen.append(key)
+            bases.append(Q)
+    return bases
+
+
+def _symmetric_members(plant, K, F, interval: tuple[float, float]) -> tuple[list[np.ndarray], str]:
+    """Symmetric members with eigenvalues in ``interval``: ``s I`` on a grid, and (with gains K, F, up to
+    :data:`SUBSPACE_MAX_N` states) ``s I + (u - s) Q Q'`` for ``s, u`` among the interval's ends and middle
+    and the subspaces Q of :func:`_subspaces`."""
+    lo, hi = interval
+    Ls = [s * np.eye(plant.n) for s in np.unique(np.linspace(lo, hi, GRID[1]))]
+    how = f"L = s I for s in [{lo:.4g}, {hi:.4g}]"
+    if K is None or plant.n > SUBSPACE_MAX_N or plant.n == 1:
+        return Ls, how
+    ends = np.unique([lo, (lo + hi) / 2, hi])
+    bases = _subspaces(plant, K, F)
+    Ls += [s * np.eye(plant.n) + (u - s) * (Q @ Q.T) for Q in bases for s in ends for u in ends if s != u]
+    return Ls, how + f", and s I + (u - s) Q Q' on {len(bases)} rank-one and rank-two subspaces Q"
+
+
+def members(plant, know, *, channels: bool, scalars: tuple[str, ...], box: tuple | None = None,
+            K: np.ndarray | None = None,
+            F: np.ndarray | None = None) -> tuple[list[tuple[np.ndarray | None, np.ndarray]], str]:
     """The linear members ``(slopes, L)`` of a class (slopes None outside the channel class) and how they
-    were chosen: the slope box of ``know``'s channels (``box`` instead when given) if ``channels``, else
-    multiples of I; kept when they meet the scalar constants ``scalars`` (:func:`admits`)."""
+    were chosen.
+
+    With ``channels``: the slope box of ``know``'s channels (``box`` instead when given). Otherwise the
+    class is every f meeting the scalar constants ``scalars``: its symmetric members
+    (:func:`eigen_interval`; ``s I``, and with the gains K, F the low-rank members of
+    :func:`_symmetric_members`), and the channel members, if any. Every member kept meets ``scalars``
+    (:func:`admits`).
+    """
     ch = know.channels
+    out, how = [], []
     if ch is not None and (channels or scalars):
         lo, hi = box if box is not None else (ch.lo, ch.hi)
-        pts, how = _slope_points(np.asarray(lo, float), np.asarray(hi, float))
+        pts, what = _slope_points(np.asarray(lo, float), np.asarray(hi, float))
         out = [(c, ch.G @ (c[:, None] * ch.H)) for c in pts]
-        if not channels:
-            how = f"channel members meeting the scalar constants, among {how}"
-    else:
-        a = know.constants.alpha
-        span = a if a is not None else max(abs(know.constants.rho or 0.0), math.sqrt(abs(know.constants.beta or 0.0)),
-                                           abs(know.constants.gamma or 0.0))
-        out = [(None, s * np.eye(plant.n)) for s in np.linspace(-span, span, GRID[1])]
-        how = f"L = s I for {GRID[1]} values of s in [-{span:.3g}, {span:.3g}] meeting the constants"
+        how.append(what if channels else f"channel members meeting the scalar constants, among {what}")
+    if not channels:
+        interval = eigen_interval(know.constants, scalars)
+        if interval is not None:
+            Ls, what = _symmetric_members(plant, K, F, interval)
+            out += [(None, L) for L in Ls]
+            how.append(f"{what} meeting the constants")
     if scalars:
         out = [(c, L) for c, L in out if admits(L, scalars, know.constants)]
-    return out, how
+    return out, "; ".join(how)
 
 
 def slowest_loop(plant, K: np.ndarray, F: np.ndarray, Ls: list[np.ndarray]) -> tuple[int, float, complex] | None:
@@ -143,18 +215,27 @@ def _scale(plant, K, F) -> float:
 def linear_witness(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool,
                    scalars: tuple[str, ...]) -> Witness | None:
     """The least stable linear member of the class (:func:`members`) when its loop is unstable, else None."""
-    cands, how = members(plant, know, channels=channels, scalars=scalars)
+    cands, how = members(plant, know, channels=channels, scalars=scalars, K=K, F=F)
     slowest = slowest_loop(plant, K, F, [L for _, L in cands])
     if slowest is None or slowest[2].real <= UNSTABLE_TOL * _scale(plant, K, F):
         return None
     i, _, eig = slowest
     c, L = cands[i]
-    what = ("f = 0" if not np.any(L) else f"phi(s) = c s with slopes c = {vector(c, '.5g')}" if c is not None
-            else f"f = {L[0, 0]:.4g} x")
     imag = "" if abs(eig.imag) < 1e-12 else f" {'+' if eig.imag >= 0 else '-'} {abs(eig.imag):.4g}j"
-    text = (f"the linear member {what} (in the class; searched: {how}) leaves the loop with the eigenvalue "
-            f"{eig.real:+.4g}{imag}")
+    text = (f"the linear member {_describe(c, L)} (in the class; searched: {how}) leaves the loop with the "
+            f"eigenvalue {eig.real:+.4g}{imag}")
     return Witness("linear member", text, slopes=c, L=L, eig=eig)
+
+
+def _describe(c: np.ndarray | None, L: np.ndarray) -> str:
+    """A linear member in words: f = 0, its channel slopes, s x, or the eigenvalues of a symmetric L."""
+    if not np.any(L):
+        return "f = 0"
+    if c is not None:
+        return f"phi(s) = c s with slopes c = {vector(c, '.5g')}"
+    if np.array_equal(L, L[0, 0] * np.eye(len(L))):
+        return f"f = {L[0, 0]:.4g} x"
+    return f"f = L x with L symmetric, eigenvalues {vector(np.linalg.eigvalsh(L), '.4g')}"
 
 
 #: The last ceilings computed (:func:`rate_ceiling` is asked for the same class by the ladder's search and by
@@ -187,38 +268,78 @@ def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, s
                  box: tuple | None = None) -> tuple[float, str]:
     """The smallest decay rate over the class's linear members: no certificate over the class proves more.
 
-    The members of :func:`members`; for a channel box the best is refined by a bounded local search
-    (Powell) over the slopes (any member's rate is a valid ceiling, found minimum or not).
+    The members of :func:`members`; the best is refined by a bounded local search (Powell): over the
+    slopes for a channel member, over ``s I + (u - s) v v'`` (eigenvalues ``s, u`` in
+    :func:`eigen_interval`, any direction v) for a symmetric one. Any member's rate is a valid ceiling,
+    found minimum or not.
 
     Returns
     -------
     float, str
         The ceiling (NaN when the class has no linear member here) and how it was found.
     """
-    cands, how = members(plant, know, channels=channels, scalars=scalars, box=box)
+    cands, how = members(plant, know, channels=channels, scalars=scalars, box=box, K=K, F=F)
     slowest = slowest_loop(plant, K, F, [L for _, L in cands])
     if slowest is None:
         return float("nan"), "no linear member found in the class"
-    best, c0 = slowest[1], cands[slowest[0]][0]
-    ch = know.channels
-    if c0 is not None and ch is not None:
-        from scipy.optimize import minimize
-
-        lo, hi = (np.asarray(b, float) for b in (box if box is not None else (ch.lo, ch.hi)))
-        free = hi > lo
-        if np.any(free):
-            def rate(v):
-                c = c0.copy()
-                c[free] = np.clip(v, lo[free], hi[free])
-                L = ch.G @ (c[:, None] * ch.H)
-                if scalars and not admits(L, scalars, know.constants):
-                    return best
-                return slowest_loop(plant, K, F, [L])[1]
-            res = minimize(rate, c0[free], method="Powell", bounds=list(zip(lo[free], hi[free])),
-                           options={"maxfev": 60 * int(free.sum()), "xtol": 1e-6, "ftol": 1e-9})
-            if np.isfinite(res.fun) and res.fun < best:
-                best, how = float(res.fun), how + ", refined by a bounded local search"
+    best, (c0, L0) = slowest[1], cands[slowest[0]]
+    if c0 is not None:
+        refined = _refine_slopes(plant, K, F, know, scalars, c0, box, best)
+    else:
+        refined = _refine_symmetric(plant, K, F, know, scalars, L0, best)
+    if refined < best:
+        best, how = refined, how + ", refined by a bounded local search"
     return best, how
+
+
+def _refine_slopes(plant, K, F, know, scalars, c0: np.ndarray, box, best: float) -> float:
+    """The smallest rate a bounded local search over the channel slopes finds from ``c0`` (``best`` if none lower)."""
+    from scipy.optimize import minimize
+
+    ch = know.channels
+    lo, hi = (np.asarray(b, float) for b in (box if box is not None else (ch.lo, ch.hi)))
+    free = hi > lo
+    if not np.any(free):
+        return best
+
+    def rate(v):
+        c = c0.copy()
+        c[free] = np.clip(v, lo[free], hi[free])
+        L = ch.G @ (c[:, None] * ch.H)
+        if scalars and not admits(L, scalars, know.constants):
+            return best
+        return slowest_loop(plant, K, F, [L])[1]
+
+    res = minimize(rate, c0[free], method="Powell", bounds=list(zip(lo[free], hi[free])),
+                   options={"maxfev": 60 * int(free.sum()), "xtol": 1e-6, "ftol": 1e-9})
+    return float(res.fun) if np.isfinite(res.fun) else best
+
+
+def _refine_symmetric(plant, K, F, know, scalars, L0: np.ndarray, best: float) -> float:
+    """The smallest rate a bounded local search over ``s I + (u - s) v v'`` finds from the symmetric ``L0``
+    (``best`` if none lower; only up to :data:`SUBSPACE_MAX_N` states)."""
+    from scipy.optimize import minimize
+
+    interval = eigen_interval(know.constants, scalars)
+    n = plant.n
+    if interval is None or n > SUBSPACE_MAX_N or n == 1:
+        return best
+    w, V = np.linalg.eigh(L0)
+    odd = 0 if w[-1] - w[1] <= 1e-12 * max(1.0, abs(w[-1])) else n - 1  # the eigenvalue of L0's rank-one part
+    x0 = np.concatenate([np.clip([w[n - 1 - odd], w[odd]], *interval), V[:, odd]])
+
+    def rate(p):
+        s, u, v = np.clip(p[0], *interval), np.clip(p[1], *interval), p[2:]
+        if not np.linalg.norm(v) > 1e-9:
+            return best
+        L = s * np.eye(n) + (u - s) * np.outer(v, v) / (v @ v)
+        if not admits(L, scalars, know.constants):
+            return best
+        return slowest_loop(plant, K, F, [L])[1]
+
+    res = minimize(rate, x0, method="Powell", bounds=[interval, interval] + [(-1.0, 1.0)] * n,
+                   options={"maxfev": 60 * (n + 2), "xtol": 1e-6, "ftol": 1e-9})
+    return min(float(res.fun), best) if np.isfinite(res.fun) else best
 
 
 def _rhs(plant, K, F, z: np.ndarray) -> np.ndarray:

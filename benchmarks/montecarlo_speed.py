@@ -21,7 +21,7 @@ from dataclasses import replace
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # run from a checkout
 
-import bench._env  # noqa: E402,F401  (BLAS threads before numpy)
+import bench  # noqa: E402,F401  (importing bench sets the BLAS threads, before numpy)
 import numpy as np  # noqa: E402
 
 from bench.registry import DESIGNS, PLANTS  # noqa: E402

@@ -1,6 +1,6 @@
 """Designs of oslbench: one module per design, each registering itself."""
 
-import bench._env  # noqa: F401  (the BLAS and Rayon threads, set before numpy)
+import bench  # noqa: F401  (importing bench sets the BLAS and Rayon threads, before numpy)
 
 from designs._core import GAIN_STATUSES, STATUSES, Design, DesignError, DesignResult
 

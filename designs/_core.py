@@ -16,14 +16,15 @@ from bench.errors import DesignError
 from plants import Constants, Plant
 
 #: Design statuses: ``feasible`` (a feasibility problem solved and verified), ``computed`` (gains with no
-#: feasibility question: LQR, Kalman), ``given`` (printed gains), ``infeasible`` (under the stated normalisation),
-#: ``marginal`` (best margin within the verification tolerance of zero), ``inapplicable``, ``undecided`` (solver
-#: trouble), ``error`` and ``timeout`` (set by the pipeline).
-STATUSES = ("feasible", "computed", "given", "infeasible", "marginal", "inapplicable", "undecided", "error",
-            "timeout")
+#: feasibility question: LQR, Kalman), ``given`` (printed gains), ``unverified`` (set by the pipeline: a design
+#: from outside the suite's package said "feasible", which the suite did not verify), ``infeasible`` (under
+#: the stated normalisation), ``marginal`` (best margin within the verification tolerance of zero),
+#: ``inapplicable``, ``undecided`` (solver trouble), ``error`` and ``timeout`` (set by the pipeline).
+STATUSES = ("feasible", "computed", "given", "unverified", "infeasible", "marginal", "inapplicable", "undecided",
+            "error", "timeout")
 
 #: Statuses that come with gains (or an estimator) to simulate and certify.
-GAIN_STATUSES = ("feasible", "computed", "given")
+GAIN_STATUSES = ("feasible", "computed", "given", "unverified")
 
 
 def _design_error(name: str, message: str) -> DesignError:
@@ -109,8 +110,13 @@ class DesignResult:
     estimator : object, optional
         A run-time estimator (e.g. :class:`designs.ekf.EKFSpec`) instead of a fixed gain K.
     certificate : dict, optional
-        The design's own verified joint certificate: ``level``, ``P`` (2n x 2n, ``V = z' P z``),
-        ``decay_rate``, ``margin``, ``radius``, ``how``; kept where the ladder certifies less.
+        The design's own certificate: ``level``, ``P`` (2n x 2n, ``V = z' P z``), ``decay_rate``, ``how``,
+        optionally ``uses`` (the declarations it rests on), ``multipliers`` (in the level's variable
+        names) or ``joint`` (``P``, ``R``, ``mu``, ``s``, ``t`` of :mod:`bench.joint`); verified by the suite
+        (:func:`bench.certify.verify_certificate`) and kept where the ladder certifies less. On a discrete
+        plant also ``contraction`` (``r``: ``V(z_{k+1}) <= r^2 V(z_k)``; ``decay_rate = -ln(r) / dt``). An
+        H-infinity design's bounded-real certificate has ``level = "l2"`` (not a decay level: the ladder's
+        adoption ignores it) with ``P``, ``gamma_x`` and ``how``.
     """
 
     status: str
@@ -154,6 +160,10 @@ class Configurable:
 
     #: Constants required (names of :class:`plants.Constants` fields).
     needs = ()
+    #: The time domains this has a form for: ``"continuous"`` (``plant.dt == 0``) and/or ``"discrete"``
+    #: (``plant.dt > 0``, ``x_{k+1} = A x_k + B u_k + f(x_k)``). The pipeline marks a discrete plant's pair
+    #: "inapplicable: no discrete-time form" when ``"discrete"`` is missing.
+    time_domains = ("continuous",)
 
     def __new__(cls, *args: Any, **kwargs: Any):
         # positional and unknown hyperparameters: a DesignError naming the parameter and a close match, before

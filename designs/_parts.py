@@ -81,6 +81,11 @@ class Composite(Design):
         """The constants either part needs (feedback part's first, no repeats)."""
         return tuple(dict.fromkeys((*self.feedback.needs, *self.estimator.needs)))
 
+    @property
+    def time_domains(self) -> tuple[str, ...]:
+        """The time domains both parts have a form for."""
+        return tuple(d for d in self.feedback.time_domains if d in self.estimator.time_domains)
+
     def applicable(self, plant: Plant, constants: Constants) -> str | None:
         for role, part in (("feedback", self.feedback), ("estimator", self.estimator)):
             why = part.applicable(plant, constants)

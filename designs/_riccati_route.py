@@ -41,7 +41,7 @@ import scipy.linalg as sla
 from scipy.linalg import lapack
 
 from bench import joint, lmi
-from bench._env import parallel
+from bench.threads import parallel
 from bench.search import RATE_RTOL
 
 __all__ = ["structured_riccati"]
@@ -508,7 +508,7 @@ class _Side:
 
     def estimate(self, lams: Sequence[float], also: tuple | None = None) -> None:
         """Gain estimates ``||gain||`` at ``lams`` (inf: no stabilizing solution at the picked grid point)
-        into :attr:`est`, computed concurrently (:func:`bench._env.parallel`) with ``also``'s, a pair
+        into :attr:`est`, computed concurrently (:func:`bench.threads.parallel`) with ``also``'s, a pair
         ``(other side, its targets)``."""
         plans = [(side, *side._plan(lams)) for side, lams in [(self, lams), *([also] if also else [])]]
         runs = iter(parallel([c for _, _, calls in plans for c in calls], self.n))

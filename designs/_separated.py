@@ -151,13 +151,15 @@ def recombine(
     eprog: lmi.Program,
     form: YoungForm,
     decide: Callable[[str], dict] | None,
+    joint_verdict: Callable[..., dict] | None = None,
 ) -> dict:
     """Rebuild and verify ``form``'s joint certificate from its solved x-side and e-side programs (module docstring).
 
     R, Kh and the e-side scalars are scaled by s; ``decide(side)`` (:meth:`YoungForm.decide_side`) labels a side
     that is not strictly feasible (None: undecided). Returns ``status``, ``reason``, ``margin`` (equilibrated joint
     matrix), ``raw_margin``, ``lmi_size``, ``min_eig``, ``phi``, ``scale``, ``x_margin``, ``e_margin``, ``values``,
-    ``cost``.
+    ``cost`` (and ``certificate`` when ``joint_verdict`` gives one). ``joint_verdict(B, xv, ev, form, lx, le)``
+    replaces the continuous joint rebuild (the discrete forms: :mod:`designs._discrete`).
     """
     out: dict = {"margin": float("nan"), "lmi_size": 0, "min_eig": {}, "phi": float("nan"),
                  "scale": float("nan"), "x_margin": float("nan"), "e_margin": float("nan"), "values": None,
@@ -171,7 +173,7 @@ def recombine(
     lx, le = lmi.max_eig(X), lmi.max_eig(E)
     out.update(x_margin=lx, e_margin=le)
     failed = _failed_sides(xprog, eprog, X, E, lx, le, decide)
-    out.update(failed if failed is not None else _joint_verdict(B, xv, ev, form, lx, le))
+    out.update(failed if failed is not None else (joint_verdict or _joint_verdict)(B, xv, ev, form, lx, le))
     return out
 
 
@@ -250,15 +252,18 @@ def _side_verdict(decided: dict[str, dict], margins: str) -> dict:
 
 
 def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_name: str, extra_params,
-                     decide: bool = True) -> DesignResult:
+                     decide: bool = True, joint_verdict: Callable[..., dict] | None = None,
+                     form_name: str = "separated (x-side and e-side apart, joint certificate rebuilt)") -> DesignResult:
     """Solve ``form``'s x-side and e-side apart and rebuild the joint certificate (:func:`recombine`) as a
     :class:`DesignResult`; ``phi_name`` names the Young weight, ``extra_params(values)`` adds the design's scalars,
-    ``decide=False`` leaves a side that is not strictly feasible undecided.
+    ``decide=False`` leaves a side that is not strictly feasible undecided; ``joint_verdict`` as in
+    :func:`recombine` (its ``certificate`` becomes the result's), ``form_name`` is ``params["form"]``.
     """
     xprog, eprog = (form.side_program(plant, side, cap=cap) for side in SIDE_MATRIX)
     xlog, elog = (lmi.solve_side(prog, solver, plant.n) for prog in (xprog, eprog))
     rc = recombine(B=plant.B, xprog=xprog, eprog=eprog, form=form,
-                   decide=(lambda side: form.decide_side(plant, side, cap=cap, solver=solver)) if decide else None)
+                   decide=(lambda side: form.decide_side(plant, side, cap=cap, solver=solver)) if decide else None,
+                   joint_verdict=joint_verdict)
     K = F = None
     vals = rc["values"] or {}
     if rc["status"] == "feasible":
@@ -269,7 +274,8 @@ def separated_design(plant, form: YoungForm, *, solver: str, cap: float, phi_nam
         K=K, F=F, solver=used, solver_status=f"x {xlog}; e {elog}", margin=rc["margin"], lmi_size=rc["lmi_size"],
         min_eig=rc["min_eig"], **{k: getattr(xprog, k) + getattr(eprog, k) + c
                                   for k, c in zip(("compile_s", "solve_s", "n_solves"), rc["cost"])},
-        params={"form": "separated (x-side and e-side apart, joint certificate rebuilt)", phi_name: rc["phi"],
+        certificate=rc.get("certificate") if rc["status"] == "feasible" else None,
+        params={"form": form_name, phi_name: rc["phi"],
                 "e_scale": rc["scale"], "x_margin": rc["x_margin"], "e_margin": rc["e_margin"],
                 "raw_joint_margin": rc.get("raw_margin", float("nan")), "cap": cap, **extra_params(vals)})
 

@@ -5,6 +5,13 @@ by side (:class:`YoungDesign`'s ``method``). A subclass names its Young weight (
 and provides ``form(plant, constants)``, its :class:`designs._separated.YoungForm`, and
 ``solved_params(vals, constants, phi=None)``, the scalars a joint solve at the Young weight ``phi`` (None: a
 separated solve) reports.
+
+On a discrete plant (``plant.dt > 0``) both methods solve the discrete x-side and e-side apart and rebuild the
+joint certificate (:mod:`designs._discrete`; the joint discrete LMI is feasible iff both sides are, so the two
+methods coincide there). A subclass provides ``discrete_forms(plant, constants)``: the candidate forms
+``(YoungForm, multipliers, params)``, where ``multipliers(xv, ev)`` gives ``(Gx, Pix, Ge, Pie)`` of
+:func:`designs._discrete.joint_certificate` (several candidates: a grid, the one with the best x-side margin
+is used), and ``cert_level`` / ``cert_uses``, the certificate level its own certificate stands at.
 """
 
 from __future__ import annotations
@@ -13,9 +20,12 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Callable, ClassVar
 
+import numpy as np
+
 from bench import lmi
 from designs._core import Design, DesignResult, check_choice, check_int, check_positive, check_range
-from designs._separated import concluded, separated_design, settle_joint
+from designs._discrete import joint_certificate
+from designs._separated import concluded, paper_gains_from, separated_design, settle_joint
 from plants import Constants, Plant
 
 
@@ -48,6 +58,11 @@ class YoungDesign(Design):
     phi_name: ClassVar[str] = "phi"
     #: The design that searches a state scaling first (named in the reason of a failure).
     scaled_variant: ClassVar[str] = ""
+    #: Continuous and discrete forms (module docstring).
+    time_domains = ("continuous", "discrete")
+    #: The certificate level of the discrete design's own joint certificate and the constants it rests on.
+    cert_level: ClassVar[str] = "paper"
+    cert_uses: ClassVar[tuple[str, ...]] = ()
 
     def __post_init__(self) -> None:
         check_choice("solver", self.solver, ("auto", "CLARABEL", "SCS"))
@@ -69,7 +84,7 @@ class YoungDesign(Design):
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Solve the design for ``plant`` with ``constants``; a failure's reason names the scaled variant."""
-        res = self._design(plant, constants)
+        res = self._design_discrete(plant, constants) if plant.discrete else self._design(plant, constants)
         if res.status in ("infeasible", "marginal") and plant.channels is not None and not plant.id.endswith(".scaled"):
             res.reason += (f"; the scalar constants depend on the state's coordinates: {self.scaled_variant} searches "
                            "a diagonal scaling, and the structured design uses the channels themselves")
@@ -86,6 +101,52 @@ class YoungDesign(Design):
             searched += f" ({prog.n_solves} solves)"
         return concluded(prog, lambda vals: self.solved_params(vals, constants, phi), what=form.what, cap=self.cap,
                          searched=searched, settle=partial(settle_joint, plant, form, cap=self.cap, solver=self.solver))
+
+    def _design_discrete(self, plant: Plant, constants: Constants) -> DesignResult:
+        """The discrete sides solved apart, the candidate form with the best x-side margin, the joint discrete
+        certificate rebuilt and verified, its contraction factor measured (:mod:`designs._discrete`)."""
+        forms = self.discrete_forms(plant, constants)
+        cost = [0.0, 0.0, 0]
+        if len(forms) > 1:  # a grid (gamma < 0): the candidate whose x-side is most strictly feasible
+            def slack(form):
+                prog = form.side_program(plant, "x-side", cap=self.cap)
+                lmi.solve_side(prog, self.solver, plant.n)
+                for i, k in enumerate(("compile_s", "solve_s", "n_solves")):
+                    cost[i] += getattr(prog, k)
+                return float(prog.values()["slack"]) if prog.verified() else -np.inf
+            forms = [max(forms, key=lambda f: slack(f[0]))]
+        form, multipliers, extra = forms[0]
+        got: dict = {}
+
+        def verdict(B, xv, ev, form_, lx, le):
+            K, F = paper_gains_from({**xv, **ev})
+            P = np.linalg.inv(xv["Q"])
+            P = (P + P.T) / 2
+            Gx, Pix, Ge, Pie = multipliers(xv, ev)
+            jc = joint_certificate(plant.A + plant.B @ F, plant.B @ F, plant.A - K @ plant.C, Gx, Ge, P, ev["R"],
+                                   Pix, Pie, dt=plant.dt, Sx=xv["Q"])
+            got.update(jc)
+            out = {k: jc[k] for k in ("status", "reason", "margin", "raw_margin", "lmi_size", "phi", "scale")}
+            out.update(min_eig={"Q": lmi.min_eig(xv["Q"]), "R": lmi.min_eig(ev["R"])}, values={**xv, **ev})
+            if jc["status"] == "feasible":
+                out["certificate"] = {
+                    "level": self.cert_level, "P": jc["P"], "decay_rate": jc["decay_rate"], "margin": jc["margin"],
+                    "radius": constants.radius, "contraction": jc["contraction"], "dt": plant.dt,
+                    "uses": self.cert_uses or self.needs,
+                    "how": (f"the design's own joint discrete certificate (V = x'Q^-1 x + s e'Re, the sides' "
+                            f"multipliers), its contraction factor r = {jc['contraction']:.6g} by bisection")}
+            return out
+
+        res = separated_design(plant, form, solver=self.solver, cap=self.cap, phi_name=self.phi_name,
+                               extra_params=lambda vals: {**self.solved_params(vals, constants), **extra},
+                               joint_verdict=verdict,
+                               form_name="discrete: x-side and e-side apart, joint discrete certificate rebuilt")
+        res.compile_s += cost[0]
+        res.solve_s += cost[1]
+        res.n_solves += cost[2]
+        res.params.update(dt=plant.dt, contraction=got.get("contraction", float("nan")),
+                          decay_rate=got.get("decay_rate", float("nan")))
+        return res
 
     def separated(self, plant: Plant, constants: Constants, *, decide: bool = True) -> DesignResult:
         """The sides solved apart and the joint certificate rebuilt; ``decide=False`` skips the scale-free solves."""

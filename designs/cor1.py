@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.registry import register_design
+from designs import _discrete
 from designs._core import Design, DesignResult, check_positive, check_values_in
 from designs._separated import YoungForm, concluded, joint_program, scalar, state_feedback_block, young_layout
 from designs._young import YoungDesign
@@ -39,6 +40,9 @@ class Cor1(YoungDesign):
     :func:`lipschitz_w22`) and the Schur weight ``kappa / alpha^2`` (no Schur column for alpha = 0);
     ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
 
+    On a discrete plant: the discrete Lipschitz x-side (``mu1 = 1/kappa``) and e-side of
+    :mod:`designs._discrete`, solved apart, the joint discrete certificate rebuilt and verified.
+
     Parameters
     ----------
     phi2 : float, optional
@@ -54,6 +58,31 @@ class Cor1(YoungDesign):
     needs = ("alpha",)
     phi_name = "phi2"
     scaled_variant = "cor1_scaled"
+    cert_level = "full"
+    cert_uses = ("alpha",)
+
+    def discrete_forms(self, plant: Plant, constants: Constants) -> list:
+        """The discrete form ``(YoungForm, multipliers, params)`` (:mod:`designs._discrete`): 3n x 3n sides."""
+        n = plant.n
+        I = np.eye(n)
+        a2 = float(constants.alpha) ** 2
+        schur = a2 > 0
+
+        def eside(d):
+            return _discrete.lipschitz_eside(d, I)
+
+        form = YoungForm(what="discrete corrected Corollary 1", key=("cor1.discrete", schur),
+                         blocks=(None, _discrete.xside(n, schur=schur, f_row=False), eside), e_scalars=("mu2",),
+                         constants={"a2": a2, "sw": float(np.sqrt(a2))})
+
+        def multipliers(xv, ev):
+            if not schur:  # alpha = 0: the class is f = 0
+                return np.zeros((n, 0)), np.zeros((n, n)), np.zeros((n, 0)), np.zeros((n, n))
+            mu1, mu2 = 1 / max(float(xv["kappa"]), 1e-300), float(ev["mu2"])
+            return (I, np.block([[mu1 * a2 * I, 0 * I], [0 * I, -mu1 * I]]), I,
+                    np.block([[mu2 * a2 * I, 0 * I], [0 * I, -mu2 * I]]))
+
+        return [(form, multipliers, {"form_size": 3 * n})]
 
     def form(self, plant: Plant, constants: Constants) -> YoungForm:
         """6n x 6n (5n when alpha = 0), constants ``a2`` = alpha^2 and ``ia2`` = 1/alpha^2."""

@@ -1,13 +1,21 @@
-"""Continuous-discrete extended Kalman filter (filterpy) as an estimator part.
+"""The extended Kalman filter (filterpy) as an estimator part: continuous-discrete, or discrete on a discrete plant.
 
-The design only fixes the filter's specification (:class:`EKFSpec`); the harness runs it
-(``bench.estimators.ContinuousDiscreteEKF``): at each sample ``t_k = k dt`` the filter updates with
-``y_k = C x(t_k) + v_k``, ``u_k = F x_hat_k`` is held, and the filter predicts by integrating
-``x_hat' = A x_hat + B u_k + f(x_hat)`` with ``P <- Phi P Phi' + q dt I``, ``Phi = expm((A + df/dx(x_hat_k)) dt)``.
+The design only fixes the filter's specification (:class:`EKFSpec`); the harness runs it.
+
+- Continuous plant (``bench.estimators.ContinuousDiscreteEKF``): at each sample ``t_k = k dt`` the filter
+  updates with ``y_k = C x(t_k) + v_k``, ``u_k = F x_hat_k`` is held, and the filter predicts by integrating
+  ``x_hat' = A x_hat + B u_k + f(x_hat)`` with ``P <- Phi P Phi' + q dt I``,
+  ``Phi = expm((A + df/dx(x_hat_k)) dt)``.
+- Discrete plant ``x_{k+1} = A x_k + B u_k + f(x_k)`` (``bench.estimators.DiscreteEKF``): the filter runs at
+  the plant's own sample time (``dt = plant.dt``; the hyperparameter ``dt`` is not used): update with
+  ``y_k = C x_k + v_k``, then predict ``x_hat <- A x_hat + B u_k + f(x_hat)``,
+  ``P <- J P J' + q dt I`` with the Jacobian ``J = A + df/dx(x_hat)`` (the discrete EKF of Jazwinski 1970,
+  ch. 8; Simon 2006, section 13.2).
 
 References
 ----------
-A. H. Jazwinski, *Stochastic Processes and Filtering Theory*, 1970 (continuous-discrete EKF).
+A. H. Jazwinski, *Stochastic Processes and Filtering Theory*, 1970 (continuous-discrete and discrete EKF).
+D. Simon, *Optimal State Estimation*, Wiley 2006, ch. 13.
 """
 
 from __future__ import annotations
@@ -58,12 +66,17 @@ class EKFSpec:
 @register_estimator("ekf")
 @dataclass(frozen=True, kw_only=True)
 class EKFEstimator(EKFSpec, Part):
-    """Continuous-discrete EKF via filterpy (the hyperparameters of :class:`EKFSpec`); no fixed gain."""
+    """EKF via filterpy (the hyperparameters of :class:`EKFSpec`); no fixed gain. Continuous-discrete on a
+    continuous plant, discrete at the plant's sample time on a discrete one (module docstring)."""
+
+    time_domains = ("continuous", "discrete")
 
     def compute(self, plant: Plant, constants: Constants) -> DesignResult:
         """Return the filter specification (checked against the plant's horizon)."""
-        spec = EKFSpec(dt=self.dt, q=self.q, r=self.r, p0=self.p0)  # the spec alone, for the simulator
+        dt = plant.dt if plant.discrete else self.dt  # a discrete plant's filter runs at its own sample time
+        spec = EKFSpec(dt=dt, q=self.q, r=self.r, p0=self.p0)  # the spec alone, for the simulator
         spec.check_horizon(plant.t_final)
         jacobian = "analytic" if plant.jacobian is not None else "finite differences"
+        form = "discrete (plant's sample time)" if plant.discrete else "continuous-discrete"
         return DesignResult(status="given", route="given", estimator=spec, solver=None,
-                            params={**asdict(spec), "jacobian": jacobian})
+                            params={**asdict(spec), "jacobian": jacobian, "form": form})

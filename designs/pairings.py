@@ -2,10 +2,10 @@
 
 Feedback parts: ``lqr`` (python-control). Estimator parts: ``rh_riccati`` (Raghavan-Hedrick
 Riccati), ``rajamani`` (Lipschitz LMI), ``zhang_osl`` (OSL/QIB LMI), ``lqe`` (Kalman gain),
-``ekf`` (filterpy EKF, sampled time).
+``ekf`` (filterpy EKF, sampled time), ``hinf_lipschitz`` (H-infinity observer for Lipschitz systems).
 """
 
-from designs import ekf, lmi_observers, lqr, riccati  # noqa: F401  (parts register on import)
+from designs import ekf, hinf_lipschitz, lmi_observers, lqr, riccati  # noqa: F401  (parts register on import)
 from designs._parts import register_pairing
 
 PAIRINGS = [
@@ -14,4 +14,5 @@ PAIRINGS = [
     register_pairing("lqr", "zhang_osl"),
     register_pairing("lqr", "lqe"),
     register_pairing("lqr", "ekf"),
+    register_pairing("lqr", "hinf_lipschitz"),
 ]

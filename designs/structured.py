@@ -18,6 +18,31 @@ For a plant that declares ``f(x) = G phi(H x)`` with channel slopes in ``[lo, hi
 Both sides are homogeneous, so ``Q >= I`` and ``R >= I`` fix their scale, and each side
 minimises a bound on its gain (``||Y|| <= kF`` gives ``||F|| <= kF``; likewise ``||K|| <= kK``).
 
+**Discrete time** (``plant.dt > 0``, ``x_{k+1} = A x_k + B u_k + G phi(H x_k)``, the observer the one-step
+predictor). With ``V(x_{k+1}) <= r^2 V(x_k)`` in place of ``V' <= -2 lam V`` and the same multipliers, the
+S-procedure on ``[A0 + B F, G]' P [A0 + B F, G] - diag(r^2 P, 0) + [[H'Dr L Dr H, 0], [0, -L]] < 0``
+(``L = S^-1``), the congruence ``diag(Q, S)`` and Schur complements on ``P = Q^-1``, ``S`` and the channel row
+give, exactly, the x-side ::
+
+      [ -r^2 Q         Q A0' + Y' B'     Q H' Dr ]
+      [ A0 Q + B Y     -Q + G S G'       0       ]  < 0
+      [ Dr H Q         0                 -S      ]
+
+and the e-side (``K = R^-1 Kh``) ::
+
+      [ -r^2 R + H' Dr T Dr H    0       A0' R - C' Kh' ]
+      [ 0                        -T      G' R           ]  < 0
+      [ R A0 - Kh C              R G     -R             ]
+
+The decay target is searched as a rate per second ``lam`` with the contraction factor ``r = exp(-lam dt)``,
+under the same gain bound, where the observer gain counts as ``||K|| / dt`` (its Euler-equivalent
+continuous gain, so the bound means the same at every sample time). The joint certificate is the discrete one
+of :func:`designs._discrete.joint_certificate` (``V = x'Q^-1 x + s e'Re``, the sides' multipliers), its
+contraction factor found by bisection and reported as ``decay_rate = -ln(r) / dt``. The SDP margin is
+``1e-3 (dt + ||A0 - I||)``, ``dt`` times the continuous one's for an Euler-like ``A0 = I + dt A0c``. The
+Riccati route has no discrete form here (it would need discrete algebraic Riccati equations with an
+indefinite weight): a discrete plant takes the SDP route, and ``route="riccati"`` is inapplicable.
+
 Two routes solve the sides (``route``): ``"sdp"`` (the LMIs above, Clarabel or SCS) and
 ``"riccati"`` (one scalar multiplier per side, each side an algebraic Riccati equation:
 :mod:`designs._riccati_route`; O(n^3), sufficient, not necessary). ``"auto"`` takes the Riccati
@@ -26,6 +51,9 @@ certificate of :mod:`bench.joint`, whose ``decay_rate`` is the rate it proves, n
 
 References
 ----------
+Discrete time: the same S-procedure with the discrete Lyapunov difference (Boyd et al., *Linear Matrix
+Inequalities in System and Control Theory*, SIAM 1994, sections 5.1 and 8.2); the discrete forms and their
+derivation here are ours.
 T. Acikmese and M. Corless, "Observers for systems with nonlinearities satisfying incremental
 quadratic constraints", Automatica 47(7), 2011. A. Zemouche and M. Boutayeb, Automatica 49(2),
 2013 (LMI observers with channel structure).
@@ -42,6 +70,7 @@ import numpy as np
 from bench import joint, lmi
 from bench.search import largest_passing
 from bench.registry import register_design
+from designs import _discrete
 from designs._core import Design, DesignResult, check_choice, check_positive
 from plants import Constants, Plant
 
@@ -79,6 +108,8 @@ class Structured(Design):
     solver: str = "CLARABEL"
     route: str = "auto"
 
+    time_domains = ("continuous", "discrete")
+
     def __post_init__(self) -> None:
         if self.decay is not None:
             check_positive("decay", self.decay, allow_zero=True)
@@ -100,27 +131,32 @@ class Structured(Design):
         ch = plant.channels
         d = {"A0": plant.A + ch.G @ np.diag(ch.center) @ ch.H, "B": plant.B, "C": plant.C, "G": ch.G, "H": ch.H,
              "Dr": np.diag(ch.spread)}
+        if plant.discrete:
+            d["dt"] = plant.dt
         n, m, p, q = plant.n, plant.m, plant.p, ch.q
         # the side programs bake the loop data in (A0, G, H, Dr): the key must hold their values
-        key = ("structured", n, m, p, q, tuple((k, lmi.digest(v)) for k, v in d.items()))
-        return (lmi.cached_program((*key, "x"), lambda: _side_program("x", d, n, m, q)),
-                lmi.cached_program((*key, "e"), lambda: _side_program("e", d, n, p, q)))
+        key = ("structured", n, m, p, q, plant.dt, tuple((k, lmi.digest(v)) for k, v in d.items()))
+        build = _side_program_discrete if plant.discrete else _side_program
+        return (lmi.cached_program((*key, "x"), lambda: build("x", d, n, m, q)),
+                lmi.cached_program((*key, "e"), lambda: build("e", d, n, p, q)))
 
     def _try(self, progs, lam: float) -> dict | None:
         """Both sides at ``lam``: the gains and multipliers, or None when a side fails."""
         xprog, eprog = progs
         out = {}
         for name, prog in (("x", xprog), ("e", eprog)):
-            prog.set(lam=lam)
+            dt = float(prog.constants.get("dt", 0.0))
+            prog.set(**({"c": -math.expm1(-2 * lam * dt) / dt} if dt else {"lam": lam}))
             lmi.solve_side(prog, self.solver, prog.variables["Q" if name == "x" else "R"].shape[0])
             if not prog.verified():
                 return None
             out[name] = prog.values()
         x, e = out["x"], out["e"]
         F = np.linalg.solve(x["Q"], x["Y"].T).T
-        K = np.linalg.solve(e["R"], e["Kh"])
-        return {"lam": lam, "F": F, "K": K, "P": np.linalg.inv(x["Q"]), "R": e["R"], "s": x["s"], "t": e["t"],
-                "gain": max(np.linalg.norm(F, 2), np.linalg.norm(K, 2))}
+        dt = float(eprog.constants.get("dt", 0.0))
+        K = np.linalg.solve(e["R"], e["Kh"]) * (dt or 1.0)  # discrete: Kh = R K / dt
+        return {"lam": lam, "F": F, "K": K, "P": np.linalg.inv(x["Q"]), "Q": x["Q"], "R": e["R"], "s": x["s"],
+                "t": e["t"], "gain": max(np.linalg.norm(F, 2), np.linalg.norm(K, 2) / (dt or 1.0))}
 
     def _search(self, progs) -> tuple[dict | None, int]:
         """The largest decay target within the gain bound (:func:`bench.search.largest_passing`), or the fixed one."""
@@ -142,7 +178,12 @@ class Structured(Design):
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Search the decay target, then verify the joint certificate of the gains."""
-        route = self.route if self.route != "auto" else ("riccati" if plant.n >= RICCATI_FROM_N else "sdp")
+        route = self.route if self.route != "auto" else (
+            "riccati" if plant.n >= RICCATI_FROM_N and not plant.discrete else "sdp")
+        if route == "riccati" and plant.discrete:
+            return DesignResult(status="inapplicable", route="riccati", reason=(
+                "structured design: the Riccati route has no discrete-time form (it would need discrete algebraic "
+                "Riccati equations with an indefinite weight); use route='sdp' for a discrete plant"))
         if route == "riccati":
             return self._design_riccati(plant)
         progs = self._programs(plant)
@@ -155,6 +196,9 @@ class Structured(Design):
         P, R, F, K = best["P"], best["R"], best["F"], best["K"]
         s, t = np.maximum(best["s"], 1e-12), np.maximum(best["t"], 1e-12)
         ch = plant.channels
+        if plant.discrete:  # delta form: S = S_delta / dt, T = T_delta * dt (module docstring)
+            s, t = s / plant.dt, t * plant.dt
+            return self._discrete_result(plant, best, s, t, tries, base)
         cert = joint.certify(joint.loop(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi), F, K, P, R, s, t)
         n, q = plant.n, ch.q
         params = {"decay_target": best["lam"], "rate_bound": cert.bound, "gain_norm": best["gain"],
@@ -165,7 +209,7 @@ class Structured(Design):
                 f"the gains exceed max_gain = {self.max_gain:g} already at decay 0 (||F||, ||K|| up to "
                 f"{best['gain']:.3g}): the smallest gains found are returned")
             out = {"level": "structured", "P": cert.P, "decay_rate": cert.rate, "margin": cert.margin,
-                   "radius": ch.radius,
+                   "radius": ch.radius, "joint": {"P": P, "R": R, "mu": cert.mu, "s": s, "t": t},
                    "how": "the design's own joint certificate (V = x'Q^-1 x + mu e'Re), its rate by a generalised "
                           "eigenvalue"}
             return DesignResult(status="feasible", reason=note, K=K, F=F, margin=cert.margin, lmi_size=2 * n + 2 * q,
@@ -175,6 +219,38 @@ class Structured(Design):
             f"structured design: both sides verified at decay {best['lam']:.3g}, but the joint certificate with "
             f"mu = {cert.mu:.3g} is {cert.status} (equilibrated max eig {cert.margin:.3g})"), margin=cert.margin,
             params=params, **base)
+
+    def _discrete_result(self, plant: Plant, best: dict, s: np.ndarray, t: np.ndarray, tries: int,
+                         base: dict) -> DesignResult:
+        """The joint discrete certificate of the sides' solution (:func:`designs._discrete.joint_certificate`)."""
+        ch = plant.channels
+        lp = joint.loop(plant.A, plant.B, plant.C, ch.G, ch.H, ch.lo, ch.hi)
+        P, R, F, K = best["P"], best["R"], best["F"], best["K"]
+        lam_x, lam_t = 1.0 / s[lp.keep], t[lp.keep]
+        DH = lp.DH
+        Pix = np.block([[(DH.T * lam_x) @ DH, np.zeros((plant.n, DH.shape[0]))],
+                        [np.zeros((DH.shape[0], plant.n)), -np.diag(lam_x)]])
+        Pie = np.block([[(DH.T * lam_t) @ DH, np.zeros((plant.n, DH.shape[0]))],
+                        [np.zeros((DH.shape[0], plant.n)), -np.diag(lam_t)]])
+        jc = _discrete.joint_certificate(lp.A0 + plant.B @ F, plant.B @ F, lp.A0 - K @ plant.C, lp.G, lp.G,
+                                         (P + P.T) / 2, R, Pix, Pie, dt=plant.dt, Sx=best["Q"])
+        params = {"decay_target": best["lam"], "contraction_target": math.exp(-best["lam"] * plant.dt),
+                  "gain_norm": best["gain"], "max_gain": self.max_gain, "mu": jc["scale"],
+                  "contraction": jc["contraction"], "decay_rate": jc["decay_rate"], "decay_searches": tries,
+                  "dt": plant.dt, "form": "discrete (contraction factor r = exp(-lam dt))"}
+        if jc["status"] != "feasible":
+            return DesignResult(status="undecided", reason=f"structured design (discrete): {jc['reason']}",
+                                margin=jc["margin"], params=params, **base)
+        note = "" if best["gain"] <= self.max_gain else (
+            f"the gains exceed max_gain = {self.max_gain:g} already at decay 0 (||F||, ||K||/dt up to "
+            f"{best['gain']:.3g}): the smallest gains found are returned")
+        cert = {"level": "structured", "P": jc["P"], "decay_rate": jc["decay_rate"], "margin": jc["margin"],
+                "radius": ch.radius, "contraction": jc["contraction"], "dt": plant.dt,
+                "how": "the design's own joint discrete certificate (V = x'Q^-1 x + s e'Re), its contraction factor "
+                       "by bisection"}
+        return DesignResult(status="feasible", reason=note, K=K, F=F, margin=jc["margin"], lmi_size=jc["lmi_size"],
+                            min_eig={"Q^-1": lmi.min_eig(P), "R": lmi.min_eig(R)}, params=params, certificate=cert,
+                            **base)
 
     def _design_riccati(self, plant: Plant) -> DesignResult:
         """The Riccati route: the decay target searched side by side (or the fixed ``decay``)."""
@@ -201,6 +277,7 @@ class Structured(Design):
         n = plant.n
         P = np.block([[rr.P, np.zeros((n, n))], [np.zeros((n, n)), rr.mu * rr.R]])
         cert = {"level": "structured", "P": P, "decay_rate": rr.rate, "margin": rr.margin, "radius": ch.radius,
+                "joint": {"P": rr.P, "R": rr.R, "mu": rr.mu, "s": rr.s, "t": rr.t},
                 "how": "the design's own joint certificate (Riccati route), its rate by a generalised eigenvalue"}
         return DesignResult(status="feasible", K=rr.K, F=rr.F, certificate=cert, **base)
 
@@ -241,5 +318,67 @@ def _side_program(side: str, d: dict, n: int, k: int, q: int) -> lmi.Program:
     eps = 1e-3 * (1.0 + np.linalg.norm(d["A0"], 2))
     cons = [M << -eps * np.eye(n + q), v[pos] >> np.eye(n), v[mult] >= 0,
             cp.bmat([[v["k"] * np.eye(r), g], [g.T, v["k"] * np.eye(c)]]) >> 0]
+    prob = cp.Problem(cp.Minimize(v["k"]), cons)
+    return lmi.Program(prob, v, prm, blocks, (pos,))
+
+
+def _x_blocks_discrete(d: dict, x: dict) -> list:
+    """Discrete x-side in delta form (module docstring): with ``tau = dt``, ``Ad = (A0 - I) / tau``,
+    ``Bd = B / tau``, ``Gd = G / tau``, ``Xd = Ad Q + Bd Y``, ``c = (1 - r^2) / tau``, ``S`` the scaled multipliers ::
+
+        [ Xd + Xd' + c Q + Gd S Gd'     sqrt(tau) (Xd' + Gd S Gd')    Q H' Dr ]
+        [ *                             -Q + tau Gd S Gd'             0       ]
+        [ Dr H Q                        0                             -S      ]
+    """
+    Ad, Bd, Gd, H, Dr, tau = d["Ad"], d["Bd"], d["Gd"], d["H"], d["Dr"], d["tau"]
+    Q, Y, S = x["Q"], x["Y"], lmi.diag(x["s"])
+    Xd = Ad @ Q + Bd @ Y
+    GSG = Gd @ S @ Gd.T
+    rt = math.sqrt(tau)
+    Z = np.zeros((Q.shape[0], S.shape[0]))
+    return [[Xd + Xd.T + x["c"] * Q + GSG, rt * (Xd.T + GSG), Q @ H.T @ Dr],
+            [rt * (Xd + GSG), -Q + tau * GSG, Z],
+            [Dr @ H @ Q, Z.T, -S]]
+
+
+def _e_blocks_discrete(d: dict, x: dict) -> list:
+    """Discrete e-side in delta form (module docstring): ``Wd = R Ad - Kh C`` (``Kh = R K / tau``), ``T`` the scaled
+    multipliers ::
+
+        [ Wd + Wd' + c R + H' Dr T Dr H    R Gd                 sqrt(tau) Wd'   ]
+        [ Gd' R                            -T                   sqrt(tau) Gd' R ]
+        [ sqrt(tau) Wd                     sqrt(tau) R Gd       -R              ]
+    """
+    Ad, C, Gd, H, Dr, tau = d["Ad"], d["C"], d["Gd"], d["H"], d["Dr"], d["tau"]
+    R, Kh, T = x["R"], x["Kh"], lmi.diag(x["t"])
+    Wd = R @ Ad - Kh @ C
+    rt = math.sqrt(tau)
+    return [[Wd + Wd.T + x["c"] * R + H.T @ Dr @ T @ Dr @ H, R @ Gd, rt * Wd.T],
+            [Gd.T @ R, -T, rt * (Gd.T @ R)],
+            [rt * Wd, rt * (R @ Gd), -R]]
+
+
+_SIDES_DISCRETE = {"x": (_x_blocks_discrete, "Q", "Y", "s"), "e": (_e_blocks_discrete, "R", "Kh", "t")}
+
+
+def _side_program_discrete(side: str, d: dict, n: int, k: int, q: int) -> lmi.Program:
+    """The discrete min-gain program of one side in delta form (module docstring): ``min k`` s.t. ``M << -eps I``,
+    ``pos >= I``, ``||gain|| <= k`` (``Y``, or ``Kh = R K / dt``), multipliers >= 0, the Parameter ``c``
+    (= ``(1 - r^2) / dt``); the sample time is the constant ``dt``."""
+    import cvxpy as cp
+
+    make, pos, gain, mult = _SIDES_DISCRETE[side]
+    tau = float(d["dt"])
+    dd = {**d, "tau": tau, "Ad": (d["A0"] - np.eye(n)) / tau, "Bd": d["B"] / tau, "Gd": d["G"] / tau}
+    blocks = partial(make, dd)
+    v = {pos: cp.Variable((n, n), symmetric=True), gain: cp.Variable((k, n) if side == "x" else (n, k)),
+         mult: cp.Variable(q), "k": cp.Variable()}
+    prm = {"c": cp.Parameter(nonneg=True, name="c"), "dt": np.array(tau)}
+    M = lmi.sym(lmi.assemble(blocks, {**v, **prm}, numeric=False))
+    g = v[gain]
+    rows, cols = g.shape
+    eps = 1e-3 * (1.0 + np.linalg.norm(dd["Ad"], 2))
+    cons = [M << -eps * np.eye(M.shape[0]), v[pos] >> np.eye(n), v[mult] >= 0,
+            cp.bmat([[v["k"] * np.eye(rows), g], [g.T, v["k"] * np.eye(cols)]]) >> 0]
     prob = cp.Problem(cp.Minimize(v["k"]), cons)
     return lmi.Program(prob, v, prm, blocks, (pos,))

@@ -14,6 +14,7 @@ import numpy as np
 
 from bench import lmi
 from bench.registry import register_design
+from designs import _discrete
 from designs._core import Design, DesignError, DesignResult, check_int, check_positive, check_range, check_values_in
 from designs._separated import (YoungForm, append_schur_column, concluded, joint_program, scalar,
                                 state_feedback_block, young_layout)
@@ -51,6 +52,11 @@ class Thm1(YoungDesign):
     ``I + eta2 Q`` and the Schur column ``Q`` / ``-(1/eta1) I`` (``eta1 = 2(eps1 rho + eps2 beta)``,
     dropped when ``eta1 <= 0``); eps2 searched on a log grid jointly with phi1.
     Gains: ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
+
+    On a discrete plant: the discrete x-side and e-side of :mod:`designs._discrete` (OSL / QIB e-side of
+    Benallouch et al. 2012 and Nguyen et al. 2018; x-side with ``eps1 = c eps2``, ``c = gamma`` for
+    ``gamma >= 0``, ``c`` on the grid ``{0} U |gamma| logspace(-3, 3, 7)`` for ``gamma < 0``), solved apart, the
+    joint discrete certificate rebuilt and verified, its contraction factor in ``certificate``.
 
     Parameters
     ----------
@@ -104,6 +110,39 @@ class Thm1(YoungDesign):
         return YoungForm(what="corrected Theorem 1", key=("thm1", schur),
                          blocks=young_layout(n, eside, (lambda d: d["kappa"] * d["ibeff"]) if schur else None),
                          e_scalars=("eps3", "eps4"), constants=constants)
+
+    def discrete_forms(self, plant: Plant, c: Constants) -> list:
+        """The discrete candidate forms ``(YoungForm, multipliers, params)`` (:mod:`designs._discrete`): one with
+        ``c = gamma`` for ``gamma >= 0``, the grid of ratios ``c = eps1 / eps2`` with the f row kept otherwise."""
+        n = plant.n
+        I = np.eye(n)
+        f_row = c.gamma < 0
+        ratios = [c.gamma] if not f_row else [0.0, *(abs(c.gamma) * np.logspace(-3, 3, 7))]
+        linear = c.beta == 0 and c.gamma == 0  # QIB (0, 0): |df|^2 <= 0, the class is f = 0
+
+        def eside(d):
+            return _discrete.osl_qib_eside(d, I)
+
+        out = []
+        for cr in ratios:
+            w = cr * c.rho + c.beta
+            schur = w > 0
+            consts = {"rho": c.rho, "beta": c.beta, "gamma": c.gamma, "sw": float(np.sqrt(w)) if schur else 0.0}
+            if f_row:
+                consts["etac"] = c.gamma - cr
+            form = YoungForm(what="discrete corrected Theorem 1", key=("thm1.discrete", schur, f_row),
+                             blocks=(None, _discrete.xside(n, schur=schur, f_row=f_row), eside),
+                             e_scalars=("eps3", "eps4"), constants=consts)
+
+            def multipliers(xv, ev, cr=cr):
+                if linear:
+                    return np.zeros((n, 0)), np.zeros((n, n)), np.zeros((n, 0)), np.zeros((n, n))
+                eps2 = 1 / (2 * max(float(xv["kappa"]), 1e-300))
+                return (I, _osl_qib_terms(I, cr * eps2, eps2, c), I,
+                        _osl_qib_terms(I, float(ev["eps3"]), float(ev["eps4"]), c))
+
+            out.append((form, multipliers, {"c": cr, "form_size": (4 if f_row else 3) * n}))
+        return out
 
     def solved_params(self, vals: dict, c: Constants, phi: float | None = None) -> dict:
         kappa = scalar(vals, "kappa")
@@ -183,6 +222,13 @@ class Thm1(YoungDesign):
         }
         return concluded(prog, lambda vals: {**params, **self._multipliers(vals, c)},
                          what="corrected Theorem 1 (fixed eps, gamma < 0)", cap=self.cap, searched=searched)
+
+
+def _osl_qib_terms(I: np.ndarray, eps1: float, eps2: float, c: Constants) -> np.ndarray:
+    """The S-procedure terms ``2 eps1 (rho |v|^2 - <g, v>) + 2 eps2 (beta |v|^2 + gamma <g, v> - |g|^2)`` as a
+    matrix in ``(v, g)``."""
+    eta = eps2 * c.gamma - eps1
+    return np.block([[2 * (eps1 * c.rho + eps2 * c.beta) * I, eta * I], [eta * I, -2 * eps2 * I]])
 
 
 @register_design("thm1_printed", order=11)

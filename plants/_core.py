@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 import re
@@ -92,10 +93,12 @@ class Channels:
     lo, hi : float or array_like, shape (q,)
         Slope bounds of each channel (a scalar applies to every channel); ``lo <= hi``.
     radius : float, optional
-        The slopes hold on the ball ``||x|| <= radius``; None means globally.
+        The slopes hold on the ball ``||x|| <= radius``, so channel i's on ``|z_i| <= radius ||H_i||``
+        (:attr:`reach`); None means globally.
     narrow : callable, optional
         ``narrow(r) -> (lo_r, hi_r)`` (scalars or shape (q,)): analytic slopes of each channel on
-        ``|z_i| <= r`` (e.g. :func:`sine_slopes`), for certificates on that region.
+        ``|z_i| <= r`` (e.g. :func:`sine_slopes`), for certificates on that region; beyond a channel's
+        reach they are all a certificate uses there (:meth:`slopes_on`).
     """
 
     G: np.ndarray
@@ -153,9 +156,18 @@ class Channels:
         """Half widths ``r = (hi - lo) / 2``: ``|psi_i(a) - psi_i(b)| <= r_i |a - b|``."""
         return (self.hi - self.lo) / 2
 
+    @property
+    def reach(self) -> np.ndarray:
+        """How far each channel's declared slopes ``[lo_i, hi_i]`` hold: ``|z_i| <= radius ||H_i||`` (the inputs
+        ``(H x)_i`` of ``||x|| <= radius``; phi acts channel-wise), infinite for global channels."""
+        if self.radius is None:
+            return np.full(self.q, np.inf)
+        return self.radius * np.linalg.norm(self.H, axis=1)
+
     def slopes_on(self, r: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """Slope bounds of each channel on ``|z_i| <= r``: ``narrow(r)`` intersected with ``[lo, hi]``
-        (None without a narrowing); PlantError when ``narrow(r)`` is not a valid pair."""
+        """Slope bounds of each channel on ``|z_i| <= r`` (None without a narrowing): ``narrow(r)`` intersected
+        with ``[lo, hi]`` where the declared slopes hold (``r <=`` :attr:`reach`), ``narrow(r)`` alone beyond;
+        PlantError when ``narrow(r)`` is not a valid pair."""
         if self.narrow is None:
             return None
         try:
@@ -163,7 +175,8 @@ class Channels:
         except Exception as exc:
             raise PlantError(f"channels.narrow: narrow({r:g}) must return (lo, hi), scalars or shape ({self.q},): "
                              f"{type(exc).__name__}: {exc}") from None
-        lo, hi = np.maximum(self.lo, lo_r), np.minimum(self.hi, hi_r)
+        held = r <= self.reach
+        lo, hi = np.where(held, np.maximum(self.lo, lo_r), lo_r), np.where(held, np.minimum(self.hi, hi_r), hi_r)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)):
             raise PlantError(f"channels.narrow: narrow({r:g}) gives slopes {lo_r.tolist()}, {hi_r.tolist()} that are "
                              f"not finite or leave no slope inside [lo, hi]")
@@ -327,6 +340,9 @@ class Plant:
         The scalar parameters the plant was built with (e.g. the scale ``c`` of f).
     source, notes : str
         Citation and remarks.
+    state_names : sequence of str, optional
+        One label per state with its unit in brackets (``"theta_m [rad]"``; ``[-]``: no unit), for figures and
+        the plant's page; None: ``x1 ... xn``.
 
     Raises
     ------
@@ -355,6 +371,7 @@ class Plant:
     params: Mapping[str, float] = field(default_factory=dict)
     source: str = ""
     notes: str = ""
+    state_names: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -388,6 +405,15 @@ class Plant:
                              f"got {checks.brief(self.params)}") from None
         for key, val in self.params.items():
             check_real(f"params[{key!r}]", val)
+        if self.state_names is not None:
+            try:
+                names = None if isinstance(self.state_names, str) else tuple(self.state_names)
+            except TypeError:
+                names = None
+            if names is None or len(names) != n or not all(isinstance(s, str) and s.strip() for s in names):
+                raise PlantError(f"state_names: expected {n} non-empty strings (one per state), got "
+                                 f"{checks.brief(self.state_names)}")
+            object.__setattr__(self, "state_names", names)
         self._check_f(n)
         self._check_contract(n)
         self._check_jacobian(n)
@@ -624,6 +650,145 @@ class Plant:
         """True for a discrete-time plant (``dt > 0``)."""
         return self.dt > 0
 
+    def discretise(self, h: float, method: str = "zoh", *, id: str | None = None) -> "Plant":
+        """The discrete-time plant ``x_{k+1} = A_d x_k + B_d u_k + f_d(x_k)`` sampled every ``h`` seconds.
+
+        Parameters
+        ----------
+        h : float
+            Sample time in seconds (> 0).
+        method : {"zoh", "euler"}
+            ``"euler"`` (forward difference): ``A_d = I + h A``, ``B_d = h B``, ``f_d = h f``,
+            ``Bw_d = h Bw``, Jacobian ``h J``. ``"zoh"``: the linear part exact under a zero-order hold,
+            ``A_d = expm(h A)``, ``B_d = Gamma B``, ``Bw_d = Gamma Bw`` with ``Gamma = int_0^h expm(A s) ds``
+            (what python-control's ``c2d(sys, h, "zoh")`` gives), and ``f_d = Gamma f``, Jacobian
+            ``Gamma J``: f held over the step like u (exact for the linear part only; for the nonlinear
+            plant it is the discrete model the suite then studies, not the sampled continuous flow).
+            C, Dw, x0, x_hat0 are kept.
+        id : str, optional
+            The new plant's id (default ``"<id>_d<h in ms>ms"``, e.g. ``flexible_link_d10ms``).
+
+        Returns
+        -------
+        Plant
+            With ``dt = h``, ``t_final`` rounded up to a multiple of ``h``, ``params`` adding ``h`` and
+            ``zoh`` (1 for zoh, 0 for Euler), the source and notes stating the discretisation.
+            Constants of ``f_d`` (``bounds`` transported, None where no rule applies, the radius kept;
+            ``claimed`` transported by Euler, whose rules are exact, so a claim stays right or wrong,
+            and dropped by zoh, whose rules are bounds nobody claimed), with ``g = ||Gamma||_2`` and
+            ``d = ||Gamma - h I||_2``:
+
+            - Euler (exact): Lipschitz ``h alpha``; OSL ``h rho``; QIB ``(h^2 beta, h gamma)`` (multiply
+              the QIB inequality by ``h^2``).
+            - zoh: Lipschitz ``g alpha`` (``|Gamma df| <= g |df|``); OSL the smaller of ``g alpha``
+              (Cauchy-Schwarz) and ``h rho + d alpha`` (``<Gamma df, dx> = h <df, dx> + <(Gamma - h I) df,
+              dx>``), so it tends to ``h rho`` as ``h -> 0``; QIB ``(g^2 alpha^2, 0)`` from the Lipschitz
+              bound. Without alpha, zoh gives no OSL or QIB constant.
+
+            Channels ``f_d = G_d phi(H x)`` with ``G_d = h G`` (Euler) or ``Gamma G`` (zoh), phi, H, the slopes
+            and their narrowing unchanged (exact). The suite's sampler checks the transported constants as
+            every plant's.
+
+        Raises
+        ------
+        PlantError
+            If the plant is already discrete, ``h`` is not a positive number or ``method`` is unknown.
+
+        Examples
+        --------
+        >>> from bench.registry import PLANTS
+        >>> d = PLANTS.create("flexible_link").discretise(0.01, "zoh")
+        >>> d.id, d.dt, d.discrete
+        ('flexible_link_d10ms', 0.01, True)
+        """
+        if self.discrete:
+            raise PlantError(f"discretise: plant {self.id!r} is already discrete (dt = {self.dt:g} s)")
+        h = check_real("h", h, lo=0.0, strict=True)
+        if method not in DISCRETISATIONS:
+            raise PlantError(f"method: must be one of {', '.join(map(repr, DISCRETISATIONS))}, got {checks.brief(method)}")
+        n = self.n
+        if method == "euler":
+            Ad, Gam = np.eye(n) + h * self.A, h * np.eye(n)
+        else:
+            from scipy.linalg import expm
+
+            M = np.zeros((2 * n, 2 * n))
+            M[:n, :n], M[:n, n:] = self.A, np.eye(n)
+            E = expm(h * M)  # [[expm(hA), Gamma], [0, I]] (Van Loan)
+            Ad, Gam = E[:n, :n], E[:n, n:]
+        scale = h if method == "euler" else Gam  # a scalar keeps f_d = h f exact
+        ch = self.channels
+        channels = None if ch is None else Channels(G=scale * ch.G if method == "euler" else Gam @ ch.G, H=ch.H,
+                                                    phi=ch.phi, lo=ch.lo, hi=ch.hi, radius=ch.radius,
+                                                    narrow=ch.narrow)
+        has_w = self.q > 0
+        steps = math.ceil(self.t_final / h - 1e-9)
+        how = f"{'Euler' if method == 'euler' else 'zero-order hold'} discretisation at h = {h:g} s"
+        return Plant(
+            id=id if id is not None else f"{self.id}_d{h * 1000:g}ms",
+            A=Ad, B=Gam @ self.B, C=self.C, f=_Mapped(self.f, scale), x0=self.x0, x_hat0=self.x_hat0,
+            jacobian=None if self.jacobian is None else _Mapped(self.jacobian, scale),
+            claimed=_discrete_constants(self.claimed, h, Gam, method) if method == "euler" else Constants(),
+            bounds=None if self.bounds is None else _discrete_constants(self.bounds, h, Gam, method),
+            channels=channels, t_final=max(steps, 1) * h, dt=h,
+            Bw=Gam @ self.Bw if has_w else None, Dw=self.Dw if has_w else None, family=self.family,
+            params={**self.params, "h": h, "zoh": float(method == "zoh")}, state_names=self.state_names,
+            source=f"{self.source}; {how}" if self.source else how,
+            notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""))
+
+    def scaled(self, c: float, *, id: str | None = None) -> "Plant":
+        """The plant with its nonlinearity, and so its class, multiplied by ``c``: ``f -> c f``.
+
+        A, B, C, the disturbance inputs, x0, x_hat0, the horizon and the sample time are kept: this is the
+        axis of the largest admissible nonlinearity (``python -m bench study scale``), on which a design is
+        given the scaled class of the same linear part.
+
+        Parameters
+        ----------
+        c : float
+            The factor, finite and ``>= 0`` (``c = 0`` is the linear plant; a negative factor would flip f,
+            whose one-sided Lipschitz constant does not follow from rho).
+        id : str, optional
+            The new plant's id (default ``"<id>_scaled<c>"``, e.g. ``flexible_link_scaled2.5``).
+
+        Returns
+        -------
+        Plant
+            f and its Jacobian times c; ``params`` adding ``scale`` (the product with an earlier one); the
+            source and notes stating the factor. The constants scale as the class does, exactly, for
+            ``bounds`` and ``claimed`` alike (a claim stays right or wrong), the radius kept: Lipschitz
+            ``c alpha``, OSL ``c rho``, QIB ``(c^2 beta, c gamma)`` (multiply the QIB inequality by
+            ``c^2``: ``|c df|^2 <= c^2 beta |dx|^2 + c gamma <dx, c df>``). Channels ``G (c phi)(H x)``
+            with slopes ``[c lo, c hi]`` and the narrowing ``narrow(r)`` times c.
+
+        Raises
+        ------
+        PlantError
+            If ``c`` is not a finite number ``>= 0``, or the default id is too long (pass ``id``).
+
+        Examples
+        --------
+        >>> from bench.registry import PLANTS
+        >>> p = PLANTS.create("flexible_link").scaled(2.0)
+        >>> p.id, p.params["scale"], p.bounds.alpha, round(p.bounds.beta, 6)
+        ('flexible_link_scaled2', 2.0, 0.666, 0.443556)
+        """
+        c = check_real("c", c, lo=0.0)
+        ch = self.channels
+        channels = None if ch is None else Channels(
+            G=ch.G, H=ch.H, phi=_Mapped(ch.phi, c), lo=c * ch.lo, hi=c * ch.hi, radius=ch.radius,
+            narrow=None if ch.narrow is None else _ScaledNarrow(ch.narrow, c))
+        how = (f"f scaled by c = {c:g} (the class: Lipschitz c alpha, OSL c rho, QIB (c^2 beta, c gamma), "
+               "slopes c [lo, hi])")
+        return dataclasses.replace(  # every other field (A, B, C, Bw, Dw, x0, dt, state names, ...) kept
+            self, id=id if id is not None else f"{self.id}_scaled{c:g}", f=_Mapped(self.f, c),
+            jacobian=None if self.jacobian is None else _Mapped(self.jacobian, c),
+            claimed=_scaled_constants(self.claimed, c),
+            bounds=None if self.bounds is None else _scaled_constants(self.bounds, c), channels=channels,
+            params={**self.params, "scale": c * float(self.params.get("scale", 1.0))},
+            source=f"{self.source}; {how}" if self.source else how,
+            notes=f"{how} of {self.id}" + (f" ({self.notes})" if self.notes else ""))
+
     def summary(self) -> str:
         """One line: id, dimensions and source."""
         return f"{self.id}: n={self.n}, m={self.m}, p={self.p}; {self.source}"
@@ -634,6 +799,56 @@ class Plant:
         if self.jacobian is not None:
             return np.asarray(self.jacobian(x), dtype=float)
         return _central_differences(self.f, x, 1e-6)
+
+
+#: The discretisations of :meth:`Plant.discretise`.
+DISCRETISATIONS = ("zoh", "euler")
+
+
+class _Mapped:
+    """``x -> M @ g(x)`` (or ``M * g(x)`` for a scalar M): a discretised f or Jacobian (picklable when g is)."""
+
+    def __init__(self, g: Callable, M):
+        self.g, self.M = g, M
+
+    def __call__(self, x):
+        out = np.asarray(self.g(x), dtype=float)
+        return self.M * out if np.ndim(self.M) == 0 else self.M @ out
+
+
+class _ScaledNarrow:
+    """``r -> c narrow(r)``: the narrowed slopes of a channel scaled by ``c >= 0`` (picklable when narrow is)."""
+
+    def __init__(self, narrow: Callable[[float], tuple], c: float):
+        self.narrow, self.c = narrow, c
+
+    def __call__(self, r: float) -> tuple:
+        lo, hi = self.narrow(r)
+        return self.c * np.asarray(lo, dtype=float), self.c * np.asarray(hi, dtype=float)
+
+
+def _scaled_constants(k: Constants, c: float) -> Constants:
+    """The constants of ``c f`` from those of ``f`` (:meth:`Plant.scaled`, ``c >= 0``)."""
+    def times(v: float | None, by: float) -> float | None:
+        return None if v is None else by * v
+
+    return Constants(alpha=times(k.alpha, c), rho=times(k.rho, c), beta=times(k.beta, c * c),
+                     gamma=times(k.gamma, c), radius=k.radius)
+
+
+def _discrete_constants(c: Constants, h: float, Gam: np.ndarray, method: str) -> Constants:
+    """The constants of ``f_d`` from those of ``f`` (the rules of :meth:`Plant.discretise`)."""
+    if method == "euler":
+        return Constants(alpha=None if c.alpha is None else h * c.alpha, rho=None if c.rho is None else h * c.rho,
+                         beta=None if c.beta is None else h * h * c.beta,
+                         gamma=None if c.gamma is None else h * c.gamma, radius=c.radius)
+    if c.alpha is None:
+        return Constants(radius=c.radius)
+    g = float(np.linalg.norm(Gam, 2))
+    rho = g * c.alpha
+    if c.rho is not None:
+        rho = min(rho, h * c.rho + float(np.linalg.norm(Gam - h * np.eye(Gam.shape[0]), 2)) * c.alpha)
+    return Constants(alpha=g * c.alpha, rho=rho, beta=(g * c.alpha) ** 2, gamma=0.0, radius=c.radius)
 
 
 def jacobian_mismatch(f: Callable, jacobian: Callable, X: np.ndarray, *, rtol: float = 1e-4) -> str | None:

@@ -158,6 +158,7 @@ def chain_plant(
         notes=(f"chain of {N} masses, pendula (c sin q) at {list(nl)}, forces at {list(ins)}, "
                f"positions measured at {list(outs)}; alpha = |c|/m, rho = |c|/(2m), "
                "(beta, gamma) = (c^2/m^2, 0), global"),
+        state_names=tuple(s for i in range(1, N + 1) for s in (f"q{i} [-]", f"v{i} = q{i}' [1/s]")),
     )
 
 

@@ -80,4 +80,5 @@ def chua(
                  jacobian=jacobian, x0=X0, x_hat0=X_HAT0, claimed=Constants(alpha=abs(a * (m0 - m1))),
                  bounds=Constants(alpha=abs(k), rho=max(k, 0.0), beta=k**2, gamma=0.0), channels=channels,
                  t_final=t_final, family="chua", params={"a": a, "b": b, "m0": m0, "m1": m1, "version": 1},
-                 source=SOURCE, notes="m1 x1 in A, the saturation in f; B = [1,0,0]', C = [1,0,0]")
+                 source=SOURCE, notes="m1 x1 in A, the saturation in f; B = [1,0,0]', C = [1,0,0]",
+                 state_names=("x1 = v_C1 [-]", "x2 = v_C2 [-]", "x3 = i_L [-]"))

@@ -35,6 +35,9 @@ X_HAT0 = np.array([0.5, 1.0, 1.0, -1.0])
 PAPER_K = np.array([[1.2907, -24.3525], [-23.0311, 2.6718], [1.3713, 53.2993], [5.8967, 6.7679]])
 PAPER_F = np.array([[-11.7561, -1.8562, 6.4643, -14.2175]])
 
+#: The states of (35): motor angle and speed, link angle, and link speed scaled by 1/10.
+STATE_NAMES = ("theta_m [rad]", "omega_m [rad/s]", "theta_l [rad]", "omega_l / 10 [rad/s]")
+
 #: The constants the paper claims below (36).
 PAPER_CLAIMED = Constants(rho=0.1109, beta=0.1109, gamma=0.0, alpha=0.333)
 
@@ -43,7 +46,8 @@ def _make(pid: str, c: float, index: int, t_final: float, notes: str) -> Plant:
     c = check_real("c", c)
     gravity = sine_terms(4, acts=[3], reads=[index], coef=-c)
     return Plant(id=pid, A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity, claimed=PAPER_CLAIMED,
-                 t_final=t_final, family="flexible_link", params={"c": c}, source=SOURCE, notes=notes)
+                 t_final=t_final, family="flexible_link", params={"c": c}, source=SOURCE, notes=notes,
+                 state_names=STATE_NAMES)
 
 
 @register_plant("flexible_link", order=0)

@@ -6,7 +6,9 @@
     f(x) = -x (x1^2 + x2^2) = -||x||^2 x.
 
 A has eigenvalues 0.5 and -2. Sources: ``x(0) = (0.1, -0.1)``, ``x_hat(0) = (-0.1, 0.1)``, the
-region r = 10. ``f = -grad(||x||^4 / 4)`` is monotone, so rho = 0 globally, while f is Lipschitz
+region r = 10; the disturbance inputs ``Bw = Wc = [2, 1]'``, ``Dw = D = 1`` of Nguyen et al. (2018),
+Example 2 (``x' = A x + B u + f(x) + Wc w``, ``y = C x + D w``; they then discretise by Euler with
+ts = 1 ms). ``f = -grad(||x||^4 / 4)`` is monotone, so rho = 0 globally, while f is Lipschitz
 only locally.
 
 Constants on the (convex) ball ``||x|| <= r``: along a segment ``df = -H dx`` with ``H`` the average
@@ -34,7 +36,7 @@ __all__ = ["moving_object"]
 
 SOURCE = (
     "Abbaszadeh & Marquez, ACC 2010 (nonlinearity); Nguyen, Pathirana & Trinh, Eur. J. Control 2018, "
-    "Example 2 (plant, initial conditions, r = 10)"
+    "Example 2 (plant, initial conditions, r = 10, disturbance inputs Wc, D)"
 )
 
 A = np.array([[-1.0, 1.0], [1.5, -0.5]])
@@ -42,6 +44,11 @@ B = np.array([[0.0], [-1.0]])
 C = np.array([[0.0, 1.0]])
 X0 = np.array([0.1, -0.1])
 X_HAT0 = np.array([-0.1, 0.1])
+
+#: Disturbance inputs of Nguyen et al. 2018, Example 2 (the continuous model before their Euler step):
+#: ``x' = ... + Wc w``, ``y = C x + D w`` with ``Wc = [2, 1]'``, ``D = 1``.
+BW = np.array([[2.0], [1.0]])
+DW = np.array([[1.0]])
 
 #: Region radius used by Nguyen et al.
 R_SOURCE = 10.0
@@ -80,5 +87,6 @@ def moving_object(*, r: float = R_SOURCE, t_final: float = 20.0) -> Plant:
     return Plant(id="moving_object_v1", A=A, B=B, C=C, f=_f, jacobian=_jacobian, x0=X0, x_hat0=X_HAT0,
                  claimed=Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-4 * r**2, radius=r),
                  bounds=Constants(alpha=3 * r**2, rho=0.0, beta=0.0, gamma=-3 * r**2, radius=r),
-                 t_final=t_final, family="moving_object", params={"r": r, "version": 1}, source=SOURCE,
-                 notes="OSL with rho = 0 globally; Lipschitz only locally (3 r^2 on ||x|| <= r)")
+                 Bw=BW, Dw=DW, t_final=t_final, family="moving_object", params={"r": r, "version": 1}, source=SOURCE,
+                 notes="OSL with rho = 0 globally; Lipschitz only locally (3 r^2 on ||x|| <= r)",
+                 state_names=("x1 [-]", "x2 [-]"))

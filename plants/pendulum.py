@@ -58,4 +58,5 @@ def pendulum(*, g_over_l: float = G_OVER_L, b: float = DAMPING, t_final: float =
                  C=np.array([[1.0, 0.0]]), x0=X0, x_hat0=X_HAT0, **gravity,
                  claimed=Constants(alpha=k, rho=k / 2), t_final=t_final, family="pendulum",
                  params={"g_over_l": k, "b": b, "version": 1}, source=SOURCE,
-                 notes="theta measured; the whole sine is in f (A has eigenvalues 0 and -b)")
+                 notes="theta measured; the whole sine is in f (A has eigenvalues 0 and -b)",
+                 state_names=("theta [rad]", "omega [rad/s]"))

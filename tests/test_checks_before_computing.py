@@ -1,7 +1,8 @@
 """Ids and output paths are checked before anything is computed:
 
-- a plant or design id that is unsafe in a file name ("a/b") is refused where it is registered or
-  built, with a message naming the id and the allowed characters (not after the run, on the figure);
+- a plant or design id that is unsafe in a file name ("a/b") or too long for one is refused where it is
+  registered or built, with a message naming the id and the allowed characters or the limit (not after
+  the run, on the figure);
 - ``--out ""``, a file, a path under a file, or an unwritable folder exits 2 with one line before
   anything is computed (``run`` and ``study``).
 """
@@ -60,6 +61,22 @@ def test_unsafe_ids_are_refused_by_the_registry_and_by_plant(bad):
 def test_safe_ids_are_accepted(good):
     assert check_id(good) == good
     assert _plant(good).id == good
+
+
+def test_an_id_too_long_for_a_file_name_is_refused_naming_the_limit(tmp_path):
+    from bench.registry import ID_MAX_CHARS
+
+    longest = "p" * ID_MAX_CHARS
+    assert check_id(longest) == longest and _plant(longest).id == longest
+    # the longest file name a report writes, <plant>__<design>.png, fits a 255-byte file name
+    (tmp_path / f"{longest}__{'d' * ID_MAX_CHARS}.png").write_bytes(b"")
+    bad = "p" * 300
+    with pytest.raises(RegistryError, match=f"300 characters.*at most {ID_MAX_CHARS} characters"):
+        PLANTS.register(bad, lambda: None)
+    with pytest.raises(PlantError, match=f"at most {ID_MAX_CHARS} characters"):
+        _plant(bad)
+    with pytest.raises(RegistryError, match="design id"):
+        DESIGNS.register("d" * (ID_MAX_CHARS + 1), lambda: None)
 
 
 def test_every_registered_id_is_safe():

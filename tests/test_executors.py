@@ -132,7 +132,7 @@ _DEADLOCK = """
         return certify(p, g.K, g.F, rep.knowledge(p)).certified
 
     first = certified()  # the parent solves the certificate's SDPs (Clarabel runs multi-threaded)
-    with executor(2) as ex:
+    with executor(2, start_method="fork") as ex:  # forked on purpose: the default would be forkserver now
         second = ex.submit(certified).result()
     with open(OUT, "wb") as fh:
         pickle.dump((first, second), fh)
@@ -141,8 +141,9 @@ _DEADLOCK = """
 
 def test_workers_forked_after_a_solve_in_the_parent_finish():
     """A library user (or a test session) that solved an SDP in-process and then runs pairs with
-    jobs > 1: the workers must finish (the task takes ~2 s; 20 s is the hang guard). The process
-    runs as a user's would: without a RAYON_NUM_THREADS the test session may set for itself."""
+    jobs > 1 and the fork start method: the workers must finish (the task takes ~2 s; 20 s is the hang
+    guard). The process runs as a user's would: without a RAYON_NUM_THREADS the test session may set for
+    itself."""
     assert _in_fresh_process(_DEADLOCK, timeout=20, drop_env=("RAYON_NUM_THREADS",)) == (True, True)
 
 

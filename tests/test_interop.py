@@ -114,6 +114,12 @@ def test_gain_shapes_are_validated(link, builder):
         builder(link, PAPER_K, PAPER_F.T)
     with pytest.raises(ValueError, match="K: entries must be finite"):
         builder(link, np.full((4, 2), np.nan), PAPER_F)
+    # complex gains are refused by name, never truncated to their real part (also as Python complex numbers)
+    with pytest.raises(ValueError, match=r"F: complex entries \(largest imaginary part 0.002.*the gains must be real"):
+        builder(link, PAPER_K, PAPER_F + 2e-3j)
+    with pytest.raises(ValueError, match="K: complex entries"):
+        builder(link, [[complex(v, 1.0) for v in row] for row in PAPER_K], PAPER_F)
+    builder(link, PAPER_K + 0j, PAPER_F)  # a complex type with zero imaginary parts is real
     with pytest.raises(TypeError, match="plant"):
         builder("flexible_link", PAPER_K, PAPER_F)
 

@@ -33,7 +33,7 @@ FAST = RunOptions(n_samples=500)
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
-    """Every file's bytes (but the empty lock file, which stays once a writer used the folder)."""
+    """Every file's bytes (but the lock file, present only while a writer holds it)."""
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
             if p.is_file() and p.name != outdir.LOCK_NAME}
 
@@ -191,6 +191,36 @@ def test_two_writer_processes_never_mix_and_never_fail(tmp_path):
     texts = {(tmp_path / rel).read_text() for rel in ("figures/p__fig.png", "data.csv", "INDEX.md")}
     assert len(texts) == 1 and texts.pop() in ("A 39", "B 39")  # one writer's whole set
     assert not _leftovers(tmp_path)
+    assert not (tmp_path / outdir.LOCK_NAME).exists()  # each holder deletes the lock file before releasing it
+
+
+COUNTER = r"""
+import sys, time
+sys.path.insert(0, sys.argv[1])
+from pathlib import Path
+from bench import outdir
+
+out = Path(sys.argv[2])
+for _ in range(int(sys.argv[3])):
+    with outdir.locked(out):  # read, wait, write: a second holder at the same time would lose an increment
+        n = int((out / "count").read_text())
+        time.sleep(0.001)
+        (out / "count").write_text(str(n + 1))
+print("ok")
+"""
+
+
+def test_the_lock_excludes_while_its_file_comes_and_goes(tmp_path):
+    """Three processes increment a counter under :func:`locked`, whose holder deletes the lock file on release:
+    no increment is lost (a waiter that locked a deleted file locks the new one), and no lock file stays."""
+    (tmp_path / "count").write_text("0")
+    procs = [subprocess.Popen([sys.executable, "-c", COUNTER, str(ROOT), str(tmp_path), "60"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(3)]
+    for p in procs:
+        stdout, stderr = p.communicate(timeout=120)
+        assert p.returncode == 0 and stdout.strip() == "ok", stderr
+    assert (tmp_path / "count").read_text() == "180"
+    assert not (tmp_path / outdir.LOCK_NAME).exists()
 
 
 def test_a_second_writer_waits_for_the_lock_then_gives_a_clear_error(tmp_path):

@@ -92,13 +92,18 @@ def test_a_clipped_norm_draws_and_names_the_floor():
         plt.close(fig)
 
 
-def test_states_figure_labels_its_axes():
+def test_states_figure_labels_its_axes_with_the_units():
     t = np.linspace(0, 5, 51)
     x = np.vstack([np.exp(-t), -np.exp(-2 * t)])
-    fig, _ = _states_figure(_FigureJob("states", "p__d", "caption", "title", (t, x, 0.9 * x, 5.0)))
+    names = ("theta [rad]", "x2")  # a state with its unit, one without (no state_names)
+    fig, _ = _states_figure(_FigureJob("states", "p__d", "caption", "title", (t, x, 0.9 * x, 5.0, names)))
     try:
         assert len(fig.axes) == 4
         for ax in fig.axes:
             assert ax.get_xlabel() == "t [s]" and ax.get_ylabel()
+        top, bottom = fig.axes[0], fig.axes[2]  # x1's panels: state and error
+        assert top.get_title() == "x1: theta [rad]" and top.get_ylabel().endswith("[rad]")
+        assert bottom.get_ylabel().endswith("[rad]")
+        assert fig.axes[1].get_title() == "x2 and its estimate" and "[" not in fig.axes[1].get_ylabel()
     finally:
         plt.close(fig)

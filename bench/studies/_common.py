@@ -131,18 +131,20 @@ _CONSTANTS: dict[tuple, object] = {}
 
 def evaluate(plant, design_id: str, options=None, *, overrides: dict | None = None, prior=None, scenario=None):
     """One pair through :func:`bench.pipeline.evaluate_pair` with the study's constants (the plant's
-    :func:`bench.constants.compute_constants` with :data:`STUDY_SAMPLES` pairs, memoised per plant); ``overrides``
+    :func:`bench.constants.compute_constants` with :data:`STUDY_SAMPLES` pairs seeded by ``options.seed``, memoised
+    per plant and seed); ``overrides``
     are the design's hyperparameters, ``prior`` an earlier outcome whose design and certificate are re-used.
     """
     from bench.constants import compute_constants
     from bench.pipeline import RunOptions, evaluate_pair
     from bench.registry import DESIGNS
 
-    key = (plant.id, tuple(sorted(plant.params.items())))
+    options = options or RunOptions()
+    key = (plant.id, tuple(sorted(plant.params.items())), options.seed)
     if key not in _CONSTANTS:
-        _CONSTANTS[key] = compute_constants(plant, seed=0, n_samples=STUDY_SAMPLES, n_refine=2)
+        _CONSTANTS[key] = compute_constants(plant, seed=options.seed, n_samples=STUDY_SAMPLES, n_refine=2)
     design = design_id if not overrides else DESIGNS.create(design_id, **overrides)
-    return evaluate_pair(plant, design, _CONSTANTS[key], options or RunOptions(), design_id=design_id,
+    return evaluate_pair(plant, design, _CONSTANTS[key], options, design_id=design_id,
                          prior=prior, scenario=scenario)
 
 
@@ -200,18 +202,22 @@ class StudyRun:
 
 def study(default_plants=None, default_designs=None):
     """Decorator making ``fn(run: StudyRun, **options)`` a study's
-    ``fn(plant_ids=None, design_ids=None, *, jobs=1, progress=None, **options)``; without ids, the defaults
-    (None: every registered one)."""
+    ``fn(plant_ids=None, design_ids=None, *, jobs=1, progress=None, start_method=None, **options)``; without ids,
+    the defaults (None: the registry's default selection, :meth:`bench.registry.Registry.defaults`);
+    ``start_method``: how worker processes start (:func:`bench.executors.use_start_method`)."""
     def deco(fn):
-        def run(plant_ids=None, design_ids=None, *, jobs: int = 1, progress=None, **options):
+        def run(plant_ids=None, design_ids=None, *, jobs: int = 1, progress=None, start_method: str | None = None,
+                **options):
+            from bench.executors import use_start_method
             from bench.registry import DESIGNS, PLANTS
 
             def pick(ids, default, registry):
-                return list(ids) if ids else (list(default) if default is not None else registry.ids())
+                return list(ids) if ids else (list(default) if default is not None else registry.defaults())
 
             pairs = StudyRun(pick(plant_ids, default_plants, PLANTS), pick(design_ids, default_designs, DESIGNS), jobs,
                              progress)
-            return fn(pairs, **options)
+            with use_start_method(start_method):
+                return fn(pairs, **options)
 
         functools.update_wrapper(run, fn)
         del run.__wrapped__
@@ -236,8 +242,10 @@ def skipped_lines(rows: list[dict], *, heading: str = "Not simulated:", width: i
     """Markdown lines: ``heading`` and one bullet per pair not simulated, with its status and reason."""
     if not rows:
         return []
-    return [heading, "", *(f"- **{r['plant']} x {r['design']}** ({r['status']}): {fmt(r.get('reason', ''))[:width]}"
-                           for r in rows), ""]
+    from bench.report import clip_words
+
+    return [heading, "", *(f"- **{r['plant']} x {r['design']}** ({r['status']}): "
+                           f"{clip_words(fmt(r.get('reason', '')), width)}" for r in rows), ""]
 
 
 def study_header(title: str, command: str, settings: dict, wall_s: float) -> str:
@@ -263,7 +271,8 @@ def study_header(title: str, command: str, settings: dict, wall_s: float) -> str
 def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: dict[str, Any],
                 figures: dict[str, Callable[[Path], None]]) -> Path:
     """Write a study's files whole or not at all: ``STUDY_<name>.md``, each table (file stem -> DataFrame or
-    row dicts) as CSV and each figure (file stem -> callable drawing into a path) as PNG; return the markdown's path."""
+    row dicts) as CSV and each figure (file stem -> callable drawing into a path) as PNG (none: no figures
+    folder); return the markdown's path."""
     import pandas as pd
 
     from bench.outdir import publish, staged
@@ -272,7 +281,8 @@ def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: di
     out.mkdir(parents=True, exist_ok=True)
     md_name = f"STUDY_{name}.md"
     with staged(out, f"study-{name}") as tmp:
-        (tmp / "figures").mkdir()
+        if figures:
+            (tmp / "figures").mkdir()
         for stem, draw in figures.items():
             draw(tmp / "figures" / f"{stem}.png")
         for stem, table in tables.items():
@@ -283,12 +293,15 @@ def write_study(out_dir: str | os.PathLike, name: str, markdown: str, tables: di
 
 
 def write_plant_study(out_dir: str | os.PathLike, name: str, lines: list[str], tables: dict[str, Any],
-                      rows: list[dict], draw: Callable[..., Any], *args, heading: str | None = "## Figures") -> Path:
+                      rows: list[dict], draw: Callable[..., Any], *args, heading: str | None = "## Figures",
+                      figures: bool = True) -> Path:
     """:func:`write_study` with a figure ``study_<name>_<plant>`` per plant of ``rows`` (in order): the figure
     ``draw(plant, its rows, *args)`` returns, saved at 100 dpi; ``heading`` and the figures' image lines end the
-    markdown ``lines`` (None: the lines show them)."""
-    plants = list(dict.fromkeys(r["plant"] for r in rows))
-    if heading is not None:
+    markdown ``lines`` (None: the lines show them). ``figures=False``: no figure (and no image line)."""
+    plants = list(dict.fromkeys(r["plant"] for r in rows)) if figures else []
+    if not figures:
+        lines = [ln for ln in lines if not ln.startswith("![")]
+    elif heading is not None:
         lines = [*lines, heading, "", *(f"![{pid}](figures/study_{name}_{pid}.png)" for pid in plants), ""]
     figs = {f"study_{name}_{pid}": functools.partial(_save_figure, draw, pid, rows, args) for pid in plants}
     return write_study(out_dir, name, "\n".join(lines), tables, figs)

@@ -20,6 +20,7 @@ import numpy as np
 
 from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_range,
                                    check_rtol, evaluate, fmt, md_table, pyplot, study, study_header, write_plant_study)
+from bench.report import clip_words
 from designs import GAIN_STATUSES
 
 __all__ = ["run_admissible", "write_admissible"]
@@ -95,7 +96,8 @@ def knob_of(plant_id: str) -> str | None:
         return None
 
 
-def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, overrides: dict | None = None) -> dict:
+def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, overrides: dict | None = None,
+                seed: int = 0) -> dict:
     """Design and certify ``design_id`` (with ``overrides``) on ``PLANTS.create(plant_id, **{knob: value})``
     without simulating: a record with ``value``, ``ok`` (gains designed and certified), ``status`` (``invalid``
     when the plant cannot be built there), ``feasible``, ``certified``, ``cert_level``, margins, timings, ``reason``.
@@ -112,7 +114,8 @@ def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, override
     except PlantError as exc:
         rec.update(status="invalid", reason=f"plant cannot be built at {knob} = {value:.4g}: {exc}")
         return rec
-    row = evaluate(plant, design_id, RunOptions(certificate="verdict", simulate=False), overrides=overrides).record
+    row = evaluate(plant, design_id, RunOptions(certificate="verdict", simulate=False, seed=seed),
+                   overrides=overrides).record
     rec.update({k: row[k] for k in rec if k in row and k not in ("value", "ok")})
     for k in ("compile_s", "solve_s", "design_s", "cert_s"):
         rec[k] = 0.0 if not math.isfinite(rec[k]) else rec[k]
@@ -121,12 +124,12 @@ def evaluate_at(plant_id: str, knob: str, value: float, design_id: str, override
     return rec
 
 
-def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds, rtol: float) -> dict:
+def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds, rtol: float, seed: int = 0) -> dict:
     from bench.registry import PLANTS
 
     t0 = time.perf_counter()
     default = float(PLANTS.create(plant_id).params[knob])
-    out = bisect_largest(lambda v: evaluate_at(plant_id, knob, v, design_id, overrides), default, bounds=bounds,
+    out = bisect_largest(lambda v: evaluate_at(plant_id, knob, v, design_id, overrides, seed), default, bounds=bounds,
                          rtol=rtol)
     ev = out["evals"]
     row = {"plant": plant_id, "knob": knob, "default": default, "design": design_id,
@@ -136,7 +139,7 @@ def _pair_task(plant_id: str, knob: str, design_id: str, overrides: dict, bounds
            "wall_s": time.perf_counter() - t0}
     fail = [e for e in ev if not e["ok"] and (e["value"] == out["hi"] or out["kind"] == "inapplicable")]
     row["fails_by"] = _outcome(fail[-1]) if fail else ""
-    row["fail_reason"] = fail[-1]["reason"][:300] if fail else ""
+    row["fail_reason"] = clip_words(fail[-1]["reason"], 300) if fail else ""
     row["at_default"] = next((_outcome(e) for e in ev if e["value"] == default), "")
     if math.isfinite(out["lo"]):
         b = PLANTS.create(plant_id, **{knob: out["lo"]}).bounds
@@ -167,7 +170,7 @@ class AdmissibleResult(StudyResult):
 
 @study(KNOBS, DEFAULT_DESIGNS)
 def run_admissible(run: StudyRun, *, bounds: tuple[float, float] | None = None, rtol: float = 0.01,
-                   caps: tuple[float, ...] = (10.0, 100.0, 1e4)) -> AdmissibleResult:
+                   caps: tuple[float, ...] = (10.0, 100.0, 1e4), seed: int = 0) -> AdmissibleResult:
     """Bisect the admissible scale of every (plant, design) pair.
 
     Parameters
@@ -182,6 +185,8 @@ def run_admissible(run: StudyRun, *, bounds: tuple[float, float] | None = None, 
         Relative tolerance of the bisection.
     caps : tuple of float
         Other normalisation caps for :data:`CAP_DESIGNS` on :data:`CAP_PLANTS` (empty: skip).
+    seed : int
+        Seed of the constants sampler (as ``python -m bench run --seed``).
     jobs, progress
         Worker processes; ``progress(done, total, label)``.
 
@@ -200,7 +205,7 @@ def run_admissible(run: StudyRun, *, bounds: tuple[float, float] | None = None, 
         if not (math.isfinite(c) and c > 0):
             raise StudyError("caps", f"each cap must be finite and > 0, got {c!r}")
     tasks = _tasks(run.plant_ids, run.design_ids, caps)
-    results = run.map(_pair_task, [((pid, did, _label(ov)), (pid, k, did, ov, bounds, rtol))
+    results = run.map(_pair_task, [((pid, did, _label(ov)), (pid, k, did, ov, bounds, rtol, seed))
                                    for pid, k, did, ov in tasks],
                       lambda key, r: f"{key[0]} x {key[1]} ({key[2]}): "
                                      f"[{fmt(r['row']['admissible_lo'])}, {fmt(r['row']['failing_hi'])})")
@@ -208,7 +213,7 @@ def run_admissible(run: StudyRun, *, bounds: tuple[float, float] | None = None, 
     settings = {"rtol": rtol, "bounds": bounds or "automatic (doubling/halving from the plant's default)",
                 "cap": 1e3, "other caps": tuple(caps),
                 "certificate": "the pipeline's ladder at lam = 0 (strongest level first), trusted constants",
-                "jobs": run.jobs}
+                "seed": seed, "jobs": run.jobs}
     return AdmissibleResult(rows, settings, run.wall_s(), variant_rows=variant_rows, evals=evals)
 
 
@@ -285,7 +290,7 @@ def _draw_plant(pid: str, rows: list[dict], evals: list[dict]):
     return fig
 
 
-def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "Path":  # noqa: F821
+def write_admissible(result: AdmissibleResult, out_dir: str, command: str, *, figures: bool = True) -> "Path":  # noqa: F821
     """Write ``STUDY_admissible.md``, its CSVs and figures atomically; return the markdown's path."""
     rows = result.rows
     by_plant = {pid: {r["design"]: r for r in rows if r["plant"] == pid}  # plant -> design -> row, in order
@@ -340,7 +345,7 @@ def write_admissible(result: AdmissibleResult, out_dir: str, command: str) -> "P
     tables = {"study_admissible": rows, "study_admissible_evaluations": result.evals}
     if result.variant_rows:
         tables["study_admissible_variants"] = result.variant_rows
-    return write_plant_study(out_dir, "admissible", lines, tables, rows, _draw_plant, result.evals)
+    return write_plant_study(out_dir, "admissible", lines, tables, rows, _draw_plant, result.evals, figures=figures)
 
 
 _INTRO = (

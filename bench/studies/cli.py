@@ -1,9 +1,10 @@
-"""Command line of the studies: ``python -m bench study {admissible,sampling,montecarlo,noise}``.
+"""Command line of the studies: ``python -m bench study {admissible,scale,sampling,montecarlo,noise}``.
 
-:func:`add_study_parser` adds the ``study`` subcommand to the main parser (:mod:`bench.cli`);
-:func:`run_study` runs one study from the parsed arguments. Exit codes: 0 success, 1 the
-files could not be written (the previous ones stay intact), 2 bad usage (unknown id, bad
-option value: the message names the option).
+:func:`add_study_parser` adds the ``study`` subcommand to the main parser (:mod:`bench.cli` calls it);
+:func:`run_study` runs one study from the parsed arguments. The options a study shares with ``run``
+(``--seed``, ``--jobs``, ``--start-method``, ``--no-figures``, ``--quiet``, ``--plugin``) come from
+:mod:`bench.cli_common` and mean the same. Exit codes: 0 success, 1 the files could not be written (the
+previous ones stay intact), 2 bad usage (unknown id, bad option value: the message names the option).
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ import time
 
 from bench import checks
 from bench.checks import argtype
-from bench.cli import nonneg_int as _seed, positive_float as _positive, positive_int as _count
+from bench.cli_common import (add_common, add_selection, error, positive_float as _positive,
+                              positive_int as _count, program)
 
 __all__ = ["add_study_parser", "run_study"]
 
@@ -43,22 +45,16 @@ def _float_list(*, allow_empty: bool):
 
 def add_study_parser(sub) -> None:
     """Add ``study`` and its sub-subcommands to the main parser's subparsers ``sub``."""
-    st = sub.add_parser("study", help="studies after the tables: admissible, sampling, montecarlo, noise")
+    st = sub.add_parser("study", help="studies after the tables: admissible, scale, sampling, montecarlo, noise")
     ss = st.add_subparsers(dest="study", required=True, parser_class=type(st))
 
     def common(p, simulates: bool = True):
-        p.add_argument("--plant", action="append", metavar="GLOB", help="plant id or glob (repeatable)")
-        p.add_argument("--design", action="append", metavar="GLOB", help="design id or glob (repeatable)")
-        p.add_argument("--out", default="reports", metavar="DIR", help="report folder (default: reports)")
+        add_selection(p, default_all=False)
+        add_common(p, timeout=False, seed_help="seed of the constants sampler" + (
+            " and of the random draws (initial conditions, noise)" if simulates else ""))
         if simulates:
-            p.add_argument("--seed", type=_seed, default=0, help="seed of the random draws (default 0)")
             p.add_argument("--t-final", type=_positive, default=None, metavar="SECONDS",
                            help="horizon (default: each plant's)")
-        p.add_argument("-j", "--jobs", type=_count, default=None, metavar="N",
-                       help="local worker processes (default: all cores; 1 = serial)")
-        p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
-        p.add_argument("--plugin", action="append", metavar="PATH",
-                       help="a Python file registering your own plants or designs (repeatable)")
 
     a = ss.add_parser("admissible", help="largest scale of f at which each LMI/Riccati design is feasible and "
                                          "certified (bisection)")
@@ -68,6 +64,7 @@ def add_study_parser(sub) -> None:
     a.add_argument("--rtol", type=_positive, default=0.01, help="relative tolerance of the bisection (default 0.01)")
     a.add_argument("--caps", type=_float_list(allow_empty=True), default=[10.0, 100.0, 1e4],
                    metavar="CAP,CAP,...", help="other normalisation caps for thm1/cor1 (default 10,100,10000; '' skips)")
+    _add_scale(ss, common)
 
     s = ss.add_parser("sampling", help="largest sample period of a digital implementation (ZOH, discrete observer)")
     common(s)
@@ -96,10 +93,23 @@ def add_study_parser(sub) -> None:
     n.add_argument("--no-matched-ekf", action="store_true", help="skip the EKF with r = sigma^2")
 
 
+def _add_scale(ss, common) -> None:
+    """``study scale``: the largest factor of any plant's class (:mod:`bench.studies.scale`)."""
+    c = ss.add_parser("scale", help="largest factor of each plant's class (constants and slopes times c) at which "
+                                    "each design returns verified gains, and the ladder certifies them (bisection)")
+    common(c, simulates=False)
+    c.add_argument("--range", nargs=2, type=_number, default=None, metavar=("LO", "HI"),
+                   help="bisection bounds on the factor c (default: doubling/halving from c = 1)")
+    c.add_argument("--rtol", type=_positive, default=0.01, help="relative tolerance of the bisection (default 0.01)")
+
+
 def _options(args) -> dict:
     """The study's own options from the parsed arguments."""
+    if args.study == "scale":
+        return dict(bounds=tuple(args.range) if args.range else None, rtol=args.rtol, seed=args.seed)
     if args.study == "admissible":
-        return dict(bounds=tuple(args.range) if args.range else None, rtol=args.rtol, caps=tuple(args.caps))
+        return dict(bounds=tuple(args.range) if args.range else None, rtol=args.rtol, caps=tuple(args.caps),
+                    seed=args.seed)
     if args.study == "sampling":
         required = [p for p in (args.design or []) if not any(ch in p for ch in "*?[]")]  # ids named without a glob
         return dict(required=required, n_ics=args.n_ics, box=args.box, seed=args.seed,
@@ -113,33 +123,40 @@ def _options(args) -> dict:
 
 def run_study(args, argv: list[str]) -> int:
     """Run the study named by ``args.study``; returns the exit code."""
-    from bench.selection import check_selection
-    from bench.executors import default_jobs
+    from bench.executors import ExecutorError, default_jobs, use_start_method
     from bench.progress import Progress
+    from bench.selection import check_selection
     from bench.studies._common import StudyError
 
-    prog = f"python -m bench study {args.study}"
+    command = f"study {args.study}"
+    prog = f"{program()} {command}"
     selected = check_selection(prog, args.plant, args.design, args.out, all_by_default=False)
     if selected is None:
         return 2
     plant_ids, design_ids = selected
     jobs = args.jobs or default_jobs()
-    command = "python -m bench " + shlex.join(argv)
+    recorded = f"{program()} {shlex.join(argv)}"
     t0 = time.perf_counter()
     try:
         module = importlib.import_module(f"bench.studies.{args.study}")
         run, write = getattr(module, f"run_{args.study}"), getattr(module, f"write_{args.study}")
-        with Progress(desc=f"study {args.study}", delay=1.0, disable=True if args.quiet else None) as bar:
+        with Progress(desc=f"study {args.study}", delay=1.0, disable=True if args.quiet else None) as bar, \
+                use_start_method(args.start_method):
             result = run(plant_ids, design_ids, jobs=jobs, progress=bar, **_options(args))
     except StudyError as exc:
         option = "--range" if exc.param == "bounds" else "--" + exc.param.replace("_", "-")  # the parameter's option
-        print(f"{prog}: error: {option}: {exc.message}", file=sys.stderr)
+        error(command, f"{option}: {exc.message}")
         return 2
+    except ExecutorError as exc:
+        error(command, str(exc))
+        return 2
+    if not args.quiet:
+        print(f"writing the study into {args.out} ...", file=sys.stderr, flush=True)
     try:
-        path = write(result, args.out, command)
+        path = write(result, args.out, recorded, figures=not args.no_figures)
     except Exception as exc:  # the previous files stay intact (atomic write)
-        print(f"{prog}: error: could not write the study to {args.out!r} ({type(exc).__name__}: {exc}); "
-              "the previous files, if any, are unchanged", file=sys.stderr)
+        error(command, f"could not write the study to {args.out!r} ({type(exc).__name__}: {exc}); "
+                       "the previous files, if any, are unchanged")
         return 1
     if not args.quiet:
         print(f"wrote {path} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)

@@ -34,13 +34,13 @@ def _mc_task(plant_id: str, design_id: str, n: int, box: float | None, seed: int
     b = default_box(plant) if box is None else box
     row = {"plant": plant_id, "design": design_id, "N": n, "box": b, "seed": seed}
     X, XH = random_ics(plant, n, b, seed)
-    first = evaluate(plant, design_id, RunOptions(t_final=t_final, simulate=False))
+    first = evaluate(plant, design_id, RunOptions(t_final=t_final, simulate=False, seed=seed))
     skip = unsimulated_row(plant_id, design_id, first)
     if skip is not None:
         row.update(status=skip["status"], reason=skip["reason"])
         return {"row": row, "settling": np.array([])}
     scenario = Scenario(x0=X, x_hat0=XH, options=replace(BATCH_OPTIONS, method=method, rtol=rtol, atol=atol))
-    out = evaluate(plant, design_id, RunOptions(t_final=t_final), prior=first, scenario=scenario)
+    out = evaluate(plant, design_id, RunOptions(t_final=t_final, seed=seed), prior=first, scenario=scenario)
     rec, m, tr = out.record, out.metrics, out.trajectory
     if m is None:
         row.update(status="error", reason=rec["reason"])
@@ -150,7 +150,7 @@ def _draw(pid: str, sim: list[dict], settling: dict):
     return fig
 
 
-def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
+def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str, *, figures: bool = True):
     """Write ``STUDY_montecarlo.md``, its CSV and figures atomically; return the markdown's path."""
     rows = result.rows
     sim = [r for r in rows if "frac_converged" in r]
@@ -176,4 +176,4 @@ def write_montecarlo(result: MonteCarloResult, out_dir: str, command: str):
                   "initial conditions, or a numerical issue): " + ", ".join(f"{r['plant']} x {r['design']}"
                                                                              for r in warn), ""]
     lines += skipped_lines(skipped, width=250)
-    return write_plant_study(out_dir, "montecarlo", lines, {"study_montecarlo": rows}, sim, _draw, result.settling)
+    return write_plant_study(out_dir, "montecarlo", lines, {"study_montecarlo": rows}, sim, _draw, result.settling, figures=figures)

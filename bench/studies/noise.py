@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench import checks
+from bench.report import design_styles
 from bench.studies._common import (StudyError, StudyResult, StudyRun, check_horizon, check_levels, evaluate, fmt,
                                    md_table, pyplot, skipped_lines, study, study_header, unsimulated_row,
                                    write_plant_study)
@@ -40,7 +41,7 @@ def _noise_task(prior, label: str, sigma: float, seed: int, noise_dt: float, t_f
     return {"plant": rec["plant"], "design": label, "noise": sigma, "estimator": est, **{k: rec[k] for k in keep}}
 
 
-def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[list, list]:
+def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final, seed: int = 0) -> tuple[list, list]:
     """Design and certify each pair once (the pipeline without simulation); the jobs per level."""
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
@@ -49,7 +50,7 @@ def _priors(plant_ids, design_ids, levels, matched_ekf: bool, t_final) -> tuple[
     for pid in plant_ids:
         plant = PLANTS.create(pid)
         for did in design_ids:
-            prior = evaluate(plant, did, RunOptions(simulate=False, t_final=t_final))
+            prior = evaluate(plant, did, RunOptions(simulate=False, t_final=t_final, seed=seed))
             skip = unsimulated_row(pid, did, prior, need_gains=False)
             if skip is not None:
                 skipped.append(skip)
@@ -104,7 +105,7 @@ def run_noise(run: StudyRun, *, levels: tuple[float, ...] = DEFAULT_LEVELS, seed
     levels = check_levels("levels", levels)
     checks.real("noise_dt", noise_dt, lo=0.0, strict=True, error=StudyError)
     check_horizon(t_final)
-    skipped, jobs_list = _priors(run.plant_ids, run.design_ids, levels, matched_ekf, t_final)
+    skipped, jobs_list = _priors(run.plant_ids, run.design_ids, levels, matched_ekf, t_final, seed)
     tasks = [((prior.record["plant"], label, s), (prior, label, s, seed, noise_dt, t_final))
              for prior, label, s in jobs_list]
     rows = run.map(_noise_task, tasks, lambda key, r: f"{r['plant']} x {r['design']} sigma {r['noise']:g}: "
@@ -120,11 +121,11 @@ def _draw(pid: str, rows: list[dict]):
     plt = pyplot()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.3), constrained_layout=True)
     designs = list(dict.fromkeys(r["design"] for r in rows))
-    for i, did in enumerate(designs):
+    styles = design_styles(designs)  # distinct hues, line styles and markers (no light/dark pairs of one hue)
+    for did in designs:
         sub = sorted((r for r in rows if r["design"] == did), key=lambda r: r["noise"])
-        style = "--" if "ekf" in did else "-"
-        marker = "s" if "ekf" in did else "o"
-        kw = dict(ls=style, marker=marker, ms=4, color=plt.get_cmap("tab20")(i % 20), label=did)
+        st = styles[did]
+        kw = dict(ls=st["linestyle"], marker=st["marker"], ms=4, color=st["color"], label=did)
         a1.loglog([r["noise"] for r in sub], [r["rms_e"] for r in sub], **kw)
         a2.loglog([r["noise"] for r in sub], [r["final_x"] for r in sub], **kw)
     a1.set(xlabel="noise standard deviation sigma", ylabel="RMS ||e|| (second half of the horizon)",
@@ -192,7 +193,7 @@ def _transient_dominated(by: dict, designs: list[str], levels: list[float]) -> l
     return slow
 
 
-def write_noise(result: NoiseResult, out_dir: str, command: str):
+def write_noise(result: NoiseResult, out_dir: str, command: str, *, figures: bool = True):
     """Write ``STUDY_noise.md``, its CSV and figures atomically; return the markdown's path."""
     rows = result.rows
     plants = list(dict.fromkeys(r["plant"] for r in rows))
@@ -211,4 +212,4 @@ def write_noise(result: NoiseResult, out_dir: str, command: str):
     for pid in plants:
         lines += _plant_section(pid, [r for r in rows if r["plant"] == pid], levels)
     lines += skipped_lines(result.skipped, heading="## Not simulated", width=250)
-    return write_plant_study(out_dir, "noise", lines, {"study_noise": rows}, rows, _draw, heading=None)
+    return write_plant_study(out_dir, "noise", lines, {"study_noise": rows}, rows, _draw, heading=None, figures=figures)

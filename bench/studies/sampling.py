@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from bench.report import design_styles
 from bench.studies._common import (StudyError, StudyResult, StudyRun, bisect_largest, bracket_cell, check_box,
                                    check_count, check_horizon, check_range, check_rtol, default_box, evaluate, fmt,
                                    map_tasks, md_table, pyplot, random_ics, skipped_lines, study, study_header,
@@ -49,11 +50,11 @@ def linear_h_bound(plant, K, F, discretisation: str = "zoh") -> float:
     return math.inf
 
 
-def _check_h(plant, prior, X, XH, h, disc, t_final) -> dict:
+def _check_h(plant, prior, X, XH, h, disc, t_final, seed: int = 0) -> dict:
     """The digital loop at period ``h`` from every initial condition: the pipeline with a scenario."""
     from bench.pipeline import RunOptions, Scenario
 
-    out = evaluate(plant, prior.record["design"], RunOptions(certificate="none", t_final=t_final), prior=prior,
+    out = evaluate(plant, prior.record["design"], RunOptions(certificate="none", t_final=t_final, seed=seed), prior=prior,
                    scenario=Scenario(x0=X, x_hat0=XH, sample_period=h, discretisation=disc))
     m, rec = out.metrics, out.record
     if m is None:  # the pipeline recorded an error
@@ -72,12 +73,12 @@ def _check_h(plant, prior, X, XH, h, disc, t_final) -> dict:
             "n_diverged": int(out.trajectory.diverged.sum()), "sim_s": rec["sim_s"], "horizon_s": rec["horizon_s"]}
 
 
-def _design_task(plant_id: str, design_id: str, t_final: float | None):
+def _design_task(plant_id: str, design_id: str, t_final: float | None, seed: int = 0):
     """The pair as the main table has it (design, certificate ladder, continuous simulation)."""
     from bench.pipeline import RunOptions
     from bench.registry import PLANTS
 
-    out = evaluate(PLANTS.create(plant_id), design_id, RunOptions(t_final=t_final))
+    out = evaluate(PLANTS.create(plant_id), design_id, RunOptions(t_final=t_final, seed=seed))
     return replace(out, trajectory=None, plant=None)
 
 
@@ -97,7 +98,7 @@ def _sampling_task(prior, n_ics: int, box: float | None, seed: int, disc: str, h
     h_lin = linear_h_bound(plant, K, F, disc)
     start = h_lin / 2 if 0 < h_lin < math.inf else (1e-3 if h_lin == 0 else 1.0)
 
-    check = functools.partial(_check_h, plant, prior, X, XH, disc=disc, t_final=t_final)
+    check = functools.partial(_check_h, plant, prior, X, XH, disc=disc, t_final=t_final, seed=seed)
     out = bisect_largest(check, start, bounds=h_range, rtol=rtol, max_doublings=6)
     evals = out["evals"]
     # settling time vs h: a few periods below the bound (not below 2e-4 s, for cost)
@@ -191,10 +192,10 @@ def _bisect_pairs(run: StudyRun, required, args: tuple) -> tuple[list[dict], lis
     """Design every pair, then bisect h where there are fixed gains: rows (plant x design order), evaluations."""
     from bench.executors import executor
 
-    t_final, plant_ids, design_ids = args[-1], run.plant_ids, run.design_ids
+    t_final, seed, plant_ids, design_ids = args[-1], args[2], run.plant_ids, run.design_ids
     pairs = [(pid, did) for pid in plant_ids for did in design_ids]
     with executor(run.jobs) as ex:
-        designed = map_tasks(ex, _design_task, [((pid, did), (pid, did, t_final)) for pid, did in pairs])
+        designed = map_tasks(ex, _design_task, [((pid, did), (pid, did, t_final, seed)) for pid, did in pairs])
         rows = {key: row for key in pairs if (row := unsimulated_row(*key, designed[key])) is not None}
         for (pid, did), row in rows.items():  # a design the caller named must have fixed gains on every plant
             if did in required and row["status"] == "no fixed gains":
@@ -216,12 +217,16 @@ def _draw(pid: str, rows: list[dict], evals: list[dict]):
     """The figure of one plant: settling time vs h per design."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.2), constrained_layout=True)
-    for i, r in enumerate(x for x in rows if "h_max" in x):
+    drawn = [x for x in rows if "h_max" in x]
+    styles = design_styles(r["design"] for r in drawn)  # one colour per design, as in every figure of the suite
+    for r in drawn:
         pts = sorted((e["h"], e["settling_x_plant"]) for e in evals
                      if e["plant"] == pid and e["design"] == r["design"] and math.isfinite(e["settling_x_plant"]))
-        color = f"C{i % 10}"
+        st = styles[r["design"]]
+        color = st["color"]
         if pts:
-            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", color=color, ms=4, label=r["design"])
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=st["marker"], ls="-", color=color, ms=4,
+                    label=r["design"])
         if math.isfinite(r.get("settling_x_cont", math.nan)):
             ax.axhline(r["settling_x_cont"], color=color, ls=":", lw=0.8)
         if math.isfinite(r.get("h_max", math.nan)):
@@ -234,7 +239,7 @@ def _draw(pid: str, rows: list[dict], evals: list[dict]):
     return fig
 
 
-def write_sampling(result: SamplingResult, out_dir: str, command: str):
+def write_sampling(result: SamplingResult, out_dir: str, command: str, *, figures: bool = True):
     """Write ``STUDY_sampling.md``, its CSVs and figures atomically; return the markdown's path."""
     rows = result.rows
     trows = [{**r, "h_max_s": bracket_cell(r.get("kind", ""), r.get("h_max"), r.get("h_fail"))} for r in rows]
@@ -273,4 +278,4 @@ def write_sampling(result: SamplingResult, out_dir: str, command: str):
     lines += skipped_lines(skipped, width=300)
     tables = {"study_sampling": rows, "study_sampling_evaluations": result.evals}
     return write_plant_study(out_dir, "sampling", lines, tables, rows, _draw, result.evals,
-                             heading="## Settling time vs h")
+                             heading="## Settling time vs h", figures=figures)
