@@ -54,6 +54,11 @@ CERT_COLUMNS = ("certified", "cert_level", "decay_rate", "cert_scope", "witness"
                 "ceiling_how", *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")], "cert_margin",
                 "cert_radius", "level_set", "level_x0", "in_region", "cert_horizon_s")
 
+#: Columns of what a pair cost, not of what it found: seconds, and the SDP solver calls made (a solve this process
+#: made before, at the same parameter values, is remembered, :meth:`bench.lmi.Program.solve`). Two runs agree on
+#: every other column.
+COST_COLUMNS = ("compile_s", "solve_s", "design_s", "cert_s", "sim_s", "sdp_solves")
+
 #: What the ``certificate`` option computes: every level with its rate, or only whether some level
 #: certifies at rate 0 (the strongest first), or only the design's own verified certificate, or nothing.
 CERTIFICATE_MODES = ("ladder", "verdict", "own", "none")
