@@ -520,12 +520,15 @@ def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Kno
     if spec is None:
         return LevelResult(lv, "inapplicable", reason=why)
     K, F = loop.K, loop.F
-    unstable = witness.linear_witness(plant, K, F, knowledge, channels=spec.channels, scalars=spec.scalars)
+    # a level below certified: every linear member of its class, which holds this level's, is stable (no witness)
+    below = prev is not None and prev.certified
+    unstable = None if below else witness.linear_witness(plant, K, F, knowledge, channels=spec.channels,
+                                                         scalars=spec.scalars)
     if unstable is not None:  # the strongest level's witness (its class is the smallest)
         cert.witnesses = [*[w for w in cert.witnesses if w.kind != unstable.kind], unstable]
         return LevelResult(lv, "not certified", reason=(
             f"{RULED_OUT} (linear member): {unstable.text}, and that linear f meets every constraint of the level"))
-    if _radius(spec, knowledge) is None:
+    if _radius(spec, knowledge) is None and not (below and prev.radius is None):
         eq = _search_equilibria(cert, plant, K, F, knowledge)
         if eq is not None:
             return LevelResult(lv, "not certified", reason=f"{RULED_OUT} (equilibrium): {eq.text}")
