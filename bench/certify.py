@@ -32,9 +32,12 @@ level is certified above it, with a rate no smaller):
   written in channel coordinates.
 
 Only *trusted* knowledge enters (:meth:`bench.constants.ConstantsReport.knowledge`); sampled
-constants are lower bounds and never certify. Decay rates are searched on the grid of
-:mod:`bench.search` (a marginal probe fails), from the rate of the level below up to the rate of
-the loop linearised at the origin, which no certificate can beat.
+constants are lower bounds and never certify. Each level's LMI is written, solved (in balanced coordinates,
+with a second solver) and its rate searched by :mod:`bench.lyapunov`; decay rates are searched on the grid of
+:mod:`bench.search` (a marginal probe fails), from the rate of the level below up to the smaller of the rate
+of the loop linearised at the origin and the class's rate ceiling, which no certificate can beat. A level left
+within the tolerance or unsolved is solved again normalised as the verification judges, then offered a cascade
+certificate; constraints that hold on a region choose P with the level set through x0 inside it.
 """
 
 from __future__ import annotations
@@ -42,14 +45,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field, replace
-from functools import partial
 
 import numpy as np
-from scipy.linalg import block_diag
+import scipy.linalg as sla
 
-from bench import checks, joint, lmi, witness
+from bench import checks, joint, lmi, lyapunov, witness
 from bench.constants import Knowledge
-from bench.search import RATE_RTOL, grid_floor, largest_passing
+from bench.search import RATE_RTOL, largest_passing
 from plants import Plant
 
 __all__ = ["Certificate", "adopt", "certify", "certify_from_x0", "explain", "level_set", "verify_certificate"]
@@ -100,6 +102,9 @@ class LevelResult:
     slopes : tuple of ndarray or None
         ``(lo, hi)``, each channel's slope bounds narrowed on the region, when the certificate used them (a
         certificate from x0), else None (the declared ones, or none).
+    from_x0 : bool
+        The certificate was searched with its level set through ``z0`` inside the region (constraints that
+        hold on a region), so it proves convergence from the initial condition.
     """
 
     level: str
@@ -113,6 +118,7 @@ class LevelResult:
     n_solves: int = 0
     region_H: np.ndarray | None = None
     slopes: tuple | None = None
+    from_x0: bool = False
 
     @property
     def certified(self) -> bool:
@@ -180,16 +186,7 @@ class Certificate:
 
 
 # -- the constraints of a level ---------------------------------------------------------------
-@dataclass(frozen=True)
-class _Spec:
-    """The structure of a level's LMI (it keys the compiled program)."""
-
-    level: str
-    n: int
-    nw: int
-    full_p: bool
-    scalars: tuple[str, ...]  # subset of ("osl", "qib", "lip")
-    channels: bool
+_Spec = lyapunov.Spec
 
 
 def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
@@ -213,113 +210,6 @@ def _spec(level: str, n: int, know: Knowledge) -> tuple[_Spec | None, str]:
     return _Spec(level, n, know.channels.q, True, scalars, True), ""
 
 
-def _build(spec: _Spec, mats: lmi.Matrices, blocks, rows: np.ndarray | None = None) -> lmi.Program:
-    """A level's margin program: ``trace(P) = 1``, or with ``rows`` z0's level set held in the region (Schur)."""
-    import cvxpy as cp
-
-    n, nw = spec.n, spec.nw
-    pos, size = (("P",), 2 * n) if spec.full_p else (("P1", "P2"), n)
-    v = {"slack": cp.Variable(name="slack")}
-    v.update({k: cp.Variable((size, size), symmetric=True, name=k) for k in pos})
-    for side in ("x", "e"):
-        for k in spec.scalars:
-            v[f"{k}_{side}"] = cp.Variable(name=f"tau_{k}_{side}")
-        if spec.channels:
-            v[f"ch_{side}"] = cp.Variable(nw, name=f"tau_channels_{side}")
-    prm = {"lam": cp.Parameter(nonneg=True, name="lam"), **mats.parameters(),
-           **lmi.scalar_parameters("rho", "beta", "gamma", "a2")}
-    if spec.channels:
-        prm["lohi"] = cp.Parameter(nw, name="lo_times_hi")
-        prm["losum"] = cp.Parameter(nw, name="lo_plus_hi")
-    t_build = time.perf_counter()
-    M = lmi.sym(lmi.assemble(blocks, {**v, **prm}, numeric=False))
-    slack = v["slack"]
-    cons = [M << -slack * np.eye(M.shape[0])]
-    cons += [v[k] >> slack * np.eye(v[k].shape[0]) for k in pos]
-    if rows is None:
-        cons.append(sum(cp.trace(v[k]) for k in pos) == 1)
-    else:
-        prm["Z0"] = cp.Parameter((2 * n, 2 * n), PSD=True, name="Z0")
-        prm["r2"] = cp.Parameter(nonneg=True, name="r2")
-        P, r2 = v["P"], cp.reshape(prm["r2"], (1, 1), order="F")
-        cons += [cp.trace(prm["Z0"] @ P) <= 1, slack <= 1]
-        cons += [lmi.sym(cp.bmat([[P, a[:, None]], [a[None, :], r2]])) >> 0 for a in rows]
-    cons += [v[k] >= 0 for k in v if k not in pos and k != "slack"]
-    prob = cp.Problem(cp.Maximize(slack), cons)
-    return lmi.Program(prob, v, prm, blocks, pos, build_s=time.perf_counter() - t_build)
-
-
-def _blocks(spec: _Spec, Gw: np.ndarray, Hc: np.ndarray | None, d: dict) -> list[list]:
-    """The 4 x 4 block matrix in (x, e, w_x, w_e), numeric or cvxpy (``d``: values)."""
-    n, nw = spec.n, spec.nw
-    I, Zn, Zw, Znw = np.eye(n), np.zeros((n, n)), np.zeros((nw, nw)), np.zeros((n, nw))
-    GtG = Gw.T @ Gw
-    if spec.full_p:
-        P = d["P"]
-        P11, P12, P22 = P[:n, :n], P[:n, n:], P[n:, n:]
-    else:
-        P11, P12, P22 = d["P1"], Zn, d["P2"]
-    Ax, Ae, BF, lam = d["Ax"], d["Ae"], d["BF"], d["lam"]
-    # V' terms: Acl' P + P Acl + 2 lam P, Acl = [[Ax, -BF], [0, Ae]]
-    xx = Ax.T @ P11 + P11 @ Ax + 2 * lam * P11
-    xe = -P11 @ BF + Ax.T @ P12 + P12 @ Ae + 2 * lam * P12
-    ee = -BF.T @ P12 - P12.T @ BF + Ae.T @ P22 + P22 @ Ae + 2 * lam * P22
-    xwx, xwe = P11 @ Gw, P12 @ Gw
-    ewx, ewe = P12.T @ Gw, P22 @ Gw
-    ww = {"x": Zw, "e": Zw}
-    diag = {"x": 0 * I, "e": 0 * I}
-    cross = {"x": Znw, "e": Znw}
-    for side in ("x", "e"):
-        for k in spec.scalars:
-            tau = d[f"{k}_{side}"]
-            diag[side] = diag[side] + tau * d[{"osl": "rho", "qib": "beta", "lip": "a2"}[k]] * I
-            if k == "osl":
-                cross[side] = cross[side] - (0.5 * tau) * Gw
-            elif k == "qib":
-                cross[side] = cross[side] + (0.5 * tau * d["gamma"]) * Gw
-            if k != "osl":  # QIB and Lipschitz: - |df|^2
-                ww[side] = ww[side] - tau * GtG
-        if spec.channels:
-            tau = d[f"ch_{side}"]
-            diag[side] = diag[side] + Hc.T @ lmi.diag(-(lmi.diag(d["lohi"]) @ tau)) @ Hc
-            cross[side] = cross[side] + Hc.T @ lmi.diag(0.5 * (lmi.diag(d["losum"]) @ tau))
-            ww[side] = ww[side] - lmi.diag(tau)
-    return [
-        [xx + diag["x"], xe, xwx + cross["x"], xwe],
-        [xe.T, ee + diag["e"], ewx, ewe + cross["e"]],
-        [(xwx + cross["x"]).T, ewx.T, ww["x"], Zw],
-        [xwe.T, (ewe + cross["e"]).T, Zw, ww["e"]],
-    ]
-
-
-def _full_p(prog: lmi.Program, spec: _Spec) -> np.ndarray:
-    vals = prog.values()
-    return np.array(vals["P"]) if spec.full_p else block_diag(vals["P1"], vals["P2"])
-
-
-def _rate(prog: lmi.Program, spec: _Spec, lam0: float, hi: float, rtol: float,
-          local: bool = False) -> tuple[float, np.ndarray]:
-    """Largest verified grid rate in ``[lam0, hi)`` from a verified solve at ``lam0`` (``local``: a step lower)."""
-    found = {lam0: _full_p(prog, spec)}
-
-    def passes(lam: float) -> bool:
-        prog.solve(lam=lam)
-        ok = prog.verified()
-        if ok:
-            found[lam] = _full_p(prog, spec)
-        return ok
-
-    if lam0 > 0:
-        out = largest_passing(passes, rtol=rtol, lo=lam0, hi=hi)
-    else:  # a first positive rate: down from hi by factors of 4
-        out = largest_passing(passes, rtol=rtol, hi=hi, factor=4.0, down_until=1e-6 * max(1.0, hi))
-    lam = out["lo"] if math.isfinite(out["lo"]) else 0.0
-    if local and lam > lam0:
-        below = grid_floor(lam / (1 + rtol) * (1 + 1e-9), rtol)
-        lam = below if below > lam0 and (below in found or passes(below)) else lam0
-    return lam, found.get(lam, found[lam0])
-
-
 def linearised_rate(plant: Plant, K: np.ndarray, F: np.ndarray) -> float:
     """Decay rate of the loop (6) linearised at the origin, ``-max Re eig`` of ``A + Df(0) + B F`` and
     ``A + Df(0) - K C``: no certificate can beat it (negative when the linearisation is unstable)."""
@@ -334,58 +224,189 @@ def _radius(spec: _Spec, know: Knowledge) -> float | None:
     return min((r for r in held if r is not None), default=None)
 
 
-def _set_program(spec: _Spec, plant: Plant, K, F, know: Knowledge, rows: np.ndarray | None = None) -> lmi.Program:
-    """The level's analysis program, compiled once per structure (with ``rows``: of a certificate from x0), set
-    for the gains K, F and the trusted scalar constants."""
-    mats = lmi.matrices(all_parameters=True, Ax=plant.A + plant.B @ F, Ae=plant.A - K @ plant.C, BF=plant.B @ F)
-    ch = know.channels if spec.channels else None
-    Gw = ch.G if ch is not None else np.eye(spec.n)
-    Hc = ch.H if ch is not None else None
-    blocks = partial(_blocks, spec, Gw, Hc)
-    key = ("certify" if rows is None else "certify-from-x0", spec, mats.key, lmi.digest(Gw), lmi.digest(Hc))
-    prog = lmi.cached_program(key, lambda: _build(spec, mats, blocks, rows=rows))
-    c = know.constants
-    prog.set(**mats.settable(), rho=c.rho or 0.0, beta=c.beta or 0.0, gamma=c.gamma or 0.0, a2=(c.alpha or 0.0) ** 2)
-    return prog
+#: The containment of a level set in its region uses the radius shrunk by this fraction (the solver's rounding).
+REGION_SHRINK = 1e-4
+
+
+def _level(spec: _Spec, plant: Plant, K, F, know: Knowledge, rtol: float, *, box: tuple | None = None,
+           rows: tuple = (), r: float | None = None) -> lyapunov.Level:
+    """A level's program bound to the gains (:class:`bench.lyapunov.Level`); with ``rows``, the level set through
+    ``z0 = (x0, x0 - x_hat0)`` must lie in ``|R z| <= r`` for each block R of ``rows``."""
+    z0 = np.concatenate([plant.x0, plant.x0 - plant.x_hat0]) if rows else None
+    if rows:
+        spec = replace(spec, region=tuple(np.atleast_2d(R).shape[0] for R in rows))
+        r = r * (1 - REGION_SHRINK)
+    data = lyapunov.level_data(spec, plant.A, plant.B, plant.C, K, F, know, box=box, rows=rows, r=r, z0=z0)
+    return lyapunov.Level(spec, data, rtol=rtol)
+
+
+def _ball_rows(n: int) -> tuple:
+    """The region ``||x||, ||x_hat|| <= r`` as blocks on ``z = (x, e)``: ``x = [I 0] z``, ``x_hat = [I -I] z``."""
+    I, Z = np.eye(n), np.zeros((n, n))
+    return (np.hstack([I, Z]), np.hstack([I, -I]))
 
 
 def _solve_level(spec: _Spec, plant: Plant, K, F, know: Knowledge, *, start: float, hi: float, rates: bool,
-                 rtol: float) -> LevelResult:
-    """One level's program: certified at ``start`` (else at 0), then its rate."""
-    prog = _set_program(spec, plant, K, F, know)
-    if spec.channels:
-        prog.set(lohi=know.channels.lo * know.channels.hi, losum=know.channels.lo + know.channels.hi)
+                 rtol: float, prev: LevelResult | None = None, top_first: bool = False) -> LevelResult:
+    """One level's certificate: for constraints that hold on a region, first with the level set through z0
+    inside it (:func:`_solve_in`; scope from x0), else as the global problem."""
     radius = _radius(spec, know)
-    for lam0 in dict.fromkeys((start if 0 < start < hi else 0.0, 0.0)):
-        prog.solve(lam=lam0)
-        verdict, margin = prog.verdict()
-        if verdict == "verified":
-            break
-    out = LevelResult(spec.level, "not certified", margin=margin, radius=radius)
+    kw = {"hi": hi, "rates": rates, "top_first": top_first}
+    if radius is None:
+        return _attempt(spec, plant, K, F, know, rtol, radius, start=start, **kw)
+    held = prev is not None and prev.certified and prev.from_x0
+    res = _attempt(spec, plant, K, F, know, rtol, radius, region=True, start=start if held else 0.0, **kw)
+    if res.certified or held:  # held: the level below's certificate from x0 holds here (it inherits it)
+        res.from_x0 = res.certified
+        return res
+    plain = _attempt(spec, plant, K, F, know, rtol, radius, start=0.0 if held else start, **kw)
+    plain.solve_s += res.solve_s
+    plain.n_solves += res.n_solves
+    return plain
+
+
+def _attempt(spec: _Spec, plant: Plant, K, F, know: Knowledge, rtol: float, radius: float | None, *,
+             region: bool = False, **kw) -> LevelResult:
+    """:func:`_solve_in` of the level (with ``region``, the level set through z0 in the ball of ``radius``); when
+    the solvers failed on a level with channels and scalar constants, again with the channels alone (a
+    certificate of that class is one of the level's, with the scalars' multipliers 0)."""
+    rows = {"rows": _ball_rows(plant.n), "r": radius} if region else {}
+    lv = _level(spec, plant, K, F, know, rtol, **rows)
+    res = _solve_in(lv, radius, **kw)
+    if not region and res.status in ("marginal", "undecided"):  # normalised as the verification judges
+        rel = _solve_in(_level(replace(spec, norm="relative"), plant, K, F, know, rtol), radius, **kw)
+        rel.solve_s += res.solve_s
+        rel.n_solves += res.n_solves
+        if rel.certified or rel.status == "marginal":
+            rel.reason = rel.reason or f"normalised by |M_ij|, |P_ij| <= 1 (by trace(P) = 1: {res.reason})"
+            res = rel
+        else:
+            res.solve_s, res.n_solves = rel.solve_s, rel.n_solves
+    if not region and (res.status == "undecided" or (res.status == "marginal" and lv.solver_errors)):
+        res = _cascade(lv, res, radius, kw["hi"] if kw.get("rates") else 0.0)
+    if res.certified or not (spec.channels and spec.scalars) or not (res.status == "undecided" or lv.solver_errors):
+        return res
+    alt = _solve_in(_level(replace(spec, scalars=()), plant, K, F, know, rtol, **rows), radius, **kw)
+    alt.solve_s += res.solve_s
+    alt.n_solves += res.n_solves
+    if not alt.certified:
+        alt.reason = f"with the scalar constants: {res.reason}; with the channels alone: {alt.reason}"
+    else:
+        alt.reason = f"with the channels alone (with the scalar constants: {res.reason or res.status})"
+    return alt
+
+
+def _solve_in(lv: lyapunov.Level, radius: float | None, *, start: float, hi: float, rates: bool,
+              top_first: bool = False) -> LevelResult:
+    """The level of ``lv``: above ``start`` (a rate the level below certified, which holds here too: no solve
+    there), else from a solve at ``lam = 0``; then its rate, up to ``hi``, which no certificate reaches."""
+    spec = lv.spec
+    out = LevelResult(spec.level, "not certified", radius=radius)
+    if rates and 0 < start < hi:
+        lam = lv.search(start, hi, top_first=top_first)
+        if lam > start:
+            out.status, out.decay_rate, out.P = "certified", lam, lv.found[lam]
+            out.margin = lv.lam0_margin
+        else:
+            out.reason = f"certifies no grid rate above the level below's {start:.4g}"
+        out.solve_s, out.n_solves = lv.solve_s, lv.n_solves
+        return out
+    if rates and top_first and hi > 0:  # a tight ceiling: just below it first; a pass there certifies the level
+        below = _below_ceiling(lv, hi)
+        if below is not None:
+            out.status, out.decay_rate, out.P, out.margin = "certified", below, lv.found[below], lv.lam0_margin
+            out.solve_s, out.n_solves = lv.solve_s, lv.n_solves
+            return out
+    verdict, margin = lv.solve(0.0)
+    out.margin = margin
     if verdict == "verified":
-        out.status, out.P, out.decay_rate = "certified", _full_p(prog, spec), 0.0
-        if lam0 > 0:  # the margin at lam = 0 of the same solution: M(0) = M(lam0) - 2 lam0 diag(P, 0)
-            M = prog.numeric_matrix()
-            M[: out.P.shape[0], : out.P.shape[0]] -= 2 * lam0 * out.P
-            out.margin = lmi.max_eig(M)
+        out.status, out.P, out.decay_rate = "certified", lv.found[0.0], 0.0
         if rates and hi > 0:
-            out.decay_rate, out.P = _rate(prog, spec, lam0, hi, rtol, local=radius is not None)
+            lam = _rate_from_zero(lv, hi, top_first=top_first)
+            out.decay_rate, out.P = lam, lv.found.get(lam, out.P)
     elif verdict == "marginal":
         out.status, out.reason = "marginal", (
-            f"best max eig {margin:.3g} is within the verification tolerance of zero (trace(P) = 1)")
-    elif verdict == "violated":
-        out.reason = f"no P > 0 and multipliers make the LMI negative definite: best max eig {margin:.3g} (trace(P) = 1)"
+            f"best max eig {margin:.3g} is within the verification tolerance of zero ({_normalisation(spec)}; "
+            f"{lv.prog.tried})")
+    elif verdict == "violated" and lv.prog.last_status == "optimal":
+        out.reason = (f"no P > 0 and multipliers make the LMI negative definite: best max eig {margin:.3g} "
+                      f"({_normalisation(spec)}; {lv.prog.tried})")
+    elif verdict == "violated":  # an inaccurate point proves nothing either way
+        out.status, out.reason = "undecided", (f"the solvers' best point is inaccurate and does not verify (max eig "
+                                               f"{margin:.3g}; {_normalisation(spec)}; {lv.prog.tried})")
     else:
-        out.status, out.reason = "undecided", f"solver status {verdict!r} {prog.last_error}".strip()
-    out.solve_s, out.n_solves = prog.compile_s + prog.solve_s, prog.n_solves
+        out.status, out.reason = "undecided", f"solver status {verdict!r} {lv.prog.last_error} ({lv.prog.tried})"
+    out.solve_s, out.n_solves = lv.solve_s, lv.n_solves
     return out
 
 
+def _cascade(lv: lyapunov.Level, res: LevelResult, radius: float | None, hi: float) -> LevelResult:
+    """The level's cascade certificate (:func:`bench.lyapunov.cascade`) where its joint LMI was left within the
+    tolerance or unsolved, verified by the level's own matrix; ``res`` when there is none."""
+    got = lyapunov.cascade(lv.spec, lv.data, hi, lv.rtol)
+    if got["P"] is None:
+        res.reason += "; no cascade certificate (a side is not certified, or no weight mu verifies)"
+        res.solve_s += got["solve_s"]
+        res.n_solves += got["n_solves"]
+        return res
+    rx, re_ = got["side_rates"]["x"], got["side_rates"]["e"]
+    return LevelResult(lv.spec.level, "certified", decay_rate=got["rate"], margin=got["margin"], P=got["P"],
+                       radius=radius, solve_s=res.solve_s + got["solve_s"], n_solves=res.n_solves + got["n_solves"],
+                       reason=(f"cascade certificate V = x'Px x + mu e'Pe e, mu = {got['mu']:.3g} (the x side "
+                               f"certified at {rx:.4g} with B F e as an input, the e side at {re_:.4g}; the joint "
+                               f"LMI: {res.status}: {res.reason})"))
+
+
+#: A level searched from nothing under a tight ceiling first probes these many grid steps below it.
+CEILING_STEPS = (1, 3)
+
+
+def _below_ceiling(lv: lyapunov.Level, hi: float) -> float | None:
+    """The level's rate when a grid rate :data:`CEILING_STEPS` steps below its tight ceiling ``hi`` verifies
+    (then searched up to ``hi``), else None (the probes' failures stay known to the level's later search)."""
+    from bench.search import _index, _point
+
+    kh = _index(hi, lv.rtol, up=True)
+    for step in CEILING_STEPS:
+        lam = _point(kh - step, lv.rtol)
+        if lv.solve(lam)[0] == "verified":
+            return lv.search(lam, _point(kh - step + 1, lv.rtol) if step > 1 else hi)
+        lv.failed_at = min(lam, lv.failed_at)
+    return None
+
+
+def _rate_from_zero(lv: lyapunov.Level, hi: float, *, top_first: bool = False) -> float:
+    """The level's rate after a verified solve at ``lam = 0``: from the grid rate that point reaches
+    (:meth:`bench.lyapunov.Level.reach_grid`), or down from ``hi`` by factors of 4 when it reaches none."""
+    hi = min(hi, lv.failed_at)  # below the ceiling's failed probes the search goes on down (top_first)
+    up = lv.reach_grid(0.0, hi)
+    if up is not None:
+        return lv.search(up, hi, top_first=top_first, seen=(0.0, lv.margin(0.0)), above_lo=False)
+
+    def passes(x: float):
+        return lv.solve(x, probe=True)[0] == "verified" and (True, lv.reach_grid(x, hi))
+
+    res = largest_passing(passes, rtol=lv.rtol, hi=hi, factor=4.0, down_until=1e-6 * max(1.0, hi))
+    return res["lo"] if math.isfinite(res["lo"]) else 0.0
+
+
+def _normalisation(spec: _Spec) -> str:
+    if spec.region:
+        return "V(z0) <= 1, the level set through z0 in the region"
+    return "|M_ij|, |P_ij| <= 1" if spec.norm == "relative" else "trace(P) = 1"
+
+
 def _inherit(out: LevelResult, prev: LevelResult | None) -> LevelResult:
-    """The better of a level's own result and the certificate of the level below (which holds here too)."""
-    if prev is None or not prev.certified or (out.certified and out.decay_rate >= prev.decay_rate):
+    """The better of a level's own result and the certificate of the level below (which holds here too): the
+    higher rate, but a certificate whose level set holds z0 (``from_x0``) before one whose does not."""
+    if prev is None or not prev.certified:
+        return out
+    if out.certified and (out.from_x0 > prev.from_x0 or (out.from_x0 == prev.from_x0
+                                                          and out.decay_rate >= prev.decay_rate)):
         return out
     own = f"its own LMI: {out.status}" + (f", rate {out.decay_rate:.3g}" if out.certified else "")
+    if out.reason.startswith("certifies no grid rate above"):
+        own = f"its own LMI {out.reason}"
     return replace(prev, level=out.level, reason=f"inherits the {prev.level} level's certificate ({own})",
                    solve_s=out.solve_s, n_solves=out.n_solves)
 
@@ -439,9 +460,10 @@ def certify(
     loop = loop if loop is not None else checks.closed_loop(plant, K, F)
     cert = Certificate({})
     prev: LevelResult | None = None
+    bound = _Bound(plant, loop, knowledge, levels)
     for lv in (lv for lv in LEVELS if lv in levels):
         cert.levels[lv] = _ladder_level(lv, plant, loop, knowledge, prev, cert, rates=rates, rtol=rate_rtol,
-                                        inherit=inherit)
+                                        inherit=inherit, bound=bound)
         if cert.levels[lv].status != "inapplicable":
             prev = cert.levels[lv]
     return cert
@@ -457,8 +479,40 @@ def _search_equilibria(cert: Certificate, plant: Plant, K: np.ndarray, F: np.nda
     return next((w for w in cert.witnesses if w.kind == "equilibrium"), None)
 
 
+class _Bound:
+    """The upper end of the ladder's rate searches: the loop's linearised rate and, once a search needs it, the
+    rate ceiling of the highest applicable level's class (:func:`bench.witness.rate_ceiling`). That class is the
+    smallest, its members belong to every class below, so its ceiling bounds every level's rate."""
+
+    def __init__(self, plant: Plant, loop: checks.ClosedLoop, know: Knowledge, levels: tuple[str, ...]) -> None:
+        self.plant, self.loop, self.know = plant, loop, know
+        specs = [(lv, _spec(lv, plant.n, know)[0]) for lv in LEVELS if lv in levels]
+        top = [(lv, s) for lv, s in specs if s is not None and plant.n <= LADDER_MAX_N]
+        self.top, self._spec = top[-1] if top else (None, None)
+        self._ceiling: float | None = None
+
+    @property
+    def ceiling(self) -> float:
+        """The top level's class ceiling (NaN without a linear member)."""
+        if self._ceiling is None:
+            s = self._spec
+            self._ceiling = math.nan if s is None else witness.rate_ceiling(
+                self.plant, self.loop.K, self.loop.F, self.know, channels=s.channels, scalars=s.scalars)[0]
+        return self._ceiling
+
+    def hi(self, level: str) -> tuple[float, bool]:
+        """The bound for ``level``'s search, and whether it is that level's own class ceiling (then tight enough
+        that the search probes just below it first)."""
+        lin = self.loop.linearised_rate
+        c = self.ceiling if lin > 0 else math.nan
+        if math.isfinite(c) and c <= lin:
+            return c, level == self.top
+        return lin, False
+
+
 def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge, prev: LevelResult | None,
-                  cert: Certificate, *, rates: bool, rtol: float, inherit: bool) -> LevelResult:
+                  cert: Certificate, *, rates: bool, rtol: float, inherit: bool,
+                  bound: _Bound | None = None) -> LevelResult:
     """One level of :func:`certify` above ``prev``: inapplicable, ruled out by a witness, or solved."""
     spec, why = _spec(lv, plant.n, knowledge)
     if spec is not None and plant.n > LADDER_MAX_N:
@@ -466,25 +520,22 @@ def _ladder_level(lv: str, plant: Plant, loop: checks.ClosedLoop, knowledge: Kno
     if spec is None:
         return LevelResult(lv, "inapplicable", reason=why)
     K, F = loop.K, loop.F
-    unstable = witness.linear_witness(plant, K, F, knowledge, channels=spec.channels, scalars=spec.scalars)
+    # a level below certified: every linear member of its class, which holds this level's, is stable (no witness)
+    below = prev is not None and prev.certified
+    unstable = None if below else witness.linear_witness(plant, K, F, knowledge, channels=spec.channels,
+                                                         scalars=spec.scalars)
     if unstable is not None:  # the strongest level's witness (its class is the smallest)
         cert.witnesses = [*[w for w in cert.witnesses if w.kind != unstable.kind], unstable]
         return LevelResult(lv, "not certified", reason=(
             f"{RULED_OUT} (linear member): {unstable.text}, and that linear f meets every constraint of the level"))
-    if _radius(spec, knowledge) is None:
+    if _radius(spec, knowledge) is None and not (below and prev.radius is None):
         eq = _search_equilibria(cert, plant, K, F, knowledge)
         if eq is not None:
             return LevelResult(lv, "not certified", reason=f"{RULED_OUT} (equilibrium): {eq.text}")
-    start = prev.decay_rate if prev is not None and prev.certified else 0.0
-    kw = {"start": start, "hi": loop.linearised_rate, "rates": rates, "rtol": rtol}
+    start = prev.decay_rate if inherit and prev is not None and prev.certified else 0.0
+    hi, top = bound.hi(lv) if bound is not None and rates else (loop.linearised_rate, False)
+    kw = {"start": start, "hi": hi, "top_first": top, "rates": rates, "rtol": rtol, "prev": prev}
     res = _solve_level(spec, plant, K, F, knowledge, **kw)
-    if res.status == "undecided" and spec.channels and spec.scalars:  # the channels alone (still valid)
-        alt = _solve_level(replace(spec, scalars=()), plant, K, F, knowledge, **kw)
-        alt.solve_s += res.solve_s
-        alt.n_solves += res.n_solves
-        if not alt.certified:
-            alt.reason = f"with the scalar constants: {res.reason}; with the channels alone: {alt.reason}"
-        res = alt
     return _inherit(res, prev) if inherit else res
 
 
@@ -585,11 +636,10 @@ def _region_rows(H: np.ndarray) -> np.ndarray:
 
 
 #: Regions of the from-x0 search: r grows by ``FROM_X0_GROWTH`` from ``max |H x0|, |H x_hat0|``, at
-#: most ``FROM_X0_STEPS`` times; the containment uses r shrunk by ``FROM_X0_SHRINK`` (relative, for the
-#: solver's rounding); after the first region with a certificate, ``FROM_X0_MORE`` larger ones are tried.
+#: most ``FROM_X0_STEPS`` times (the containment uses r shrunk by :data:`REGION_SHRINK`); after the first
+#: region with a certificate, ``FROM_X0_MORE`` larger ones are tried.
 FROM_X0_GROWTH = 1.25
 FROM_X0_STEPS = 12
-FROM_X0_SHRINK = 1e-4
 FROM_X0_MORE = 2
 
 
@@ -601,7 +651,7 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     On ``|(H x)_i|, |(H x_hat)_i| <= r`` the channels' slopes lie in the declared narrowing
     ``[lo(r), hi(r)]`` (:meth:`plants.Channels.slopes_on`; analytic, never sampled). The
     structured level's LMI with those slopes, plus the containment of the level set through
-    ``z0 = (x0, x0 - x_hat0)`` in the region (Schur complements, :func:`_build`), proves
+    ``z0 = (x0, x0 - x_hat0)`` in the region (Schur complements, :mod:`bench.lyapunov`), proves
     ``V' <= -2 lam V`` on ``{V <= V(z0)}``, which the trajectory from z0 never leaves: the loop
     converges from x0 at rate lam. The regions are those of :data:`FROM_X0_GROWTH`; the best rate is kept.
 
@@ -629,17 +679,18 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     rows = _region_rows(ch.H)
     r0 = max(float(np.abs(rows @ z0).max()), 1e-3)
     spec = _Spec("structured", plant.n, ch.q, True, (), True)  # the channels' narrowed slopes only
-    prog = _set_program(spec, plant, loop.K, loop.F, knowledge, rows)
-    prog.set(Z0=np.outer(z0, z0))
     best: LevelResult | None = None
-    tried, more = [], FROM_X0_MORE
+    tried, more, cost = [], FROM_X0_MORE, [0.0, 0]
     for r, lo, hi in _regions(ch, r0, r_max):
         tried.append(r)
-        prog.set(lohi=lo * hi, losum=lo + hi, r2=(r * (1 - FROM_X0_SHRINK)) ** 2)
-        prog.solve(lam=0.0)
-        verdict, margin = prog.verdict()
-        if verdict == "verified" and _contains(_full_p(prog, spec), z0, ch.H, r):
-            found = _rate_in_region(prog, spec, plant, loop, knowledge, z0, r, (lo, hi), margin)
+        lv = _level(spec, plant, loop.K, loop.F, knowledge, RATE_RTOL, box=(lo, hi), rows=tuple(rows), r=r)
+        verdict, margin = lv.solve(0.0)
+        found = None
+        if verdict == "verified" and _contains(lv.found[0.0], z0, ch.H, r):
+            found = _rate_in_region(lv, plant, loop, knowledge, z0, r, (lo, hi), margin)
+        cost[0] += lv.solve_s
+        cost[1] += lv.n_solves
+        if found is not None:
             if best is None or found.decay_rate > best.decay_rate:
                 best = found
             more -= 1
@@ -648,7 +699,7 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
         elif best is not None:
             break
     if best is not None:
-        best.solve_s, best.n_solves = prog.compile_s + prog.solve_s, prog.n_solves
+        best.solve_s, best.n_solves = cost
         return best, ""
     return None, _none_from_x0(tried)
 
@@ -682,19 +733,19 @@ def _regions(ch, r0: float, r_max: float | None):
             return
 
 
-def _rate_in_region(prog: lmi.Program, spec: _Spec, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge,
+def _rate_in_region(lv: lyapunov.Level, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge,
                     z0: np.ndarray, r: float, box: tuple, margin: float) -> LevelResult:
     """The certificate from x0 on a region where ``lam = 0`` verified, with the best rate whose set holds z0."""
     lo, hi = box
     ceiling, _ = witness.rate_ceiling(plant, loop.K, loop.F, knowledge, channels=True, scalars=(), box=(lo, hi))
     top = min(loop.linearised_rate, ceiling)
-    P0 = _full_p(prog, spec)
-    lam, P = _rate(prog, spec, 0.0, top, RATE_RTOL) if top > 0 else (0.0, P0)
+    lam = _rate_from_zero(lv, top) if top > 0 else 0.0
+    P = lv.found.get(lam, lv.found[0.0])
     if not _contains(P, z0, knowledge.channels.H, r):
-        lam, P = 0.0, P0
+        lam, P = 0.0, lv.found[0.0]
     return LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
                        region_H=knowledge.channels.H, slopes=(np.array(lo, dtype=float), np.array(hi, dtype=float)),
-                       reason=(
+                       from_x0=True, reason=(
                            f"certified from x0 on |Hx|, |Hx_hat| <= {r:.4g}, where the slopes narrow to "
                            f"[{_vec(lo)}, {_vec(hi)}]: the level set through z0 stays in that region"))
 
@@ -847,7 +898,7 @@ def _own_matrix(candidate: dict, n: int) -> np.ndarray:
     ValueError when it is missing, of the wrong shape, not finite or not symmetric."""
     if "joint" in candidate:
         j = candidate["joint"]
-        P = block_diag(np.asarray(j["P"], dtype=float), float(j["mu"]) * np.asarray(j["R"], dtype=float))
+        P = sla.block_diag(np.asarray(j["P"], dtype=float), float(j["mu"]) * np.asarray(j["R"], dtype=float))
     else:
         P = np.asarray(candidate.get("P"), dtype=float)
     if P.shape != (2 * n, 2 * n) or not np.all(np.isfinite(P)):
@@ -883,8 +934,6 @@ def _verified_margin(M: np.ndarray, W: np.ndarray, lam: float) -> tuple[float, s
     M0[:k, :k] -= 2 * lam * W
     if k < joint.LANCZOS_FROM:
         return joint.equilibrated_max_eig(M0), ""
-    import scipy.linalg as sla
-
     try:  # as bench.joint.certify: Lanczos on a Cholesky factor of -D M0 D
         L = sla.cholesky(-M0, lower=True, check_finite=False)
     except np.linalg.LinAlgError:
@@ -895,13 +944,10 @@ def _verified_margin(M: np.ndarray, W: np.ndarray, lam: float) -> tuple[float, s
 
 def _level_values(spec: _Spec, plant: Plant, loop: checks.ClosedLoop, know: Knowledge, P: np.ndarray,
                   lam: float) -> dict:
-    """The numbers of a level's LMI at a given P and rate (the multipliers are added by the caller)."""
-    c, ch = know.constants, know.channels
-    d = {"Ax": plant.A + plant.B @ loop.F, "Ae": plant.A - loop.K @ plant.C, "BF": plant.B @ loop.F, "lam": lam,
-         "P": P, "rho": c.rho or 0.0, "beta": c.beta or 0.0, "gamma": c.gamma or 0.0, "a2": (c.alpha or 0.0) ** 2}
-    if spec.channels:
-        d.update(lohi=ch.lo * ch.hi, losum=ch.lo + ch.hi)
-    return d
+    """The numbers of a level's LMI at a given P and rate (:func:`bench.lyapunov.matrix`; the multipliers ``tau``
+    are added by the caller)."""
+    d = lyapunov.level_data(spec, plant.A, plant.B, plant.C, loop.K, loop.F, know)
+    return {"Acl": d.Acl, "Gb": d.Gb, "Pi": d.Pi.reshape(len(d.Pi), -1).T, "lam": lam, "P": P}
 
 
 def _multiplier_names(spec: _Spec) -> dict[str, int | None]:
@@ -912,6 +958,21 @@ def _multiplier_names(spec: _Spec) -> dict[str, int | None]:
         if spec.channels:
             out[f"ch_{side}"] = spec.nw
     return out
+
+
+def _tau(spec: _Spec, named: dict):
+    """The multipliers by name (:func:`_multiplier_names`) as the vector ``tau`` of :attr:`bench.lyapunov.Spec.
+    multipliers` (numpy or cvxpy values)."""
+    parts = []
+    for side in ("x", "e"):
+        parts += [named[f"{k}_{side}"] for k in spec.scalars]
+        if spec.channels:
+            parts.append(named[f"ch_{side}"])
+    if all(isinstance(v, (float, int, np.floating, np.ndarray)) for v in parts):
+        return np.concatenate([np.atleast_1d(np.asarray(v, dtype=float)) for v in parts])
+    import cvxpy as cp
+
+    return cp.hstack([cp.reshape(v, (1,), order="F") if v.ndim == 0 else v for v in parts])
 
 
 def _level_margin(named, spec: _Spec, plant: Plant, loop: checks.ClosedLoop, know: Knowledge, P: np.ndarray,
@@ -930,24 +991,18 @@ def _level_margin(named, spec: _Spec, plant: Plant, loop: checks.ClosedLoop, kno
         return math.nan, (f"its multipliers must be a dict of the level's names ({', '.join(names)}), got "
                           f"{checks.brief(named if not isinstance(named, dict) else sorted(named))}")
     values = _level_values(spec, plant, loop, know, P, lam)
+    taus = {}
     for k, size in names.items():
         v = np.asarray(named.get(k, np.zeros(size) if size else 0.0), dtype=float)
         if v.shape != (() if size is None else (size,)) or not np.all(np.isfinite(v)) or np.any(v < 0):
             return math.nan, f"its multiplier {k} must be finite and >= 0 of shape {size or 'scalar'}, got {v!r}"
-        values[k] = float(v) if size is None else v
-    M = lmi.assemble(partial(_blocks, spec, *_channel_maps(spec, know)), values, numeric=True)
+        taus[k] = float(v) if size is None else v
+    M = lyapunov.matrix(spec, {**values, "tau": _tau(spec, taus)})[0][0]
     margin, verdict = _verified_margin((M + M.T) / 2, P, lam)
     if verdict:
         return math.nan, (f"the {spec.level} level's LMI at its P and rate {lam:.4g} is {verdict} (bench.joint's "
                           f"Cholesky test, with the multipliers {'the suite found' if found else 'it names'})")
     return margin, ""
-
-
-def _channel_maps(spec: _Spec, know: Knowledge) -> tuple[np.ndarray, np.ndarray | None]:
-    """``Gw`` and ``Hc`` of a level (the identity and None without channels)."""
-    if spec.channels:
-        return know.channels.G, know.channels.H
-    return np.eye(spec.n), None
 
 
 def _find_multipliers(spec: _Spec, plant: Plant, loop: checks.ClosedLoop, know: Knowledge, P: np.ndarray,
@@ -959,8 +1014,8 @@ def _find_multipliers(spec: _Spec, plant: Plant, loop: checks.ClosedLoop, know: 
     scale = float(np.abs(P).max())
     tau = {k: cp.Variable(nonneg=True, name=k) if size is None else cp.Variable(size, nonneg=True, name=k)
            for k, size in _multiplier_names(spec).items()}
-    values = {**_level_values(spec, plant, loop, know, P / scale, lam), **tau}
-    M = lmi.sym(lmi.assemble(partial(_blocks, spec, *_channel_maps(spec, know)), values, numeric=False))
+    values = {**_level_values(spec, plant, loop, know, P / scale, lam), "tau": _tau(spec, tau)}
+    M = lmi.sym(lyapunov.matrix(spec, values)[0][0])
     t = cp.Variable(name="t")
     prob = cp.Problem(cp.Maximize(t), [M << -t * np.eye(M.shape[0]), t <= 1])
     if not lmi.solve_timed(prob).solved:
@@ -982,7 +1037,7 @@ def _joint_margin(j: dict, plant: Plant, loop: checks.ClosedLoop, know: Knowledg
     except (KeyError, TypeError, ValueError) as exc:
         return math.nan, f"its joint multipliers cannot be used: {type(exc).__name__}: {exc}"
     PBF = Pj @ plant.B @ loop.F
-    margin, verdict = _verified_margin(np.block([[Mx, -PBF], [-PBF.T, mu * Me]]), block_diag(Pj, mu * Rj), lam)
+    margin, verdict = _verified_margin(np.block([[Mx, -PBF], [-PBF.T, mu * Me]]), sla.block_diag(Pj, mu * Rj), lam)
     if verdict:
         return math.nan, f"its joint matrix at rate {lam:.4g} is {verdict} (bench.joint's Cholesky test)"
     return margin, ""

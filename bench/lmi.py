@@ -6,6 +6,14 @@ and classified by :func:`classify` with one tolerance, :data:`VERIFY_TOL`. Progr
 plant-dependent number as a cvxpy Parameter and are fetched from :func:`cached_program`, so cvxpy
 compiles once per structure. A solve cut short by the time limit raises
 :class:`bench.limits.DeadlineExceeded`, never a status.
+
+One solve path (:meth:`Program.solve`): a solve already made at the same parameter values (same program,
+solver and options) is not repeated (its point is restored: solvers are deterministic on the same data);
+with ``fallback``, a solve that failed (a solver error, a status other than optimal, or a point claiming a
+margin its recomputed matrix does not have) is repeated with the second installed solver
+(:data:`SECOND_SOLVER`), and the better point is kept (:meth:`Program.verdict` decides). A program may solve in
+other coordinates than its verdict: :attr:`Program.original` maps the solver's values back, and every
+verdict is taken on the matrix rebuilt in the original coordinates.
 """
 
 from __future__ import annotations
@@ -22,7 +30,7 @@ import numpy as np
 
 from bench.limits import DeadlineExceeded, check_deadline, remaining_time
 
-__all__ = ["VERIFY_TOL", "Program", "cached_program", "classify", "conclude", "margin_program"]
+__all__ = ["SECOND_SOLVER", "VERIFY_TOL", "Program", "cached_program", "classify", "conclude", "margin_program"]
 
 #: The verification tolerance of :func:`classify`, relative to ``max(1, max |M_ij|)`` (:func:`verify_tol`).
 VERIFY_TOL = 1e-7
@@ -133,17 +141,25 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     return out
 
 
-_tally = {"n": 0, "compile_s": 0.0, "solve_s": 0.0, "solver_s": 0.0}
+_tally = {"n": 0, "compile_s": 0.0, "solve_s": 0.0, "solver_s": 0.0, "reused": 0}
 
 
 def solve_tally() -> dict:
-    """This process's SDP solves since :func:`reset_solve_tally`: ``n`` and the seconds of :class:`SolveOutcome`."""
+    """This process's SDP solves since :func:`reset_solve_tally`: ``n`` and the seconds of :class:`SolveOutcome`;
+    ``reused``: solves answered from a program's memo instead (:meth:`Program.solve`)."""
     return dict(_tally)
 
 
 def reset_solve_tally() -> None:
     """Zero :func:`solve_tally`."""
-    _tally.update(n=0, compile_s=0.0, solve_s=0.0, solver_s=0.0)
+    _tally.update(n=0, compile_s=0.0, solve_s=0.0, solver_s=0.0, reused=0)
+
+
+#: The solver tried when the first fails (:meth:`Program.solve` with ``fallback``): both are installed.
+SECOND_SOLVER = {"CLARABEL": "SCS", "SCS": "CLARABEL"}
+
+#: Solutions a program keeps by parameter values (least recently used dropped first).
+MEMO_SIZE = 256
 
 
 def log_search(
@@ -195,11 +211,12 @@ def assemble(blocks_fn: Callable[[dict], list], values: dict, *, numeric: bool):
 
 
 class BestPoint(NamedTuple):
-    """The best solution a :class:`Program` has seen: objective, variable and parameter values by name, status."""
+    """A solution of a :class:`Program`: objective, variable and parameter values by name, status, error."""
 
     value: float
     values: dict
     status: str
+    error: str = ""
 
 
 @dataclass
@@ -218,7 +235,8 @@ class Program:
         Decision matrices that must be positive definite.
     compile_s, solve_s, n_solves
         cvxpy's compile (with the expression tree's ``build_s``), the other solve seconds, and the
-        solves since :meth:`reset`.
+        solves since :meth:`reset` (those answered from :attr:`memo` included, so that a result never depends
+        on what this process solved before).
     last_status, last_error, solver : str
         The last solve's status, error message and solver.
     best : BestPoint or None
@@ -227,6 +245,14 @@ class Program:
         Whether :func:`cached_program` returned it from its cache (under ``cache_key``).
     problems : dict
         One cvxpy problem per solver (sharing variables and parameters).
+    original : callable or None
+        ``original(values) -> values`` maps the solver's values to the coordinates the LMI is verified in
+        (None: the same); set by the caller for each use, cleared by :meth:`reset`.
+    n_reused : int
+        Solves since :meth:`reset` answered from :attr:`memo` (no solver called; :func:`solve_tally` counts those
+        called).
+    tried : str
+        The solvers the last :meth:`solve` tried, e.g. ``"CLARABEL:solver_error -> SCS:optimal"``.
     """
 
     problem: object
@@ -247,6 +273,10 @@ class Program:
     cache_key: tuple | None = None
     problems: dict = field(default_factory=dict, repr=False)
     patterns: dict = field(default_factory=dict, repr=False)
+    original: Callable[[dict], dict] | None = field(default=None, repr=False)
+    n_reused: int = 0
+    tried: str = ""
+    memo: OrderedDict = field(default_factory=OrderedDict, repr=False)
 
     def __post_init__(self) -> None:
         arrays = {k: v for k, v in self.parameters.items() if isinstance(v, np.ndarray)}
@@ -277,43 +307,124 @@ class Program:
     def reset(self) -> None:
         """Forget counters, the best point and every parameter value (an unset one fails the solve)."""
         self.compile_s = self.solve_s = 0.0
-        self.n_solves = 0
-        self.last_status = self.last_error = ""
+        self.n_solves = self.n_reused = 0
+        self.last_status = self.last_error = self.tried = ""
         self.best = None
         self.solver = "CLARABEL"
+        self.original = None
         for p in self.parameters.values():
             p.value = None
 
-    def solve(self, *, solver: str = "CLARABEL", solver_opts: dict | None = None, **params: float) -> float:
-        """Solve at the given parameter values; return the objective, the margin ``slack`` (NaN if not solved)."""
+    def solve(self, *, solver: str = "CLARABEL", solver_opts: dict | None = None, fallback: bool | str = False,
+              **params: float) -> float:
+        """Solve at the given parameter values; return the objective, the margin ``slack`` (NaN if not solved).
+
+        With ``fallback``, a solve that failed (:meth:`failed`; ``fallback="errors"``: only a solve without a
+        point) is repeated with the second solver (:data:`SECOND_SOLVER`); its point is kept when it verifies or
+        when the first solve has none, else the first is restored. :attr:`tried` names the solvers and statuses.
+        """
         self.set(**params)
-        try:
-            out = solve_timed(self._problem_for(solver), solver, **(solver_opts or {}))
-        except BaseException as exc:
-            if not isinstance(exc, Exception) and self.cache_key is not None:  # cut short: never reuse
-                _cache().pop(self.cache_key, None)
-            raise
-        self.solver = solver
-        if not self.reused and self.n_solves == 0:
-            self.compile_s += self.build_s
-        self.compile_s += out.compile_s
-        self.solve_s += out.solve_s
-        self.n_solves += 1
-        self.last_status, self.last_error = out.status, out.error
-        if out.solved and (self.best is None or out.value > self.best.value):
-            held = {**self.variables, **self.parameters}
-            snap = {k: (None if v.value is None else np.array(v.value)) for k, v in held.items()}
-            self.best = BestPoint(out.value, snap, out.status)
-        return out.value if out.solved else float("nan")
+        value = self._solve_once(solver, solver_opts)
+        self.tried = f"{solver.upper()}:{self.last_status}"
+        return self.settle(value, claims=fallback != "errors") if fallback else value
+
+    def settle(self, value: float = float("nan"), *, claims: bool = True) -> float:
+        """After a solve (the parameters as they were): when it failed (:meth:`failed`), solve again with the
+        second solver (:data:`SECOND_SOLVER`) and keep its point when it verifies or when the first has none,
+        else restore the first. Returns the objective of the point kept (``value``: the first's)."""
+        if not self.failed(claims):
+            return value
+        first = self._snapshot(value)
+        used = self.solver
+        alt = SECOND_SOLVER.get(used, "CLARABEL")
+        value = self._solve_once(alt, FALLBACK_SCS_OPTS if alt == "SCS" else None)
+        self.tried = f"{self.tried or used + ':' + first.status} -> {alt}:{self.last_status}"
+        if first.status in ("optimal", "optimal_inaccurate") and not self.verified():
+            value = self._restore(first)
+            self.solver = used
+            self.tried += f" (kept {used})"
+        return value
+
+    def failed(self, claims: bool = True) -> bool:
+        """True when the last solve needs a second solver: no point (an error, an inaccurate infeasibility, an
+        iteration limit; a certificate of infeasibility is an answer), or (``claims``) a point whose margin
+        ``slack`` claims more than its recomputed matrix verifies (:meth:`verdict`)."""
+        if self.last_status in ("infeasible", "unbounded"):
+            return False
+        if self.last_status not in ("optimal", "optimal_inaccurate"):
+            return True
+        if not claims:
+            return False
+        slack = self.values().get("slack")
+        if slack is None or not math.isfinite(float(slack)):
+            return False
+        M = self.numeric_matrix()
+        return M is not None and float(slack) > verify_tol(M) and not self.verified()
+
+    def _memo_key(self, solver: str, opts: dict | None) -> bytes:
+        import hashlib
+
+        import cvxpy as cp
+
+        # the solve path's identity too: a solver swapped (a test's injected fault) never answers from another's memory
+        path = (id(solve_timed), id(cp.Problem.solve))
+        h = hashlib.blake2b(repr((solver.upper(), sorted((opts or {}).items()), path)).encode(), digest_size=20)
+        for k in sorted(self.parameters):
+            v = self.parameters[k].value
+            h.update(k.encode())
+            h.update(b"unset" if v is None else np.ascontiguousarray(np.asarray(v, dtype=float)).tobytes())
+        return h.digest()
+
+    def _solve_once(self, solver: str, opts: dict | None) -> float:
+        """One solve, or its memo (:attr:`memo`): the same program at the same parameter values gives the same point."""
+        key = self._memo_key(solver, opts)
+        hit = self.memo.get(key)
+        if hit is not None:
+            self.memo.move_to_end(key)
+            self.n_solves += 1
+            self.n_reused += 1
+            _tally["reused"] += 1
+            value = self._restore(hit)
+        else:
+            try:
+                out = solve_timed(self._problem_for(solver), solver, **(opts or {}))
+            except BaseException as exc:
+                if not isinstance(exc, Exception) and self.cache_key is not None:  # cut short: never reuse
+                    _cache().pop(self.cache_key, None)
+                raise
+            if not self.reused and self.n_solves == self.n_reused:
+                self.compile_s += self.build_s
+            self.compile_s += out.compile_s
+            self.solve_s += out.solve_s
+            self.n_solves += 1
+            self.last_status, self.last_error = out.status, out.error
+            value = out.value if out.solved else float("nan")
+            self.memo[key] = self._snapshot(value)
+            while len(self.memo) > MEMO_SIZE:
+                self.memo.popitem(last=False)
+        self.solver = solver.upper()
+        if self.last_status in ("optimal", "optimal_inaccurate") and (self.best is None or value > self.best.value):
+            self.best = self._snapshot(value)
+        return value
+
+    def _snapshot(self, value: float) -> BestPoint:
+        held = {**self.variables, **self.parameters}
+        snap = {k: (None if v.value is None else np.array(v.value)) for k, v in held.items()}
+        return BestPoint(value, snap, self.last_status, self.last_error)
+
+    def _restore(self, point: BestPoint) -> float:
+        held = {**self.variables, **self.parameters}
+        for k, v in point.values.items():
+            held[k].value = v
+        self.last_status, self.last_error = point.status, point.error
+        return point.value
 
     def restore_best(self) -> bool:
         """Put the best solution back into the variables and parameters (False: there is none)."""
         if self.best is None:
             return False
-        held = {**self.variables, **self.parameters}
-        for k, v in self.best.values.items():
-            held[k].value = v
-        self.last_status, self.last_error = self.best.status, ""
+        self._restore(self.best)
+        self.last_error = ""
         return True
 
     def values(self) -> dict:
@@ -326,15 +437,22 @@ class Program:
         vals.update({k: pat.value() for k, pat in self.patterns.items()})
         return vals
 
+    def checked_values(self) -> dict:
+        """:meth:`values` in the coordinates the LMI is verified in (:attr:`original`)."""
+        vals = self.values()
+        return self.original(vals) if self.original is not None and all(v is not None for v in vals.values()) \
+            else vals
+
     def verdict(self) -> tuple[str, float]:
         """The last solution checked: :func:`classify` of the rebuilt LMI (``"violated"`` when a decision
-        matrix is not positive definite; the solver status when unsolved) and its largest eigenvalue."""
+        matrix is not positive definite; the solver status when unsolved) and its largest eigenvalue, in the
+        original coordinates (:meth:`checked_values`)."""
         M = self.numeric_matrix() if self.last_status in ("optimal", "optimal_inaccurate") else None
         if M is None:
             return self.last_status, float("nan")
         margin = max_eig(M)
         verdict = classify(margin, M)
-        vals = self.values()
+        vals = self.checked_values()
         if verdict == "verified" and not all(is_positive_definite(vals[k]) for k in self.positive):
             verdict = "violated"
         return verdict, margin
@@ -343,12 +461,14 @@ class Program:
         """True when :func:`classify` verifies the last solution's LMI and decision matrices."""
         return self.verdict()[0] == "verified"
 
-    def numeric_matrix(self) -> np.ndarray | None:
-        """The LMI matrix rebuilt with numpy from the last solution (None if unsolved)."""
+    def numeric_matrix(self, **at) -> np.ndarray | None:
+        """The LMI matrix rebuilt with numpy from the last solution, in the original coordinates (None if
+        unsolved); ``at`` overrides values (e.g. ``lam=0.3``: the same point at another rate)."""
         vals = self.values()
         if any(v is None for v in vals.values()):
             return None
-        return assemble(self.blocks, vals, numeric=True)
+        vals = self.checked_values()
+        return assemble(self.blocks, {**vals, **at}, numeric=True)
 
 
 def margin_program(blocks_fn, variables: dict, parameters: dict, positive: tuple[str, ...],
@@ -531,8 +651,11 @@ def clear_program_cache() -> None:
     _cache().clear()
 
 
-def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> dict:
+def conclude(prog: Program, *, what: str, normalisation: str, searched: str, fallback: bool = True) -> dict:
     """Turn the last solve of ``prog`` into status, reason and evidence.
+
+    With ``fallback``, a last solve that failed (:meth:`Program.failed`) is first repeated with the second
+    solver (:meth:`Program.settle`; the cost is in ``prog``'s counters).
 
     ``feasible``: the rebuilt LMI verified (:func:`classify`), decision matrices positive definite;
     ``marginal``: its largest eigenvalue within the tolerance of zero; ``infeasible`` under the
@@ -544,6 +667,8 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
     dict
         ``status``, ``reason``, ``margin``, ``min_eig``, ``lmi_size``, ``solver_status``, ``slack``.
     """
+    if fallback and prog.last_status:
+        prog.settle()
     out: dict = {"solver_status": prog.last_status, "min_eig": {}, "margin": float("nan"), "lmi_size": 0}
     if prog.last_status not in ("optimal", "optimal_inaccurate"):
         msg = f": {prog.last_error}" if prog.last_error else ""
@@ -582,12 +707,17 @@ def conclude(prog: Program, *, what: str, normalisation: str, searched: str) -> 
 
 SCS_OPTS = {"eps_abs": 1e-6, "eps_rel": 1e-6, "max_iters": 100_000}
 
+#: SCS as the second solver of :meth:`Program.settle`: the same accuracy, a bounded effort (a few tenths of a second
+#: on the ladder's programs; a point it leaves inaccurate is still verified like any other).
+FALLBACK_SCS_OPTS = {**SCS_OPTS, "max_iters": 2_500}
+
 SCS_FROM_N = 8
 
 
 def solve_side(prog: Program, solver: str = "auto", n: int | None = None) -> str:
     """Solve ``prog``; ``"auto"``: Clarabel when ``n < SCS_FROM_N``, else SCS (:data:`SCS_OPTS`), then Clarabel
-    if SCS's point does not verify. Returns the solvers tried: ``"SCS:optimal (not verified) -> CLARABEL:optimal"``."""
+    if SCS's point does not verify; one named solver falls back to the other when it fails (:meth:`Program.settle`).
+    Returns the solvers tried: ``"SCS:optimal (not verified) -> CLARABEL:optimal"``."""
     if solver == "auto" and n is not None and n < SCS_FROM_N:
         solver = "CLARABEL"
     if solver == "auto":
@@ -597,5 +727,5 @@ def solve_side(prog: Program, solver: str = "auto", n: int | None = None) -> str
         first = f"SCS:{prog.last_status} (not verified)"
         prog.solve(solver="CLARABEL")
         return f"{first} -> CLARABEL:{prog.last_status}"
-    prog.solve(solver=solver, solver_opts=SCS_OPTS if solver == "SCS" else None)
-    return f"{solver}:{prog.last_status}"
+    prog.solve(solver=solver, solver_opts=SCS_OPTS if solver == "SCS" else None, fallback=True)
+    return prog.tried

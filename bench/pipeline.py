@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench import checks
+from bench import checks, lmi
 from bench.certify import LEVELS, Certificate, LevelResult, adopt, ceiling, certify, explain
 from bench.constants import ConstantsReport, Knowledge, check_trajectory, resolve_constants
 from bench.errors import DesignError
@@ -41,7 +41,8 @@ COLUMNS = [
     "l2_gain_e", "l2_gain_x", "l2_measured_e", "l2_measured_x", "disturbance",
     *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")],
     "cert_margin", "cert_radius", "level_set", "level_x0", "in_region", "max_norm",
-    "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "compile_s", "solve_s", "design_s",
+    "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "sdp_solves", "compile_s", "solve_s",
+    "design_s",
     "cert_s", "sim_s", "max_re_eig_x", "max_re_eig_e", "horizon_s", "horizon_rule", "cert_horizon_s", "sim_status", "sim_witness",
     "settling_x_s",
     "settling_e_s", "final_x", "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "norm_K", "norm_F",
@@ -52,6 +53,11 @@ COLUMNS = [
 CERT_COLUMNS = ("certified", "cert_level", "decay_rate", "cert_scope", "witness", "rate_ceiling", "rate_ratio",
                 "ceiling_how", *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")], "cert_margin",
                 "cert_radius", "level_set", "level_x0", "in_region", "cert_horizon_s")
+
+#: Columns of what a pair cost, not of what it found: seconds, and the SDP solver calls made (a solve this process
+#: made before, at the same parameter values, is remembered, :meth:`bench.lmi.Program.solve`). Two runs agree on
+#: every other column.
+COST_COLUMNS = ("compile_s", "solve_s", "design_s", "cert_s", "sim_s", "sdp_solves")
 
 #: What the ``certificate`` option computes: every level with its rate, or only whether some level
 #: certifies at rate 0 (the strongest first), or only the design's own verified certificate, or nothing.
@@ -745,6 +751,7 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
     rec = blank_record(plant.id, design_id)
     out = PairOutcome(rec, plant=plant)
     phase = "design"
+    solves = lmi.solve_tally()["n"]
     try:
         if prior is not None:
             rec.update({k: prior.record[k] for k in COLUMNS if k not in _NOT_PRIOR})
@@ -785,4 +792,6 @@ def _evaluate(plant, design, design_id, report, options, prior, scenario) -> Pai
         if options.fail_fast:
             raise
         _failed(out, exc, phase)
+    finally:
+        rec["sdp_solves"] = lmi.solve_tally()["n"] - solves
     return out

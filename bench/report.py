@@ -661,6 +661,14 @@ def _gains(result: RunResult) -> list[dict]:
     return out
 
 
+def _sdp_solves(result: RunResult) -> dict:
+    """The SDP solves the pairs took (their records' ``sdp_solves``: a pair from the cache counts those it took
+    when it was computed): the total, the pairs and the mean per pair."""
+    n = [o.record.get("sdp_solves") for o in result.outcomes]
+    n = [int(v) for v in n if v is not None and math.isfinite(float(v))]
+    return {"total": sum(n), "pairs": len(n), "per_pair": round(sum(n) / len(n), 2) if n else None}
+
+
 def _run_json(result: RunResult, run_info: dict) -> dict:
     o = result.options
     return {
@@ -679,6 +687,7 @@ def _run_json(result: RunResult, run_info: dict) -> dict:
         "constants_errors": result.constants_errors,
         **{f"git_{k}": v for k, v in git_revision().items()},
         "cache": {"dir": result.cache_dir, "hits": result.cache_hits, "misses": result.cache_misses},
+        "sdp_solves": _sdp_solves(result),
         "versions": package_versions(),
         "platform": platform.platform(),
         "executable": sys.executable,

@@ -53,15 +53,18 @@ def grid_floor(x: float, rtol: float = RATE_RTOL) -> float:
     return _point(_index(x, rtol, up=False), rtol)
 
 
-def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL, start: float | None = None,
+def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTOL, start: float | None = None,
                     lo: float | None = None, hi: float | None = None, factor: float = 2.0, max_moves: int = 12,
-                    down_until: float = 0.0, stop: Callable[[], bool] | None = None) -> dict:
+                    down_until: float = 0.0, stop: Callable[[], bool] | None = None,
+                    first_above: bool = False) -> dict:
     """The largest grid point at which ``passes`` holds, for a test that holds below a threshold.
 
     Parameters
     ----------
     passes : callable
-        ``passes(x) -> bool`` for ``x > 0``; assumed monotone (passing below a threshold).
+        ``passes(x) -> bool`` for ``x > 0``; assumed monotone (passing below a threshold). It may return
+        ``(True, y)`` instead of True: ``y`` (None, or a grid point above x) passes too, on the same evidence (the
+        passing point of x shown to hold up to y); the search moves its passing end there.
     rtol : float
         The grid ``(1 + rtol)^k``: the answer is within ``1 + rtol`` of the threshold.
     start : float, optional
@@ -80,6 +83,9 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
         ``stop() -> bool``, asked after each failing probe while bracketing down; True ends the
         search (``"below_range"``, the last probe lay outside the test's valid range: ``hi`` stays
         the failing value before it).
+    first_above : bool
+        With ``lo`` and ``hi`` given, probe the grid point just above ``lo`` first (the threshold is often
+        there: one probe then ends the search), then bisect.
 
     Returns
     -------
@@ -97,8 +103,13 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
     def probe(k: int) -> bool:
         nonlocal kl, kh
         ok = passes(_point(k, rtol))
+        up = None
+        if isinstance(ok, tuple):
+            ok, up = bool(ok[0]), ok[1]
         if ok:
-            kl = k
+            kl = k if up is None else max(k, _index(up, rtol, up=False))
+            if kh is not None:
+                kl = min(kl, kh - 1)
         else:
             kh = k
         return ok
@@ -115,6 +126,8 @@ def largest_passing(passes: Callable[[float], bool], *, rtol: float = RATE_RTOL,
         if stop is not None and stop():
             kh = last
             break
+    if first_above and kl is not None and kh is not None and kh - kl > 1:
+        probe(kl + 1)
     while kl is not None and kh is not None and kh - kl > 1:
         probe((kl + kh) // 2)
     kind = "above_range" if kh is None else "below_range" if kl is None else "bracketed"

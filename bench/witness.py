@@ -238,6 +238,32 @@ def _describe(c: np.ndarray | None, L: np.ndarray) -> str:
     return f"f = L x with L symmetric, eigenvalues {vector(np.linalg.eigvalsh(L), '.4g')}"
 
 
+#: The last ceilings computed (:func:`rate_ceiling` is asked for the same class by the ladder's search and by
+#: the pipeline's report of it): key -> (plant, know, result), the objects held so that their ids stay theirs.
+_CEILINGS: dict = {}
+
+
+def _memo_ceiling(fn):
+    """:func:`rate_ceiling` remembered for the same plant and knowledge objects, gains, class and box."""
+    import functools
+
+    @functools.wraps(fn)
+    def memo(plant, K, F, know, *, channels, scalars, box=None):
+        key = (id(plant), id(know), np.asarray(K, float).tobytes(), np.asarray(F, float).tobytes(), bool(channels),
+               tuple(scalars), None if box is None else tuple(np.asarray(b, float).tobytes() for b in box))
+        hit = _CEILINGS.get(key)
+        if hit is not None and hit[0] is plant and hit[1] is know:
+            return hit[2]
+        out = fn(plant, K, F, know, channels=channels, scalars=scalars, box=box)
+        if len(_CEILINGS) >= 16:
+            _CEILINGS.pop(next(iter(_CEILINGS)))
+        _CEILINGS[key] = (plant, know, out)
+        return out
+
+    return memo
+
+
+@_memo_ceiling
 def rate_ceiling(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool, scalars: tuple[str, ...],
                  box: tuple | None = None) -> tuple[float, str]:
     """The smallest decay rate over the class's linear members: no certificate over the class proves more.

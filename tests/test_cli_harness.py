@@ -48,6 +48,10 @@ def test_run_small_selection_writes_the_whole_report(tmp_path):
     assert [g["design"] for g in gains] == ["paper_gains"] and gains[0]["decay_rate"] > 0
     info = json.loads((tmp_path / "run.json").read_text())
     assert info["seed"] == 0 and "cvxpy" in info["versions"] and info["command"].startswith("python -m bench run")
+    # the SDP solves of the run, per pair (thm1_printed is infeasible without a solve; a solve this process made
+    # before, at the same parameter values, is not made again)
+    assert info["sdp_solves"]["total"] == df["sdp_solves"].sum() and info["sdp_solves"]["pairs"] == 2
+    assert df.set_index("design")["sdp_solves"].to_dict()["thm1_printed"] == 0
     md = (tmp_path / "REPORT.md").read_text()
     for heading in ("## Feasibility", "## Convergence", "## Timing", "## Constants", "## Figures"):
         assert heading in md

@@ -16,11 +16,12 @@ from bench.certify import LEVELS
 from bench.cli import main
 from bench.executors import ExecutorError, executor
 from bench.harness import COLUMNS, RunOptions, run
+from bench.pipeline import COST_COLUMNS
 from bench.registry import DESIGNS
 from designs import Design
 
 ROOT = Path(__file__).resolve().parents[1]
-TIMING = {"compile_s", "solve_s", "design_s", "cert_s", "sim_s"}
+TIMING = set(COST_COLUMNS)
 SMALL = (["flexible_link"], ["thm1_printed", "paper_gains", "lqr+lqe"])
 OPTS = RunOptions(n_samples=500, t_final=5.0)
 #: the certificate's rate bisection stops within this relative tolerance (certify's rate_rtol)

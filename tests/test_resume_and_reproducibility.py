@@ -21,11 +21,12 @@ from bench import report as report_mod
 from bench.cache import Cache, default_cache_dir
 from bench.cli import main
 from bench.harness import RunOptions, run
+from bench.pipeline import COST_COLUMNS
 from bench.registry import DESIGNS, PLANTS
 from designs import Design, DesignResult
 
 ROOT = Path(__file__).resolve().parents[1]
-TIMING = ["compile_s", "solve_s", "design_s", "cert_s", "sim_s"]
+TIMING = list(COST_COLUMNS)
 FAST = RunOptions(n_samples=500)
 
 

@@ -14,12 +14,13 @@ import pytest
 
 from bench.errors import ExecutorError
 from bench.executors import default_start_method, executor, use_start_method, worker_setup
+from bench.pipeline import COST_COLUMNS
 from bench.registry import DESIGNS, PLANTS
 from tests import _worker_helpers
 from tests._plugin_helpers import clean_registries  # noqa: F401 - autouse: registries restored after each test
 
 ROOT = Path(__file__).resolve().parents[1]
-TIMING = {"compile_s", "solve_s", "design_s", "cert_s", "sim_s"}
+TIMING = set(COST_COLUMNS)
 LINUX = sys.platform.startswith("linux")
 
 
