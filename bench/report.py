@@ -622,7 +622,16 @@ def _level_json(lr, plant) -> dict:
             "reason": lr.reason, "P": _arr(lr.P), "scope": scope["cert_scope"],
             "radius": None if lr.radius is None else float(lr.radius), "region": _region(lr),
             "region_H": _arr(lr.region_H), "level_set": _num(scope["level_set"]), "level_x0": _num(scope["level_x0"]),
-            "slopes": None if lr.slopes is None else {"lo": _arr(lr.slopes[0]), "hi": _arr(lr.slopes[1])}}
+            "slopes": None if lr.slopes is None else {"lo": _arr(lr.slopes[0]), "hi": _arr(lr.slopes[1])},
+            "dt": float(lr.dt), "contraction": _num(lr.contraction),
+            "l2": {z: _gain_json(g) for z, g in lr.l2.items()}}
+
+
+def _gain_json(g) -> dict:
+    """One L2 gain of gains.json (:class:`bench.certify.Gain`): its claim and the P an outside script checks it
+    with (``V' + |zeta|^2 - gain^2 |w|^2 <= 0``; discrete time ``V(z_{k+1}) - V(z_k) + ...``, docs/results.md)."""
+    return {"zeta": g.zeta, "status": g.status, "gain": _num(g.gain), "level": g.level, "reason": g.reason,
+            "P": _arr(g.P), "margin": _num(g.margin), "radius": None if g.radius is None else float(g.radius)}
 
 
 def _pair_json(o) -> dict:
@@ -636,7 +645,8 @@ def _pair_json(o) -> dict:
             "K": _arr(loop.K) if loop is not None else None, "F": _arr(loop.F) if loop is not None else None,
             "estimator": None if r.estimator is None else repr(r.estimator),
             "certified": bool(rec["certified"]), "cert_level": rec["cert_level"], "cert_scope": rec["cert_scope"],
-            "decay_rate": _num(rec["decay_rate"]),
+            "decay_rate": _num(rec["decay_rate"]), "contraction": _num(rec["contraction"]),
+            "l2_gain_e": _num(rec["l2_gain_e"]), "l2_gain_x": _num(rec["l2_gain_x"]),
             "best": None if best is None else "from_x0" if best is cert.local else best.level,
             "certificate": {} if cert is None else {lv: _level_json(lr, o.plant) for lv, lr in cert.levels.items()},
             "from_x0": None if cert is None or cert.local is None else _level_json(cert.local, o.plant)}
