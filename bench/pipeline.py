@@ -37,7 +37,7 @@ __all__ = ["PairOutcome", "RunOptions", "Scenario", "evaluate_pair", "time_domai
 #: Columns of every record, in order.
 COLUMNS = [
     "plant", "design", "status", "reason", "feasible", "stabilizing", "certified", "cert_level", "decay_rate",
-    "contraction", "cert_scope", "converged", "witness", "rate_ceiling", "rate_ratio", "ceiling_how",
+    "contraction", "dt", "cert_scope", "converged", "witness", "rate_ceiling", "rate_ratio", "ceiling_how",
     "l2_gain_e", "l2_gain_x", "l2_measured_e", "l2_measured_x", "disturbance", "l2_radius", "l2_max_norm",
     *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")],
     "cert_margin", "cert_radius", "level_set", "level_x0", "in_region", "max_norm",
@@ -59,6 +59,11 @@ CERT_COLUMNS = ("certified", "cert_level", "decay_rate", "contraction", "cert_sc
 #: made before, at the same parameter values, is remembered, :meth:`bench.lmi.Program.solve`). Two runs agree on
 #: every other column.
 COST_COLUMNS = ("compile_s", "solve_s", "design_s", "cert_s", "sim_s", "sdp_solves")
+
+#: The disturbance amplitude of a run (``python -m bench run``, :func:`bench.run`) by default: each pair of a plant
+#: with disturbance inputs is simulated a second time from ``z(0) = 0``, so that the certified L2 gains are checked
+#: against measured ratios (docs/results.md says why). :class:`RunOptions` itself defaults to 0 (studies, tests).
+RUN_DISTURBANCE = 0.1
 
 #: What the ``certificate`` option computes: every level with its rate, or only whether some level
 #: certifies at rate 0 (the strongest first), or only the design's own verified certificate, or nothing.
@@ -91,9 +96,10 @@ class RunOptions:
     noise_dt : float
         Sample period of the noise for fixed-gain observers (a discrete plant draws one per step).
     disturbance : float
-        Peak amplitude of the seeded L2 disturbance (:mod:`bench.disturbance`; 0: none). With it, each pair
-        of a plant with disturbance inputs (``Bw``, ``Dw``) is simulated a second time from ``z(0) = 0``
-        with w (noise-free) for the measured ratios ``l2_measured_e``, ``l2_measured_x``.
+        Peak amplitude of the seeded L2 disturbance (:mod:`bench.disturbance`; 0: none; a run's default is
+        :data:`RUN_DISTURBANCE`). With it, each pair of a plant with disturbance inputs (``Bw``, ``Dw``) is
+        simulated a second time from ``z(0) = 0`` with w (noise-free) for the measured ratios ``l2_measured_e``,
+        ``l2_measured_x``; a plant without them is not disturbed (its ``disturbance`` column is 0).
     timeout : float, optional
         Wall-clock limit in seconds of each pair; a pair over it becomes a ``timeout`` row.
     certificate : {"ladder", "verdict", "own", "none"}
@@ -529,11 +535,8 @@ def _attenuation(out: PairOutcome, options: RunOptions, T: float, sim: SimOption
     from bench.disturbance import SeededDisturbance, measured_attenuation, window
 
     rec, plant, res = out.record, out.plant, out.result
-    rec["disturbance"] = options.disturbance
-    if options.disturbance <= 0:
-        return
-    if plant.q == 0:
-        _note(rec, "disturbance: the plant has no disturbance input (Bw, Dw): no attenuation measured")
+    rec["disturbance"] = options.disturbance if plant.q > 0 else 0.0  # the amplitude applied
+    if options.disturbance <= 0 or plant.q == 0:
         return
     w = SeededDisturbance(options.disturbance, plant.q, window(plant.t_final, options.t_final), seed=options.seed,
                           dt=plant.dt)
@@ -760,7 +763,7 @@ def evaluate_pair(
         with time_limit(options.timeout), hard_stop(1.1 * options.timeout + 0.5):
             return _evaluate(plant, design, design_id, report, options, prior, scenario)
     except DeadlineExceeded as exc:  # the hard stop fired outside the pair's own handler
-        rec = blank_record(plant.id, design_id)
+        rec = blank_record(plant.id, design_id, dt=float(plant.dt))
         _timed_out(rec, exc, options, "pair")
         return PairOutcome(rec, plant=plant)
 
@@ -800,7 +803,7 @@ _NOT_PRIOR = {"plant", "design", "converged", "in_region", "max_norm", "sim_s", 
 def _evaluate(plant, design, design_id, report, options, prior, scenario) -> PairOutcome:
     from bench.registry import DESIGNS
 
-    rec = blank_record(plant.id, design_id)
+    rec = blank_record(plant.id, design_id, dt=float(plant.dt))
     out = PairOutcome(rec, plant=plant)
     phase = "design"
     solves = lmi.solve_tally()["n"]
