@@ -622,6 +622,9 @@ def _level_gains(res: LevelResult, plant: Plant, loop: checks.ClosedLoop, know: 
     if not res.certified:
         return {z: Gain(z, "not certified", reason=(
             f"the {res.level} level certifies no stability (rate 0): it proves no finite L2 gain")) for z in ZETAS}
+    if plant.n > LADDER_MAX_N:
+        return {z: Gain(z, "inapplicable", reason=(
+            f"n = {plant.n} is beyond the SDP certificate's reach (LADDER_MAX_N = {LADDER_MAX_N})")) for z in ZETAS}
     spec, _ = _spec(res.level, plant.n, know)
     own = {z: l2_gain(spec, plant, loop, know, z) for z in ZETAS}
     below = prev.l2 if prev is not None and prev.certified else {}
@@ -647,7 +650,9 @@ def l2_gain(spec: _Spec, plant: Plant, loop: checks.ClosedLoop, know: Knowledge,
     The bounded real lemma with the level's P structure and S-procedure terms (:mod:`bench.lyapunov`, measure
     ``"l2"``; a discrete plant's in the delta form), ``g2`` minimised with the margin ``M << -eps I``; the point is
     verified like every level's (the matrix rebuilt with numpy in the original coordinates,
-    :func:`bench.lmi.classify`), ``eps`` raised (:data:`L2_EPS`) until it verifies.
+    :func:`bench.lmi.classify`, or its Jacobi-equilibrated form by :func:`bench.joint.verdict`, a congruence), the
+    margin changed on the schedule of :data:`L2_EPS` until it verifies; the gain is ``sqrt(g2)`` of the verified
+    point.
 
     Parameters
     ----------
@@ -1073,9 +1078,16 @@ def adopt(cert: Certificate, candidate: dict | None, plant: Plant, loop: checks.
     ladder = f"the ladder's own LMI: {cur.status}" + (f", rate {cur.decay_rate:.3g}" if cur.certified else "")
     cert.levels[lv] = replace(own, reason=f"{how}, verified by the suite ({ladder})", solve_s=cur.solve_s,
                               n_solves=cur.n_solves, l2=cur.l2)
+    if cur.l2 and not cur.certified:  # the level now certifies stability: its gains are solved
+        below = [cert.levels[b] for b in LEVELS[:LEVELS.index(lv)] if b in cert.levels
+                 and cert.levels[b].status != "inapplicable"]
+        cert.levels[lv].l2 = _level_gains(cert.levels[lv], plant, loop, knowledge, below[-1] if below else None)
     for up in LEVELS[LEVELS.index(lv) + 1:]:
         if up in cert.levels:
             cert.levels[up] = _inherit(cert.levels[up], cert.levels[lv])
+            if cert.levels[up].l2:
+                cert.levels[up].l2 = {z: _inherit_gains(g, cert.levels[lv].l2.get(z))
+                                      for z, g in cert.levels[up].l2.items()}
     return ""
 
 

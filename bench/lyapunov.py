@@ -7,7 +7,8 @@ quadratic constraints ``xi' Pi_k xi >= 0`` that f meets (:func:`level_data`), a 
     M(P, tau; lam) = [[Acl' P + P Acl + 2 lam P, P Gb], [Gb' P, 0]] + sum_k tau_k Pi_k
 
 (:func:`matrix`, the one place it is written, for numpy and cvxpy alike). The measure ``lam`` enters
-affinely; :func:`matrix` is where a level with another measure or another time axis changes the first term.
+affinely; :func:`matrix` is also where the level's other time axis (discrete time) and other measure (the L2 gain)
+change it, below.
 
 Coordinates. A level is solved in balanced coordinates ``z = T z~`` (:class:`Level`), T the diagonal similarity
 that balances ``Acl`` (:func:`scipy.linalg.matrix_balance`, powers of 2, so the change is exact in floating
@@ -136,7 +137,8 @@ class Spec:
 
     @property
     def size(self) -> int:
-        """The matrix's size, ``2 n + 2 nw`` (``n + nw`` for one side)."""
+        """The size of the matrix's ``(z, w)`` part, ``2 n + 2 nw`` (``n + nw`` for one side); :attr:`dim` adds the
+        disturbance and Schur rows."""
         return self.zdim + (self.nw if self.side else 2 * self.nw)
 
     @property

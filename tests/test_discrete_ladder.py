@@ -140,6 +140,27 @@ def test_a_discrete_loop_is_certified_from_x0_where_no_global_certificate_exists
     assert 0 < cert.local.contraction < 1
 
 
+def test_the_cascade_rung_works_in_discrete_time():
+    """V = x'Px x + mu e'Pe e from the two sides, each a discrete level with its own Schur rows: the joint P and
+    multipliers are a point of the level's own (delta-form) matrix, which verifies, at a rate no larger than the
+    level's own and than each side's."""
+    from bench import lmi
+
+    p = PLANTS.create("flexible_link_d10ms_v1")
+    K, F = suite_lqg(p)
+    know = Knowledge.trusting(p)
+    spec, _ = certify._spec("structured", p.n, know)
+    lv = certify._level(spec, p, K, F, know, 0.01)
+    got = lyapunov.cascade(lv.spec, lv.data, checks.closed_loop(p, K, F).linearised_rate)
+    assert got["P"] is not None and got["rate"] > 0
+    Pi = lv.data.Pi.reshape(len(lv.data.Pi), -1).T
+    M = lyapunov.matrix(lv.spec, lyapunov._values(lv.spec, got["P"], got["tau"], lv.data, Pi, got["rate"]))[0][0]
+    assert M.shape == (lv.spec.dim, lv.spec.dim) and lmi.classify(lmi.max_eig(M), M) == "verified"
+    assert got["rate"] <= min(got["side_rates"].values()) and got["rate"] <= certify_pair(p, K, F).decay_rate
+    n = p.n
+    assert np.allclose(got["P"][:n, n:], 0)  # block diagonal: a cascade
+
+
 # -- witnesses ------------------------------------------------------------------------------------------------
 def cubic_plant(c):
     """x_{k+1} = x_k + u_k + c x^3 / (1 + x^2), y = x (one state): phi(s) = c s^3 / (1 + s^2), slopes in
@@ -228,6 +249,11 @@ def test_a_false_discrete_certificate_is_refused():
                       ({"decay_rate": 0.999 * lam, "contraction": math.exp(-0.999 * lam * p.dt)}, "")):
         got, why = certify.verify_certificate({**good, **bad}, p, loop, know)
         assert got is None and says in why
+    # the discrete structured design's own certificate (its joint V, contraction by bisection) is verified as it is
+    own = DESIGNS.create("structured").design(p, p.bounds)
+    assert own.status == "feasible" and own.certificate["contraction"] < 1
+    got, why = certify.verify_certificate(own.certificate, p, checks.closed_loop(p, own.K, own.F), know)
+    assert got is not None and why == "" and got.contraction == pytest.approx(own.certificate["contraction"])
     # through the pipeline: the design's rate above the linearisation is refused, the row says so
     rep = compute_constants(p, n_samples=500, n_refine=0)
     claim = {**good, "decay_rate": 1.5 * lam, "contraction": math.exp(-1.5 * lam * p.dt)}

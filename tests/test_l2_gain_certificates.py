@@ -269,3 +269,25 @@ def test_a_false_certified_gain_is_inconsistent_with_the_measured_ratio(dt, monk
     assert bad["l2_measured_x"] == pytest.approx(rec["l2_measured_x"]) and bad["l2_measured_x"] > bad["l2_gain_x"]
     assert "INCONSISTENT with the certificate: the measured L2 ratio from w to the state x" in bad["reason"]
     assert "to the estimation error e" not in bad["reason"]
+
+
+def test_a_level_certified_by_a_designs_own_certificate_gets_its_gains():
+    """Where the ladder's own LMI did not certify a level and a design's verified certificate does, the level now
+    proves stability and its L2 gains are solved (here: the structured level's own result replaced by a failure,
+    then the ladder's own P handed over as a design's certificate: the gains come back)."""
+    p = link_with_disturbances()
+    res = DESIGNS.create("lqr+lqe").design(p, p.bounds)
+    know = Knowledge.trusting(p)
+    loop = checks.closed_loop(p, res.K, res.F)
+    cert = certify.certify(p, res.K, res.F, know, loop=loop)
+    top = cert.levels["structured"]
+    assert top.certified and top.l2["x"].certified
+    failed = certify.LevelResult("structured", "not certified", reason="(the test's failure)", l2={
+        z: certify.Gain(z, "not certified", reason="the structured level certifies no stability") for z in "ex"})
+    cert.levels["structured"] = failed
+    candidate = {"level": "structured", "P": top.P, "decay_rate": top.decay_rate, "how": "the test's certificate"}
+    assert certify.adopt(cert, candidate, p, loop, know) == ""
+    got = cert.levels["structured"]
+    assert got.certified and "the test's certificate" in got.reason
+    for z in "ex":
+        assert got.l2[z].certified and got.l2[z].gain == pytest.approx(top.l2[z].gain, rel=1e-6)
