@@ -49,12 +49,13 @@ BW = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0
 DW = np.array([[0.0, 0.1, 0.0], [0.0, 0.0, 0.1]])
 
 
-def _make(pid: str, c: float, index: int, t_final: float, notes: str, **extra) -> Plant:
+def _make(pid: str, c: float, index: int, t_final: float, notes: str, claimed: Constants = PAPER_CLAIMED,
+          params: dict | None = None, **extra) -> Plant:
     c = check_real("c", c)
     gravity = sine_terms(4, acts=[3], reads=[index], coef=-c)
-    return Plant(id=pid, A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity, claimed=PAPER_CLAIMED,
-                 t_final=t_final, family="flexible_link", params={"c": c}, source=SOURCE, notes=notes,
-                 state_names=STATE_NAMES, **extra)
+    return Plant(id=pid, A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity, claimed=claimed,
+                 t_final=t_final, family="flexible_link", params={"c": c, **(params or {})}, source=SOURCE,
+                 notes=notes, state_names=STATE_NAMES, **extra)
 
 
 @register_plant("flexible_link", order=0)
@@ -88,9 +89,10 @@ def flexible_link_w(*, c: float = 0.333, t_final: float = 20.0) -> Plant:
     Returns
     -------
     Plant
-        With ``Bw`` (4 x 3) and ``Dw`` (2 x 3).
+        With ``Bw`` (4 x 3) and ``Dw`` (2 x 3); no claimed constants (the paper's claim is about its own
+        plant, :func:`flexible_link`).
     """
     plant = _make("flexible_link_w_v1", c, 2, t_final,
                   "f4 = -c sin(x3); w: a disturbance on x1' and sensor noise 0.1 on both outputs (the suite's choice)",
-                  Bw=BW, Dw=DW)
+                  claimed=Constants(), params={"version": 1}, Bw=BW, Dw=DW)
     return plant
