@@ -516,7 +516,7 @@ _NORMALISATION = (
     "`STUDY_admissible.md` measures their sensitivity to caps 10, 100 and 1e4). Designs whose gains do not "
     "depend on the class (given gains, LQR/LQE) pass (a) at every factor; their (b) is the largest class their "
     "fixed gains are certified over. A design with no fixed gain (the EKF) and a plugin's unverified gains have "
-    "no (a); on a discrete-time plant (b) waits for the discrete-time ladder.")
+    "no (a); on a discrete-time plant (b) is the discrete-time ladder's (V(z_{k+1}) <= V(z_k)).")
 
 _CIRCLE = (
     "For a pair whose gains do not depend on the factor, on a continuous plant with one channel and a symmetric "
