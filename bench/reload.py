@@ -29,7 +29,7 @@ _OPTION_KEYS = {"seed": "seed", "use_claimed": "use_claimed_constants", "n_sampl
 #: run.json's keys that :func:`bench.report._run_json` writes (the others are the run's selection: ``Results.info``).
 _SETTINGS = {"command", "findings", "seed", "use_claimed_constants", "n_samples_constants", "t_final_override",
              "horizon_cap", "noise", "noise_dt", "disturbance", "timeout", "sim", "constants", "constants_errors",
-             "git_commit", "git_dirty", "cache", "versions", "platform", "executable", "wall_s"}
+             "git_commit", "git_dirty", "cache", "sdp_solves", "versions", "platform", "executable", "wall_s"}
 _INT = re.compile(r"[-+]?\d+")
 
 
