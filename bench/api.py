@@ -213,7 +213,7 @@ def _check_options(seed, claimed_constants, t_final, noise, disturbance, timeout
 
 def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed: int = 0,
         claimed_constants: bool = False, t_final: float | None = None, noise: float = 0.0,
-        disturbance: float = 0.0, timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
+        disturbance: float = 0.1, timeout: float | None = None, jobs: int | None = None, scheduler: str | None = None,
         cache: str | os.PathLike | None = None, progress: bool | Callable = True, fail_fast: bool = False,
         command: str = "", start_method: str | None = None) -> Results:
     """Run (plant, design) pairs and return the results (the library form of ``python -m bench run``).
@@ -235,9 +235,9 @@ def run(plants: Iterable | None = None, designs: Iterable | None = None, *, seed
     noise : float
         Standard deviation of a seeded measurement noise.
     disturbance : float
-        Peak amplitude of the seeded L2 disturbance (:mod:`bench.disturbance`; 0: none): each pair of a
-        plant with disturbance inputs is simulated again from ``z(0) = 0`` with it, for the measured
-        ratios ``l2_measured_e``, ``l2_measured_x``.
+        Peak amplitude of the seeded L2 disturbance (:mod:`bench.disturbance`; default 0.1,
+        :data:`bench.pipeline.RUN_DISTURBANCE`; 0: none): each pair of a plant with disturbance inputs is simulated
+        again from ``z(0) = 0`` with it, for the measured ratios ``l2_measured_e``, ``l2_measured_x``.
     timeout : float, optional
         Wall-clock limit per pair, seconds.
     jobs : int, optional

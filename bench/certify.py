@@ -105,6 +105,11 @@ class LevelResult:
     from_x0 : bool
         The certificate was searched with its level set through ``z0`` inside the region (constraints that
         hold on a region), so it proves convergence from the initial condition.
+    dt : float
+        The plant's sample time (0: continuous): the certificate proves ``V(z_{k+1}) <= r^2 V(z_k)`` with the
+        contraction factor ``r = exp(-decay_rate dt)`` per step (:attr:`contraction`).
+    l2 : dict
+        The level's L2 gains by output (``"e"``, ``"x"``): :class:`Gain` (empty when not computed).
     """
 
     level: str
@@ -119,10 +124,70 @@ class LevelResult:
     region_H: np.ndarray | None = None
     slopes: tuple | None = None
     from_x0: bool = False
+    dt: float = 0.0
+    l2: dict = field(default_factory=dict)
 
     @property
     def certified(self) -> bool:
         """True when this level certified the pair."""
+        return self.status == "certified"
+
+    @property
+    def contraction(self) -> float:
+        """The contraction factor per step ``r = exp(-decay_rate dt)`` of a discrete certificate (NaN in continuous
+        time or when not certified)."""
+        if not (self.dt > 0 and self.certified):
+            return float("nan")
+        return math.exp(-self.decay_rate * self.dt)
+
+
+#: Outputs of the L2 gains: the estimation error e (``Cz = [0 I]``) and the state x (``Cz = [I 0]``).
+ZETAS = ("e", "x")
+
+
+@dataclass
+class Gain:
+    """A level's certified L2 gain from the disturbance w to one output (bounded real lemma with the level's
+    S-procedure terms, :mod:`bench.lyapunov`).
+
+    Attributes
+    ----------
+    zeta : str
+        ``"e"`` or ``"x"``.
+    status : str
+        One of :data:`LEVEL_STATUSES`.
+    gain : float
+        ``g = sqrt(g2)`` of the verified point (NaN unless certified): ``||zeta||_L2 <= g ||w||_L2`` from
+        ``z(0) = 0`` (discrete time: the l2 norms of the sequences).
+    P : ndarray or None
+        ``V = z' P z`` with ``V' + |zeta|^2 - g^2 |w|^2 <= 0`` over the class (discrete time:
+        ``V(z_{k+1}) - V(z_k) + |zeta_k|^2 - g^2 |w_k|^2 <= 0``).
+    margin : float
+        Largest eigenvalue of the verified matrix.
+    reason : str
+    radius : float or None
+        The class's constraints hold on ``||x|| <= radius`` only (None: globally): the gain then holds while x
+        and x_hat stay there.
+    level : str
+        The level whose LMI proved it (a level below's when inherited).
+    solve_s : float
+    n_solves : int
+    """
+
+    zeta: str
+    status: str
+    gain: float = float("nan")
+    P: np.ndarray | None = None
+    margin: float = float("nan")
+    reason: str = ""
+    radius: float | None = None
+    level: str = ""
+    solve_s: float = 0.0
+    n_solves: int = 0
+
+    @property
+    def certified(self) -> bool:
+        """True when the gain is certified."""
         return self.status == "certified"
 
 
@@ -168,6 +233,13 @@ class Certificate:
         """The strongest certified level's rate (NaN if none)."""
         b = self.best
         return b.decay_rate if b is not None else float("nan")
+
+    def gain(self, zeta: str) -> Gain | None:
+        """The L2 gain to ``zeta`` of the strongest certified level of the ladder (it inherits a better one from
+        below, :func:`_inherit_gains`), or None (no level certified, or the gains were not computed). A certificate
+        from x0 (:attr:`local`) bounds no gain."""
+        cert = [r for r in self.levels.values() if r.certified]
+        return cert[-1].l2.get(zeta) if cert else None
 
     def reason(self, witnessed: bool = False) -> str:
         """One line on the levels that did not certify (``witnessed``: the levels a witness rules out
@@ -236,7 +308,9 @@ def _level(spec: _Spec, plant: Plant, K, F, know: Knowledge, rtol: float, *, box
     if rows:
         spec = replace(spec, region=tuple(np.atleast_2d(R).shape[0] for R in rows))
         r = r * (1 - REGION_SHRINK)
-    data = lyapunov.level_data(spec, plant.A, plant.B, plant.C, K, F, know, box=box, rows=rows, r=r, z0=z0)
+    spec = replace(spec, discrete=plant.discrete)
+    data = lyapunov.level_data(spec, plant.A, plant.B, plant.C, K, F, know, box=box, rows=rows, r=r, z0=z0,
+                               dt=plant.dt)
     return lyapunov.Level(spec, data, rtol=rtol)
 
 
@@ -282,6 +356,8 @@ def _attempt(spec: _Spec, plant: Plant, K, F, know: Knowledge, rtol: float, radi
             res = rel
         else:
             res.solve_s, res.n_solves = rel.solve_s, rel.n_solves
+    elif not region and kw.get("rates") and _stopped_marginal(lv, _reached(res, kw["start"])):
+        res = _continue_relative(spec, plant, K, F, know, rtol, radius, res, kw["hi"], _reached(res, kw["start"]))
     if not region and (res.status == "undecided" or (res.status == "marginal" and lv.solver_errors)):
         res = _cascade(lv, res, radius, kw["hi"] if kw.get("rates") else 0.0)
     if res.certified or not (spec.channels and spec.scalars) or not (res.status == "undecided" or lv.solver_errors):
@@ -294,6 +370,41 @@ def _attempt(spec: _Spec, plant: Plant, K, F, know: Knowledge, rtol: float, radi
     else:
         alt.reason = f"with the channels alone (with the scalar constants: {res.reason or res.status})"
     return alt
+
+
+def _stopped_marginal(lv: lyapunov.Level, lam: float) -> bool:
+    """Whether the rate search of ``lv`` (normalised by ``trace(P) = 1``) stopped at ``lam`` because the grid rate
+    above it was *marginal* (a point within the tolerance: not a refutation)."""
+    from bench.search import _index, _point
+
+    if lv.spec.norm != "trace" or not lam > 0:  # NaN too
+        return False
+    return lv.verdicts.get(_point(_index(lam, lv.rtol, up=False) + 1, lv.rtol)) == "marginal"
+
+
+def _reached(res: LevelResult, start: float) -> float:
+    """The rate a level's search reached: its own certified rate, or the level below's it started from when it
+    certified no grid rate above it (NaN otherwise)."""
+    if res.certified:
+        return res.decay_rate
+    return start if res.reason.startswith("certifies no grid rate above") else math.nan
+
+
+def _continue_relative(spec: _Spec, plant: Plant, K, F, know: Knowledge, rtol: float, radius: float | None,
+                       res: LevelResult, hi: float, lo: float) -> LevelResult:
+    """A rate search that stopped at ``lo`` on a marginal probe, continued above it normalised by ``|M_ij|,
+    |P_ij| <= 1`` (the margin the verification judges: large multipliers, as a class of constants near 0 needs, or
+    high gains leave the ``trace(P) = 1`` point within the tolerance though a certificate exists)."""
+    rel = _level(replace(spec, norm="relative"), plant, K, F, know, rtol)
+    lam = rel.search(lo, hi)
+    out = replace(res, solve_s=res.solve_s + rel.solve_s, n_solves=res.n_solves + rel.n_solves)
+    if lam > lo:
+        out.status, out.decay_rate, out.P = "certified", lam, rel.found[lam]
+        if math.isnan(out.margin):
+            out.margin = rel.lam0_margin
+        out.reason = f"the rate searched on above {lo:.4g} normalised by |M_ij|, |P_ij| <= 1" + (
+            f" ({res.reason})" if res.reason else "")
+    return out
 
 
 def _solve_in(lv: lyapunov.Level, radius: float | None, *, start: float, hi: float, rates: bool,
@@ -408,7 +519,7 @@ def _inherit(out: LevelResult, prev: LevelResult | None) -> LevelResult:
     if out.reason.startswith("certifies no grid rate above"):
         own = f"its own LMI {out.reason}"
     return replace(prev, level=out.level, reason=f"inherits the {prev.level} level's certificate ({own})",
-                   solve_s=out.solve_s, n_solves=out.n_solves)
+                   solve_s=out.solve_s, n_solves=out.n_solves, l2=out.l2)
 
 
 def certify(
@@ -422,8 +533,14 @@ def certify(
     rate_rtol: float = RATE_RTOL,
     inherit: bool = True,
     loop: checks.ClosedLoop | None = None,
+    gains: bool | None = None,
 ) -> Certificate:
     """Certify the observer-based closed loop with gains K, F at each level of the ladder.
+
+    A discrete plant (``plant.dt > 0``) is certified in discrete time (:mod:`bench.lyapunov`'s delta form): each
+    level proves ``V(z_{k+1}) <= r^2 V(z_k)``, reported as the rate ``-ln(r) / dt`` per second
+    (:attr:`LevelResult.contraction` gives r). Beside each rate, each certified level bounds the L2 gains from the
+    disturbance to e and to x (:attr:`LevelResult.l2`, :func:`_level_gains`).
 
     Parameters
     ----------
@@ -444,6 +561,9 @@ def certify(
     loop : ClosedLoop, optional
         The checked gains K, F and their spectra (:func:`bench.checks.closed_loop`), when the
         caller has them; the rate search stops at its linearised rate.
+    gains : bool, optional
+        Compute the L2 gains of each certified level (default: with ``rates``; a plant without disturbance
+        inputs gets an ``inapplicable`` gain that says so).
 
     Returns
     -------
@@ -458,15 +578,144 @@ def certify(
         if lv not in LEVELS:
             raise ValueError(f"levels: unknown certificate level {lv!r} (known: {', '.join(LEVELS)})")
     loop = loop if loop is not None else checks.closed_loop(plant, K, F)
+    gains = rates if gains is None else gains
     cert = Certificate({})
     prev: LevelResult | None = None
     bound = _Bound(plant, loop, knowledge, levels)
     for lv in (lv for lv in LEVELS if lv in levels):
-        cert.levels[lv] = _ladder_level(lv, plant, loop, knowledge, prev, cert, rates=rates, rtol=rate_rtol,
-                                        inherit=inherit, bound=bound)
-        if cert.levels[lv].status != "inapplicable":
-            prev = cert.levels[lv]
+        res = _ladder_level(lv, plant, loop, knowledge, prev, cert, rates=rates, rtol=rate_rtol,
+                            inherit=inherit, bound=bound)
+        if gains:
+            res.l2 = _level_gains(res, plant, loop, knowledge, prev if inherit else None)
+        cert.levels[lv] = res
+        if res.status != "inapplicable":
+            prev = res
+    return _stamp(cert, plant)
+
+
+def _stamp(cert: Certificate, plant: Plant) -> Certificate:
+    """Every level's and the local certificate's sample time (their contraction factors), ``cert`` returned."""
+    for r in [*cert.levels.values(), cert.local]:
+        if r is not None:
+            r.dt = float(plant.dt)
     return cert
+
+
+#: The L2 program's margins: first ``M << -L2_EPS I`` in the original coordinates; a point that does not verify is
+#: solved again with the margin ``L2_EPS diag(|M_ii|)`` of its own matrix's diagonal (multipliers that must grow
+#: without bound, as for a class of constants 0, keep it in the Jacobi-equilibrated matrix), then with
+#: ``M << -eps I`` at :data:`L2_EPS_FACTOR` and ``L2_EPS_FACTOR^2`` times the first point's verification
+#: tolerance (entries of M large beside 1): at most four solves.
+L2_EPS = 1e-6
+L2_EPS_FACTOR = 10.0
+
+
+def _level_gains(res: LevelResult, plant: Plant, loop: checks.ClosedLoop, know: Knowledge,
+                 prev: LevelResult | None) -> dict:
+    """The L2 gains of one level of the ladder (``{}`` for an inapplicable level): solved where the level certifies
+    (a level that proves no stability proves no finite gain), then the better of its own and the level below's
+    (:func:`_inherit_gains`)."""
+    if res.status == "inapplicable":
+        return {}
+    if plant.q == 0:
+        return {z: Gain(z, "inapplicable", reason="no disturbance input (the plant has no Bw, Dw)") for z in ZETAS}
+    if not res.certified:
+        return {z: Gain(z, "not certified", reason=(
+            f"the {res.level} level certifies no stability (rate 0): it proves no finite L2 gain")) for z in ZETAS}
+    if plant.n > LADDER_MAX_N:
+        return {z: Gain(z, "inapplicable", reason=(
+            f"n = {plant.n} is beyond the SDP certificate's reach (LADDER_MAX_N = {LADDER_MAX_N})")) for z in ZETAS}
+    spec, _ = _spec(res.level, plant.n, know)
+    own = {z: l2_gain(spec, plant, loop, know, z) for z in ZETAS}
+    below = prev.l2 if prev is not None and prev.certified else {}
+    return {z: _inherit_gains(own[z], below.get(z)) for z in ZETAS}
+
+
+def _inherit_gains(own: Gain, prev: Gain | None) -> Gain:
+    """The better of a level's own gain and the level below's (which holds here too: the class is smaller): the
+    smaller gain, but a global one before one that holds on a region only."""
+    if prev is None or not prev.certified:
+        return own
+    if own.certified and ((own.radius is None) > (prev.radius is None) or (
+            (own.radius is None) == (prev.radius is None) and own.gain <= prev.gain)):
+        return own
+    mine = f"its own LMI: {own.status}" + (f", gain {own.gain:.4g}" if own.certified else "")
+    return replace(prev, reason=f"inherits the {prev.level} level's gain ({mine})", solve_s=own.solve_s,
+                   n_solves=own.n_solves)
+
+
+def l2_gain(spec: _Spec, plant: Plant, loop: checks.ClosedLoop, know: Knowledge, zeta: str) -> Gain:
+    """The least L2 gain from the disturbance to ``zeta`` that a level's class proves for the gains of ``loop``.
+
+    The bounded real lemma with the level's P structure and S-procedure terms (:mod:`bench.lyapunov`, measure
+    ``"l2"``; a discrete plant's in the delta form), ``g2`` minimised with the margin ``M << -eps I``; the point is
+    verified like every level's (the matrix rebuilt with numpy in the original coordinates,
+    :func:`bench.lmi.classify`, or its Jacobi-equilibrated form by :func:`bench.joint.verdict`, a congruence), the
+    margin changed on the schedule of :data:`L2_EPS` until it verifies; the gain is ``sqrt(g2)`` of the verified
+    point.
+
+    Parameters
+    ----------
+    spec : bench.lyapunov.Spec
+        The level's decay structure (:func:`_spec`).
+    plant : Plant
+        With disturbance inputs (``Bw``, ``Dw``).
+    loop : ClosedLoop
+    know : Knowledge
+    zeta : {"e", "x"}
+
+    Returns
+    -------
+    Gain
+    """
+    if plant.q == 0:
+        return Gain(zeta, "inapplicable", reason="no disturbance input (the plant has no Bw, Dw)")
+    spec = replace(spec, measure="l2", nd=plant.q, region=(), norm="trace", discrete=plant.discrete)
+    data = lyapunov.level_data(spec, plant.A, plant.B, plant.C, loop.K, loop.F, know, dt=plant.dt, Bw=plant.Bw,
+                               Dw=plant.Dw, zeta=zeta)
+    lv = lyapunov.Level(spec, data)
+    radius = _radius(spec, know)
+    tries, verdict, margin, eps, weights = [(L2_EPS, None)], "", math.nan, L2_EPS, None
+    while tries:
+        eps, weights = tries.pop(0)
+        verdict, margin = lv.minimise(eps, weights)
+        M = lv.prog.numeric_matrix() if lv.prog.last_status in ("optimal", "optimal_inaccurate") else None
+        if M is None or verdict == "verified":
+            break
+        P = _p_of(lv)
+        if P is not None and lmi.is_positive_definite(P) and joint.verdict(lmi.sym(M)) == "verified":
+            verdict = "verified"  # a congruence (Jacobi equilibration) of the same matrix: the same inertia
+            break
+        if weights is None and eps == L2_EPS:  # the first point: the schedule of L2_EPS
+            tol = max(lmi.verify_tol(M), lmi.verify_tol(P) if P is not None else 0.0)
+            diag = np.maximum(np.abs(np.diag(M)), lmi.VERIFY_TOL * max(1.0, float(np.abs(M).max())))
+            tries = [(L2_EPS, diag)] + [(f * tol, None) for f in (L2_EPS_FACTOR, L2_EPS_FACTOR**2)
+                                         if f * tol > L2_EPS]
+    out = Gain(zeta, "not certified", margin=margin, radius=radius, level=spec.level, solve_s=lv.solve_s,
+               n_solves=lv.n_solves)
+    what = f"(bounded real lemma, margin {eps:.3g}{' diag(|M_ii|)' if weights is not None else ''}; {lv.prog.tried})"
+    if verdict == "verified":
+        g2, P, _ = lv.gain_point()
+        out.status, out.gain, out.P = "certified", math.sqrt(max(g2, 0.0)), P
+        if radius is not None:
+            out.reason = f"holds while x and x_hat stay in ||x|| <= {radius:g}, where the constants hold"
+    elif verdict == "marginal":
+        out.status, out.reason = "marginal", f"best max eig {margin:.3g} is within the verification tolerance {what}"
+    elif verdict == "violated":
+        out.status, out.reason = "undecided", (f"the solvers' point does not verify (max eig {margin:.3g}) {what}")
+    elif verdict in ("infeasible", "infeasible_inaccurate"):
+        out.reason = f"no P > 0, multipliers and g2 make the bounded real LMI negative definite {what}"
+    else:
+        out.status, out.reason = "undecided", f"solver status {verdict!r} {lv.prog.last_error} {what}"
+    return out
+
+
+def _p_of(lv: lyapunov.Level) -> np.ndarray | None:
+    """The last point's full P in the original coordinates (None without one)."""
+    vals = lv.prog.checked_values()
+    if any(vals.get(k) is None for k in lv.spec.decision):
+        return None
+    return lyapunov._p(lv.spec, vals)
 
 
 def _search_equilibria(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, know: Knowledge):
@@ -477,6 +726,10 @@ def _search_equilibria(cert: Certificate, plant: Plant, K: np.ndarray, F: np.nda
         if eq is not None:
             cert.witnesses = [eq, *[w for w in cert.witnesses if w.kind != eq.kind]]
     return next((w for w in cert.witnesses if w.kind == "equilibrium"), None)
+
+
+#: A discrete level's rate search stops at this contraction factor per step (a deadbeat loop's rate is infinite).
+DISCRETE_R_MIN = 1e-6
 
 
 class _Bound:
@@ -504,6 +757,8 @@ class _Bound:
         """The bound for ``level``'s search, and whether it is that level's own class ceiling (then tight enough
         that the search probes just below it first)."""
         lin = self.loop.linearised_rate
+        if self.plant.discrete:  # a deadbeat loop's rate is infinite: the search stops at r = DISCRETE_R_MIN
+            lin = min(lin, -math.log(DISCRETE_R_MIN) / self.plant.dt)
         c = self.ceiling if lin > 0 else math.nan
         if math.isfinite(c) and c <= lin:
             return c, level == self.top
@@ -577,7 +832,7 @@ def explain(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowl
         cert.local, cert.local_note = certify_from_x0(plant, K, F, knowledge, r_max=r_eq, loop=loop)
         if r_eq is not None and cert.local is None:
             cert.local_note += f" (regions stop below r = {r_eq:.4g}, where the loop has an equilibrium)"
-    return cert
+    return _stamp(cert, plant)
 
 
 def ceiling(cert: Certificate, plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowledge) -> tuple[float, str]:
@@ -822,10 +1077,17 @@ def adopt(cert: Certificate, candidate: dict | None, plant: Plant, loop: checks.
         return f"{REFUSED}: {why}"
     ladder = f"the ladder's own LMI: {cur.status}" + (f", rate {cur.decay_rate:.3g}" if cur.certified else "")
     cert.levels[lv] = replace(own, reason=f"{how}, verified by the suite ({ladder})", solve_s=cur.solve_s,
-                              n_solves=cur.n_solves)
+                              n_solves=cur.n_solves, l2=cur.l2)
+    if cur.l2 and not cur.certified:  # the level now certifies stability: its gains are solved
+        below = [cert.levels[b] for b in LEVELS[:LEVELS.index(lv)] if b in cert.levels
+                 and cert.levels[b].status != "inapplicable"]
+        cert.levels[lv].l2 = _level_gains(cert.levels[lv], plant, loop, knowledge, below[-1] if below else None)
     for up in LEVELS[LEVELS.index(lv) + 1:]:
         if up in cert.levels:
             cert.levels[up] = _inherit(cert.levels[up], cert.levels[lv])
+            if cert.levels[up].l2:
+                cert.levels[up].l2 = {z: _inherit_gains(g, cert.levels[lv].l2.get(z))
+                                      for z, g in cert.levels[up].l2.items()}
     return ""
 
 
@@ -862,7 +1124,7 @@ def verify_certificate(candidate: dict, plant: Plant, loop: checks.ClosedLoop,
     spec, why = _spec(lv, n, knowledge)
     if spec is None:
         return None, f"its level {lv!r} does not apply: {why}"
-    spec = replace(spec, full_p=True)  # a full P of the level's constraints: the same class
+    spec = replace(spec, full_p=True, discrete=plant.discrete)  # a full P of the level's constraints: the same class
     try:
         lam = float(candidate.get("decay_rate"))
         P = _own_matrix(candidate, n)
@@ -870,6 +1132,10 @@ def verify_certificate(candidate: dict, plant: Plant, loop: checks.ClosedLoop,
         return None, f"{type(exc).__name__}: {exc}" if isinstance(exc, KeyError) else str(exc)
     if not (math.isfinite(lam) and lam >= 0):
         return None, f"its decay rate {lam!r} is not a finite number >= 0"
+    if plant.discrete and candidate.get("contraction") is not None:
+        why = _contraction_mismatch(candidate.get("contraction"), lam, plant.dt)
+        if why:
+            return None, why
     if lam > loop.linearised_rate:
         return None, (f"its rate {lam:.4g} exceeds the rate {loop.linearised_rate:.4g} of the loop linearised at "
                       "the origin, which no certificate can beat")
@@ -890,7 +1156,22 @@ def verify_certificate(candidate: dict, plant: Plant, loop: checks.ClosedLoop,
         margin, why = _level_margin(candidate.get("multipliers"), spec, plant, loop, knowledge, P, lam)
     if why:
         return None, why
-    return LevelResult(lv, "certified", decay_rate=lam, margin=margin, P=P, radius=_radius(spec, knowledge)), ""
+    return LevelResult(lv, "certified", decay_rate=lam, margin=margin, P=P, radius=_radius(spec, knowledge),
+                       dt=float(plant.dt)), ""
+
+
+def _contraction_mismatch(r, lam: float, dt: float) -> str:
+    """Why a discrete certificate's contraction factor ``r`` is not its rate's ``exp(-lam dt)`` ("" when it is)."""
+    try:
+        r = float(r)
+    except (TypeError, ValueError):
+        return f"its contraction factor {checks.brief(r)} is not a number"
+    if not (math.isfinite(r) and 0 <= r <= 1):
+        return f"its contraction factor {r!r} is not a number in [0, 1]"
+    if abs(r - math.exp(-lam * dt)) > 1e-9 * max(1.0, r):
+        return (f"its contraction factor r = {r:.9g} is not exp(-decay_rate dt) = {math.exp(-lam * dt):.9g} "
+                f"(decay_rate {lam:.6g} /s, dt = {dt:g} s)")
+    return ""
 
 
 def _own_matrix(candidate: dict, n: int) -> np.ndarray:
@@ -944,10 +1225,12 @@ def _verified_margin(M: np.ndarray, W: np.ndarray, lam: float) -> tuple[float, s
 
 def _level_values(spec: _Spec, plant: Plant, loop: checks.ClosedLoop, know: Knowledge, P: np.ndarray,
                   lam: float) -> dict:
-    """The numbers of a level's LMI at a given P and rate (:func:`bench.lyapunov.matrix`; the multipliers ``tau``
-    are added by the caller)."""
-    d = lyapunov.level_data(spec, plant.A, plant.B, plant.C, loop.K, loop.F, know)
-    return {"Acl": d.Acl, "Gb": d.Gb, "Pi": d.Pi.reshape(len(d.Pi), -1).T, "lam": lam, "P": P}
+    """The numbers of a level's LMI at a given P and rate (:func:`bench.lyapunov.matrix`, a discrete plant's in the
+    delta form, ``lam`` converted by :func:`bench.lyapunov.measure`; the multipliers ``tau`` are added by the
+    caller)."""
+    spec = replace(spec, discrete=plant.discrete)
+    d = lyapunov.level_data(spec, plant.A, plant.B, plant.C, loop.K, loop.F, know, dt=plant.dt)
+    return {**lyapunov.values(spec, d), "lam": lyapunov.measure(lam, plant.dt), "P": P}
 
 
 def _multiplier_names(spec: _Spec) -> dict[str, int | None]:
@@ -998,7 +1281,7 @@ def _level_margin(named, spec: _Spec, plant: Plant, loop: checks.ClosedLoop, kno
             return math.nan, f"its multiplier {k} must be finite and >= 0 of shape {size or 'scalar'}, got {v!r}"
         taus[k] = float(v) if size is None else v
     M = lyapunov.matrix(spec, {**values, "tau": _tau(spec, taus)})[0][0]
-    margin, verdict = _verified_margin((M + M.T) / 2, P, lam)
+    margin, verdict = _verified_margin((M + M.T) / 2, P, lyapunov.measure(lam, plant.dt))
     if verdict:
         return math.nan, (f"the {spec.level} level's LMI at its P and rate {lam:.4g} is {verdict} (bench.joint's "
                           f"Cholesky test, with the multipliers {'the suite found' if found else 'it names'})")

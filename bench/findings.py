@@ -37,7 +37,8 @@ def findings(frame, constants: dict) -> dict:
         ``no_certificate_found``, ``certified_pairs``, ``pairs``), ``violated_claims``, ``disproved``
         (by the samplers or along a pair's simulation), ``printed_infeasible``, ``inconsistent``
         (with the ``witness`` time and state) (lists of dicts, JSON-ready), and ``counts`` of the
-        lists that must be empty in a sound run.
+        lists that must be empty in a sound run (``inconsistent_attenuation``: the INCONSISTENT rows whose
+        certified L2 gain is below its measured ratio, :func:`bench.verdicts.attenuation_note`).
     """
     plants = {}
     for pid in dict.fromkeys(frame["plant"]):
@@ -68,10 +69,15 @@ def findings(frame, constants: dict) -> dict:
     bad = frame[frame["reason"].astype(str).str.contains("INCONSISTENT")]
     inconsistent = [{"plant": r.plant, "design": r.design, "reason": r.reason,
                      "witness": getattr(r, "sim_witness", "")} for r in bad.itertuples()]
+    attenuation = bad[bad["reason"].astype(str).str.contains(ATTENUATION_MARK, regex=False)]
     return {"plants": plants, "violated_claims": violated, "disproved": disproved,
             "printed_infeasible": printed_rows, "inconsistent": inconsistent,
-            "counts": {"inconsistent": len(inconsistent), "disproved": len(disproved),
-                       "violated_claims": len(violated)}}
+            "counts": {"inconsistent": len(inconsistent), "inconsistent_attenuation": len(attenuation),
+                       "disproved": len(disproved), "violated_claims": len(violated)}}
+
+
+#: How :func:`bench.verdicts.attenuation_note`'s INCONSISTENT sentence begins (counted apart in ``counts``).
+ATTENUATION_MARK = "INCONSISTENT with the certificate: the measured L2 ratio"
 
 
 def constants_rows(constants: dict, errors: dict) -> list[dict]:

@@ -32,6 +32,9 @@ CERT_SHORT: dict[str, str] = {
     "inapplicable": "n/a",
 }
 
+#: Number formats of the row tables' columns other than ``.3g``: a contraction factor per step is close to 1.
+CELL_SPECS: dict[str, str] = {"contraction": ".6g"}
+
 #: The LaTeX packages the fragment needs.
 PACKAGES = ("booktabs",)
 
@@ -63,6 +66,11 @@ _CONVERGENCE_COLUMNS = (("converged", "converged"), ("settling_x_s", "settling\n
                         ("settling_e_s", "settling\ne [s]"), ("peak_u", "peak\n|u|"),
                         ("horizon_s", "horizon\n[s]"))
 _TIMING_COLUMNS = (("design_s", "design\n[s]"), ("cert_s", "certificate\n[s]"), ("sim_s", "simulation\n[s]"))
+_ATTENUATION_COLUMNS = (("cert_level", "level"), ("l2_gain_e", "certified\nw to e"), ("l2_gain_x", "certified\nw to x"),
+                        ("l2_measured_e", "measured\nw to e"), ("l2_measured_x", "measured\nw to x"),
+                        ("l2_radius", "region\nr"))
+_DISCRETE_COLUMNS = (("dt", "dt [s]"), ("cert_level", "level"), ("contraction", "r per\nstep"),
+                     ("decay_rate", "rate\n[1/s]"), ("rate_ceiling", "ceiling\n[1/s]"), ("cert_scope", "scope"))
 
 #: Width estimates (points) of the default 10 pt font: per character of a cell, and per column
 #: (``2 \tabcolsep``); generous, so that an estimate that fits does fit.
@@ -144,7 +152,7 @@ def level_cell(rec: dict, col: str) -> str:
     certify shows the level's status in short instead (:data:`CERT_SHORT`)."""
     status = rec.get(f"cert_{col.removeprefix('decay_')}") if col.startswith("decay_") else None
     if _is_missing(status) or status in ("", "certified"):
-        return plain_cell(rec[col])
+        return plain_cell(rec[col], CELL_SPECS.get(col, ".3g"))
     return CERT_SHORT.get(str(status), str(status))
 
 
@@ -180,7 +188,9 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     matrix of ``status``, :data:`STATUS_SHORT`, split by designs when wider than ``text_width_pt``);
     certified decay by level (``decay_paper``, ``decay_full``, ``decay_structured``, else ``decay_rate``;
     a level that did not certify shows its status, :data:`CERT_SHORT`) with ``cert_level`` and
-    ``cert_scope``; convergence; timing. The tables are set at the text's own size: too wide or too long ones
+    ``cert_scope``; convergence; timing; the L2 gains (certified ``l2_gain_e``, ``l2_gain_x`` beside the measured
+    ``l2_measured_e``, ``l2_measured_x``, rows with one of them); the certified discrete-time pairs (``contraction``
+    per step and ``decay_rate`` per second). The tables are set at the text's own size: too wide or too long ones
     are split, never scaled.
 
     Parameters
@@ -190,7 +200,8 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     caption_prefix : str
         Put before every caption, verbatim (LaTeX).
     label_prefix : str
-        Prefix of each table's ``\label`` (``feasibility``, ``decay``, ``convergence``, ``timing`` follow).
+        Prefix of each table's ``\label`` (``feasibility``, ``decay``, ``convergence``, ``timing``, ``attenuation``,
+        ``discrete`` follow).
     max_rows : int
         Lines per row table (a plant's heading counts); longer frames are split.
     text_width_pt : float
@@ -228,7 +239,29 @@ def tables_tex(frame, *, caption_prefix: str = "", label_prefix: str = "tab:oslb
     ):
         parts.append(_row_table(frame, columns, caption_prefix + caption, f"{label_prefix}{key}",
                                 max_rows=int(max_rows)))
+    for sub, columns, caption, key in (
+        (_with_any(frame, ("l2_gain_e", "l2_gain_x", "l2_measured_e", "l2_measured_x")), _ATTENUATION_COLUMNS,
+         "L2 gains from the disturbance w: certified by the strongest certified level (bounded real lemma over its "
+         "class) and measured from $z(0) = 0$ ($\\|\\zeta\\|_{L_2} / \\|w\\|_{L_2}$); region r: the gains hold "
+         "while $\\|x\\|, \\|\\hat x\\| \\le r$ (blank: globally).", "attenuation"),
+        (_with_any(frame, ("contraction",)), _DISCRETE_COLUMNS,
+         "Certified discrete-time pairs: $V(z_{k+1}) \\le r^2 V(z_k)$ with the contraction factor r per step and the "
+         "rate $-\\ln(r) / dt$ per second.", "discrete"),
+    ):
+        if sub is not None and len(sub):
+            parts.append(_row_table(sub, columns, caption_prefix + caption, f"{label_prefix}{key}",
+                                    max_rows=int(max_rows)))
     return "\n\n".join(p for p in parts if p) + "\n"
+
+
+def _with_any(frame, columns):
+    """The rows of ``frame`` with a number in one of ``columns`` (None when it has none of them)."""
+    import pandas as pd
+
+    present = [c for c in columns if c in frame.columns]
+    if not present:
+        return None
+    return frame[frame[present].apply(pd.to_numeric, errors="coerce").notna().any(axis=1)]
 
 
 def _preamble_comment(text_width_pt: float) -> str:

@@ -7,7 +7,8 @@ quadratic constraints ``xi' Pi_k xi >= 0`` that f meets (:func:`level_data`), a 
     M(P, tau; lam) = [[Acl' P + P Acl + 2 lam P, P Gb], [Gb' P, 0]] + sum_k tau_k Pi_k
 
 (:func:`matrix`, the one place it is written, for numpy and cvxpy alike). The measure ``lam`` enters
-affinely; :func:`matrix` is where a level with another measure or another time axis changes the first term.
+affinely; :func:`matrix` is also where the level's other time axis (discrete time) and other measure (the L2 gain)
+change it, below.
 
 Coordinates. A level is solved in balanced coordinates ``z = T z~`` (:class:`Level`), T the diagonal similarity
 that balances ``Acl`` (:func:`scipy.linalg.matrix_balance`, powers of 2, so the change is exact in floating
@@ -22,6 +23,36 @@ rebuilt with numpy from the plant's own numbers (:attr:`bench.lmi.Program.origin
 Normalisation. ``trace(P) = 1`` by default; a level whose best point is within the tolerance (or that no solver
 solved) is solved again normalised by ``|M_ij|, |P_ij| <= 1`` (:attr:`Spec.norm`): its margin is then exactly
 the one :func:`bench.lmi.classify` judges, which high gains (entries of ``P B F`` far above the margin) need.
+
+Discrete time (:attr:`Spec.discrete`, a plant with ``dt > 0``: ``z_{k+1} = Acl z_k + Gb w_k``). A level proves
+``V(z_{k+1}) <= r^2 V(z_k)`` over the class; with ``c = (1 - r^2) / dt`` the condition
+``[Acl, Gb]' P [Acl, Gb] - diag(r^2 P, 0) + sum_k tau_k Pi_k <= 0`` is written in its *delta form*: with
+``Acl = I + dt Ad``, ``w = W w^`` (``W = dt`` for a level whose inputs are f itself, ``Gw = I``: a step's
+increment; ``W = 1`` for channel outputs, whose ``G`` carries the step), ``Gd = Gb W / dt`` and ``P^ = dt P``,
+it is exactly (a congruence, then a Schur complement on ``P^``, which keeps it linear in P: DPP) ::
+
+    [ Ad' P^ + P^ Ad + c P^    P^ Gd    sqrt(dt) Ad' P^ ]
+    [ Gd' P^                   0        sqrt(dt) Gd' P^ ]  +  sum_k tau_k Pi^_k  <  0,
+    [ sqrt(dt) P^ Ad           sqrt(dt) P^ Gd    -P^    ]
+
+``Pi^_k = diag(I, W)' Pi_k diag(I, W)`` scaled to a unit largest entry (a positive factor: the multipliers absorb
+it). As ``dt -> 0`` this is the continuous matrix with ``2 lam`` for ``c`` (``r = exp(-lam dt)``: ``c -> 2 lam``),
+so a fine sample time keeps the continuous scaling and margins; it verifies where the plain form's differences
+``Acl' P Acl - P`` of nearly equal numbers do not. :class:`Data` holds the delta form's matrices (``Acl`` is
+``Ad``, ``Gb`` is ``Gd``, ``Pi`` the ``Pi^_k``). The program's parameter ``lam`` is then ``c / 2`` (:func:`measure`):
+the matrix is affine in it as in continuous time, and the searches convert at their ends.
+
+The L2 gain (:attr:`Spec.measure` ``"l2"``): with the disturbance ``w_d`` entering as ``Bd w_d`` and the output
+``zeta = Cz z`` (``Qz = Cz' Cz``), the bounded real lemma with the same S-procedure terms ::
+
+    [ Acl' P + P Acl + Qz    P Gb    P Bd   ]
+    [ Gb' P                  0       0      ]  +  sum_k tau_k Pi_k (zero in the w_d rows)  <=  0
+    [ Bd' P                  0       -g2 I  ]
+
+proves ``V' + |zeta|^2 - g2 |w_d|^2 <= 0``, so ``||zeta||_L2^2 <= g2 ||w_d||_L2^2 + V(z(0))``; it is linear in
+``(P, tau, g2)``: g2 is minimised directly (:func:`_build_l2`). In discrete time the same delta form, with
+``Bd^ = Bd / dt`` and the Schur row ``sqrt(dt) Bd^' P^`` (``P^ = dt P``: the plain
+``V(z_{k+1}) - V(z_k) + |zeta_k|^2 - g2 |w_k|^2 <= 0`` in ``P``).
 
 The rate a point proves. For a verified point ``(P, tau)`` the matrix is affine in lam,
 ``M(lam) = M(lam0) + (lam - lam0) D``; the largest lam with ``M(lam) < 0`` is
@@ -43,7 +74,7 @@ import scipy.linalg as sla
 from bench import lmi
 from bench.search import RATE_RTOL, grid_floor, largest_passing
 
-__all__ = ["Level", "Spec", "level_data", "matrix"]
+__all__ = ["Level", "Spec", "level_data", "matrix", "measure", "rate_of", "values"]
 
 
 @dataclass(frozen=True)
@@ -65,13 +96,19 @@ class Spec:
         Rows of each block of the region that must hold the level set through ``z0``
         (``|R_j z| <= r``, :func:`level_data`); empty: no region (normalisation ``trace(P) = 1``).
     measure : str
-        The quantity searched: ``"rate"``, the decay rate lam of ``V' <= -2 lam V``.
+        The quantity searched: ``"rate"``, the decay rate lam of ``V' <= -2 lam V`` (discrete time:
+        ``V(z_{k+1}) <= r^2 V(z_k)``, ``r = exp(-lam dt)``), or ``"l2"``, the least ``g2`` of the bounded real
+        lemma (module docstring).
     norm : str
         The normalisation of a level without a region: ``"trace"`` (``trace(P) = 1``) or ``"relative"``
         (``|M_ij|, |P_ij| <= 1``: the margin maximised is the one the verification judges), :func:`_build`.
     side : str
         ``""``: the level's matrix in ``(x, e, w_x, w_e)``; ``"x"`` or ``"e"``: one side of it alone, in
         ``(x, w_x)`` or ``(e, w_e)`` with that side's multipliers (:func:`side`, :func:`cascade`).
+    discrete : bool
+        The delta form of the discrete-time condition (module docstring): ``zdim`` more rows, a Schur complement.
+    nd : int
+        Disturbance inputs (measure ``"l2"``; 0 otherwise).
     """
 
     level: str
@@ -84,6 +121,8 @@ class Spec:
     measure: str = "rate"
     norm: str = "trace"
     side: str = ""
+    discrete: bool = False
+    nd: int = 0
 
     @property
     def multipliers(self) -> tuple[str, ...]:
@@ -98,8 +137,14 @@ class Spec:
 
     @property
     def size(self) -> int:
-        """The matrix's size, ``2 n + 2 nw`` (``n + nw`` for one side)."""
+        """The size of the matrix's ``(z, w)`` part, ``2 n + 2 nw`` (``n + nw`` for one side); :attr:`dim` adds the
+        disturbance and Schur rows."""
         return self.zdim + (self.nw if self.side else 2 * self.nw)
+
+    @property
+    def dim(self) -> int:
+        """The whole matrix's size: :attr:`size`, the disturbance rows (``"l2"``) and the Schur rows (discrete)."""
+        return self.size + (self.nd if self.measure == "l2" else 0) + (self.zdim if self.discrete else 0)
 
     @property
     def decision(self) -> tuple[str, ...]:
@@ -123,8 +168,15 @@ class Data:
     z0 : ndarray (2n,) or None
         The initial condition whose level set must lie in the region.
     masks : dict
-        Where ``Acl``, ``Gb`` and ``Pi`` may be nonzero whatever the gains, constants and slopes (the structure of
-        the compiled program; :func:`bench.lmi.matrices`).
+        Where ``Acl``, ``Gb`` and ``Pi`` (and ``Bd``, ``Qz``) may be nonzero whatever the gains, constants and slopes
+        (the structure of the compiled program; :func:`bench.lmi.matrices`).
+    dt : float
+        The sample time of a discrete level (0: continuous). ``Acl``, ``Gb``, ``Pi``, ``Bd`` are then the delta
+        form's ``Ad``, ``Gd``, ``Pi^_k``, ``Bd^`` (module docstring).
+    Bd : ndarray (2n, nd) or None
+        Where the disturbance enters (measure ``"l2"``).
+    Qz : ndarray (2n, 2n) or None
+        ``Cz' Cz`` of the performance output (measure ``"l2"``).
     """
 
     Acl: np.ndarray
@@ -134,6 +186,9 @@ class Data:
     r: float | None = None
     z0: np.ndarray | None = None
     masks: dict = field(default_factory=dict, repr=False)
+    dt: float = 0.0
+    Bd: np.ndarray | None = None
+    Qz: np.ndarray | None = None
 
 
 def _scalar_pieces(k: str, Gw: np.ndarray, c) -> tuple:
@@ -151,8 +206,9 @@ def _scalar_pieces(k: str, Gw: np.ndarray, c) -> tuple:
 
 def level_data(spec: Spec, A: np.ndarray, B: np.ndarray, C: np.ndarray, K: np.ndarray, F: np.ndarray, know, *,
                box: tuple | None = None, rows: tuple = (), r: float | None = None,
-               z0: np.ndarray | None = None) -> Data:
-    """The level's numbers for the gains K, F (:class:`Data`).
+               z0: np.ndarray | None = None, dt: float = 0.0, Bw: np.ndarray | None = None,
+               Dw: np.ndarray | None = None, zeta: str | None = None) -> Data:
+    """The level's numbers for the gains K, F (:class:`Data`; a discrete level's in the delta form).
 
     Parameters
     ----------
@@ -165,6 +221,12 @@ def level_data(spec: Spec, A: np.ndarray, B: np.ndarray, C: np.ndarray, K: np.nd
         Channel slopes instead of the declared ones (a narrowed box on a region).
     rows, r, z0
         The region and the initial condition of a level with ``spec.region``.
+    dt : float
+        The sample time of a discrete level (``spec.discrete``).
+    Bw, Dw : ndarray, optional
+        The plant's disturbance inputs (measure ``"l2"``): ``Bd = [Bw; Bw - K Dw]``.
+    zeta : {"e", "x"}, optional
+        The performance output of measure ``"l2"``: ``Cz = [0 I]`` (e) or ``[I 0]`` (x).
 
     Returns
     -------
@@ -183,7 +245,73 @@ def level_data(spec: Spec, A: np.ndarray, B: np.ndarray, C: np.ndarray, K: np.nd
              "Gb": (Gb != 0).astype(float),
              "Pi": (_constraints(spec, Gw, ch, generic, None if ch is None else (-np.ones(nw), 2 * np.ones(nw))) != 0)
              .astype(float)}
-    return Data(Acl, Gb, Pi, tuple(np.atleast_2d(R) for R in rows), r, z0, masks)
+    Bd = Qz = None
+    if spec.measure == "l2":
+        if Bw is None or zeta not in ("e", "x"):
+            raise ValueError("level_data: an L2 level needs the disturbance inputs Bw, Dw and zeta 'e' or 'x'")
+        Bw = np.asarray(Bw, dtype=float)
+        Dw = np.zeros((C.shape[0], Bw.shape[1])) if Dw is None else np.asarray(Dw, dtype=float)
+        Bd = np.vstack([Bw, Bw - K @ Dw])
+        Cz = np.hstack([np.zeros((n, n)), np.eye(n)] if zeta == "e" else [np.eye(n), np.zeros((n, n))])
+        Qz = Cz.T @ Cz
+        masks.update(Bd=np.ones_like(Bd), Qz=(Qz != 0).astype(float))
+    if spec.discrete:
+        if not dt > 0:
+            raise ValueError(f"level_data: a discrete level needs a sample time dt > 0, got {dt!r}")
+        W = 1.0 if spec.channels else dt  # w^ = w / W (module docstring)
+        Acl = (Acl - np.eye(2 * n)) / dt
+        Gb = Gb * (W / dt)
+        Bd = None if Bd is None else Bd / dt
+        sw = np.concatenate([np.ones(2 * n), W * np.ones(spec.size - 2 * n)])
+        Pi = Pi * sw[None, :, None] * sw[None, None, :]
+        top = np.abs(Pi).reshape(len(Pi), -1).max(axis=1, initial=0.0)
+        Pi = Pi / np.where(top > 0, top, 1.0)[:, None, None]
+    return Data(Acl, Gb, Pi, tuple(np.atleast_2d(R) for R in rows), r, z0, masks, dt=float(dt) if spec.discrete
+                else 0.0, Bd=Bd, Qz=Qz)
+
+
+def measure(lam: float, dt: float) -> float:
+    """The program's parameter ``lam`` for a decay rate ``lam`` per second: ``lam`` itself in continuous time, and
+    ``c / 2 = (1 - r^2) / (2 dt)`` with ``r = exp(-lam dt)`` in discrete time (module docstring; it tends to lam as
+    ``dt -> 0`` and is at most ``1 / (2 dt)``, a deadbeat loop)."""
+    if not dt > 0:
+        return lam
+    return -math.expm1(-2.0 * lam * dt) / (2.0 * dt)
+
+
+def rate_of(m: float, dt: float) -> float:
+    """The decay rate per second whose :func:`measure` is ``m`` (``inf`` at or beyond ``1 / (2 dt)``)."""
+    if not dt > 0:
+        return m
+    x = 2.0 * dt * m
+    return math.inf if x >= 1.0 else -math.log1p(-x) / (2.0 * dt)
+
+
+def values(spec: Spec, data: Data, T: np.ndarray | None = None) -> dict:
+    """The matrices :func:`matrix` reads, from ``data`` in the coordinates ``z = T z~`` (T diagonal; None: the
+    original ones): ``Acl``, ``Gb``, ``Pi`` (columns, ``(N * N, K)``), ``Bd``, ``Qz`` for measure ``"l2"``, and for a
+    discrete level the Schur rows' ``Ah = sqrt(dt) Acl``, ``Gh``, ``Bh``."""
+    t = np.ones(spec.zdim) if T is None else np.diag(T).copy()
+    Ti = np.diag(1 / t)
+    sd = np.concatenate([t, np.ones(spec.size - spec.zdim)])
+    Pi = data.Pi * sd[None, :, None] * sd[None, None, :]
+    out = {"Acl": Ti @ data.Acl @ np.diag(t), "Gb": Ti @ data.Gb, "Pi": Pi.reshape(len(Pi), -1).T}
+    if spec.measure == "l2":
+        out.update(Bd=Ti @ data.Bd, Qz=data.Qz * t[:, None] * t[None, :])
+    if spec.discrete:
+        rt = math.sqrt(data.dt)
+        out.update(Ah=rt * out["Acl"], Gh=rt * out["Gb"])
+        if spec.measure == "l2":
+            out["Bh"] = rt * out["Bd"]
+    return out
+
+
+def scaling(spec: Spec, T: np.ndarray) -> np.ndarray:
+    """The diagonal of the congruence ``S`` that maps the level's matrix to the coordinates ``z = T z~``:
+    T on z, 1 on the nonlinearity and disturbance inputs, T on the Schur rows of a discrete level."""
+    t = np.diag(T)
+    rest = spec.dim - spec.zdim - (spec.zdim if spec.discrete else 0)
+    return np.concatenate([t, np.ones(rest), t if spec.discrete else np.empty(0)])
 
 
 def _constraints(spec: Spec, Gw: np.ndarray, ch, constants, slopes) -> np.ndarray:
@@ -221,18 +349,39 @@ def _p(spec: Spec, d: dict):
 
 
 def matrix(spec: Spec, d: dict) -> list[list]:
-    """The level's matrix ``M(P, tau; lam)`` (module docstring) as one block, from values ``d`` (numpy arrays:
-    numeric; cvxpy expressions: the program's). ``d["Pi"]`` holds the constraints as columns, ``(N * N, K)``."""
-    P, Acl, Gb, lam = _p(spec, d), d["Acl"], d["Gb"], d["lam"]
+    """The level's matrix (module docstring) as one block, from values ``d`` (numpy arrays: numeric; cvxpy
+    expressions: the program's). ``d["Pi"]`` holds the constraints as columns, ``(N * N, K)``; measure ``"rate"``
+    reads ``d["lam"]``, ``"l2"`` reads ``d["g2"]``, ``d["Bd"]``, ``d["Qz"]``; a discrete level the Schur rows'
+    ``d["Ah"]``, ``d["Gh"]`` (and ``d["Bh"]``). The rows are ``(z, w, [w_d], [Schur])``."""
+    P, Acl, Gb = _p(spec, d), d["Acl"], d["Gb"]
     N, n2 = spec.size, spec.zdim
-    zz = Acl.T @ P + P @ Acl + 2 * lam * P
-    zw = P @ Gb
-    ww = np.zeros((N - n2, N - n2))
-    if isinstance(d["tau"], np.ndarray) and isinstance(P, np.ndarray):
-        return [[np.block([[zz, zw], [zw.T, ww]]) + (d["Pi"] @ d["tau"]).reshape(N, N, order="F")]]
-    import cvxpy as cp
+    nwf, l2 = N - n2, spec.measure == "l2"
+    numeric = isinstance(d["tau"], np.ndarray) and isinstance(P, np.ndarray)
+    if numeric:
+        bmat, Pt = np.block, (d["Pi"] @ d["tau"]).reshape(N, N, order="F")
+    else:
+        import cvxpy as cp
 
-    return [[cp.bmat([[zz, zw], [zw.T, ww]]) + cp.reshape(d["Pi"] @ d["tau"], (N, N), order="F")]]
+        bmat, Pt = cp.bmat, cp.reshape(d["Pi"] @ d["tau"], (N, N), order="F")
+    Z = np.zeros
+    zz = Acl.T @ P + P @ Acl + (d["Qz"] if l2 else 2 * d["lam"] * P)
+    PG = P @ Gb
+    if not (l2 or spec.discrete):
+        return [[bmat([[zz, PG], [PG.T, Z((nwf, nwf))]]) + Pt]]
+    blocks = [[zz, PG], [PG.T, Z((nwf, nwf))]]
+    if l2:
+        nd = spec.nd
+        PB = P @ d["Bd"]
+        blocks[0].append(PB)
+        blocks[1].append(Z((nwf, nd)))
+        blocks.append([PB.T, Z((nd, nwf)), -d["g2"] * np.eye(nd)])
+    if spec.discrete:
+        cols = [d["Ah"].T @ P, d["Gh"].T @ P] + ([d["Bh"].T @ P] if l2 else [])
+        for row, c in zip(blocks, cols):
+            row.append(c)
+        blocks.append([c.T for c in cols] + [-P])
+    k = spec.dim - N
+    return [[bmat(blocks) + bmat([[Pt, Z((N, k))], [Z((k, N)), Z((k, k))]])]]
 
 
 def _build(spec: Spec, mats: lmi.Matrices) -> lmi.Program:
@@ -247,8 +396,10 @@ def _build(spec: Spec, mats: lmi.Matrices) -> lmi.Program:
     ``Acl``, ``Gb`` and ``Pi``) fixes which of their entries are structurally zero (Patterns)."""
     import cvxpy as cp
 
+    if spec.measure == "l2":
+        return _build_l2(spec, mats)
     t0 = time.perf_counter()
-    n, n2, N, K = spec.n, spec.zdim, spec.size, len(spec.multipliers)
+    n, n2, N, K = spec.n, spec.zdim, spec.dim, len(spec.multipliers)
     size = n2 if spec.full_p or spec.side else n
     v = {"slack": cp.Variable(name="slack"), "tau": cp.Variable(K, name="tau")}
     v.update({k: cp.Variable((size, size), symmetric=True, name=k) for k in spec.decision})
@@ -277,6 +428,31 @@ def _build(spec: Spec, mats: lmi.Matrices) -> lmi.Program:
         prm["it2"] = cp.Parameter(n2, pos=True, name="it2")
         cons.append(sum(cp.sum(cp.multiply(cp.diag(v[k]), prm["it2"][sl])) for k, sl in blocks.items()) == 1)
     prob = cp.Problem(cp.Maximize(slack), cons)
+    from functools import partial
+
+    return lmi.Program(prob, v, prm, partial(matrix, spec), spec.decision, build_s=time.perf_counter() - t0)
+
+
+def _build_l2(spec: Spec, mats: lmi.Matrices) -> lmi.Program:
+    """The L2 program of a level (module docstring): minimise ``g2`` subject to ``M << -eps diag(d)`` and the
+    decision matrices ``>> eps I`` (both measured in the original coordinates, as :func:`_build`), ``tau >= 0``;
+    ``eps`` and the row weights ``d`` are parameters (``w2``: ``d`` in the solve's coordinates; :meth:`Level.minimise`
+    chooses them until the point verifies)."""
+    import cvxpy as cp
+
+    t0 = time.perf_counter()
+    n, n2, K = spec.n, spec.zdim, len(spec.multipliers)
+    size = n2 if spec.full_p or spec.side else n
+    v = {"g2": cp.Variable(name="g2"), "tau": cp.Variable(K, name="tau")}
+    v.update({k: cp.Variable((size, size), symmetric=True, name=k) for k in spec.decision})
+    prm = {**mats.parameters(), "w2": cp.Parameter(spec.dim, pos=True, name="w2"),
+           "t2": cp.Parameter(n2, pos=True, name="t2"), "eps": cp.Parameter(nonneg=True, name="eps")}
+    exprs = {k: (p.expr if isinstance(p, lmi.Pattern) else p) for k, p in prm.items()}
+    M = matrix(spec, {**v, **exprs})[0][0]
+    blocks = {"P": slice(0, n2)} if spec.full_p or spec.side else {"P1": slice(0, n), "P2": slice(n, n2)}
+    cons = [M << -prm["eps"] * cp.diag(prm["w2"]), v["tau"] >= 0]
+    cons += [v[k] >> prm["eps"] * cp.diag(prm["t2"][sl]) for k, sl in blocks.items()]
+    prob = cp.Problem(cp.Minimize(v["g2"]), cons)
     from functools import partial
 
     return lmi.Program(prob, v, prm, partial(matrix, spec), spec.decision, build_s=time.perf_counter() - t0)
@@ -360,6 +536,8 @@ class Level:
         The multipliers of :attr:`found`'s certificates, by the same rates.
     failed_at : float
         The least rate at which a probe outside :meth:`search` failed (inf: none).
+    verdicts : dict
+        Every probe's verdict by rate (:meth:`solve`).
     """
 
     spec: Spec
@@ -372,6 +550,7 @@ class Level:
     solver_errors: int = 0
     taus: dict = field(default_factory=dict)
     failed_at: float = math.inf
+    verdicts: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.T is None:
@@ -379,19 +558,29 @@ class Level:
         self._vals = self._coordinates()
         if self.prog is None:
             m = self.data.masks
-            shapes = {"Acl": m["Acl"], "Gb": m["Gb"], "Pi": m["Pi"].reshape(len(m["Pi"]), -1).T} if m else \
-                {k: self._vals[k] for k in ("Acl", "Gb", "Pi")}
+            keys = [k for k in ("Acl", "Gb", "Pi", "Bd", "Qz", "Ah", "Gh", "Bh") if k in self._vals]
+            if m:
+                base = {"Ah": "Acl", "Gh": "Gb", "Bh": "Bd"}
+                shapes = {k: m[base.get(k, k)] for k in keys}
+                shapes["Pi"] = m["Pi"].reshape(len(m["Pi"]), -1).T
+            else:
+                shapes = {k: self._vals[k] for k in keys}
             self.prog = program(self.spec, lmi.matrices(**shapes))
 
     # -- coordinates ---------------------------------------------------------------------------
+    def m(self, lam: float) -> float:
+        """The program's parameter for the rate ``lam`` per second (:func:`measure`)."""
+        return measure(lam, self.data.dt)
+
     def _coordinates(self) -> dict:
         """The program's parameter values: the data in the coordinates ``T``."""
         T, d, spec = self.T, self.data, self.spec
         t = np.diag(T).copy()
         Ti = np.diag(1 / t)
-        sd = np.concatenate([t, np.ones(spec.size - spec.zdim)])
-        Pi = d.Pi * sd[None, :, None] * sd[None, None, :]
-        vals = {"Acl": Ti @ d.Acl @ T, "Gb": Ti @ d.Gb, "Pi": Pi.reshape(len(Pi), -1).T, "s2": sd ** 2, "t2": t ** 2}
+        sd = scaling(spec, T)
+        vals = {**values(spec, d, T), "s2": sd ** 2, "t2": t ** 2}
+        if spec.measure == "l2":
+            return vals
         if not spec.region and spec.norm == "relative":
             vals.update(Mb=np.outer(sd, sd), Pb=np.outer(t, t))
         elif not spec.region:
@@ -407,7 +596,7 @@ class Level:
         T, d, spec = self.T, self.data, self.spec
         Ti = np.diag(1 / np.diag(T))
         self.prog.set(**{k: v for k, v in self._vals.items() if k in self.prog.parameters or k in self.prog.patterns})
-        orig = {"Acl": d.Acl, "Gb": d.Gb, "Pi": d.Pi.reshape(len(d.Pi), -1).T}
+        orig = values(spec, d)
         n = spec.n
 
         def original(v: dict) -> dict:
@@ -421,15 +610,20 @@ class Level:
 
         self.prog.original = original
 
+    def matrix_at(self, lam: float) -> np.ndarray | None:
+        """The last point's matrix at the rate ``lam`` per second, in the original coordinates."""
+        return self.prog.numeric_matrix(lam=self.m(lam))
+
     # -- one probe -----------------------------------------------------------------------------
     def solve(self, lam: float, *, probe: bool = False) -> tuple[str, float]:
         """Solve at rate ``lam`` and verify in the original coordinates (:meth:`bench.lmi.Program.verdict`). The
         second solver is tried when the first fails (``probe``, a probe of a rate search: only when it has no
         point; a point near the threshold that does not verify is that probe's answer)."""
         self._set()
-        self.prog.solve(lam=lam, fallback="errors" if probe else True)
+        self.prog.solve(lam=self.m(lam), fallback="errors" if probe else True)
         self.solver_errors += "solver_error" in self.prog.tried
         verdict, margin = self.prog.verdict()
+        self.verdicts[lam] = verdict
         if verdict == "verified":
             self.found[lam], self.taus[lam] = self.point()
             if math.isnan(self.lam0_margin):
@@ -445,11 +639,32 @@ class Level:
         scale = float(z0 @ P @ z0) if self.spec.region else float(np.trace(P))
         return P / scale, np.array(vals["tau"], dtype=float) / scale
 
+    def minimise(self, eps: float, weights: np.ndarray | None = None) -> tuple[str, float]:
+        """Solve the L2 program (measure ``"l2"``) with the margin ``M << -eps diag(weights)`` in the original
+        coordinates (:func:`_build_l2`; default weights 1), verify it there; returns the verdict and the largest
+        eigenvalue of the rebuilt matrix (at the point's own ``g2``)."""
+        d = np.ones(self.spec.dim) if weights is None else np.asarray(weights, dtype=float)
+        self._vals["w2"] = d * scaling(self.spec, self.T) ** 2
+        self._set()
+        self.prog.solve(eps=eps, fallback=True)
+        self.solver_errors += "solver_error" in self.prog.tried
+        return self.prog.verdict()
+
+    def gain_point(self) -> tuple[float, np.ndarray, np.ndarray]:
+        """The last L2 point: ``g2``, its P in the plain form's scale (``V = z' P z``; a discrete level's
+        ``P^ / dt``) and its multipliers."""
+        vals = self.prog.checked_values()
+        P = _p(self.spec, vals)
+        if self.data.dt > 0:
+            P = P / self.data.dt
+        return float(vals["g2"]), P, np.array(vals["tau"], dtype=float)
+
     def reach_grid(self, lam: float, hi: float) -> float | None:
         """The largest grid rate in ``(lam, hi)`` at which the last (verified) point's matrix verifies too, or None."""
-        M0 = self.prog.numeric_matrix(lam=lam)
-        D = self.prog.numeric_matrix(lam=lam + 1.0) - M0
-        top = lam + reach(M0, D)
+        m0 = self.m(lam)
+        M0 = self.prog.numeric_matrix(lam=m0)
+        D = self.prog.numeric_matrix(lam=m0 + 1.0) - M0
+        top = rate_of(m0 + reach(M0, D), self.data.dt)
         if not top > lam:
             return None
         k = grid_floor(min(top, hi) * (1 - 1e-9), self.rtol)
@@ -457,7 +672,7 @@ class Level:
             if k <= lam * (1 + 1e-12):
                 return None
             if k < hi * (1 - 1e-12):
-                M = self.prog.numeric_matrix(lam=k)
+                M = self.matrix_at(k)
                 if lmi.classify(lmi.max_eig(M), M) == "verified":
                     self.found[k], self.taus[k] = self.point()
                     return k
@@ -467,7 +682,7 @@ class Level:
     # -- the search ----------------------------------------------------------------------------
     def margin(self, lam: float) -> float:
         """The largest eigenvalue of the last point's matrix at ``lam``, in units of its verification tolerance."""
-        M = self.prog.numeric_matrix(lam=lam)
+        M = self.matrix_at(lam)
         return lmi.max_eig(M) / lmi.verify_tol(M)
 
     def aim(self, lam: float) -> float:
@@ -475,12 +690,14 @@ class Level:
         on its largest eigenvalue m: ``lam + (-m - 2 tol) / (u' D u)`` (u the eigenvector, D the matrix's
         derivative in lam). A first estimate of the level's threshold (the point is re-optimised at the next
         probe, so its own line is a cautious one)."""
-        M = lmi.sym(self.prog.numeric_matrix(lam=lam))
-        D = lmi.sym(self.prog.numeric_matrix(lam=lam + 1.0)) - M
+        m = self.m(lam)
+        M = lmi.sym(self.prog.numeric_matrix(lam=m))
+        D = lmi.sym(self.prog.numeric_matrix(lam=m + 1.0)) - M
         w, U = np.linalg.eigh(M)
         u = U[:, -1]
         slope, gap = float(u @ D @ u), -float(w[-1]) - 2 * lmi.verify_tol(M)
-        return lam + gap / slope if slope > 0 and gap > 0 else lam
+        out = rate_of(m + gap / slope, self.data.dt) if slope > 0 and gap > 0 else lam
+        return out if math.isfinite(out) else lam
 
     def search(self, lo: float, hi: float, *, top_first: bool = False,
                seen: tuple[float, float] | None = None, above_lo: bool = True) -> float:
@@ -553,11 +770,23 @@ def side(spec: Spec, data: Data, which: str) -> tuple[Spec, Data]:
     iw = np.arange(nw) + (2 * n if which == "x" else 2 * n + nw)
     idx = np.concatenate([iz, iw])
     keep = [k for k, name in enumerate(spec.multipliers) if name.endswith(f"_{which}")]
-    sub = Spec(spec.level, n, nw, True, spec.scalars, spec.channels, side=which, norm="relative")
+    sub = Spec(spec.level, n, nw, True, spec.scalars, spec.channels, side=which, norm="relative",
+               discrete=spec.discrete)
     cut = {"Acl": lambda M: M[np.ix_(iz, iz)], "Gb": lambda M: M[np.ix_(iz, iw - 2 * n)],
            "Pi": lambda M: M[keep][:, idx][:, :, idx]}
     return sub, Data(*(cut[k](getattr(data, k)) for k in ("Acl", "Gb", "Pi")),
-                     masks={k: cut[k](m) for k, m in data.masks.items()})
+                     masks={k: cut[k](m) for k, m in data.masks.items() if k in cut}, dt=data.dt)
+
+
+def _side_rows(spec: Spec, which: str) -> np.ndarray:
+    """The rows of the level's matrix that belong to one side: its z block, its w block and (discrete) its Schur
+    rows."""
+    n, nw, N = spec.n, spec.nw, spec.size
+    off = 0 if which == "x" else n
+    rows = [off + np.arange(n), 2 * n + (0 if which == "x" else nw) + np.arange(nw)]
+    if spec.discrete:
+        rows.append(N + off + np.arange(n))
+    return np.concatenate(rows)
 
 
 #: The weight mu of :func:`cascade` is searched on ``MU_GRID`` points from its least value up to ``MU_SPAN`` times it.
@@ -579,8 +808,7 @@ def joint_of_sides(spec: Spec, data: Data, lam: float, Px, tx, Pe, te) -> tuple[
 
     # the least mu: Schur complement of the x side (its block and the coupling -Px B F in the (x, e) block)
     _, _, M1 = build(1.0)
-    xs = np.r_[np.arange(n), 2 * n + np.arange(spec.nw)]
-    es = np.r_[n + np.arange(n), 2 * n + spec.nw + np.arange(spec.nw)]
+    xs, es = _side_rows(spec, "x"), _side_rows(spec, "e")
     _, _, M0 = build(0.0)
     Mx, C = lmi.sym(M0)[np.ix_(xs, xs)], M0[np.ix_(xs, es)]
     Me = lmi.sym(M1 - M0)[np.ix_(es, es)]
@@ -600,7 +828,7 @@ def joint_of_sides(spec: Spec, data: Data, lam: float, Px, tx, Pe, te) -> tuple[
 
 def _values(spec: Spec, P: np.ndarray, tau: np.ndarray, data: Data, Pi: np.ndarray, lam: float) -> dict:
     n = spec.n
-    d = {"tau": tau, "Acl": data.Acl, "Gb": data.Gb, "Pi": Pi, "lam": lam}
+    d = {**values(spec, data), "tau": tau, "Pi": Pi, "lam": measure(lam, data.dt)}
     if spec.full_p:
         d["P"] = P
     else:

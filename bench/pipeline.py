@@ -37,8 +37,8 @@ __all__ = ["PairOutcome", "RunOptions", "Scenario", "evaluate_pair", "time_domai
 #: Columns of every record, in order.
 COLUMNS = [
     "plant", "design", "status", "reason", "feasible", "stabilizing", "certified", "cert_level", "decay_rate",
-    "cert_scope", "converged", "witness", "rate_ceiling", "rate_ratio", "ceiling_how",
-    "l2_gain_e", "l2_gain_x", "l2_measured_e", "l2_measured_x", "disturbance",
+    "contraction", "dt", "cert_scope", "converged", "witness", "rate_ceiling", "rate_ratio", "ceiling_how",
+    "l2_gain_e", "l2_gain_x", "l2_measured_e", "l2_measured_x", "disturbance", "l2_radius", "l2_max_norm",
     *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")],
     "cert_margin", "cert_radius", "level_set", "level_x0", "in_region", "max_norm",
     "route", "lmi_margin", "lmi_size", "solver", "solver_status", "n_solves", "sdp_solves", "compile_s", "solve_s",
@@ -50,14 +50,20 @@ COLUMNS = [
 ]
 
 #: The columns of what a certificate claims: blank in an ``error`` or ``timeout`` row (:func:`blank_record`).
-CERT_COLUMNS = ("certified", "cert_level", "decay_rate", "cert_scope", "witness", "rate_ceiling", "rate_ratio",
-                "ceiling_how", *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")], "cert_margin",
+CERT_COLUMNS = ("certified", "cert_level", "decay_rate", "contraction", "cert_scope", "witness", "rate_ceiling",
+                "rate_ratio", "ceiling_how", "l2_gain_e", "l2_gain_x", "l2_radius",
+                *[c for lv in LEVELS for c in (f"cert_{lv}", f"decay_{lv}")], "cert_margin",
                 "cert_radius", "level_set", "level_x0", "in_region", "cert_horizon_s")
 
 #: Columns of what a pair cost, not of what it found: seconds, and the SDP solver calls made (a solve this process
 #: made before, at the same parameter values, is remembered, :meth:`bench.lmi.Program.solve`). Two runs agree on
 #: every other column.
 COST_COLUMNS = ("compile_s", "solve_s", "design_s", "cert_s", "sim_s", "sdp_solves")
+
+#: The disturbance amplitude of a run (``python -m bench run``, :func:`bench.run`) by default: each pair of a plant
+#: with disturbance inputs is simulated a second time from ``z(0) = 0``, so that the certified L2 gains are checked
+#: against measured ratios (docs/results.md says why). :class:`RunOptions` itself defaults to 0 (studies, tests).
+RUN_DISTURBANCE = 0.1
 
 #: What the ``certificate`` option computes: every level with its rate, or only whether some level
 #: certifies at rate 0 (the strongest first), or only the design's own verified certificate, or nothing.
@@ -90,9 +96,10 @@ class RunOptions:
     noise_dt : float
         Sample period of the noise for fixed-gain observers (a discrete plant draws one per step).
     disturbance : float
-        Peak amplitude of the seeded L2 disturbance (:mod:`bench.disturbance`; 0: none). With it, each pair
-        of a plant with disturbance inputs (``Bw``, ``Dw``) is simulated a second time from ``z(0) = 0``
-        with w (noise-free) for the measured ratios ``l2_measured_e``, ``l2_measured_x``.
+        Peak amplitude of the seeded L2 disturbance (:mod:`bench.disturbance`; 0: none; a run's default is
+        :data:`RUN_DISTURBANCE`). With it, each pair of a plant with disturbance inputs (``Bw``, ``Dw``) is
+        simulated a second time from ``z(0) = 0`` with w (noise-free) for the measured ratios ``l2_measured_e``,
+        ``l2_measured_x``; a plant without them is not disturbed (its ``disturbance`` column is 0).
     timeout : float, optional
         Wall-clock limit in seconds of each pair; a pair over it becomes a ``timeout`` row.
     certificate : {"ladder", "verdict", "own", "none"}
@@ -179,6 +186,8 @@ class PairOutcome:
         The design's gains, checked, and the spectra of their linear closed loop (:func:`bench.checks.closed_loop`).
     lyapunov : str
         The INCONSISTENT sentence of :func:`bench.verdicts.lyapunov_note` along the simulation (empty: none).
+    attenuation : str
+        The sentence of :func:`bench.verdicts.attenuation_note` on the certified and measured L2 gains (empty: none).
     """
 
     record: dict
@@ -190,6 +199,7 @@ class PairOutcome:
     disproved: dict = field(default_factory=dict)
     loop: checks.ClosedLoop | None = None
     lyapunov: str = ""
+    attenuation: str = ""
 
 
 def blank_record(plant_id: str, design_id: str, **values) -> dict:
@@ -363,10 +373,6 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
         _note(rec, "certificate: no fixed observer gain (the estimator is time-varying): no quadratic certificate "
                    "applies")
         return None
-    if plant.discrete:  # until the discrete-time ladder lands: say so, never certify it as continuous
-        rec.update({f"cert_{lv}": "inapplicable" for lv in LEVELS})
-        _note(rec, "certificate: the discrete-time certificate ladder is not available yet")
-        return None
     know = know if know is not None else report.knowledge(plant)
     t0 = time.perf_counter()
     if options.certificate == "ladder":
@@ -393,7 +399,9 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
     shown = best or (applicable[-1] if applicable else None)
     rec.update(certified=best is not None, cert_level=best.level if best else "",
                decay_rate=best.decay_rate if best else math.nan,
+               contraction=math.exp(-best.decay_rate * plant.dt) if best and plant.discrete else math.nan,
                cert_margin=shown.margin if shown is not None else math.nan)
+    _record_gains(rec, cert, plant)
     rec.update(certificate_scope(best.P if best else None, best.radius if best else None, plant.x0, plant.x_hat0,
                                  H=best.region_H if best else None))
     rec["witness"] = "; ".join(w.kind for w in cert.witnesses)
@@ -411,6 +419,29 @@ def _certify(rec: dict, plant: Plant, res: DesignResult, report: ConstantsReport
         _note(rec, f"certified locally: the level set V <= {rec['level_set']:.3g} stays in ||x||, ||x_hat|| <= "
                    f"{rec['cert_radius']:g}, but V(x0, e0) = {rec['level_x0']:.3g} lies outside it")
     return cert
+
+
+def _record_gains(rec: dict, cert: Certificate, plant: Plant) -> None:
+    """The strongest certified level's L2 gains (:meth:`bench.certify.Certificate.gain`) and the radius they hold
+    on (NaN: globally); a note when a plant with disturbance inputs gets none."""
+    gains = {z: cert.gain(z) for z in ("e", "x")}
+    rec.update(l2_gain_e=math.nan, l2_gain_x=math.nan, l2_radius=math.nan)
+    radii = []
+    for z, g in gains.items():
+        if g is not None and g.certified:
+            rec[f"l2_gain_{z}"] = g.gain
+            radii.append(math.inf if g.radius is None else g.radius)
+    if radii and min(radii) < math.inf:
+        rec["l2_radius"] = min(radii)
+    if plant.q == 0 or not any(r.l2 for r in cert.levels.values()):
+        return
+    missing = [f"{z}: {g.status}: {g.reason}" for z, g in gains.items() if g is not None and not g.certified]
+    if not cert.certified:
+        _note(rec, "L2 gains: no level certifies stability, so none proves a finite gain")
+    elif cert.best is cert.local and not any(g is not None and g.certified for g in gains.values()):
+        _note(rec, "L2 gains: only a certificate from x0 (no level of the ladder): no gain certified")
+    elif missing:
+        _note(rec, "L2 gain not certified (" + "; ".join(missing) + ")")
 
 
 def _simulate(out: PairOutcome, options: RunOptions, scenario: Scenario | None, report: ConstantsReport) -> None:
@@ -471,15 +502,23 @@ def _batch_options() -> SimOptions:
     return BATCH_OPTIONS
 
 
+#: The relative rounding :func:`_lyapunov` allows per component of a stepped (discrete-time) run, which has no
+#: integrator error: ``V(z_k) <= r^(2k) V(z_0)`` holds up to the floating point of the steps.
+STEP_RTOL = 1e-12
+
+
 def _lyapunov(tr, best: LevelResult, sim: SimOptions) -> str:
-    """:func:`bench.verdicts.lyapunov_note` of a certificate along a simulation, inside its region."""
+    """:func:`bench.verdicts.lyapunov_note` of a certificate along a simulation, inside its region (a discrete
+    certificate, ``best.dt > 0``, at the steps ``t_k = k dt``: ``V(z_k) <= r^(2k) V(z_0) = exp(-2 lam t_k) V(z_0)``,
+    with the rounding of the steps, :data:`STEP_RTOL`, instead of an integrator's tolerances)."""
     X, XH = np.asarray(tr.x, dtype=float), np.asarray(tr.x_hat, dtype=float)
     inside = None
     if best.radius is not None:
         with np.errstate(invalid="ignore"):
             inside = _region_size(X, XH, best.region_H) <= best.radius * (1 + 1e-9)
+    atol, rtol = (0.0, STEP_RTOL) if best.dt > 0 else (sim.atol, sim.rtol)
     return lyapunov_note(np.asarray(tr.t, dtype=float), X, XH, best.P, best.decay_rate, inside=inside,
-                         atol=sim.atol, rtol=sim.rtol)
+                         atol=atol, rtol=rtol)
 
 
 def _region_size(X: np.ndarray, XH: np.ndarray, H: np.ndarray | None) -> np.ndarray:
@@ -496,11 +535,8 @@ def _attenuation(out: PairOutcome, options: RunOptions, T: float, sim: SimOption
     from bench.disturbance import SeededDisturbance, measured_attenuation, window
 
     rec, plant, res = out.record, out.plant, out.result
-    rec["disturbance"] = options.disturbance
-    if options.disturbance <= 0:
-        return
-    if plant.q == 0:
-        _note(rec, "disturbance: the plant has no disturbance input (Bw, Dw): no attenuation measured")
+    rec["disturbance"] = options.disturbance if plant.q > 0 else 0.0  # the amplitude applied
+    if options.disturbance <= 0 or plant.q == 0:
         return
     w = SeededDisturbance(options.disturbance, plant.q, window(plant.t_final, options.t_final), seed=options.seed,
                           dt=plant.dt)
@@ -511,10 +547,27 @@ def _attenuation(out: PairOutcome, options: RunOptions, T: float, sim: SimOption
         raise DeadlineExceeded(f"the disturbance simulation ({traj.message})")
     rec["l2_measured_e"], rec["l2_measured_x"] = measured_attenuation(traj.t, traj.x, traj.x_hat, w(traj.t),
                                                                       plant.dt)
+    with np.errstate(invalid="ignore"):
+        size = _region_size(np.asarray(traj.x, dtype=float), np.asarray(traj.x_hat, dtype=float), None)
+    rec["l2_max_norm"] = float(np.max(size)) if size.size and np.all(np.isfinite(size)) else math.inf
     if traj.status != "ok":
         _note(rec, f"disturbance simulation {traj.status} ({traj.message}): the measured L2 ratios cover "
                    f"[0, {float(traj.t[-1]):.4g} s] only")
-    _note(rec, attenuation_note(rec))
+    _judge_attenuation(out)
+
+
+def _judge_attenuation(out: PairOutcome) -> None:
+    """The verdict of the certified L2 gains on the measured ratios (:func:`bench.verdicts.attenuation_note`), in the
+    record's reason and in ``out.attenuation``; an earlier verdict (before a re-certification) is replaced."""
+    rec = out.record
+    if out.attenuation:
+        rec["reason"] = rec["reason"].replace(f"; {out.attenuation}", "").replace(out.attenuation, "")
+    out.attenuation = attenuation_note(rec)
+    r, size = rec.get("l2_radius", math.nan), rec.get("l2_max_norm", math.nan)
+    if math.isfinite(r) and math.isfinite(rec.get("l2_measured_x", math.nan)) and not size <= r:
+        out.attenuation = (f"the disturbance run left ||x||, ||x_hat|| <= {r:g} (it reached {size:.4g}), where the "
+                           "certified L2 gains hold: measured and certified gains not compared")
+    _note(rec, out.attenuation)
 
 
 def _cond(best: LevelResult | None) -> float:
@@ -539,6 +592,7 @@ def _check_declarations(out: PairOutcome, report: ConstantsReport, options: RunO
           + ": the pair is re-certified without it")
     out.disproved = {**out.disproved, **bad}
     out.certificate = _certify(rec, plant, out.result, report, options, out.loop, know=know.without(bad))
+    _judge_attenuation(out)
 
 
 def _witness(t: np.ndarray, X: np.ndarray, XH: np.ndarray, radius: float, H: np.ndarray | None = None) -> str:
@@ -651,6 +705,7 @@ def _rejudge(o: PairOutcome, report: ConstantsReport, options: RunOptions, know:
     o.disproved = {**o.disproved, **extra}
     loop = o.loop if o.loop is not None else checks.closed_loop(plant, res.K, res.F)  # a cached outcome
     o.certificate = _certify(rec, plant, res, report, options, loop, know=know.without(extra))
+    _judge_attenuation(o)
     best = o.certificate.best if o.certificate is not None else None
     if math.isfinite(rec["cert_horizon_s"]):
         rec["cert_horizon_s"] = certified_horizon(best.decay_rate, _cond(best)) if best is not None else math.nan
@@ -708,7 +763,7 @@ def evaluate_pair(
         with time_limit(options.timeout), hard_stop(1.1 * options.timeout + 0.5):
             return _evaluate(plant, design, design_id, report, options, prior, scenario)
     except DeadlineExceeded as exc:  # the hard stop fired outside the pair's own handler
-        rec = blank_record(plant.id, design_id)
+        rec = blank_record(plant.id, design_id, dt=float(plant.dt))
         _timed_out(rec, exc, options, "pair")
         return PairOutcome(rec, plant=plant)
 
@@ -742,13 +797,13 @@ def _no_claims(rec: dict, **values) -> None:
 _NOT_PRIOR = {"plant", "design", "converged", "in_region", "max_norm", "sim_s", "horizon_s", "horizon_rule",
               "cert_horizon_s", "sim_status", "sim_witness", "settling_x_s", "settling_e_s", "final_x",
               "final_e", "tail_rate", "iae_e", "rms_e", "peak_u", "noise", "checked_on", "disproved",
-              "l2_measured_e", "l2_measured_x", "disturbance"}
+              "l2_measured_e", "l2_measured_x", "disturbance", "l2_max_norm"}
 
 
 def _evaluate(plant, design, design_id, report, options, prior, scenario) -> PairOutcome:
     from bench.registry import DESIGNS
 
-    rec = blank_record(plant.id, design_id)
+    rec = blank_record(plant.id, design_id, dt=float(plant.dt))
     out = PairOutcome(rec, plant=plant)
     phase = "design"
     solves = lmi.solve_tally()["n"]

@@ -209,6 +209,41 @@ def _ladder(df) -> str:
                     ["plant", "design", *LEVELS, "headline (strongest level)", "scope"])
 
 
+#: The columns of the attenuation table (:func:`_attenuation_table`).
+ATTENUATION_COLUMNS = ["plant", "design", "cert_level", "l2_gain_e", "l2_gain_x", "l2_measured_e", "l2_measured_x",
+                       "l2_radius", "l2_max_norm"]
+
+#: The columns of the discrete-time table (:func:`_discrete_table`).
+DISCRETE_COLUMNS = ["plant", "design", "dt", "stabilizing", "certified", "cert_level", "contraction", "decay_rate",
+                    "rate_ceiling", "cert_scope", "max_re_eig_x", "max_re_eig_e", "converged", "horizon_s",
+                    "settling_x_s", "settling_e_s"]
+
+
+def _attenuation_rows(df):
+    """The rows of plants with disturbance inputs (a certified gain or a measured ratio on some pair of the plant)
+    that have gains."""
+    cols = ["l2_gain_e", "l2_gain_x", "l2_measured_e", "l2_measured_x"]
+    have = df[cols].astype(float).notna().any(axis=1)
+    plants = set(df.loc[have, "plant"])
+    return df[df["plant"].isin(plants) & df["max_re_eig_x"].notna()]
+
+
+def _attenuation_table(df) -> str:
+    """Certified L2 gains beside the measured ratios, per pair of a plant with disturbance inputs."""
+    sub = _attenuation_rows(df)
+    if not len(sub):
+        return ("No pair has a certified L2 gain or a measured ratio (no plant with disturbance inputs Bw, Dw, or "
+                "none of its pairs certified, and `--disturbance` off).")
+    return md_table(sub.to_dict("records"), ATTENUATION_COLUMNS)
+
+
+def _discrete_table(df) -> str:
+    """The discrete-time plants' pairs with gains: contraction factor per step, rate per second."""
+    sub = df[(df["dt"].astype(float) > 0) & df["max_re_eig_x"].notna()]
+    rows = [{**r, "contraction": format_cell(r["contraction"], ".6g")} for r in sub.to_dict("records")]
+    return md_table(rows, DISCRETE_COLUMNS)
+
+
 def _constants_table(result: RunResult) -> str:
     rows = constants_rows(result.constants, result.constants_errors)
     keys = ["plant", "constant", "claimed", "analytic", "sampled", "used", "source", "region", "flag"]
@@ -600,6 +635,13 @@ _LEGEND = "\n".join([
     "then searched on a region |Hx|, |Hx_hat| <= r where the slopes narrow.",
     "- *rate_ceiling*: the slowest linear member of the certified class (no certificate over it can prove more); "
     "*rate_ratio*: the certified rate over it.",
+    "- *Discrete time*: the ladder proves V(z_{k+1}) <= r^2 V(z_k) over the class; *contraction* is r per step and "
+    "*decay_rate* = -ln(r) / dt per second, so discrete and continuous rows compare.",
+    "- *L2 gains* (plants with disturbance inputs Bw, Dw): each certified level also bounds the L2 gain from the "
+    "disturbance w to e (*l2_gain_e*) and to x (*l2_gain_x*) over its class (bounded real lemma, same constraints); "
+    "the columns give the strongest level's. With `--disturbance`, *l2_measured_** are the ratios "
+    "||zeta|| / ||w|| of a run from z(0) = 0; a certified gain below its measured ratio is INCONSISTENT. A gain whose "
+    "class holds on ||x|| <= *l2_radius* only bounds runs that stay there (*l2_max_norm*).",
     "- *Converged*: at the end of the horizon ||x|| and ||e|| are below 1e-3 of the peak of ||z|| (with noise: "
     "settled); blank for a pair without gains.",
     "- *Horizon*: long enough for the certified rate (uncertified: twice the linearisation's) to decay by 1e-3, "
@@ -646,6 +688,17 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         "",
         _ladder(df),
         "",
+        "## Attenuation (L2 gains)",
+        "",
+        _attenuation_note(o.disturbance),
+        "",
+        _attenuation_table(df),
+        "",
+        *(["## Discrete-time plants", "",
+           "Sampled plants (dt > 0 s), stepped; the certificate's contraction factor r per step and its rate "
+           "-ln(r) / dt per second (the ceiling and the loop's rates, `max_re_eig_*` = ln(max |eig|) / dt, per "
+           "second too).", "", _discrete_table(df), ""]
+          if (df["dt"].astype(float) > 0).any() else []),
         "## Convergence",
         "",
         md_table(with_gains.to_dict("records"), conv_cols) if len(with_gains) else "No design produced gains.",
@@ -670,6 +723,15 @@ def render_markdown(result: RunResult, figures: list[tuple[str, str]], run_info:
         *_figure_lines(figures),
     ]
     return "\n".join(parts).rstrip() + "\n"
+
+
+def _attenuation_note(amplitude: float) -> str:
+    """The sentence above the attenuation table: what its columns are, and the run's disturbance."""
+    head = ("Certified L2 gains (the strongest certified level's, `gains.json` has each level's with its P) from the "
+            "disturbance w to e and to x, beside the ratios ||zeta||_L2 / ||w||_L2 measured from z(0) = 0")
+    if amplitude > 0:
+        return head + f" with the seeded disturbance of peak {amplitude:g} (`bench.disturbance`)."
+    return head + ": this run had no disturbance (`--disturbance 0`), so no ratio was measured."
 
 
 def _reasons(df) -> list[str]:
@@ -717,7 +779,16 @@ def _level_json(lr, plant) -> dict:
             "reason": lr.reason, "P": _arr(lr.P), "scope": scope["cert_scope"],
             "radius": None if lr.radius is None else float(lr.radius), "region": _region(lr),
             "region_H": _arr(lr.region_H), "level_set": _num(scope["level_set"]), "level_x0": _num(scope["level_x0"]),
-            "slopes": None if lr.slopes is None else {"lo": _arr(lr.slopes[0]), "hi": _arr(lr.slopes[1])}}
+            "slopes": None if lr.slopes is None else {"lo": _arr(lr.slopes[0]), "hi": _arr(lr.slopes[1])},
+            "dt": float(lr.dt), "contraction": _num(lr.contraction),
+            "l2": {z: _gain_json(g) for z, g in lr.l2.items()}}
+
+
+def _gain_json(g) -> dict:
+    """One L2 gain of gains.json (:class:`bench.certify.Gain`): its claim and the P an outside script checks it
+    with (``V' + |zeta|^2 - gain^2 |w|^2 <= 0``; discrete time ``V(z_{k+1}) - V(z_k) + ...``, docs/results.md)."""
+    return {"zeta": g.zeta, "status": g.status, "gain": _num(g.gain), "level": g.level, "reason": g.reason,
+            "P": _arr(g.P), "margin": _num(g.margin), "radius": None if g.radius is None else float(g.radius)}
 
 
 def _pair_json(o) -> dict:
@@ -731,7 +802,8 @@ def _pair_json(o) -> dict:
             "K": _arr(loop.K) if loop is not None else None, "F": _arr(loop.F) if loop is not None else None,
             "estimator": None if r.estimator is None else repr(r.estimator),
             "certified": bool(rec["certified"]), "cert_level": rec["cert_level"], "cert_scope": rec["cert_scope"],
-            "decay_rate": _num(rec["decay_rate"]),
+            "decay_rate": _num(rec["decay_rate"]), "contraction": _num(rec["contraction"]),
+            "l2_gain_e": _num(rec["l2_gain_e"]), "l2_gain_x": _num(rec["l2_gain_x"]),
             "best": None if best is None else "from_x0" if best is cert.local else best.level,
             "certificate": {} if cert is None else {lv: _level_json(lr, o.plant) for lv, lr in cert.levels.items()},
             "from_x0": None if cert is None or cert.local is None else _level_json(cert.local, o.plant)}

@@ -161,12 +161,14 @@ def attenuation_note(rec: dict, rtol: float = ATTENUATION_RTOL) -> str:
     From ``z(0) = 0`` a certified gain ``g`` from w to ``zeta`` bounds ``||zeta||_L2 / ||w||_L2`` for every
     w, so ``measured > g (1 + rtol)`` contradicts the certificate. Pairs compared: ``l2_gain_e`` with
     ``l2_measured_e`` (``zeta = e``) and ``l2_gain_x`` with ``l2_measured_x`` (``zeta = x``); a NaN on
-    either side (nothing certified, nothing measured) proves nothing.
+    either side (nothing certified, nothing measured) proves nothing. Gains whose class holds on a region only
+    (``l2_radius`` finite) bound the trajectories that stay in it: they are compared only when the disturbance run
+    did (``l2_max_norm <= l2_radius``).
 
     Parameters
     ----------
     rec : dict
-        A record with (some of) the four columns.
+        A record with (some of) the four columns, and ``l2_radius``, ``l2_max_norm``.
     rtol : float
         Relative tolerance of the measurement.
 
@@ -175,6 +177,9 @@ def attenuation_note(rec: dict, rtol: float = ATTENUATION_RTOL) -> str:
     str
     """
     out = []
+    radius = _number(rec.get("l2_radius"))
+    if math.isfinite(radius) and not _number(rec.get("l2_max_norm")) <= radius:
+        return ""  # the run left the region where the certified gains hold (or its size is unknown)
     for which, what in (("e", "the estimation error e"), ("x", "the state x")):
         g, r = (_number(rec.get(f"{col}_{which}")) for col in ("l2_gain", "l2_measured"))
         if math.isfinite(g) and math.isfinite(r) and r > g * (1 + rtol):
@@ -202,6 +207,9 @@ LYAPUNOV_RTOL = 1e-6
 def lyapunov_note(t: np.ndarray, x: np.ndarray, x_hat: np.ndarray, P: np.ndarray, lam: float, *,
                   inside: np.ndarray | None, atol: float, rtol: float) -> str:
     """Whether a simulation keeps the decay its certificate proves: ``V(z(t)) <= V(z0) exp(-2 lam t)``.
+
+    In discrete time the samples are the steps ``t_k = k dt`` and the bound is ``V(z_k) <= r^(2k) V(z_0)`` with
+    ``r = exp(-lam dt)``, the same expression (the caller passes the steps' rounding as ``rtol``, ``atol = 0``).
 
     A certificate ``V = z' P z`` with rate ``lam`` proves ``V' <= -2 lam V`` wherever its constraints hold,
     so along a trajectory that stays in its region ``V(z(t)) <= V(z0) exp(-2 lam t)`` at every t. Each

@@ -18,6 +18,10 @@ of member bound what it can prove, with fixed gains K, F:
 
 Members are the box's vertices and a grid for few channels, seeded samples beyond (the text of
 each result says which); a ceiling is then an upper bound found by search, not the exact minimum.
+
+Discrete time (a plant with ``dt > 0``, ``z_{k+1} = Acl z_k + Gb w_k``): a linear member's loop decays at
+``-ln(rho) / dt`` per second, rho its spectral radius, and is a witness when ``rho >= 1``; an equilibrium is a
+fixed point ``z = Phi(z)`` of the closed-loop map besides the origin.
 """
 
 from __future__ import annotations
@@ -196,16 +200,35 @@ def members(plant, know, *, channels: bool, scalars: tuple[str, ...], box: tuple
     return out, "; ".join(how)
 
 
+def _dt(plant) -> float:
+    return float(getattr(plant, "dt", 0.0) or 0.0)
+
+
 def slowest_loop(plant, K: np.ndarray, F: np.ndarray, Ls: list[np.ndarray]) -> tuple[int, float, complex] | None:
     """The slowest of the linear loops with ``f = L x``: its index in ``Ls``, its decay rate ``-max Re eig``
-    and that eigenvalue (None without any L)."""
+    (discrete time: ``-ln(max |eig|) / dt`` per second) and that eigenvalue (None without any L)."""
     if not Ls:
         return None
     AL = plant.A[None] + np.stack(Ls)
     eig = np.concatenate([np.linalg.eigvals(AL + plant.B @ F), np.linalg.eigvals(AL - K @ plant.C)], axis=1)
-    worst = eig[np.arange(len(Ls)), np.argmax(eig.real, axis=1)]
-    i = int(np.argmax(worst.real))
+    dt = _dt(plant)
+    key = np.abs(eig) if dt > 0 else eig.real
+    worst = eig[np.arange(len(Ls)), np.argmax(key, axis=1)]
+    wkey = np.abs(worst) if dt > 0 else worst.real
+    i = int(np.argmax(wkey))
+    if dt > 0:
+        with np.errstate(divide="ignore"):
+            return i, float(-np.log(abs(worst[i])) / dt), complex(worst[i])
     return i, float(-worst[i].real), complex(worst[i])
+
+
+def unstable(plant, K: np.ndarray, F: np.ndarray, eig: complex) -> bool:
+    """Whether a loop's eigenvalue ``eig`` is unstable beyond the rounding: real part above
+    :data:`UNSTABLE_TOL` times the size of A, B F, K C (continuous), modulus above ``1 + UNSTABLE_TOL`` times it
+    (discrete: spectral radius >= 1)."""
+    if _dt(plant) > 0:
+        return abs(eig) - 1.0 > UNSTABLE_TOL * _scale(plant, K, F)
+    return eig.real > UNSTABLE_TOL * _scale(plant, K, F)
 
 
 def _scale(plant, K, F) -> float:
@@ -217,13 +240,15 @@ def linear_witness(plant, K: np.ndarray, F: np.ndarray, know, *, channels: bool,
     """The least stable linear member of the class (:func:`members`) when its loop is unstable, else None."""
     cands, how = members(plant, know, channels=channels, scalars=scalars, K=K, F=F)
     slowest = slowest_loop(plant, K, F, [L for _, L in cands])
-    if slowest is None or slowest[2].real <= UNSTABLE_TOL * _scale(plant, K, F):
+    if slowest is None or not unstable(plant, K, F, slowest[2]):
         return None
     i, _, eig = slowest
     c, L = cands[i]
     imag = "" if abs(eig.imag) < 1e-12 else f" {'+' if eig.imag >= 0 else '-'} {abs(eig.imag):.4g}j"
     text = (f"the linear member {_describe(c, L)} (in the class; searched: {how}) leaves the loop with the "
             f"eigenvalue {eig.real:+.4g}{imag}")
+    if _dt(plant) > 0:
+        text += f" (modulus {abs(eig):.6g} >= 1: spectral radius of the discrete loop)"
     return Witness("linear member", text, slopes=c, L=L, eig=eig)
 
 
@@ -344,19 +369,21 @@ def _refine_symmetric(plant, K, F, know, scalars, L0: np.ndarray, best: float) -
 
 def _rhs(plant, K, F, z: np.ndarray) -> np.ndarray:
     """The true closed loop (9) in ``z = (x, e)``: ``x' = (A + B F) x - B F e + f(x)``,
-    ``e' = (A - K C) e + f(x) - f(x - e)``."""
+    ``e' = (A - K C) e + f(x) - f(x - e)``; in discrete time the map's ``z_{k+1} - z_k`` (zero at a fixed point)."""
     x, e = np.split(z, 2)
     BF = plant.B @ F
     fx = np.asarray(plant.f(x), float)
-    return np.concatenate([(plant.A + BF) @ x - BF @ e + fx, (plant.A - K @ plant.C) @ e + fx
-                           - np.asarray(plant.f(x - e), float)])
+    out = np.concatenate([(plant.A + BF) @ x - BF @ e + fx, (plant.A - K @ plant.C) @ e + fx
+                          - np.asarray(plant.f(x - e), float)])
+    return out - z if _dt(plant) > 0 else out
 
 
 def _jac(plant, K, F, z: np.ndarray) -> np.ndarray:
     x, e = np.split(z, 2)
     BF = plant.B @ F
     Jx, Jh = np.asarray(plant.jacobian(x), float), np.asarray(plant.jacobian(x - e), float)
-    return np.block([[plant.A + BF + Jx, -BF], [Jx - Jh, plant.A - K @ plant.C + Jh]])
+    J = np.block([[plant.A + BF + Jx, -BF], [Jx - Jh, plant.A - K @ plant.C + Jh]])
+    return J - np.eye(len(z)) if _dt(plant) > 0 else J
 
 
 def _starts(plant, K, F, know) -> list[np.ndarray]:
@@ -368,6 +395,8 @@ def _starts(plant, K, F, know) -> list[np.ndarray]:
         cands, _ = members(plant, know, channels=True, scalars=())
         for blk, M0 in (("x", plant.A + plant.B @ F), ("e", plant.A - K @ plant.C)):
             mats = M0 + np.stack([L for _, L in cands])  # an equilibrium makes one of them singular
+            if _dt(plant) > 0:  # a fixed point: M - I singular
+                mats = mats - np.eye(n)
             for j in np.argsort(np.abs(np.linalg.eigvals(mats)).min(axis=1))[:2]:
                 w, V = np.linalg.eig(mats[j])
                 v = np.real(V[:, int(np.argmin(np.abs(w)))])
@@ -400,7 +429,7 @@ def no_equilibrium(plant, K: np.ndarray, F: np.ndarray, know) -> bool:
     takes its extremes over the box at the vertices. If ``det M`` has one strict sign at every
     vertex (each vertex matrix well conditioned), no ``M`` in the box is singular and the origin is
     the only equilibrium. False means undecided (also for local channels, many channels, or a class
-    without channels).
+    without channels). In discrete time the fixed points: ``M(D1, D2) - I`` in place of ``M``.
     """
     ch = know.channels
     if ch is None or ch.radius is not None:
@@ -414,6 +443,8 @@ def no_equilibrium(plant, K: np.ndarray, F: np.ndarray, know) -> bool:
     for d in itertools.product(*[(a, b) for a, b in zip(lo, hi)] * 2):
         D1, D2 = np.diag(d[:q]), np.diag(d[q:])
         M = np.block([[plant.A + BF + ch.G @ D1 @ ch.H, -BF], [ch.G @ (D1 - D2) @ ch.H, AK + ch.G @ D2 @ ch.H]])
+        if _dt(plant) > 0:
+            M = M - np.eye(2 * n)
         if np.linalg.svd(M, compute_uv=False)[-1] <= 1e-8 * scale:
             return False
         signs.add(np.linalg.slogdet(M)[0])
@@ -421,7 +452,8 @@ def no_equilibrium(plant, K: np.ndarray, F: np.ndarray, know) -> bool:
 
 
 def equilibrium_witness(plant, K: np.ndarray, F: np.ndarray, know, *, tol: float = 1e-9) -> Witness | None:
-    """An equilibrium of the true closed loop other than the origin (None if the search finds none).
+    """An equilibrium of the true closed loop other than the origin (None if the search finds none); in discrete
+    time a fixed point of the closed-loop map.
 
     A root search (scipy ``root``, hybrid Powell, with the plant's Jacobian when it has one) of the
     closed loop's right-hand side from the starts of :func:`_starts`; a root counts when
@@ -453,6 +485,7 @@ def equilibrium_witness(plant, K: np.ndarray, F: np.ndarray, know, *, tol: float
     if best is None:
         return None
     z, res = best
-    text = (f"the closed loop has an equilibrium besides the origin at z = (x, e) = {vector(z, '.5g')} (residual "
+    what = "a fixed point of its map" if _dt(plant) > 0 else "an equilibrium"
+    text = (f"the closed loop has {what} besides the origin at z = (x, e) = {vector(z, '.5g')} (residual "
             f"{res:.1e}): it is not globally asymptotically stable")
     return Witness("equilibrium", text, z=z, residual=res)

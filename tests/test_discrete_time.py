@@ -387,16 +387,17 @@ def test_a_discrete_pair_is_judged_in_discrete_time(d10):
     assert rec["status"] == "computed" and rec["stabilizing"] is True
     assert rec["max_re_eig_x"] == pytest.approx(math.log(rx) / p.dt)
     assert rec["sim_status"] == "ok" and rec["converged"]
-    # no certificate yet: every level says why, nothing is claimed
-    assert not rec["certified"] and all(rec[f"cert_{lv}"] == "inapplicable" for lv in ("paper", "full", "structured"))
-    assert "discrete-time certificate ladder is not available yet" in rec["reason"]
-    # the horizon rule reads the linearised rate per second: 2 ln(1000) / lam seconds
+    # certified by the discrete-time ladder: its contraction factor per step is its rate per second's, and no
+    # certificate beats the spectral radius of the loop (linearised at the origin: f'(0) enters)
     lam = checks.closed_loop(p, K, F).linearised_rate
-    need = 2 * math.log(1000) / lam
-    assert 5.0 < need < 50.0  # per step it would be 100 times longer
-    assert rec["horizon_rule"] == "linearised rate" and rec["horizon_s"] == math.ceil(need)
+    assert rec["certified"] and rec["cert_structured"] == "certified"
+    assert rec["contraction"] == pytest.approx(math.exp(-rec["decay_rate"] * p.dt), rel=1e-12)
+    assert 0 < rec["decay_rate"] <= lam and rec["contraction"] >= math.exp(-lam * p.dt)
+    # the horizon rule reads the certified rate per second: (ln 1000 + ln(cond P) / 2) / lam seconds
+    assert 5.0 < rec["cert_horizon_s"] < 50.0  # per step it would be 100 times longer
+    assert rec["horizon_rule"] == "certified rate" and rec["horizon_s"] == math.ceil(rec["cert_horizon_s"])
     assert 0 < rec["settling_x_s"] <= rec["horizon_s"]
-    assert rec["tail_rate"] > 0
+    assert rec["tail_rate"] > 0 and "INCONSISTENT" not in rec["reason"]
 
 
 def test_a_design_without_the_plants_time_domain_is_inapplicable(d10):

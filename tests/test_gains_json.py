@@ -4,9 +4,13 @@ files alone; what the API returns cannot change what it writes; one pair's unwri
 The checks below use numpy only, on the files and the plant's definition (A, B, C, f, phi): P symmetric
 positive definite; the certificate's inequality ``Acl' P + P Acl + 2 lam P <= 0`` at the loop linearised at
 the origin (the linear map ``Df(0)`` meets every constraint a certificate may use near the origin, so a true
-certificate of rate lam must satisfy it, and lam cannot exceed the linearisation's decay rate); for a
+certificate of rate lam must satisfy it, and lam cannot exceed the linearisation's decay rate); in discrete time
+``Acl' P Acl - r^2 P <= 0`` with the contraction factor ``r = exp(-lam dt)`` written beside it; for a
 certificate from x0, ``V(z0)`` inside the largest level set in ``|Hx|, |Hx_hat| <= r`` and phi's sampled
-slopes on ``|z| <= r`` inside the narrowed slopes written beside it.
+slopes on ``|z| <= r`` inside the narrowed slopes written beside it. An L2 claim ``g`` with its P: the bounded real
+matrix ``[[Acl' P + P Acl + Cz' Cz, P Bd], [Bd' P, -g^2 I]] <= 0`` (discrete: ``[Acl, Bd]' P [Acl, Bd] -
+diag(P - Cz' Cz, g^2 I) <= 0``) at the same linear member, and ``g`` at least the H-infinity norm of that linear
+loop from w to zeta (a dense frequency sweep).
 """
 
 from __future__ import annotations
@@ -25,7 +29,8 @@ from bench.registry import DESIGNS, PLANTS
 from designs import Design
 from tests._plugin_helpers import clean_registries  # noqa: F401 - autouse: registries restored after each test
 
-PAIRS = (["flexible_link", "flexible_joint_v1"], ["lqr+lqe", "thm1"])
+PAIRS = (["flexible_link", "flexible_joint_v1", "moving_object_v1", "flexible_link_d10ms_v1",
+          "nguyen2018_ex2_moving_object_v1"], ["lqr+lqe", "thm1"])
 
 
 @pytest.fixture(scope="module")
@@ -54,10 +59,18 @@ def _check_claim(c: dict, plant, K, F) -> None:
     assert np.allclose(P, P.T, rtol=0, atol=1e-12 * np.abs(P).max())
     assert np.linalg.eigvalsh(P)[0] > 0
     Acl = _linearised_loop(plant, K, F)
-    rate = -np.linalg.eigvals(Acl).real.max()
-    assert lam <= rate * (1 + 1e-9) + 1e-12  # no certificate beats the linearisation
-    M = Acl.T @ P + P @ Acl + 2 * lam * P
-    assert np.linalg.eigvalsh((M + M.T) / 2)[-1] <= 1e-7 * np.linalg.norm(P, 2) * max(1.0, np.linalg.norm(Acl, 2))
+    if plant.dt > 0:  # a contraction factor per step, and its rate per second
+        r = c["contraction"]
+        assert c["dt"] == plant.dt and r == pytest.approx(math.exp(-lam * plant.dt), rel=1e-12)
+        assert r >= np.abs(np.linalg.eigvals(Acl)).max() * (1 - 1e-9)  # no certificate beats the spectral radius
+        M = Acl.T @ P @ Acl - r**2 * P
+        assert np.linalg.eigvalsh((M + M.T) / 2)[-1] <= 1e-9 * np.linalg.norm(P, 2) * max(1.0, np.linalg.norm(Acl, 2))**2
+    else:
+        assert c["contraction"] is None
+        rate = -np.linalg.eigvals(Acl).real.max()
+        assert lam <= rate * (1 + 1e-9) + 1e-12  # no certificate beats the linearisation
+        M = Acl.T @ P + P @ Acl + 2 * lam * P
+        assert np.linalg.eigvalsh((M + M.T) / 2)[-1] <= 1e-7 * np.linalg.norm(P, 2) * max(1.0, np.linalg.norm(Acl, 2))
     if c["scope"] == "global":
         assert c["radius"] is None and c["region"] == "everywhere"
     if c["scope"] == "from x0" and c["region_H"] is not None:
@@ -78,13 +91,51 @@ def _check_claim(c: dict, plant, K, F) -> None:
             assert lo[i] - 1e-9 <= s.min() and s.max() <= hi[i] + 1e-9
 
 
+def _loop_from_w(plant, K, F, zeta: str):
+    """(Acl, Bd, Cz) of the loop linearised at the origin, from w to zeta = e or x."""
+    n = plant.n
+    Acl = _linearised_loop(plant, K, F)
+    Bd = np.vstack([plant.Bw, plant.Bw - K @ plant.Dw])
+    Cz = np.hstack([np.zeros((n, n)), np.eye(n)] if zeta == "e" else [np.eye(n), np.zeros((n, n))])
+    return Acl, Bd, Cz
+
+
+def _sweep_norm(Acl, Bd, Cz, dt: float) -> float:
+    """max over a dense frequency grid of the largest singular value of Cz (s I - Acl)^-1 Bd (s = e^{j w dt})."""
+    top = math.pi / dt if dt > 0 else 1e3
+    best = 0.0
+    for w in np.concatenate([[0.0], np.geomspace(1e-4, top, 6000)]):
+        s = np.exp(1j * w * dt) if dt > 0 else 1j * w
+        G = Cz @ np.linalg.solve(s * np.eye(len(Acl)) - Acl, Bd)
+        best = max(best, float(np.linalg.svd(G, compute_uv=False)[0]))
+    return best
+
+
+def _check_gain(c: dict, plant, K, F) -> None:
+    """Re-check one certified L2 claim with numpy: the bounded real matrix of the loop linearised at the origin (a
+    member of every class a certificate uses near it) at the claim's P and gain, and the gain against its norm."""
+    P, g = np.array(c["P"]), c["gain"]
+    assert P.shape == (2 * plant.n, 2 * plant.n) and np.linalg.eigvalsh((P + P.T) / 2)[0] > 0
+    Acl, Bd, Cz = _loop_from_w(plant, K, F, c["zeta"])
+    q = Bd.shape[1]
+    if plant.dt > 0:
+        T = np.hstack([Acl, Bd])
+        M = T.T @ P @ T
+        M[:len(P), :len(P)] += Cz.T @ Cz - P
+        M[len(P):, len(P):] -= g**2 * np.eye(q)
+    else:
+        M = np.block([[Acl.T @ P + P @ Acl + Cz.T @ Cz, P @ Bd], [Bd.T @ P, -g**2 * np.eye(q)]])
+    assert np.linalg.eigvalsh((M + M.T) / 2)[-1] <= 1e-7 * max(1.0, np.abs(M).max())
+    assert g >= _sweep_norm(Acl, Bd, Cz, plant.dt) * (1 - 1e-6)
+
+
 def test_every_certified_claim_is_in_gains_json_and_checks_out(small_run):
     res, out = small_run
     table = pd.read_csv(out / "results.csv")
     entries = {(g["plant"], g["design"]): g for g in json.loads((out / "gains.json").read_text())}
     certified = table[table["certified"]]
     assert len(certified) >= 3 and "from x0" in set(certified["cert_scope"])  # the run has both kinds
-    checked = 0
+    checked = gains = 0
     for row in table.itertuples():
         if row.status in ("error", "timeout") or (row.plant, row.design) not in entries:
             continue
@@ -96,12 +147,22 @@ def test_every_certified_claim_is_in_gains_json_and_checks_out(small_run):
         for c in claims:
             _check_claim(c, plant, K, F)
             checked += 1
+            for gain in c["l2"].values():
+                if gain["status"] == "certified":
+                    _check_gain(gain, plant, K, F)
+                    gains += 1
+        for z in ("e", "x"):  # the row's gain is the strongest certified level's
+            strongest = [c for c in g["certificate"].values() if c["status"] == "certified"]
+            want = strongest[-1]["l2"].get(z, {}).get("gain") if strongest else None
+            assert (want is None and math.isnan(getattr(row, f"l2_gain_{z}"))) or \
+                want == pytest.approx(getattr(row, f"l2_gain_{z}"), rel=1e-12)
         if row.certified:  # the headline is one of them, with the rate, level and scope of the row
             head = g["from_x0"] if g["best"] == "from_x0" else g["certificate"][g["best"]]
             assert head["level"] == row.cert_level and head["scope"] == row.cert_scope
             assert head["decay_rate"] == pytest.approx(row.decay_rate, rel=1e-12)
             assert head["P"] is not None
     assert checked >= len(certified)
+    assert gains >= 4 and (table["contraction"] > 0).sum() >= 2  # L2 claims and discrete rows were checked
 
 
 def test_a_false_claim_fails_the_outside_check(small_run):
@@ -115,6 +176,21 @@ def test_a_false_claim_fails_the_outside_check(small_run):
                 {"radius": claim["radius"] / 10}):
         with pytest.raises(AssertionError):
             _check_claim({**claim, **bad}, plant, K, F)
+    # an L2 claim below the linear loop's norm, or a discrete claim with a smaller contraction, fails too
+    entries = json.loads((out / "gains.json").read_text())
+    g = next(g for g in entries if g["certified"] and g["l2_gain_x"] is not None)
+    plant, K, F = PLANTS.create(g["plant"]), np.array(g["K"]), np.array(g["F"])
+    gain = g["certificate"][g["cert_level"]]["l2"]["x"]
+    _check_gain(gain, plant, K, F)
+    with pytest.raises(AssertionError):
+        _check_gain({**gain, "gain": 0.9 * _sweep_norm(*_loop_from_w(plant, K, F, "x"), plant.dt)}, plant, K, F)
+    g = next(g for g in entries if g["certified"] and g["contraction"] is not None)
+    plant, K, F = PLANTS.create(g["plant"]), np.array(g["K"]), np.array(g["F"])
+    claim = g["certificate"][g["cert_level"]]
+    _check_claim(claim, plant, K, F)
+    with pytest.raises(AssertionError):
+        _check_claim({**claim, "decay_rate": 2 * claim["decay_rate"],
+                      "contraction": math.exp(-2 * claim["decay_rate"] * plant.dt)}, plant, K, F)
 
 
 def test_the_api_returns_read_only_arrays_and_write_writes_what_was_computed(small_run, tmp_path):

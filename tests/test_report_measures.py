@@ -1,0 +1,64 @@
+"""The report shows the ladder's two new axes: the attenuation table (certified L2 gains beside the measured ratios),
+the discrete-time plants' own section (contraction per step, rate per second), their LaTeX tables, and run.json's
+count of INCONSISTENT attenuation rows (checked with a certificate whose gain was falsified on purpose)."""
+
+import dataclasses
+import json
+
+import pandas as pd
+import pytest
+
+import bench
+from bench import certify
+from bench.findings import findings
+
+PAIRS = (["moving_object_v1", "flexible_link_d10ms_v1"], ["lqr+lqe"])
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    out = tmp_path_factory.mktemp("measures")
+    res = bench.run(*PAIRS, progress=False, jobs=1)
+    res.write(out, figures=False)
+    return res, out
+
+
+def test_the_report_shows_the_gains_and_the_discrete_rows(small):
+    res, out = small
+    table = pd.read_csv(out / "results.csv").set_index("plant")
+    mo, d10 = table.loc["moving_object_v1"], table.loc["flexible_link_d10ms_v1"]
+    assert mo["disturbance"] == 0.1 and d10["disturbance"] == 0.0  # the run's default, plants with inputs only
+    assert mo["l2_measured_x"] <= mo["l2_gain_x"] and mo["l2_radius"] == 10.0
+    text = (out / "REPORT.md").read_text()
+    attenuation = text[text.index("## Attenuation (L2 gains)"):text.index("## Discrete-time plants")]
+    row = next(line for line in attenuation.splitlines() if line.startswith("| moving_object_v1 | lqr+lqe"))
+    for col in ("l2_gain_e", "l2_gain_x", "l2_measured_e", "l2_measured_x"):
+        assert f" {mo[col]:.3g} " in row
+    assert "flexible_link_d10ms_v1" not in attenuation  # no disturbance inputs
+    discrete = text[text.index("## Discrete-time plants"):text.index("## Convergence")]
+    row = next(line for line in discrete.splitlines() if line.startswith("| flexible_link_d10ms_v1 | lqr+lqe"))
+    assert f" {d10['contraction']:.6g} " in row and f" {d10['decay_rate']:.3g} " in row
+    assert d10["contraction"] == pytest.approx(2.718281828459045 ** (-d10["decay_rate"] * d10["dt"]), rel=1e-12)
+    assert "moving_object_v1" not in discrete
+    tex = (out / "tables.tex").read_text()
+    assert r"\label{tab:oslbench-attenuation}" in tex and r"\label{tab:oslbench-discrete}" in tex
+    assert f"{d10['contraction']:.6g}" in tex
+    counts = json.loads((out / "run.json").read_text())["findings"]["counts"]
+    assert counts["inconsistent_attenuation"] == 0
+
+
+def test_run_json_counts_a_false_gain_as_an_inconsistent_attenuation(monkeypatch):
+    """A certified gain falsified to a twentieth of its value falls below the measured ratio: the row says
+    INCONSISTENT and the findings count it among the attenuation rows."""
+    real = certify.l2_gain
+
+    def shrunk(spec, plant, loop, know, zeta):
+        g = real(spec, plant, loop, know, zeta)
+        return dataclasses.replace(g, gain=g.gain / 20)
+
+    monkeypatch.setattr(certify, "l2_gain", shrunk)
+    res = bench.run(["moving_object_v1"], ["lqr+lqe"], progress=False, jobs=1)
+    row = res.table.iloc[0]
+    assert "INCONSISTENT with the certificate: the measured L2 ratio" in row["details"]
+    found = findings(res.run_result.frame(), res.run_result.constants)
+    assert found["counts"]["inconsistent_attenuation"] == 1 == found["counts"]["inconsistent"]
