@@ -638,10 +638,10 @@ _LEGEND = "\n".join([
     "- *Discrete time*: the ladder proves V(z_{k+1}) <= r^2 V(z_k) over the class; *contraction* is r per step and "
     "*decay_rate* = -ln(r) / dt per second, so discrete and continuous rows compare.",
     "- *L2 gains* (plants with disturbance inputs Bw, Dw): each certified level also bounds the L2 gain from the "
-    "disturbance w to e (*l2_gain_e*) and to x (*l2_gain_x*) over its class (bounded real lemma, same constraints); "
-    "the columns give the strongest level's. With `--disturbance`, *l2_measured_** are the ratios "
-    "||zeta|| / ||w|| of a run from z(0) = 0; a certified gain below its measured ratio is INCONSISTENT. A gain whose "
-    "class holds on ||x|| <= *l2_radius* only bounds runs that stay there (*l2_max_norm*).",
+    "disturbance w to e (*l2_gain_e*) and to x (*l2_gain_x*) over its class (bounded real lemma); the columns give "
+    "the strongest level's; a class that holds on ||x|| <= *l2_radius* bounds runs that stay there (*l2_max_norm*).",
+    "- *Measured L2 ratios* (`--disturbance`, peak 0.1 by default, 0: off): *l2_measured_e*, *l2_measured_x* are "
+    "||zeta|| / ||w|| of a second run from z(0) = 0; a certified gain below its measured ratio is INCONSISTENT.",
     "- *Converged*: at the end of the horizon ||x|| and ||e|| are below 1e-3 of the peak of ||z|| (with noise: "
     "settled); blank for a pair without gains.",
     "- *Horizon*: long enough for the certified rate (uncertified: twice the linearisation's) to decay by 1e-3, "

@@ -22,7 +22,7 @@ __all__ = ["flexible_link_d10ms"]
 H_FLEXIBLE_LINK = 0.01
 
 
-@register_plant("flexible_link_d10ms_v1", order=2)
+@register_plant("flexible_link_d10ms_v1", order=3)
 def flexible_link_d10ms(*, c: float = 0.333, t_final: float = 20.0) -> Plant:
     """Flexible link manipulator (35)-(36) with a zero-order hold at h = 10 ms (discrete time).
 

@@ -42,12 +42,20 @@ STATE_NAMES = ("theta_m [rad]", "omega_m [rad/s]", "theta_l [rad]", "omega_l / 1
 PAPER_CLAIMED = Constants(rho=0.1109, beta=0.1109, gamma=0.0, alpha=0.333)
 
 
-def _make(pid: str, c: float, index: int, t_final: float, notes: str) -> Plant:
+#: Disturbance inputs of ``flexible_link_w_v1`` (the suite's choice; the paper has none): w1 enters the motor
+#: angle's equation (as Nguyen, Pathirana & Trinh's W = e1 for the flexible-joint robot), w2 and w3 are sensor
+#: noise of size 0.1 on the two outputs.
+BW = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+DW = np.array([[0.0, 0.1, 0.0], [0.0, 0.0, 0.1]])
+
+
+def _make(pid: str, c: float, index: int, t_final: float, notes: str, claimed: Constants = PAPER_CLAIMED,
+          params: dict | None = None, **extra) -> Plant:
     c = check_real("c", c)
     gravity = sine_terms(4, acts=[3], reads=[index], coef=-c)
-    return Plant(id=pid, A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity, claimed=PAPER_CLAIMED,
-                 t_final=t_final, family="flexible_link", params={"c": c}, source=SOURCE, notes=notes,
-                 state_names=STATE_NAMES)
+    return Plant(id=pid, A=A, B=B, C=C, x0=X0, x_hat0=X_HAT0, **gravity, claimed=claimed,
+                 t_final=t_final, family="flexible_link", params={"c": c, **(params or {})}, source=SOURCE,
+                 notes=notes, state_names=STATE_NAMES, **extra)
 
 
 @register_plant("flexible_link", order=0)
@@ -60,3 +68,31 @@ def flexible_link(*, c: float = 0.333, t_final: float = 20.0) -> Plant:
 def flexible_link_printed(*, c: float = 0.333, t_final: float = 20.0) -> Plant:
     """Flexible link manipulator as printed in (36): f4 = -c sin(x1)."""
     return _make("flexible_link_printed", c, 0, t_final, "f4 = -c sin(x1), as printed in (36)")
+
+
+@register_plant("flexible_link_w_v1", order=2)
+def flexible_link_w(*, c: float = 0.333, t_final: float = 20.0) -> Plant:
+    """Flexible link manipulator (35)-(36), gravity on the link angle, with disturbance inputs.
+
+    The paper's plant (:func:`flexible_link`) with ``x' = ... + Bw w``, ``y = C x + Dw w`` (:data:`BW`,
+    :data:`DW`: a disturbance on the motor angle's equation and sensor noise 0.1 on both outputs; the suite's
+    choice, the paper has no disturbance), so that the L2 gains and the H-infinity designs have the paper's
+    example to work on.
+
+    Parameters
+    ----------
+    c : float
+        Coefficient of the gravity term ``f4 = -c sin(x3)``.
+    t_final : float
+        Horizon in seconds.
+
+    Returns
+    -------
+    Plant
+        With ``Bw`` (4 x 3) and ``Dw`` (2 x 3); no claimed constants (the paper's claim is about its own
+        plant, :func:`flexible_link`).
+    """
+    plant = _make("flexible_link_w_v1", c, 2, t_final,
+                  "f4 = -c sin(x3); w: a disturbance on x1' and sensor noise 0.1 on both outputs (the suite's choice)",
+                  claimed=Constants(), params={"version": 1}, Bw=BW, Dw=DW)
+    return plant

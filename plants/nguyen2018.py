@@ -97,7 +97,7 @@ def _euler(plant: Plant, pid: str, source: str, notes: str) -> Plant:
     return dataclasses.replace(d, source=source, notes=notes, params={**d.params, "version": 1})
 
 
-@register_plant("nguyen2018_ex1_flexible_joint_v1", order=3, default=False)
+@register_plant("nguyen2018_ex1_flexible_joint_v1", order=4, default=False)
 def nguyen2018_ex1(*, c: float = C_SOURCE, t_final: float = T_FINAL) -> Plant:
     """Nguyen et al. 2018, Example 1: the flexible-joint robot (64), Euler at ts = 1 ms, with disturbance inputs.
 
@@ -122,7 +122,7 @@ def nguyen2018_ex1(*, c: float = C_SOURCE, t_final: float = T_FINAL) -> Plant:
                   "discrete time, dt = 1 ms, 50,000 steps over the paper's 50 s; f4 = -3.33 ts sin(x3)")
 
 
-@register_plant("nguyen2018_ex2_moving_object_v1", order=3, default=False)
+@register_plant("nguyen2018_ex2_moving_object_v1", order=4, default=False)
 def nguyen2018_ex2(*, r: float = R_SOURCE, t_final: float = T_FINAL) -> Plant:
     """Nguyen et al. 2018, Example 2: the moving object, Euler at ts = 1 ms, with disturbance inputs, r = 10.
 

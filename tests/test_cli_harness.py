@@ -102,7 +102,8 @@ def test_registry_rules():
         DESIGNS.register("thm1", _Boom)
     with pytest.raises(UnknownIdError, match="did you mean"):
         DESIGNS["cor2"]
-    assert PLANTS.select(["flexible_link*"]) == ["flexible_link", "flexible_link_printed", "flexible_link_d10ms_v1"]
+    assert PLANTS.select(["flexible_link*"]) == ["flexible_link", "flexible_link_printed", "flexible_link_w_v1",
+                                                 "flexible_link_d10ms_v1"]
 
 
 def test_every_module_registers_something():
