@@ -13,7 +13,10 @@ with ``fallback``, a solve that failed (a solver error, a status other than opti
 margin its recomputed matrix does not have) is repeated with the second installed solver
 (:data:`SECOND_SOLVER`), and the better point is kept (:meth:`Program.verdict` decides). A program may solve in
 other coordinates than its verdict: :attr:`Program.original` maps the solver's values back, and every
-verdict is taken on the matrix rebuilt in the original coordinates.
+verdict is taken on the matrix rebuilt in the original coordinates. Below the programs, a solve whose problem data
+(arrays, cones, solver and options) went to the solver before takes that answer again (:func:`_solve_problem`):
+two programs that compile to the same data (the x-side of Theorem 1 and of Corollary 1 when their Schur weights
+agree) cost one solve.
 """
 
 from __future__ import annotations
@@ -118,10 +121,15 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
         granted = max(granted, 1e-3)
         opts.setdefault(_TIME_LIMIT_OPTION[solver.upper()], granted)
     t0 = time.perf_counter()
+    opts = {k: v for k, v in opts.items() if k != "warm_start"}
+    reused = False
     try:
         with warnings.catch_warnings():  # the status carries "inaccurate"; no stray warnings
             warnings.simplefilter("ignore", UserWarning)
-            problem.solve(solver=solver, warm_start=False, **{k: v for k, v in opts.items() if k != "warm_start"})
+            if getattr(getattr(problem.solve, "__func__", None), "__module__", "") == "cvxpy.problems.problem":
+                reused = _solve_problem(problem, solver, opts)
+            else:  # cvxpy's solve replaced, on the class or the instance (an injected fault): called as it is
+                problem.solve(solver=solver, warm_start=False, **opts)
         status = str(problem.status)
         err = ""
     except cp.error.SolverError as exc:
@@ -133,12 +141,87 @@ def solve_timed(problem, solver: str = "CLARABEL", **opts) -> SolveOutcome:
     comp = min(float(getattr(problem, "compilation_time", None) or 0.0), wall)
     val = problem.value if status in ("optimal", "optimal_inaccurate") else float("nan")
     stats = getattr(problem, "solver_stats", None) if status != "solver_error" else None
-    own = min(float(getattr(stats, "solve_time", None) or 0.0), wall - comp)
+    own = 0.0 if reused else min(float(getattr(stats, "solve_time", None) or 0.0), wall - comp)
     out = SolveOutcome(status, comp, wall - comp, err, float(val) if val is not None else float("nan"), own)
-    _tally["n"] += 1
+    _tally["reused" if reused else "n"] += 1
     for k in ("compile_s", "solve_s", "solver_s"):
         _tally[k] += getattr(out, k)
     return out
+
+
+#: Solver answers kept per thread by their problem data (least recently used dropped first): :func:`_solve_problem`;
+#: :func:`clear_program_cache` drops them too.
+DATA_MEMO_SIZE = 512
+
+
+def _answers() -> OrderedDict:
+    return _LOCAL.__dict__.setdefault("answers", OrderedDict())
+
+
+def _detached(raw):
+    """A solver's raw answer that no unpacked value shares memory with (SCS: a dict of arrays, copied; CLARABEL:
+    lists, which cvxpy copies into new arrays when it unpacks them)."""
+    import copy
+
+    return copy.deepcopy(raw) if isinstance(raw, dict) else raw
+
+
+def _data_key(solver: str, data: dict, opts: dict) -> bytes:
+    """A digest of what a solver is given: its name and options, every array and sparse matrix of ``data``
+    (values, pattern, shape, type) and the cones (``dims``)."""
+    import hashlib
+
+    import scipy.sparse as sp
+
+    h = hashlib.blake2b(repr((solver.upper(), sorted((k, repr(v)) for k, v in opts.items()))).encode(),
+                        digest_size=20)
+    for k in sorted(data):
+        v = data[k]
+        h.update(k.encode())
+        if sp.issparse(v):
+            v = v.tocsc()
+            parts = (v.data, v.indices, v.indptr)
+            h.update(repr(("sparse", v.shape, *(a.dtype.str for a in parts))).encode())
+            for a in parts:
+                h.update(np.ascontiguousarray(a).tobytes())
+        elif isinstance(v, np.ndarray):
+            h.update(repr(("array", v.shape, v.dtype.str)).encode())
+            h.update(np.ascontiguousarray(v).tobytes())
+        elif k == "dims" or v is None or isinstance(v, (int, float, str, bool)):
+            h.update(repr(v).encode())
+        else:  # the parametrised program cvxpy keeps beside the data: what it gives the solver is above
+            h.update(type(v).__name__.encode())
+    return h.digest()
+
+
+def _solve_problem(problem, solver: str, opts: dict) -> bool:
+    """``problem.solve(solver=solver, **opts)`` cold, as cvxpy does it (compile, solve the data, unpack), the solver's
+    answer taken from this thread's memo (:data:`DATA_MEMO_SIZE` answers) when the same data went to the same solver
+    with the same options before (another program that compiles to the same data, e.g. the x-side of Theorem 1 and
+    of Corollary 1 when their Schur weights agree): a solver is deterministic on the same data. Returns whether the
+    answer was reused."""
+    import cvxpy as cp
+
+    for parameter in problem.parameters():  # as cvxpy's own solve: an unset one fails loudly
+        if parameter.value is None:
+            raise cp.error.ParameterError(
+                f"A Parameter (whose name is '{parameter.name()}') does not have a value associated with it; all "
+                "Parameter objects must have values before solving a problem.")
+    data, chain, inverse = problem.get_problem_data(solver, solver_opts=opts)
+    key = _data_key(solver, data, opts)
+    memo = _answers()
+    raw = memo.get(key)
+    reused = raw is not None
+    if reused:
+        memo.move_to_end(key)
+        raw = _detached(raw)
+    else:
+        raw = chain.solve_via_data(problem, data, False, False, dict(opts))
+        memo[key] = _detached(raw)
+        while len(memo) > DATA_MEMO_SIZE:
+            memo.popitem(last=False)
+    problem.unpack_results(raw, chain, inverse)
+    return reused
 
 
 _tally = {"n": 0, "compile_s": 0.0, "solve_s": 0.0, "solver_s": 0.0, "reused": 0}
@@ -146,7 +229,8 @@ _tally = {"n": 0, "compile_s": 0.0, "solve_s": 0.0, "solver_s": 0.0, "reused": 0
 
 def solve_tally() -> dict:
     """This process's SDP solves since :func:`reset_solve_tally`: ``n`` and the seconds of :class:`SolveOutcome`;
-    ``reused``: solves answered from a program's memo instead (:meth:`Program.solve`)."""
+    ``reused``: solves answered from a program's memo instead (:meth:`Program.solve`) or from the solver answers kept by
+    problem data (:func:`_solve_problem`)."""
     return dict(_tally)
 
 
@@ -647,8 +731,9 @@ def cached_program(key: tuple, build: Callable[[], Program]) -> Program:
 
 
 def clear_program_cache() -> None:
-    """Drop this thread's compiled programs."""
+    """Drop this thread's compiled programs and the solver answers kept by problem data (:func:`_solve_problem`)."""
     _cache().clear()
+    _answers().clear()
 
 
 def conclude(prog: Program, *, what: str, normalisation: str, searched: str, fallback: bool = True) -> dict:

@@ -25,7 +25,8 @@ import numpy as np
 from bench import lmi
 from designs._core import Design, DesignResult, check_choice, check_int, check_positive, check_range
 from designs._discrete import joint_certificate
-from designs._separated import concluded, paper_gains_from, separated_design, settle_joint
+from designs._separated import (SIDE_MATRIX, _scale_free_clause, concluded, paper_gains_from, separated_design,
+                                settle_joint)
 from plants import Constants, Plant
 
 
@@ -95,12 +96,49 @@ class YoungDesign(Design):
         if self.method == "separated":
             return self.separated(plant, constants)
         form = self.form(plant, constants)
+        if self._fixed_phi is None:
+            decided = self._decided_by_a_side(plant, form, constants)
+            if decided is not None:
+                return decided
         prog = form.joint_program(plant, cap=self.cap, phi_name=self.phi_name)
         phi, _, searched = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi))
         if self._fixed_phi is None:
             searched += f" ({prog.n_solves} solves)"
         return concluded(prog, lambda vals: self.solved_params(vals, constants, phi), what=form.what, cap=self.cap,
                          searched=searched, settle=partial(settle_joint, plant, form, cap=self.cap, solver=self.solver))
+
+    def _decided_by_a_side(self, plant: Plant, form, constants: Constants) -> DesignResult | None:
+        """The joint LMI's verdict before its Young weight is searched, when a side decides it: each side (its
+        x-side and e-side blocks are principal submatrices of the joint matrix for every weight) is solved as the
+        separated design solves it (:func:`designs._separated.separated_design`, whose solves the programs' memo
+        then answers), and one that does not verify is decided by its scale-free solve
+        (:meth:`designs._separated.YoungForm.decide_side`). A side proven infeasible (an ``optimal`` solve) makes the
+        joint LMI infeasible at every weight: that result, without the search. None otherwise (both sides verify,
+        or one is left marginal or undecided): the search decides."""
+        cost = [0.0, 0.0, 0]
+        for side in SIDE_MATRIX:
+            prog = form.side_program(plant, side, cap=self.cap)
+            lmi.solve_side(prog, self.solver, plant.n)
+            for i, k in enumerate(("compile_s", "solve_s", "n_solves")):
+                cost[i] += getattr(prog, k)
+            if prog.verified():
+                continue
+            got = form.decide_side(plant, side, cap=self.cap, solver=self.solver)
+            for i, c in enumerate(got["cost"]):
+                cost[i] += c
+            if got["status"] != "infeasible" or got["solver_status"] != "optimal":
+                return None
+            lo, hi = getattr(self, f"{self.phi_name}_range")
+            reason = (f"{form.what}: infeasible: its {side} block is a principal submatrix of the joint LMI at every "
+                      f"{self.phi_name} and is {_scale_free_clause({side: got})} (decided before the {self.phi_name} "
+                      f"search over [{lo:g}, {hi:g}], which it makes needless)")
+            params = {"form": f"decided by the {side} (scale-free)", self.phi_name: float("nan"),
+                      "slack": got.get("slack", float("nan")), "cap": self.cap}
+            return DesignResult(status="infeasible", reason=reason, route="sdp", solver="CLARABEL" if self.solver ==
+                                "auto" else self.solver, solver_status=got["solver_status"], compile_s=cost[0],
+                                solve_s=cost[1], n_solves=cost[2], margin=got["margin"], lmi_size=got["lmi_size"],
+                                min_eig=got["min_eig"], params=params)
+        return None
 
     def _design_discrete(self, plant: Plant, constants: Constants) -> DesignResult:
         """The discrete sides solved apart, the candidate form with the best x-side margin, the joint discrete

@@ -85,26 +85,41 @@ class Scaled(Design):
             return "the channels' slopes hold on a region; the scaled region would not be a ball"
         return None
 
-    def _score(self, plant: Plant, d: np.ndarray) -> tuple[float, DesignResult]:
+    def _score(self, plant: Plant, d: np.ndarray, beat: float = -math.inf) -> float:
+        """The scaling's score (module docstring); a score that cannot exceed ``beat`` may come back as a bound.
+
+        The x-side is solved first: when it does not verify, the design there is not feasible and its score
+        ``-max(x_margin, e_margin)`` is at most ``-x_margin``; when that cannot exceed ``beat``, the e-side is not
+        solved (the bound is returned). Otherwise the separated design is made (its x-side from the program's memo).
+        """
         sp, consts = scaled_plant(plant, d)
-        sep = self.inner if self.inner.endswith("_sep") else f"{self.inner}_sep"
-        res = DESIGNS.create(sep).separated(sp, consts, decide=False)  # the margins score it; no label needed
+        inner = DESIGNS.create(self.inner if self.inner.endswith("_sep") else f"{self.inner}_sep")
+        xprog = inner.form(sp, consts).side_program(sp, "x-side", cap=inner.cap)
+        lmi.solve_side(xprog, inner.solver, sp.n)  # as separated_design solves it (the memo answers it there)
+        if xprog.last_status not in ("optimal", "optimal_inaccurate"):
+            return -math.inf  # the design is undecided there: no margins, no score
+        X = xprog.numeric_matrix()
+        xm = lmi.max_eig(X)
+        x_ok = lmi.classify(xm, X) == "verified" and lmi.is_positive_definite(xprog.values()["Q"])
+        if not x_ok and (not math.isfinite(xm) or -xm <= beat):
+            return -xm if math.isfinite(xm) else -math.inf
+        res = inner.separated(sp, consts, decide=False)  # the margins score it; no label needed
         if res.status == "feasible":  # any verified design beats every unverified one; then the smaller gains
             gain = np.linalg.norm(res.F @ np.diag(1 / d), 2) + np.linalg.norm(np.diag(d) @ res.K, 2)
-            return 1.0 + 1.0 / (1.0 + gain), res
+            return 1.0 + 1.0 / (1.0 + gain)
         xm, em = res.params.get("x_margin", math.nan), res.params.get("e_margin", math.nan)
-        return (-max(xm, em) if math.isfinite(xm) and math.isfinite(em) else -math.inf), res
+        return -max(xm, em) if math.isfinite(xm) and math.isfinite(em) else -math.inf
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Search the scaling, design on the scaled plant, map the gains back."""
         ch = plant.channels
         coords = sorted(set(np.nonzero(np.any(ch.G != 0, axis=1))[0]) | set(np.nonzero(np.any(ch.H != 0, axis=0))[0]))
         d = np.ones(plant.n)
-        best, tried = self._score(plant, d)[0], 1
+        best, tried = self._score(plant, d), 1
         for _, i, v in itertools.product(range(self.sweeps), coords, np.logspace(-1, 1, self.grid)):
             cand = d.copy()
             cand[i] = v
-            score, _ = self._score(plant, cand)
+            score = self._score(plant, cand, best)
             tried += 1
             if score > best:
                 best, d = score, cand
