@@ -19,6 +19,21 @@ def _best(sub) -> dict | None:
             "rate_ratio": float(r.get("rate_ratio", float("nan")))}
 
 
+def _best_gains(sub) -> dict:
+    """Per ``zeta`` in (e, x): the design with the smallest certified L2 gain ``l2_gain_<zeta>`` and that gain
+    (empty where no pair has one: a plant without disturbance inputs, or nothing certified)."""
+    out = {}
+    for z in ("e", "x"):
+        col = f"l2_gain_{z}"
+        if col not in sub:
+            continue
+        g = sub[col].astype(float)
+        if g.notna().any():
+            i = g.idxmin()
+            out[z] = {"design": sub.loc[i, "design"], "gain": float(g[i])}
+    return out
+
+
 def findings(frame, constants: dict) -> dict:
     """The run's findings.
 
@@ -32,7 +47,8 @@ def findings(frame, constants: dict) -> dict:
     Returns
     -------
     dict
-        ``plants`` (per plant: ``best`` certified design or None, ``uncertified_converging`` split
+        ``plants`` (per plant: ``best`` certified design or None, ``best_gains`` (the smallest certified L2
+        gain to e and to x with its design, :func:`_best_gains`), ``uncertified_converging`` split
         into ``no_certificate_can_exist`` (a witness rules a global certificate out) and
         ``no_certificate_found``, ``certified_pairs``, ``pairs``), ``violated_claims``, ``disproved``
         (by the samplers or along a pair's simulation), ``printed_infeasible``, ``inconsistent``
@@ -46,7 +62,8 @@ def findings(frame, constants: dict) -> dict:
         conv_uncert = sub[sub["converged"].astype(bool) & ~sub["certified"].astype(bool)]
         witnessed = (conv_uncert["witness"].fillna("").astype(str).ne("") if "witness" in sub
                      else conv_uncert["design"].isna())  # no witness column: none witnessed
-        plants[pid] = {"best": _best(sub), "uncertified_converging": list(conv_uncert["design"]),
+        plants[pid] = {"best": _best(sub), "best_gains": _best_gains(sub),
+                       "uncertified_converging": list(conv_uncert["design"]),
                        "no_certificate_can_exist": list(conv_uncert["design"][witnessed]),
                        "no_certificate_found": list(conv_uncert["design"][~witnessed]),
                        "certified_pairs": int(sub["certified"].astype(bool).sum()), "pairs": int(len(sub))}

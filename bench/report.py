@@ -592,7 +592,11 @@ def _summary(found: dict) -> str:
             ("no certificate found", "no_certificate_found"),
         ) if f[key]]
         tail = f"; converge without a certificate ({'; '.join(split)})" if split else ""
-        lines.append(f"- **{pid}**: {best}; {f['certified_pairs']} of {f['pairs']} pairs certified{tail}.")
+        gains = f.get("best_gains") or {}
+        l2 = "; smallest certified L2 gain " + ", ".join(
+            f"w to {z}: {format_cell(gains[z]['gain'])} ({gains[z]['design']})" for z in ("e", "x") if z in gains
+        ) if gains else ""
+        lines.append(f"- **{pid}**: {best}; {f['certified_pairs']} of {f['pairs']} pairs certified{l2}{tail}.")
     for v in found["violated_claims"]:
         lines.append(f"- Claimed constant violated on {v['plant']}: {v['text']}.")
     for v in found["disproved"]:
