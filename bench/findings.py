@@ -21,7 +21,8 @@ def _best(sub) -> dict | None:
 
 def _best_gains(sub) -> dict:
     """Per ``zeta`` in (e, x): the design with the smallest certified L2 gain ``l2_gain_<zeta>`` and that gain
-    (empty where no pair has one: a plant without disturbance inputs, or nothing certified)."""
+    (designs within a relative 1e-4 of it, ties, joined by ", "; empty where no pair has one: a plant without
+    disturbance inputs, or nothing certified)."""
     out = {}
     for z in ("e", "x"):
         col = f"l2_gain_{z}"
@@ -29,8 +30,9 @@ def _best_gains(sub) -> dict:
             continue
         g = sub[col].astype(float)
         if g.notna().any():
-            i = g.idxmin()
-            out[z] = {"design": sub.loc[i, "design"], "gain": float(g[i])}
+            best = float(g.min())
+            tied = sub["design"][g <= best * (1 + 1e-4)]
+            out[z] = {"design": ", ".join(map(str, tied)), "gain": best}
     return out
 
 

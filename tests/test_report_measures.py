@@ -65,8 +65,8 @@ def test_run_json_counts_a_false_gain_as_an_inconsistent_attenuation(monkeypatch
 
 
 def test_the_first_screen_names_the_smallest_certified_gain_per_plant():
-    """Per plant and per zeta, the design whose certified L2 gain is smallest (blank gains ignored); a plant with
-    no certified gain has none; the summary line says it."""
+    """Per plant and per zeta, the design whose certified L2 gain is smallest (ties named together, blank gains
+    ignored); a plant with no certified gain has none; the summary line says it."""
     from bench.report import _summary
 
     nan = float("nan")
@@ -79,15 +79,18 @@ def test_the_first_screen_names_the_smallest_certified_gain_per_plant():
          "l2_gain_e": 0.25, "l2_gain_x": 2.0},
         {"plant": "p", "design": "c", "certified": False, "converged": True, "witness": "", "decay_rate": nan,
          "cert_level": "", "cert_scope": "", "peak_u": 1.0, "rate_ratio": nan, "l2_gain_e": nan, "l2_gain_x": nan},
+        {"plant": "p", "design": "d", "certified": True, "converged": True, "witness": "", "decay_rate": 0.5,
+         "cert_level": "full", "cert_scope": "global", "peak_u": 1.0, "rate_ratio": 0.5,
+         "l2_gain_e": 0.25 * (1 + 1e-6), "l2_gain_x": 1.6},
         {"plant": "q", "design": "a", "certified": True, "converged": True, "witness": "", "decay_rate": 1.0,
          "cert_level": "full", "cert_scope": "global", "peak_u": 1.0, "rate_ratio": 0.5,
          "l2_gain_e": nan, "l2_gain_x": nan},
     ]).assign(status="feasible", reason="")
     found = findings(frame, {})
-    assert found["plants"]["p"]["best_gains"] == {"e": {"design": "b", "gain": 0.25},
+    assert found["plants"]["p"]["best_gains"] == {"e": {"design": "b, d", "gain": 0.25},
                                                   "x": {"design": "a", "gain": 1.5}}
     assert found["plants"]["q"]["best_gains"] == {}
     text = _summary(found)
     line_p = next(ln for ln in text.splitlines() if ln.startswith("- **p**"))
-    assert "w to e: 0.25 (b)" in line_p and "w to x: 1.5 (a)" in line_p
+    assert "w to e: 0.25 (b, d)" in line_p and "w to x: 1.5 (a)" in line_p
     assert "L2" not in next(ln for ln in text.splitlines() if ln.startswith("- **q**"))
