@@ -358,8 +358,8 @@ def _breakdown_child(plant_ids, design_ids, queue) -> None:
 
     clear_program_cache()  # cold, like a fresh run: every program compiled here
     reset_solve_tally()
-    plant_ids = PLANTS.ids() if plant_ids is None else plant_ids
-    design_ids = DESIGNS.ids() if design_ids is None else design_ids
+    plant_ids = PLANTS.defaults() if plant_ids is None else plant_ids
+    design_ids = DESIGNS.defaults() if design_ids is None else design_ids
     options = RunOptions()
     t0 = time.perf_counter()
     plants = {pid: PLANTS.create(pid) for pid in plant_ids}
@@ -396,7 +396,7 @@ def default_run_breakdown(plant_ids=None, design_ids=None, *, cores: int = 2, ti
     Parameters
     ----------
     plant_ids, design_ids : list of str, optional
-        The selection (default: every registered id, as ``python -m bench run``).
+        The selection (default: the default run's ids, as ``python -m bench run``; on-request plants left out).
     cores : int
         For the floor: the run's parallel work spread perfectly over this many cores.
     timeout : float
