@@ -312,6 +312,8 @@ class _Routed(Executor):
         for a in args:
             if isinstance(a, str) and a in self.local:
                 return True
+            if isinstance(a, (tuple, list)) and any(isinstance(i, str) and i in self.local for i in a):
+                return True  # a plant's batch of design ids (bench.harness._plant_task)
             rec = getattr(a, "record", None)
             if isinstance(rec, dict) and (rec.get("plant") in self.local or rec.get("design") in self.local):
                 return True

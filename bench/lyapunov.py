@@ -731,8 +731,8 @@ class Level:
                 k, galloping = kh - down, True
                 down = 2 * down if kh - 2 * down > kl + 2 else 0
             else:
-                est = _extrapolate(pts) if fails < 2 and not self.spec.region else None
-                if est is None and fails < 2 and not self.spec.region:
+                est = _extrapolate(pts) if fails < 2 else None
+                if est is None and fails < 2:
                     est = aimed
                 ke = _index(est, rt, up=False) if est is not None and est > 0 else None
                 if ke is None or ke >= kh or (fails and ke >= kh - 1):
