@@ -35,7 +35,7 @@ from typing import Any, Callable, Iterator
 from bench.errors import ExecutorError
 from bench.threads import cores
 
-__all__ = ["START_METHODS", "check_start_method", "default_jobs", "default_start_method", "executor", "use_start_method"]
+__all__ = ["AffinePool", "START_METHODS", "check_start_method", "default_jobs", "default_start_method", "executor", "use_start_method"]
 
 
 #: All cores available to this process (the default number of local workers).
@@ -312,8 +312,6 @@ class _Routed(Executor):
         for a in args:
             if isinstance(a, str) and a in self.local:
                 return True
-            if isinstance(a, (tuple, list)) and any(isinstance(i, str) and i in self.local for i in a):
-                return True  # a plant's batch of design ids (bench.harness._plant_task)
             rec = getattr(a, "record", None)
             if isinstance(rec, dict) and (rec.get("plant") in self.local or rec.get("design") in self.local):
                 return True
@@ -324,8 +322,174 @@ class _Routed(Executor):
             return SerialExecutor().submit(fn, *args, **kwargs)
         return self.pool.submit(fn, *args, **kwargs)
 
+    def submit_to(self, key: Any, fn: Callable, /, *args, **kwargs) -> Future:
+        """:meth:`AffinePool.submit_to`, or in this process as :meth:`submit` routes it."""
+        if self._here(args) or self._here(tuple(kwargs.values())) or not hasattr(self.pool, "submit_to"):
+            return self.submit(fn, *args, **kwargs)
+        return self.pool.submit_to(key, fn, *args, **kwargs)
+
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
         self.pool.shutdown(wait=wait, cancel_futures=cancel_futures)
+
+
+#: The key of a task that any worker may run (:meth:`AffinePool.submit`).
+_ANY = object()
+
+#: A task queued for a worker that has run one task this many seconds may be taken by an idle worker instead.
+STEAL_AFTER_S = 10.0
+
+
+class AffinePool(Executor):
+    """Local worker processes, one single-process pool each, with tasks routed by key (:meth:`submit_to`).
+
+    The tasks of one key run in one worker, in the order submitted, so that what a worker keeps in memory (compiled
+    programs, solver answers: :mod:`bench.lmi`) serves all of them, as in a serial run. A key belongs to the first
+    worker that, free of its own keys' queued tasks, takes one of its tasks (keys submitted costliest first are so
+    spread as the longest-processing-time rule spreads jobs, on the times the tasks really take). A task without a
+    key (:meth:`submit`) runs in any free worker. A free worker also takes a queued task of another worker's key
+    when that worker has run its current task for :data:`STEAL_AFTER_S` or more (a slow or stuck task delays the
+    others for that long at most) or has died (its pool is broken: the task it ran fails, those queued for it run
+    elsewhere). Results are those of a serial run whatever the routing (module docstring).
+    """
+
+    #: Tasks handed to a worker's pool at once (more would queue there, where no other worker can take them).
+    DEPTH = 1
+
+    def __init__(self, pools: list[Executor], steal_after: float | None = None):
+        import threading
+
+        self.pools = pools
+        self.steal_after = STEAL_AFTER_S if steal_after is None else steal_after
+        self._lock = threading.RLock()
+        self._queue: list[tuple] = []  # (key, fn, args, kwargs, future), in submission order
+        self._inflight = [0] * len(pools)  # tasks handed to each worker's pool (at most DEPTH)
+        self._since: list[float] = [0.0] * len(pools)  # when each worker began its current task
+        self._dead: set[int] = set()
+        self._home: dict[Any, int] = {}  # key -> the worker that claimed it
+        self._timer = None
+        self._closed = False
+        # forked workers: every worker forks now, while this process runs one thread, then each pool's manager
+        # thread starts (as one pool of several workers does it: cpython issue 90622); a pool whose worker started
+        # without its manager would never stop it (the interpreter would wait for it at exit)
+        forked = [p for p in pools if not getattr(p, "_safe_to_dynamically_spawn_children", True)
+                  and callable(getattr(p, "_launch_processes", None))
+                  and callable(getattr(p, "_start_executor_manager_thread", None))]
+        for pool in forked:
+            pool._launch_processes()
+        for pool in forked:
+            pool._start_executor_manager_thread()
+
+    @property
+    def _processes(self) -> dict:  # the harness terminates the workers on Ctrl-C
+        out: dict = {}
+        for pool in self.pools:
+            out.update(getattr(pool, "_processes", None) or {})
+        return out
+
+    def submit(self, fn: Callable, /, *args, **kwargs) -> Future:
+        return self._enqueue(_ANY, fn, args, kwargs)
+
+    def submit_to(self, key: Any, fn: Callable, /, *args, **kwargs) -> Future:
+        """Submit ``fn(*args, **kwargs)`` to the worker of ``key``: the first worker that is free of its own keys'
+        tasks claims the key at its first task (keys submitted costliest first are then spread as the
+        longest-processing-time rule spreads them, on the times the tasks really take)."""
+        return self._enqueue(key, fn, args, kwargs)
+
+    def _enqueue(self, key: Any, fn: Callable, args: tuple, kwargs: dict) -> Future:
+        fut: Future = Future()
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("cannot schedule new futures after shutdown")
+            self._queue.append((key, fn, args, kwargs, fut))
+            self._dispatch()
+        return fut
+
+    def _takes(self, i: int, key: Any, now: float) -> bool:
+        """Whether worker ``i``, with no task of its own keys queued, may run a task of ``key``: a task without a key,
+        a key no worker has claimed yet (``i`` then claims it), or another worker's that died or has run its current
+        task for :data:`STEAL_AFTER_S`."""
+        if key is _ANY:
+            return True
+        home = self._home.get(key)
+        if home is None:
+            self._home[key] = i
+            return True
+        return home in self._dead or (self._inflight[home] > 0 and now - self._since[home] >= self.steal_after)
+
+    def _dispatch(self) -> None:
+        """Start a queued task on every idle worker that may take one; wake up later for the stealing rule."""
+        import threading
+        import time
+
+        now = time.monotonic()
+        for i, pool in enumerate(self.pools):
+            if i in self._dead or self._inflight[i] >= self.DEPTH:
+                continue
+            pick = next((k for k, t in enumerate(self._queue) if t[0] is not _ANY and self._home.get(t[0]) == i), None)
+            if pick is None:
+                pick = next((k for k, t in enumerate(self._queue) if self._takes(i, t[0], now)), None)
+            if pick is None:
+                continue
+            _, fn, args, kwargs, fut = self._queue.pop(pick)
+            if not fut.set_running_or_notify_cancel():
+                continue
+            try:
+                inner = pool.submit(fn, *args, **kwargs)
+            except Exception as exc:  # noqa: BLE001 - a broken pool: this worker is gone
+                self._dead.add(i)
+                fut.set_exception(exc)
+                continue
+            if self._inflight[i] == 0:
+                self._since[i] = now
+            self._inflight[i] += 1
+            inner.add_done_callback(lambda f, i=i, fut=fut: self._finished(i, f, fut))
+        waiting = [t for t in self._queue if self._home.get(t[0]) not in (None, *self._dead)]
+        idle = any(k == 0 and i not in self._dead for i, k in enumerate(self._inflight))
+        if waiting and idle and self._timer is None and not self._closed:
+            busy = [self._since[i] for i, k in enumerate(self._inflight) if k > 0]
+            if busy:
+                self._timer = threading.Timer(max(0.05, min(busy) + self.steal_after - now), self._wake)
+                self._timer.daemon = True
+                self._timer.start()
+
+    def _wake(self) -> None:
+        with self._lock:
+            self._timer = None
+            self._dispatch()
+
+    def _finished(self, i: int, inner: Future, fut: Future) -> None:
+        from concurrent.futures.process import BrokenProcessPool
+
+        exc = inner.exception()
+        import time
+
+        with self._lock:
+            self._inflight[i] -= 1
+            self._since[i] = time.monotonic()  # its next task (if one is in flight) begins now
+            if isinstance(exc, BrokenProcessPool):
+                self._dead.add(i)
+            if len(self._dead) == len(self.pools):  # no worker left: what is queued fails as its worker did
+                for *_, f in self._queue:
+                    if f.set_running_or_notify_cancel():
+                        f.set_exception(BrokenProcessPool("every worker process died"))
+                self._queue.clear()
+            self._dispatch()
+        if exc is not None:
+            fut.set_exception(exc)
+        else:
+            fut.set_result(inner.result())
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        with self._lock:
+            self._closed = True
+            if self._timer is not None:
+                self._timer.cancel()
+            if cancel_futures:
+                for *_, f in self._queue:
+                    f.cancel()
+                self._queue.clear()
+        for pool in self.pools:
+            pool.shutdown(wait=wait, cancel_futures=cancel_futures)
 
 
 @contextmanager
@@ -384,8 +548,8 @@ def executor(jobs: int | None = None, scheduler: str | None = None, *, connect_t
             warnings.warn(f"{', '.join(sorted(setup.local))}: cannot be sent to a worker started by {method} "
                           "(defined in a notebook or python -c, or not picklable); their tasks run in this process",
                           RuntimeWarning, stacklevel=3)
-    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_worker_init,
-                               initargs=(os.getpid(), method, setup))
+    pool = AffinePool([ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_worker_init,
+                                           initargs=(os.getpid(), method, setup)) for _ in range(jobs)])
     try:
         yield _Routed(pool, setup.local) if setup is not None and setup.local else pool
     finally:

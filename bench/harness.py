@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import time
-from concurrent.futures import Future
 from dataclasses import dataclass
 from functools import partial
 from typing import Callable
@@ -23,11 +22,6 @@ from bench.registry import DESIGNS, PLANTS
 from plants import Plant
 
 __all__ = ["RunResult", "run"]
-
-#: With local worker processes, a plant's pairs run as one task in one worker, in the order of a serial run
-#: (:func:`_plant_task`): the programs compiled and the solver answers kept there serve every design of the plant,
-#: so a parallel run makes the serial run's solves, not more (the results are the same either way).
-BATCH_PLANTS = True
 
 #: A plant's constants may take this many times the per-pair ``timeout``.
 CONSTANTS_TIMEOUT_FACTOR = 10
@@ -73,21 +67,6 @@ def _pair_task(pid: str, did: str, report: ConstantsReport, options: RunOptions)
     return out
 
 
-def _plants_task(batch: tuple, options: RunOptions) -> list[list[PairOutcome]]:
-    """The pairs of a few plants in turn, in one worker (:data:`BATCH_PLANTS`); ``batch`` holds
-    ``(plant id, design ids, constants)`` per plant. Each plant is built once."""
-    outs = []
-    for pid, dids, report in batch:
-        plant = PLANTS.create(pid)
-        row = []
-        for did in dids:
-            out = evaluate_pair(plant, did, report, options)
-            out.plant = None  # the parent re-attaches its own plant object
-            row.append(out)
-        outs.append(row)
-    return outs
-
-
 def _flags(r: dict) -> str:
     flags = [r["status"]]
     if r["certified"]:
@@ -105,14 +84,17 @@ def expected_cost(plant: Plant | None, design_id: str) -> float:
 
 
 def _drain(ex, tasks) -> None:
-    """Submit ``(fn, args, then)`` tasks, and the tasks ``then(future)`` returns as each completes."""
+    """Submit ``(fn, args, then)`` tasks, and the tasks ``then(future)`` returns as each completes. A task
+    ``(fn, args, then, key)`` goes to the worker of its key where the executor has one
+    (:meth:`bench.executors.AffinePool.submit_to`)."""
     from concurrent.futures import FIRST_COMPLETED, wait
 
     pending = {}
+    routed = hasattr(ex, "submit_to")
 
     def submit(batch) -> None:
-        for fn, args, then in batch or ():
-            fut = ex.submit(fn, *args)
+        for fn, args, then, *affinity in batch or ():
+            fut = ex.submit_to(*affinity, fn, *args) if routed and affinity else ex.submit(fn, *args)
             if fut.done():
                 submit(then(fut))
             else:
@@ -128,10 +110,10 @@ def _drain(ex, tasks) -> None:
 class _Run:
     """The state of one :func:`run`: constants, results, cache keys, progress."""
 
-    def __init__(self, plant_ids, design_ids, options, progress, cache, batched: bool = False):
+    def __init__(self, plant_ids, design_ids, options, progress, cache):
         self.plant_ids, self.design_ids, self.options = plant_ids, design_ids, options
-        self.batched = batched
-        self.waiting: dict[str, list[str]] = {}  # batched: the pairs to run of each plant whose constants are in
+        self.routed = False  # the executor routes tasks by key: pairs go out by family (family_tasks)
+        self.waiting: dict[str, list[str]] = {}
         self.progress, self.cache = progress, cache
         self.constants: dict[str, ConstantsReport] = {}
         self.errors: dict[str, str] = {}
@@ -229,14 +211,31 @@ class _Run:
                 elif not (self.cache is not None and pid in self.plants and self._from_cache(pid, did)):
                     todo.append((pid, did))
         todo.sort(key=lambda pd: -expected_cost(self.plants.get(pd[0]), pd[1]))
-        if self.batched:
-            return self.batch_tasks(plant_ids, todo)
+        if self.routed:
+            return self.family_tasks(plant_ids, todo)
         return [(_pair_task, (pid, did, self.constants[pid], self.options), partial(self.finish_pair, pid, did))
                 for pid, did in todo]
 
-    def _family(self, pid: str) -> list[str]:
-        """The plants of the run that share ``pid``'s linear part (A, B, C, dt), in run order: designs that use only
-        that and scalar constants make the same programs on each, which one process then solves once."""
+    def family_tasks(self, plant_ids, todo) -> list:
+        """With an executor that routes tasks by key (:class:`bench.executors.AffinePool`): the pair tasks wait
+        until every plant has its constants (those tasks are ahead of them in the workers' queues anyway), then go
+        out family by family (:meth:`family`), the costliest family first (expected), each family's to one worker
+        (its key)."""
+        for pid in plant_ids:
+            self.waiting[pid] = [d for p, d in todo if p == pid]
+        if len(self.waiting) < len(self.plant_ids):
+            return []
+        families: dict[str, list[tuple[str, str]]] = {}
+        for pid in self.plant_ids:
+            families.setdefault(self.family(pid), []).extend((pid, d) for d in self.waiting.pop(pid))
+        cost = {k: sum(expected_cost(self.plants.get(p), d) for p, d in v) for k, v in families.items()}
+        return [(_pair_task, (pid, did, self.constants[pid], self.options), partial(self.finish_pair, pid, did),
+                 key) for key in sorted(families, key=lambda k: -cost[k]) for pid, did in families[key]]
+
+    def family(self, pid: str) -> str:
+        """The first plant of the run that shares ``pid``'s linear part (A, B, C, dt): the key of the worker that
+        runs its pairs (:class:`bench.executors.AffinePool`). Designs that use only the linear part and scalar
+        constants make the same programs on each plant of a family, which one process then solves once."""
         def key(q: str):
             p = self.plants.get(q)
             if p is None:
@@ -244,48 +243,7 @@ class _Run:
             return tuple(np.asarray(M, dtype=float).tobytes() + repr(np.shape(M)).encode()
                          for M in (p.A, p.B, p.C)) + (float(p.dt),)
         mine = key(pid)
-        return [q for q in self.plant_ids if q == pid or (q in self.plants and key(q) == mine)]
-
-    def batch_tasks(self, plant_ids, todo) -> list:
-        """Batched (:data:`BATCH_PLANTS`): the pairs wait until every plant has its constants (the constants tasks
-        are ahead of them in the workers' queue anyway); then each family of plants (:meth:`_family`) is one task,
-        plant by plant, each plant's pairs in the serial run's order, the costliest family first."""
-        for pid in plant_ids:
-            self.waiting[pid] = [d for p, d in todo if p == pid]
-        if len(self.waiting) < len(self.plant_ids):
-            return []
-        tasks, seen = [], set()
-        for pid in self.plant_ids:
-            if pid in seen:
-                continue
-            family = self._family(pid)
-            seen.update(family)
-            batch = tuple((q, tuple(self.waiting[q]), self.constants[q]) for q in family if self.waiting.get(q))
-            if batch:
-                cost = sum(expected_cost(self.plants.get(q), d) for q, dids, _ in batch for d in dids)
-                tasks.append((cost, (_plants_task, (batch, self.options), partial(self.finish_batch, batch))))
-        tasks.sort(key=lambda ct: -ct[0])  # stable: run order among equal costs
-        return [t for _, t in tasks]
-
-    def finish_batch(self, batch: tuple, fut) -> None:
-        """Record a batch of pairs (:func:`_plants_task`); a batch that failed (a worker that died) makes each of
-        its pairs an error row, as :meth:`finish_pair` does for one pair."""
-        try:
-            outs = fut.result()
-        except KeyboardInterrupt:
-            raise
-        except BaseException as exc:  # noqa: BLE001 - fail_fast re-raise, or a worker that died mid-batch
-            if self.options.fail_fast:
-                raise
-            outs = [[exc] * len(dids) for _, dids, _ in batch]
-        for (pid, dids, _), row in zip(batch, outs):
-            for did, o in zip(dids, row):
-                done: Future = Future()
-                if isinstance(o, BaseException):
-                    done.set_exception(o)
-                else:
-                    done.set_result(o)
-                self.finish_pair(pid, did, done)
+        return next((q for q in self.plant_ids if q == pid or (q in self.plants and key(q) == mine)), pid)
 
     def finish_pair(self, pid: str, did: str, fut) -> None:
         try:
@@ -345,10 +303,9 @@ def run(
     from bench.executors import executor
 
     t_start = time.perf_counter()
-    # local workers take a plant's pairs as one task (BATCH_PLANTS): the memos of one process serve them all
-    state = _Run(plant_ids, design_ids, options, progress, cache,
-                 batched=BATCH_PLANTS and scheduler is None and (jobs is None or jobs > 1))
+    state = _Run(plant_ids, design_ids, options, progress, cache)
     with executor(jobs, scheduler) as ex:
+        state.routed = hasattr(ex, "submit_to")
         try:
             _drain(ex, state.constants_tasks())
         except KeyboardInterrupt:  # the pool's workers terminated, so that shutting it down does not wait for them
