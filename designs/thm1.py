@@ -9,7 +9,6 @@ manipulator, Theorem 1, eqs. (12)-(15), Remark 1. Errata and corrected forms: ``
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -51,8 +50,7 @@ class Thm1(YoungDesign):
 
     For ``gamma < 0``: eps1 >= 0, eps2 > 0 fixed, the 7n x 7n form with the exact (1,3) block
     ``I + eta2 Q`` and the Schur column ``Q`` / ``-(1/eta1) I`` (``eta1 = 2(eps1 rho + eps2 beta)``,
-    dropped when ``eta1 <= 0``); eps2 on a log grid (walked from its middle while the
-    margin rises), phi1 searched at each eps2 visited.
+    dropped when ``eta1 <= 0``); eps2 searched on a log grid jointly with phi1.
     Gains: ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
 
     On a discrete plant: the discrete x-side and e-side of :mod:`designs._discrete` (OSL / QIB e-side of
@@ -192,17 +190,11 @@ class Thm1(YoungDesign):
                              lambda d: [d["eps3"] >= 0, d["eps4"] >= 0], cap=self.cap, signed=("eta2",))
 
     def _design_fixed_eps(self, plant: Plant, c: Constants) -> DesignResult:
-        """The fixed-eps form (gamma < 0): eps2 on a 5-point log grid, phi1 searched at each eps2 visited. The grid
-        is walked from its middle point towards the better neighbour while the best margin over phi1 rises
-        (:func:`_unimodal_walk`): a margin that is unimodal over the grid (it was on every catalogue plant with
-        gamma < 0, all five points solved) gets the full grid's answer in 3 or 4 phi1 searches instead of 5."""
+        """The fixed-eps form (gamma < 0): eps2 on a log grid, phi1 searched at each."""
         progs: dict[bool, lmi.Program] = {}
         eps1 = float(self.eps1)
-        grid = np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), 5)
-        tried: dict[int, tuple] = {}
-
-        def at(i: int) -> float:
-            eps2 = grid[i]
+        best = (-np.inf, None, None, None, None)
+        for eps2 in np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), 5):
             eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
             schur = eta1 > 0
             if schur not in progs:
@@ -213,14 +205,8 @@ class Thm1(YoungDesign):
                 fixed["inv_eta1"] = 1 / eta1
             phi, val, _ = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi,
                                                                   **fixed), n_grid=7, n_refine=3)
-            tried[i] = (val, eps2, eta1, phi, prog)
-            return val
-
-        _unimodal_walk(at, len(grid))
-        best = (-np.inf, None, None, None, None)
-        for i in sorted(tried):  # the first of equal margins, as over the whole grid in order
-            if tried[i][0] > best[0] or best[4] is None:
-                best = tried[i]
+            if val > best[0] or best[4] is None:
+                best = (val, eps2, eta1, phi, prog)
         _, eps2, eta1, phi, prog = best
         for k in ("compile_s", "solve_s", "n_solves"):
             setattr(prog, k, sum(getattr(p, k) for p in progs.values()))
@@ -236,28 +222,6 @@ class Thm1(YoungDesign):
         }
         return concluded(prog, lambda vals: {**params, **self._multipliers(vals, c)},
                          what="corrected Theorem 1 (fixed eps, gamma < 0)", cap=self.cap, searched=searched)
-
-
-def _unimodal_walk(value: Callable[[int], float], n: int) -> None:
-    """Call ``value(i)`` on grid indices ``0..n-1`` from the middle, then towards the better neighbour while the
-    values rise (the whole grid when no finite value is found among the first three)."""
-    mid = n // 2
-    vals = {i: value(i) for i in (mid, mid - 1, mid + 1) if 0 <= i < n}
-    if not any(np.isfinite(v) for v in vals.values()):
-        for i in range(n):
-            if i not in vals:
-                value(i)
-        return
-    for step in (-1, 1):
-        i = mid + step
-        if not (0 <= i < n and vals[i] > vals[mid]):
-            continue
-        while 0 <= i + step < n:
-            vals[i + step] = value(i + step)
-            if not vals[i + step] > vals[i]:
-                break
-            i += step
-        return
 
 
 def _osl_qib_terms(I: np.ndarray, eps1: float, eps2: float, c: Constants) -> np.ndarray:
