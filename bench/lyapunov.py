@@ -709,8 +709,8 @@ class Level:
         The probes: the grid rate just above ``lo`` (a level often certifies no more than the level below); with
         ``top_first`` (``hi`` a tight ceiling) 1, 2, 4, ... grid steps below ``hi`` until one verifies; then where
         the margins of the last verified points (:meth:`margin`) extrapolate to twice the tolerance
-        (:func:`_extrapolate`; with one point, where it aims, :meth:`aim`; not for a region's program, whose margins
-        do not extrapolate); bisection when that lands beyond a failed probe or after two failures in a row. Every
+        (:func:`_extrapolate`; with one point, where it aims, :meth:`aim`; a region's program too: the probes only
+        choose where to look, the answer rests on the outcomes); bisection when that lands beyond a failed probe or after two failures in a row. Every
         verified point is carried up by :meth:`reach_grid`. ``seen``: an earlier verified ``(lam, margin)``;
         ``above_lo=False``: no first probe just above ``lo`` (``lo`` is not a lower level's rate).
         """

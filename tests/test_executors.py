@@ -78,22 +78,27 @@ def _in_fresh_process(code: str, timeout: float, *, drop_env: tuple[str, ...] = 
         return pickle.loads(out.read_bytes())
 
 
-@pytest.fixture(scope="module")
-def serial_and_processes():
-    """The SMALL run with 2 worker processes, then serially, in a fresh interpreter. Processes
-    first, in a process of its own (this pytest process has run many solves already; the case of
-    forking after a solve is test_workers_forked_after_a_solve_in_the_parent_finish)."""
+def serial_and_parallel_frames(plants: list[str], designs: list[str]):
+    """``(serial, parallel)`` frames of a run of ``plants`` x ``designs`` in a fresh interpreter: with 2 worker
+    processes first, then serially (this pytest process has run many solves already; the case of forking after a
+    solve is test_workers_forked_after_a_solve_in_the_parent_finish)."""
     frames = _in_fresh_process(f"""
         import pickle
         from bench.harness import RunOptions, run
         opts = RunOptions(n_samples=500, t_final=5.0)
-        par = run({SMALL[0]!r}, {SMALL[1]!r}, opts, jobs=2).frame()
-        ser = run({SMALL[0]!r}, {SMALL[1]!r}, opts, jobs=1).frame()
+        par = run({plants!r}, {designs!r}, opts, jobs=2).frame()
+        ser = run({plants!r}, {designs!r}, opts, jobs=1).frame()
         with open(OUT, "wb") as fh:
             pickle.dump((ser, par), fh)
     """, timeout=600)
     assert frames is not None, "the run with 2 worker processes did not finish"
     return frames
+
+
+@pytest.fixture(scope="module")
+def serial_and_processes():
+    """The SMALL run serially and with 2 worker processes (:func:`serial_and_parallel_frames`)."""
+    return serial_and_parallel_frames(*SMALL)
 
 
 def test_processes_give_identical_results(serial_and_processes):

@@ -11,25 +11,15 @@ import pytest
 
 from bench.executors import AffinePool
 from bench.harness import RunOptions, _Run
-from tests.test_executors import _in_fresh_process, _same
+from tests.test_executors import _same, serial_and_parallel_frames
 
 FAMILY = (["flexible_link", "flexible_link_printed", "pendulum_v1"], ["thm1_sep", "cor1_sep", "lqr+lqe"])
 
 
 @pytest.fixture(scope="module")
 def serial_and_parallel():
-    """FAMILY with 2 worker processes, then serially, in a fresh interpreter (as test_executors does)."""
-    got = _in_fresh_process(f"""
-        import pickle
-        from bench.harness import RunOptions, run
-        opts = RunOptions(n_samples=500, t_final=5.0)
-        par = run({FAMILY[0]!r}, {FAMILY[1]!r}, opts, jobs=2).frame()
-        ser = run({FAMILY[0]!r}, {FAMILY[1]!r}, opts, jobs=1).frame()
-        with open(OUT, "wb") as fh:
-            pickle.dump((ser, par), fh)
-    """, timeout=600)
-    assert got is not None, "the run with 2 worker processes did not finish"
-    return got
+    """FAMILY serially and with 2 worker processes, in a fresh interpreter."""
+    return serial_and_parallel_frames(*FAMILY)
 
 
 def test_a_parallel_run_makes_the_serial_runs_solves_and_results(serial_and_parallel):
