@@ -481,6 +481,32 @@ def reach(M0: np.ndarray, D: np.ndarray) -> float:
     return math.inf if top <= 0 else 1.0 / top
 
 
+#: Where a secant of the re-optimised points' margins aims (:func:`_bracketed`): this many tolerances below zero.
+SECANT_AIM = 1.25
+
+
+def _bracketed(curve: dict) -> float | None:
+    """Where the re-optimised points' margin reaches :data:`SECANT_AIM` tolerances below zero, by the secant through
+    the highest verified and the lowest failed probe of ``curve`` (:attr:`Level.curve`), or through the two lowest
+    failed ones extrapolated down; None without them. A re-optimised point's margin is nearly linear in the rate
+    (unlike a fixed point's, :func:`_extrapolate`), so a failed probe's margin says how far below it the threshold
+    lies."""
+    failed = sorted((lam, m, tol) for lam, (ok, m, tol) in curve.items() if not ok)
+    if not failed:
+        return None
+    b = failed[0]
+    good = [(lam, m, tol) for lam, (ok, m, tol) in curve.items() if ok and lam < b[0]]
+    if good:
+        a = max(good)
+        if a[1] < b[1]:
+            return a[0] + (-SECANT_AIM * a[2] - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
+    if len(failed) >= 2 and failed[1][1] > b[1]:
+        c = failed[1]
+        est = b[0] - (b[1] + SECANT_AIM * b[2]) * (c[0] - b[0]) / (c[1] - b[1])
+        return est if est > 0 else None
+    return None
+
+
 def _extrapolate(pts: list[tuple[float, float]]) -> float | None:
     """Where the margins of verified points (``(lam, m)``, m in units of the tolerance, rising to -1 at the threshold)
     reach -2: the margin near a threshold r behaves as ``-c (r - lam)^p``, so the last two points' values of
@@ -538,6 +564,10 @@ class Level:
         The least rate at which a probe outside :meth:`search` failed (inf: none).
     verdicts : dict
         Every probe's verdict by rate (:meth:`solve`).
+    curve : dict
+        The re-optimised points' margins by rate, ``lam -> (verified, max eig, tolerance)``, for the probes that
+        verified or failed by their margin beyond the tolerance (not marginal: a margin that stays near zero over a
+        range of rates says nothing of the distance; not by a decision matrix; not unsolved): what searches aim with.
     """
 
     spec: Spec
@@ -551,6 +581,7 @@ class Level:
     taus: dict = field(default_factory=dict)
     failed_at: float = math.inf
     verdicts: dict = field(default_factory=dict)
+    curve: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.T is None:
@@ -624,6 +655,8 @@ class Level:
         self.solver_errors += "solver_error" in self.prog.tried
         verdict, margin = self.prog.verdict()
         self.verdicts[lam] = verdict
+        if verdict == "verified" or (verdict == "violated" and margin > 0):
+            self.curve[lam] = (verdict == "verified", margin, lmi.verify_tol(self.prog.numeric_matrix()))
         if verdict == "verified":
             self.found[lam], self.taus[lam] = self.point()
             if math.isnan(self.lam0_margin):
@@ -680,6 +713,10 @@ class Level:
         return None
 
     # -- the search ----------------------------------------------------------------------------
+    def secant(self) -> float | None:
+        """The threshold rate the probes' margins point to (:func:`_bracketed` of :attr:`curve`), or None."""
+        return _bracketed(self.curve)
+
     def margin(self, lam: float) -> float:
         """The largest eigenvalue of the last point's matrix at ``lam``, in units of its verification tolerance."""
         M = self.matrix_at(lam)
@@ -730,6 +767,10 @@ class Level:
             elif down and kh - down > kl:  # down from a tight ceiling: 1, 2, 4, ... grid steps below it
                 k, galloping = kh - down, True
                 down = 2 * down if kh - 2 * down > kl + 2 else 0
+                est = self.secant()  # unless the failed probes' margins say the threshold lies further down
+                ke = _index(est, rt, up=False) if est is not None and est > 0 else None
+                if ke is not None and kl < ke < k:
+                    k = ke  # still galloping: on a failure the steps below go on doubling from here
             else:
                 est = _extrapolate(pts) if fails < 2 else None
                 if est is None and fails < 2:

@@ -56,7 +56,7 @@ def grid_floor(x: float, rtol: float = RATE_RTOL) -> float:
 def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTOL, start: float | None = None,
                     lo: float | None = None, hi: float | None = None, factor: float = 2.0, max_moves: int = 12,
                     down_until: float = 0.0, stop: Callable[[], bool] | None = None,
-                    first_above: bool = False) -> dict:
+                    first_above: bool = False, aim: Callable[[], float | None] | None = None) -> dict:
     """The largest grid point at which ``passes`` holds, for a test that holds below a threshold.
 
     Parameters
@@ -86,6 +86,11 @@ def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTO
     first_above : bool
         With ``lo`` and ``hi`` given, probe the grid point just above ``lo`` first (the threshold is often
         there: one probe then ends the search), then bisect.
+    aim : callable, optional
+        ``aim() -> float or None``, asked before each probe after the first: an estimate of the threshold from the
+        probes so far (e.g. a secant through their margins). A grid point below the estimate inside the bracket is
+        probed instead of the next bracketing move or the midpoint (the midpoint after two failures in a row). The
+        answer does not depend on it, only which grid points are probed.
 
     Returns
     -------
@@ -99,6 +104,13 @@ def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTO
     moves = max(1, round(math.log(factor) / _step(rtol)))
     kl = None if lo is None else _index(lo, rtol, up=False)  # grid indices known to pass / fail
     kh = None if hi is None else _index(hi, rtol, up=True)
+
+    def aimed(default: int) -> int:
+        est = aim() if aim is not None else None
+        if est is None or not est > 0 or not math.isfinite(est):
+            return default
+        k = _index(est, rtol, up=False)
+        return k if (kl is None or k > kl + 1) and (kh is None or k < kh) else default
 
     def probe(k: int) -> bool:
         nonlocal kl, kh
@@ -121,15 +133,18 @@ def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTO
             break
     for _ in range(max_moves if kl is None else 0):
         last = kh
-        if _point(kh - moves, rtol) < down_until or probe(kh - moves):
+        k = aimed(kh - moves)
+        if _point(k, rtol) < down_until or probe(k):
             break
         if stop is not None and stop():
             kh = last
             break
     if first_above and kl is not None and kh is not None and kh - kl > 1:
         probe(kl + 1)
+    fails = 0
     while kl is not None and kh is not None and kh - kl > 1:
-        probe((kl + kh) // 2)
+        mid = (kl + kh) // 2
+        fails = 0 if probe(mid if fails >= 2 else aimed(mid)) else fails + 1
     kind = "above_range" if kh is None else "below_range" if kl is None else "bracketed"
     return {"lo": _value(kl, lo, rtol, up=False), "hi": _value(kh, hi, rtol, up=True), "kind": kind}
 
