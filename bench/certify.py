@@ -939,10 +939,13 @@ def certify_from_x0(plant: Plant, K: np.ndarray, F: np.ndarray, knowledge: Knowl
     for r, lo, hi in _regions(ch, r0, r_max):
         tried.append(r)
         lv = _level(spec, plant, loop.K, loop.F, knowledge, RATE_RTOL, box=(lo, hi), rows=tuple(rows), r=r)
-        verdict, margin = lv.solve(0.0)
+        # after a certificate: this region matters only when it certifies that rate too (a failure there ends the
+        # search as a lower rate would), so it is probed there first, not at 0
+        start = best.decay_rate if best is not None and best.decay_rate > 0 else 0.0
+        verdict, margin = lv.solve(start)
         found = None
-        if verdict == "verified" and _contains(lv.found[0.0], z0, ch.H, r):
-            found = _rate_in_region(lv, plant, loop, knowledge, z0, r, (lo, hi), margin)
+        if verdict == "verified" and _contains(lv.found[start], z0, ch.H, r):
+            found = _rate_in_region(lv, plant, loop, knowledge, z0, r, (lo, hi), margin, start)
         cost[0] += lv.solve_s
         cost[1] += lv.n_solves
         if found is not None:
@@ -989,15 +992,21 @@ def _regions(ch, r0: float, r_max: float | None):
 
 
 def _rate_in_region(lv: lyapunov.Level, plant: Plant, loop: checks.ClosedLoop, knowledge: Knowledge,
-                    z0: np.ndarray, r: float, box: tuple, margin: float) -> LevelResult:
-    """The certificate from x0 on a region where ``lam = 0`` verified, with the best rate whose set holds z0."""
+                    z0: np.ndarray, r: float, box: tuple, margin: float, start: float = 0.0) -> LevelResult:
+    """The certificate from x0 on a region where the rate ``start`` (a grid rate, or 0) verified, with the best rate
+    whose set holds z0; ``margin``: the verified matrix's largest eigenvalue at ``lam = 0``'s solve (above 0: that of
+    the point at ``start``, taken at ``lam = 0``)."""
     lo, hi = box
     ceiling, _ = witness.rate_ceiling(plant, loop.K, loop.F, knowledge, channels=True, scalars=(), box=(lo, hi))
     top = min(loop.linearised_rate, ceiling)
-    lam = _rate_from_zero(lv, top) if top > 0 else 0.0
-    P = lv.found.get(lam, lv.found[0.0])
+    if start > 0:
+        margin = lv.lam0_margin
+        lam = lv.search(start, top, seen=(start, lv.margin(start))) if top > start else start
+    else:
+        lam = _rate_from_zero(lv, top) if top > 0 else 0.0
+    P = lv.found.get(lam, lv.found[start])
     if not _contains(P, z0, knowledge.channels.H, r):
-        lam, P = 0.0, lv.found[0.0]
+        lam, P = start, lv.found[start]
     return LevelResult("structured", "certified", decay_rate=lam, margin=margin, P=P, radius=r,
                        region_H=knowledge.channels.H, slopes=(np.array(lo, dtype=float), np.array(hi, dtype=float)),
                        from_x0=True, reason=(

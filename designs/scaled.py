@@ -90,7 +90,9 @@ class Scaled(Design):
 
         The x-side is solved first: when it does not verify, the design there is not feasible and its score
         ``-max(x_margin, e_margin)`` is at most ``-x_margin``; when that cannot exceed ``beat``, the e-side is not
-        solved (the bound is returned). Otherwise the separated design is made (its x-side from the program's memo).
+        solved (the bound is returned). When it verifies and ``beat`` is a verified design's score, the x-side's F
+        alone bounds the score (``1 + 1 / (1 + ||F D^-1||)``); when that cannot exceed ``beat`` either, the e-side is
+        not solved. Otherwise the separated design is made (its x-side from the program's memo).
         """
         sp, consts = scaled_plant(plant, d)
         inner = DESIGNS.create(self.inner if self.inner.endswith("_sep") else f"{self.inner}_sep")
@@ -103,6 +105,12 @@ class Scaled(Design):
         x_ok = lmi.classify(xm, X) == "verified" and lmi.is_positive_definite(xprog.values()["Q"])
         if not x_ok and (not math.isfinite(xm) or -xm <= beat):
             return -xm if math.isfinite(xm) else -math.inf
+        if x_ok and beat > 1.0:  # only a verified design with smaller gains beats it; F is the x-side's alone
+            xv = xprog.values()
+            F = np.linalg.solve(xv["Q"], xv["Fh"]).T  # as the separated design recovers it (F = Fh' Q^-1)
+            bound = 1.0 + 1.0 / (1.0 + np.linalg.norm(F @ np.diag(1 / d), 2))  # ||D K|| >= 0 only lowers it
+            if bound <= beat:
+                return bound
         res = inner.separated(sp, consts, decide=False)  # the margins score it; no label needed
         if res.status == "feasible":  # any verified design beats every unverified one; then the smaller gains
             gain = np.linalg.norm(res.F @ np.diag(1 / d), 2) + np.linalg.norm(np.diag(d) @ res.K, 2)

@@ -50,6 +50,17 @@ def test_cor1_printed_infeasible_on_flexible_link(designed):
     assert "under the normalisation" in r.reason and r.margin > 0 and r.K is None
 
 
+def test_cor1_printed_solves_only_its_largest_xi_which_no_other_xi_beats(flex, flex_constants):
+    """xi enters W only as -xi I / alpha^2 (and mu1 < min(1, 1/xi) = 1): each xi solved on its own, the best
+    slack is at the largest; the grid design makes that one solve and reports it."""
+    c = flex_constants.used
+    alone = {xi: DESIGNS.create("cor1_printed", xis=(xi,)).design(flex, c).params["slack"] for xi in (0.1, 0.5, 0.9)}
+    assert alone[0.1] <= alone[0.5] + 1e-7 and alone[0.5] <= alone[0.9] + 1e-7, alone
+    grid = DESIGNS.create("cor1_printed", xis=(0.5, 0.9, 0.1)).design(flex, c)
+    assert grid.n_solves == 1 and grid.params["xi"] == 0.9
+    assert grid.params["slack"] == pytest.approx(max(alone.values()), abs=1e-7)
+
+
 def test_thm1_feasibility_in_phi1_matches_the_tests_own_solve(flex, flex_constants):
     """docs/paper.md: feasible for phi1 in [1e-4, 0.06], infeasible from 0.07 on. The test's own solve of the
     6n LMI (written from docs/paper.md) agrees with the design at a feasible and an infeasible phi1."""
