@@ -482,7 +482,7 @@ def reach(M0: np.ndarray, D: np.ndarray) -> float:
 
 
 #: Where a secant of the re-optimised points' margins aims (:func:`_bracketed`): this many tolerances below zero.
-SECANT_AIM = 1.25
+SECANT_AIM = 1.05
 
 
 def _bracketed(curve: dict) -> float | None:
@@ -492,7 +492,11 @@ def _bracketed(curve: dict) -> float | None:
     (unlike a fixed point's, :func:`_extrapolate`), so a failed probe's margin says how far below it the threshold
     lies."""
     failed = sorted((lam, m, tol) for lam, (ok, m, tol) in curve.items() if not ok)
-    if not failed:
+    if not failed:  # the two highest verified points, extrapolated up
+        good = sorted((lam, m, tol) for lam, (ok, m, tol) in curve.items() if ok)
+        if len(good) >= 2 and good[-2][1] < good[-1][1]:
+            (a, ma, _), (b, mb, tol) = good[-2:]
+            return b + (-SECANT_AIM * tol - mb) * (b - a) / (mb - ma)
         return None
     b = failed[0]
     good = [(lam, m, tol) for lam, (ok, m, tol) in curve.items() if ok and lam < b[0]]
@@ -772,7 +776,11 @@ class Level:
                 if ke is not None and kl < ke < k:
                     k = ke  # still galloping: on a failure the steps below go on doubling from here
             else:
-                est = _extrapolate(pts) if fails < 2 else None
+                est = None
+                if fails < 2:  # the further of the two estimates that leave the passing end's next grid rate
+                    ests = [e for e in (self.secant(), _extrapolate(pts))
+                            if e is not None and e > 0 and kl + 1 < _index(e, rt, up=False) < kh]
+                    est = max(ests, default=None)
                 if est is None and fails < 2:
                     est = aimed
                 ke = _index(est, rt, up=False) if est is not None and est > 0 else None
