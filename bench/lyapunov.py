@@ -72,7 +72,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from bench import lmi
-from bench.search import RATE_RTOL, grid_floor, largest_passing
+from bench.search import RATE_RTOL, grid_floor, largest_passing, secant_estimate
 
 __all__ = ["Level", "Spec", "level_data", "matrix", "measure", "rate_of", "values"]
 
@@ -481,36 +481,6 @@ def reach(M0: np.ndarray, D: np.ndarray) -> float:
     return math.inf if top <= 0 else 1.0 / top
 
 
-#: Where a secant of the re-optimised points' margins aims (:func:`_bracketed`): this many tolerances below zero.
-SECANT_AIM = 1.05
-
-
-def _bracketed(curve: dict) -> float | None:
-    """Where the re-optimised points' margin reaches :data:`SECANT_AIM` tolerances below zero, by the secant through
-    the highest verified and the lowest failed probe of ``curve`` (:attr:`Level.curve`), or through the two lowest
-    failed ones extrapolated down; None without them. A re-optimised point's margin is nearly linear in the rate
-    (unlike a fixed point's, :func:`_extrapolate`), so a failed probe's margin says how far below it the threshold
-    lies."""
-    failed = sorted((lam, m, tol) for lam, (ok, m, tol) in curve.items() if not ok)
-    if not failed:  # the two highest verified points, extrapolated up
-        good = sorted((lam, m, tol) for lam, (ok, m, tol) in curve.items() if ok)
-        if len(good) >= 2 and good[-2][1] < good[-1][1]:
-            (a, ma, _), (b, mb, tol) = good[-2:]
-            return b + (-SECANT_AIM * tol - mb) * (b - a) / (mb - ma)
-        return None
-    b = failed[0]
-    good = [(lam, m, tol) for lam, (ok, m, tol) in curve.items() if ok and lam < b[0]]
-    if good:
-        a = max(good)
-        if a[1] < b[1]:
-            return a[0] + (-SECANT_AIM * a[2] - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
-    if len(failed) >= 2 and failed[1][1] > b[1]:
-        c = failed[1]
-        est = b[0] - (b[1] + SECANT_AIM * b[2]) * (c[0] - b[0]) / (c[1] - b[1])
-        return est if est > 0 else None
-    return None
-
-
 def _extrapolate(pts: list[tuple[float, float]]) -> float | None:
     """Where the margins of verified points (``(lam, m)``, m in units of the tolerance, rising to -1 at the threshold)
     reach -2: the margin near a threshold r behaves as ``-c (r - lam)^p``, so the last two points' values of
@@ -718,8 +688,9 @@ class Level:
 
     # -- the search ----------------------------------------------------------------------------
     def secant(self) -> float | None:
-        """The threshold rate the probes' margins point to (:func:`_bracketed` of :attr:`curve`), or None."""
-        return _bracketed(self.curve)
+        """The threshold rate the probes' margins point to (:func:`bench.search.secant_estimate` of :attr:`curve`), or
+        None."""
+        return secant_estimate(self.curve)
 
     def margin(self, lam: float) -> float:
         """The largest eigenvalue of the last point's matrix at ``lam``, in units of its verification tolerance."""

@@ -152,3 +152,36 @@ def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTO
 def _value(k: int | None, given: float | None, rtol: float, up: bool) -> float:
     """The value of grid index k, or the given bound it was taken from (NaN without k)."""
     return math.nan if k is None else given if given is not None and k == _index(given, rtol, up) else _point(k, rtol)
+
+
+#: Where a secant of the re-optimised points' margins aims (:func:`secant_estimate`): this many tolerances below zero.
+SECANT_AIM = 1.05
+
+
+def secant_estimate(curve: dict) -> float | None:
+    """Where a program's optimal margin reaches :data:`SECANT_AIM` tolerances below zero, from its probes ``curve``
+    (``lam -> (passed, max eig, tolerance)``, e.g. :attr:`bench.lyapunov.Level.curve`; only probes that passed or
+    failed by their margin): the secant through the highest passing probe and the lowest failing one, else through
+    the two lowest failing ones, else through the two highest passing ones; None without two such probes.
+
+    A re-optimised point's margin is nearly linear in the rate near its threshold (a fixed point's bends), so a
+    failed probe's margin says how far below it the threshold lies. An estimate only chooses where to probe.
+    """
+    failed = sorted((lam, m, tol) for lam, (ok, m, tol) in curve.items() if not ok)
+    if not failed:  # the two highest verified points, extrapolated up
+        good = sorted((lam, m, tol) for lam, (ok, m, tol) in curve.items() if ok)
+        if len(good) >= 2 and good[-2][1] < good[-1][1]:
+            (a, ma, _), (b, mb, tol) = good[-2:]
+            return b + (-SECANT_AIM * tol - mb) * (b - a) / (mb - ma)
+        return None
+    b = failed[0]
+    good = [(lam, m, tol) for lam, (ok, m, tol) in curve.items() if ok and lam < b[0]]
+    if good:
+        a = max(good)
+        if a[1] < b[1]:
+            return a[0] + (-SECANT_AIM * a[2] - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
+    if len(failed) >= 2 and failed[1][1] > b[1]:
+        c = failed[1]
+        est = b[0] - (b[1] + SECANT_AIM * b[2]) * (c[0] - b[0]) / (c[1] - b[1])
+        return est if est > 0 else None
+    return None
