@@ -68,7 +68,7 @@ from functools import partial
 import numpy as np
 
 from bench import joint, lmi
-from bench.search import largest_passing
+from bench.search import largest_passing, secant_estimate
 from bench.registry import register_design
 from designs import _discrete
 from designs._core import Design, DesignResult, check_choice, check_positive
@@ -193,17 +193,25 @@ class Structured(Design):
                 seen[name][lam] = self._side(progs[0 if name == "x" else 1], lam)
             return seen[name][lam]
 
+        # the least gain grows with the target: a secant of the verified points' gains against the bound aims the
+        # searches (it only chooses the probes)
+        gains: dict[str, dict[float, tuple]] = {"x": {}, "e": {}}
+
         def passes(name: str):
             def test(lam: float) -> bool:
                 v = side(name, lam)
-                return v is not None and np.linalg.norm(self._gain(name, v, dt), 2) / (
-                    1.0 if name == "x" else (dt or 1.0)) <= self.max_gain
+                if v is None:
+                    return False
+                g = np.linalg.norm(self._gain(name, v, dt), 2) / (1.0 if name == "x" else (dt or 1.0))
+                gains[name][lam] = (g <= self.max_gain, g - self.max_gain, 0.0)
+                return g <= self.max_gain
             return test
 
         kw = dict(rtol=self.rtol, down_until=1e-6)
-        lam = largest_passing(passes("x"), start=min(0.5, self.max_decay / 2), hi=self.max_decay, **kw)["lo"]
+        lam = largest_passing(passes("x"), start=min(0.5, self.max_decay / 2), hi=self.max_decay,
+                              aim=lambda: secant_estimate(gains["x"]), **kw)["lo"]
         if math.isfinite(lam) and not passes("e")(lam):
-            lam = largest_passing(passes("e"), hi=lam, **kw)["lo"]
+            lam = largest_passing(passes("e"), hi=lam, aim=lambda: secant_estimate(gains["e"]), **kw)["lo"]
         x, e = (side("x", lam), side("e", lam)) if math.isfinite(lam) else (None, None)
         tries = len(set(seen["x"]) | set(seen["e"]) | {0.0})
         if x is None or e is None:  # none passed (or a side flipped below its own threshold, numerically)
