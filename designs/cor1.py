@@ -108,14 +108,15 @@ class Cor1(YoungDesign):
 @register_design("cor1_printed", order=13)
 @dataclass(frozen=True, kw_only=True)
 class Cor1Printed(Design):
-    """Corollary 1 as printed, (27)-(32), with Remarks 2-3; xi the largest of a grid in (0, 1).
+    """Corollary 1 as printed, (27)-(32), with Remarks 2-3; xi searched on a grid in (0, 1).
 
     Remark 2 replaces ``-Q/phi2`` and ``-phi2 Q`` by ``-(2 alpha2 - beta2) I`` and ``-beta2 I``
     with ``Q > alpha2 I`` (alpha2, beta2 decision scalars, ``2 alpha2 - beta2 > 0``,
     ``beta2 > 0``); Remark 3 replaces ``-I/(mu1 alpha^2)`` by ``-xi I / alpha^2`` with a fixed
     ``0 < xi < 1`` and ``0 < mu1 < min(1, 1/xi)``. The 7n x 7n matrix W of (27)-(30) is then an
     LMI in Q, R, Fh, Kh, mu1, mu2, alpha2, beta2 for each xi in ``xis``. The largest xi has the largest
-    margin (W decreases as xi grows; mu1's bound is 1 for every xi), so only it is solved.
+    slack (W decreases as xi grows; mu1's bound is 1 for every xi): it is solved first, and when its slack proves
+    the LMI infeasible no other xi is.
     """
 
     xis: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9)
@@ -161,13 +162,23 @@ class Cor1Printed(Design):
         a2 = constants.alpha**2
         prog = joint_program(plant, ("cor1.printed",), blocks, ("mu1", "mu2", "alpha2", "beta2"),
                              {"xi_a2": "xi_over_alpha2", "mu1_max": "mu1_max"}, {"a2": a2}, extra, cap=self.cap)
-        # The largest xi of the grid is its best: xi enters W only as -xi I / alpha^2 on the diagonal, so W decreases
-        # as xi grows, and mu1's bound min(1, 1/xi) is 1 for every 0 < xi < 1; every point (and slack) feasible at a
-        # smaller xi is feasible at the largest. One solve there gives the grid's largest margin.
-        xi = max(map(float, self.xis))
-        prog.solve(xi_a2=xi / a2, mu1_max=min(1.0, 1.0 / xi))
-        return concluded(prog, lambda sv: {"xi": xi, "alpha": constants.alpha, "cap": self.cap,
-                                           **{k: scalar(sv, k) for k in ("mu1", "mu2", "alpha2", "beta2")}},
-                         what="Corollary 1 as printed (Remarks 2-3)", cap=self.cap,
-                         searched=(f"at xi = {xi:g}, the largest of {tuple(self.xis)} (W decreases as xi grows, "
-                                   "mu1 < 1 throughout: no other xi has a larger margin)"))
+        def params(xi: float):
+            return lambda sv: {"xi": xi, "alpha": constants.alpha, "cap": self.cap,
+                               **{k: scalar(sv, k) for k in ("mu1", "mu2", "alpha2", "beta2")}}
+
+        what = "Corollary 1 as printed (Remarks 2-3)"
+        # The largest xi of the grid has its largest slack: xi enters W only as -xi I / alpha^2 on the diagonal, so W
+        # decreases as xi grows, and mu1's bound min(1, 1/xi) is 1 for every 0 < xi < 1: every point (and slack)
+        # feasible at a smaller xi is feasible at the largest. When that slack proves the LMI infeasible, so it is
+        # at every xi; otherwise the grid is searched (the gains come from its best point, as without this).
+        top = max(map(float, self.xis))
+        prog.solve(xi_a2=top / a2, mu1_max=min(1.0, 1.0 / top))
+        res = concluded(prog, params(top), what=what, cap=self.cap,
+                        searched=(f"at xi = {top:g}, the largest of {tuple(self.xis)} (W decreases as xi grows, "
+                                  "mu1 < 1 throughout: no xi has a larger slack)"))
+        if res.status == "infeasible":
+            return res
+        prog.best = None  # the grid in its order (the largest xi answered by the program's memo)
+        best_xi = max(map(float, self.xis),
+                      key=lambda xi: np.nan_to_num(prog.solve(xi_a2=xi / a2, mu1_max=min(1.0, 1.0 / xi)), nan=-np.inf))
+        return concluded(prog, params(best_xi), what=what, cap=self.cap, searched=f"over xi in {tuple(self.xis)}")

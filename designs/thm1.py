@@ -50,7 +50,7 @@ class Thm1(YoungDesign):
 
     For ``gamma < 0``: eps1 >= 0, eps2 > 0 fixed, the 7n x 7n form with the exact (1,3) block
     ``I + eta2 Q`` and the Schur column ``Q`` / ``-(1/eta1) I`` (``eta1 = 2(eps1 rho + eps2 beta)``,
-    dropped when ``eta1 <= 0``); eps2 and phi1 searched on a log grid (5 x 7), phi1 refined at its best point.
+    dropped when ``eta1 <= 0``); eps2 searched on a log grid jointly with phi1.
     Gains: ``K = R^{-1} Kh'``, ``F = Fh' Q^{-1}``.
 
     On a discrete plant: the discrete x-side and e-side of :mod:`designs._discrete` (OSL / QIB e-side of
@@ -189,15 +189,11 @@ class Thm1(YoungDesign):
                              {"rho": c.rho, "beta": c.beta, "gamma": c.gamma},
                              lambda d: [d["eps3"] >= 0, d["eps4"] >= 0], cap=self.cap, signed=("eta2",))
 
-    def _fixed_eps_objective(self, prog: lmi.Program, fixed: dict):
-        """The fixed-eps program's margin as a function of phi1, the other parameters ``fixed``."""
-        return lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi, **fixed)
-
     def _design_fixed_eps(self, plant: Plant, c: Constants) -> DesignResult:
-        """The fixed-eps form (gamma < 0): eps2 x phi1 on a log grid (5 x 7), phi1 refined at the grid's best point."""
+        """The fixed-eps form (gamma < 0): eps2 on a log grid, phi1 searched at each."""
         progs: dict[bool, lmi.Program] = {}
         eps1 = float(self.eps1)
-        best = (-np.inf, None, None, None, None, None)
+        best = (-np.inf, None, None, None, None)
         for eps2 in np.logspace(np.log10(self.eps2_range[0]), np.log10(self.eps2_range[1]), 5):
             eta1 = 2 * (eps1 * c.rho + eps2 * c.beta)
             schur = eta1 > 0
@@ -207,12 +203,11 @@ class Thm1(YoungDesign):
             fixed = dict(eta2=eps2 * c.gamma - eps1, two_eps2=2 * eps2)
             if schur:
                 fixed["inv_eta1"] = 1 / eta1
-            phi, val, _ = self._search_phi(self._fixed_eps_objective(prog, fixed), n_grid=7, n_refine=0)
+            phi, val, _ = self._search_phi(lambda phi: prog.solve(solver=self._joint_solver, phi=phi, iphi=1 / phi,
+                                                                  **fixed), n_grid=7, n_refine=3)
             if val > best[0] or best[4] is None:
-                best = (val, eps2, eta1, phi, prog, fixed)
-        _, eps2, eta1, phi, prog, fixed = best
-        # phi refined around the grid's best point only (its grid points answered by the program's memo)
-        phi, _, _ = self._search_phi(self._fixed_eps_objective(prog, fixed), n_grid=7, n_refine=3)
+                best = (val, eps2, eta1, phi, prog)
+        _, eps2, eta1, phi, prog = best
         for k in ("compile_s", "solve_s", "n_solves"):
             setattr(prog, k, sum(getattr(p, k) for p in progs.values()))
         lo, hi = self.phi1_range

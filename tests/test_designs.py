@@ -52,7 +52,8 @@ def test_cor1_printed_infeasible_on_flexible_link(designed):
 
 def test_cor1_printed_solves_only_its_largest_xi_which_no_other_xi_beats(flex, flex_constants):
     """xi enters W only as -xi I / alpha^2 (and mu1 < min(1, 1/xi) = 1): each xi solved on its own, the best
-    slack is at the largest; the grid design makes that one solve and reports it."""
+    slack is at the largest; where that slack proves the LMI infeasible (the flexible link), the grid design makes
+    that one solve and reports it."""
     c = flex_constants.used
     alone = {xi: DESIGNS.create("cor1_printed", xis=(xi,)).design(flex, c).params["slack"] for xi in (0.1, 0.5, 0.9)}
     assert alone[0.1] <= alone[0.5] + 1e-7 and alone[0.5] <= alone[0.9] + 1e-7, alone
