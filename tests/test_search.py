@@ -50,3 +50,45 @@ def test_out_of_range_and_stop():
     out = largest_passing(lambda x: seen.append(x) or False, hi=1.0, stop=lambda: len(seen) == 2)
     assert out["kind"] == "below_range" and out["hi"] == pytest.approx(seen[0])  # the invalid probe is not hi
     assert grid_floor(1.0) == 1.0 and grid_floor(1.0101, 0.01) == pytest.approx(1.01)
+
+
+def test_secant_estimate_is_the_crossing_of_a_linear_margin():
+    """For a margin m(lam) = s (lam - r) the secant through any passing and failing probe, or through two failing
+    ones, crosses -SECANT_AIM tol at r - SECANT_AIM tol / s (the line itself); with fewer than two probes, None."""
+    from bench.search import SECANT_AIM, secant_estimate
+
+    s, r, tol = 4.7, 0.3, 1e-4
+
+    def probe(lam):
+        m = s * (lam - r)
+        return (m < -tol, m, tol)
+
+    expected = r - SECANT_AIM * tol / s
+    assert secant_estimate({0.1: probe(0.1), 0.9: probe(0.9)}) == pytest.approx(expected, rel=1e-12)
+    assert secant_estimate({0.5: probe(0.5), 0.8: probe(0.8)}) == pytest.approx(expected, rel=1e-12)
+    assert secant_estimate({0.05: probe(0.05), 0.2: probe(0.2)}) == pytest.approx(expected, rel=1e-12)
+    assert secant_estimate({0.9: probe(0.9)}) is None and secant_estimate({}) is None
+
+
+@pytest.mark.parametrize("threshold", [math.pi, 0.0123])
+def test_an_aim_only_chooses_the_probes(threshold):
+    """A secant aim over a linear margin finds the grid point of plain bisection, in fewer probes; an aim that
+    points anywhere (here always at 1) changes the probes but not the answer."""
+    from bench.search import secant_estimate
+
+    def run(aim_kind):
+        curve, calls = {}, []
+
+        def passes(x):
+            calls.append(x)
+            m = x - threshold  # failing above the threshold
+            curve[x] = (m <= 0, m, 0.0)
+            return m <= 0
+
+        aim = {"secant": lambda: secant_estimate(curve), "wrong": lambda: 1.0, None: None}[aim_kind]
+        out = largest_passing(passes, rtol=0.01, hi=1e3, factor=4.0, aim=aim)
+        return out["lo"], len(calls)
+
+    (plain, n_plain), (aimed, n_aimed), (wrong, _) = run(None), run("secant"), run("wrong")
+    assert plain == aimed == wrong and plain <= threshold < plain * 1.01
+    assert n_aimed < n_plain
