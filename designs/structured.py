@@ -176,15 +176,12 @@ class Structured(Design):
         feasible set and raises its least gain), so the largest grid point where both pass is the smaller of the
         two sides' own: the x-side is searched alone, then the e-side is probed there first (one solve when it
         passes) and searched below only when it fails. The grid and range are those of a joint search, so the
-        answer is the same grid point, in about half the solves.
+        answer is the same grid point, in about half the solves. ``lam = 0`` is solved only when a side fails
+        below its first probe (no target passes where it fails at 0: the search stops) or none passes; then the
+        design at ``lam = 0`` is returned, its gains within the bound or not.
         """
         if self.decay is not None:
             return self._try(progs, float(self.decay)), 1
-        first = self._try(progs, 0.0)
-        if first is None:
-            return None, 1
-        if first["gain"] > self.max_gain:
-            return first, 1
         dt = float(progs[1].constants.get("dt", 0.0))
         seen: dict[str, dict[float, dict | None]] = {"x": {}, "e": {}}
 
@@ -207,16 +204,23 @@ class Structured(Design):
                 return g <= self.max_gain
             return test
 
+        def at_zero() -> dict | None:  # the design at lam = 0, its gains within the bound or not
+            x0 = side("x", 0.0)
+            e0 = None if x0 is None else side("e", 0.0)
+            return None if e0 is None else self._candidate(0.0, x0, e0, dt)
+
         kw = dict(rtol=self.rtol, down_until=1e-6)
+        # lam = 0 is solved only when the x-side fails below the first probe (no target passes if it fails there)
         lam = largest_passing(passes("x"), start=min(0.5, self.max_decay / 2), hi=self.max_decay,
-                              aim=lambda: secant_estimate(gains["x"]), **kw)["lo"]
+                              aim=lambda: secant_estimate(gains["x"]), stop=lambda: not passes("x")(0.0), **kw)["lo"]
         if math.isfinite(lam) and not passes("e")(lam):
-            lam = largest_passing(passes("e"), hi=lam, aim=lambda: secant_estimate(gains["e"]), **kw)["lo"]
+            lam = largest_passing(passes("e"), hi=lam, aim=lambda: secant_estimate(gains["e"]),
+                                  stop=lambda: not passes("e")(0.0), **kw)["lo"]
         x, e = (side("x", lam), side("e", lam)) if math.isfinite(lam) else (None, None)
-        tries = len(set(seen["x"]) | set(seen["e"]) | {0.0})
         if x is None or e is None:  # none passed (or a side flipped below its own threshold, numerically)
-            return first, tries
-        return self._candidate(lam, x, e, dt), tries
+            first = at_zero()
+            return first, len(set(seen["x"]) | set(seen["e"]))
+        return self._candidate(lam, x, e, dt), len(set(seen["x"]) | set(seen["e"]))
 
     def design(self, plant: Plant, constants: Constants) -> DesignResult:
         """Search the decay target, then verify the joint certificate of the gains."""
