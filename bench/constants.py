@@ -195,21 +195,24 @@ class ConstantsReport:
 def _values(f: Callable, X: np.ndarray) -> np.ndarray:
     """``f(X)`` for a batch as real numbers; PlantError naming the state at a complex or non-finite value."""
     raw = np.asarray(f(X.copy()))
-    if np.iscomplexobj(raw):
-        bad = np.flatnonzero(np.any(raw.imag != 0, axis=0)) if raw.shape == X.shape else []
-        where = (f" at the sampled state x = {np.round(X[:, bad[0]], 6).tolist()}: {np.round(raw[:, bad[0]], 6).tolist()}"
-                 if len(bad) else " on sampled states")
-        raise PlantError(f"f: returned complex values{where}; f must be real")
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", np.exceptions.ComplexWarning)
-        try:
-            out = np.asarray(raw, dtype=float)
-        except (np.exceptions.ComplexWarning, TypeError, ValueError) as exc:
-            raise PlantError(f"f: returned values that are not real numbers ({exc})") from None
+    if raw.dtype.kind in "biuf":  # real numbers (the usual case): the conversion can neither warn nor fail
+        out = np.asarray(raw, dtype=float)
+    else:
+        if np.iscomplexobj(raw):
+            bad = np.flatnonzero(np.any(raw.imag != 0, axis=0)) if raw.shape == X.shape else []
+            where = (f" at the sampled state x = {np.round(X[:, bad[0]], 6).tolist()}: "
+                     f"{np.round(raw[:, bad[0]], 6).tolist()}" if len(bad) else " on sampled states")
+            raise PlantError(f"f: returned complex values{where}; f must be real")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", np.exceptions.ComplexWarning)
+            try:
+                out = np.asarray(raw, dtype=float)
+            except (np.exceptions.ComplexWarning, TypeError, ValueError) as exc:
+                raise PlantError(f"f: returned values that are not real numbers ({exc})") from None
     if out.shape != X.shape:
         raise PlantError(f"f: a batch of shape {X.shape} gave shape {out.shape}")
-    bad = ~np.all(np.isfinite(out), axis=0)
-    if bad.any():
+    if not np.isfinite(out).all():
+        bad = ~np.all(np.isfinite(out), axis=0)
         j = int(np.argmax(bad))
         raise PlantError(f"f: not finite at the sampled state x = {np.round(X[:, j], 6).tolist()}: "
                          f"{np.round(out[:, j], 6).tolist()}")
@@ -221,10 +224,10 @@ def _ratios(f: Callable, x1: np.ndarray, x2: np.ndarray, gamma: float):
     dx = x1 - x2
     with np.errstate(over="ignore", invalid="ignore"):
         df = _values(f, x1) - _values(f, x2)
-        nx2 = np.sum(dx * dx, axis=0)
+        nx2 = (dx * dx).sum(axis=0)
         nx2 = np.where(nx2 > 0, nx2, np.nan)
-        inner = np.sum(dx * df, axis=0)
-        nf2 = np.sum(df * df, axis=0)
+        inner = (dx * df).sum(axis=0)
+        nf2 = (df * df).sum(axis=0)
         ratios = np.sqrt(nf2 / nx2), inner / nx2, (nf2 - gamma * inner) / nx2
     return [np.where(np.isfinite(r), r, -np.inf) for r in ratios]
 
@@ -252,29 +255,86 @@ def _random_pairs(rng: np.random.Generator, n: int, N: int, radius: float | None
     return x1, x2
 
 
+#: Forward-difference steps of the refinement: scipy's L-BFGS-B ones (its option ``eps = 1e-8``, an absolute
+#: step; where ``z + 1e-8 == z``, scipy's relative step ``sqrt(eps_float64) * sign0(z) * max(1, |z|)``).
+_FD_ABS_STEP = 1e-8
+_FD_REL_STEP = np.finfo(np.float64).eps ** 0.5
+
+#: The evaluation budget of the former finite-difference refinement (scipy's L-BFGS-B ``maxfun`` default), counted
+#: there as 2n + 1 calls per point: :func:`_local_max` keeps its stopping point with ``maxfun = _MAXFUN // (2n + 1)``.
+_MAXFUN = 15000
+
+
+def _unpack(Z: np.ndarray, radius: float | None, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs ``(x1, x2)``, each projected on ``||x|| <= radius``, of the columns ``z = (x1, x2 - x1)`` of ``Z``."""
+    return _project(Z[:n], radius), _project(Z[:n] + Z[n:], radius)
+
+
+def _neg_ratios(f: Callable, which: int, gamma: float, Z: np.ndarray, radius: float | None, n: int) -> np.ndarray:
+    """Minus ratio ``which`` at the pairs of the columns of ``Z`` (2n, N) (see :func:`_unpack`); 0 where the pair
+    coincides (``||x1 - x2|| < 1e-12``: f is not evaluated there) or the ratio is not finite."""
+    a, b = _unpack(Z, radius, n)
+    d = a - b
+    with np.errstate(over="ignore", invalid="ignore"):
+        near = (d * d).sum(axis=0) < 4e-24  # ||a - b|| < 2e-12: decided by np.linalg.norm, as for a lone pair
+    keep = ~near
+    for j in np.flatnonzero(near):
+        keep[j] = not np.linalg.norm(d[:, j]) < 1e-12
+    out = np.zeros(Z.shape[1])
+    if keep.all():
+        val = _ratios(f, a, b, gamma)[which]
+    elif keep.any():
+        val = _ratios(f, a[:, keep], b[:, keep], gamma)[which]
+    else:
+        return out
+    out[keep] = np.where(np.isfinite(val), -val, 0.0)
+    return out
+
+
+def _neg_and_gradient(f: Callable, which: int, gamma: float, z: np.ndarray, radius: float | None, n: int,
+                      lb: np.ndarray | None, ub: np.ndarray | None) -> tuple[float, np.ndarray]:
+    """:func:`_neg_ratios` at ``z`` and its forward-difference gradient, from one batch of 2n + 1 columns.
+
+    The steps are those of scipy's L-BFGS-B without a gradient (``approx_derivative(method='2-point',
+    abs_step=1e-8)``), turned back or shortened to stay in the box ``lb <= z <= ub`` when one is given (scipy's
+    ``_adjust_scheme_to_bounds``, one-sided), so L-BFGS-B takes the same path as with scipy's own finite differences
+    (which evaluate the same points one call each).
+    """
+    h = np.full(z.shape, _FD_ABS_STEP)
+    lost = (z + h) - z == 0
+    h[lost] = _FD_REL_STEP * ((z[lost] >= 0).astype(float) * 2 - 1) * np.maximum(1.0, np.abs(z[lost]))
+    if lb is not None:
+        if np.any((z < lb) | (z > ub)):  # scipy's differences refuse such a point (the refinement then keeps z0)
+            raise ValueError("`x0` violates bound constraints.")
+        lower, upper = z - lb, ub - z
+        stepped = z + h
+        fitting = np.abs(h) <= np.maximum(lower, upper)
+        h[((stepped < lb) | (stepped > ub)) & fitting] *= -1
+        forward, backward = (upper >= lower) & ~fitting, (upper < lower) & ~fitting
+        h[forward], h[backward] = upper[forward], -lower[backward]
+    m = z.size
+    Z = np.repeat(z[:, None], m + 1, axis=1)
+    idx = np.arange(m)
+    Z[idx, idx + 1] = z + h
+    v = _neg_ratios(f, which, gamma, Z, radius, n)
+    return v[0], (v[1:] - v[0]) / ((z + h) - z)
+
+
 def _local_max(f, which: int, gamma: float, x1, x2, radius, n):
-    """Maximise one ratio from a starting pair with L-BFGS-B (finite differences)."""
+    """Maximise one ratio from a starting pair with L-BFGS-B, on forward-difference gradients of batched values."""
     from scipy.optimize import minimize
-
-    def unpack(z):
-        return _project(z[:n, None], radius), _project((z[:n] + z[n:])[:, None], radius)
-
-    def neg(z):
-        a, b = unpack(z)
-        if np.linalg.norm(a - b) < 1e-12:
-            return 0.0
-        val = _ratios(f, a, b, gamma)[which][0]
-        return -val if np.isfinite(val) else 0.0
 
     z0 = np.concatenate([x1, x2 - x1])
     # globally a box keeps an unbounded ratio (a cubic f's) from running to overflow
     box = None if radius is not None else [(-b, b) for b in [1e3 * max(1.0, float(np.abs(z0).max()))] * (2 * n)]
+    lb, ub = (None, None) if box is None else (np.array([lo for lo, _ in box]), np.array([hi for _, hi in box]))
     try:
-        z = minimize(neg, z0, method="L-BFGS-B", bounds=box, options={"maxiter": 200}).x
+        z = minimize(lambda z: _neg_and_gradient(f, which, gamma, z, radius, n, lb, ub), z0, method="L-BFGS-B",
+                     jac=True, bounds=box, options={"maxiter": 200, "maxfun": _MAXFUN // (2 * n + 1)}).x
     except Exception:  # a user f that fails away from the samples: keep the sample
         z = z0
-    a, b = unpack(z)
-    return a[:, 0], b[:, 0], -neg(z)
+    a, b = _unpack(z[:, None], radius, n)
+    return a[:, 0], b[:, 0], -_neg_ratios(f, which, gamma, z[:, None], radius, n)[0]
 
 
 def _best_pairs(f, x1, x2, gamma, radius, n, n_refine) -> dict[str, tuple[float, np.ndarray, np.ndarray]]:

@@ -26,13 +26,13 @@ fixed point ``z = Phi(z)`` of the closed-loop map besides the origin.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from bench import lmi
 from bench.checks import vector
 
 __all__ = ["Witness", "rate_ceiling"]
@@ -87,14 +87,106 @@ class Witness:
 def admits(L: np.ndarray, scalars: tuple[str, ...], constants) -> bool:
     """True when ``f(x) = L x`` meets the scalar constants ``scalars`` (of ``"osl"``, ``"qib"``, ``"lip"``).
 
-    OSL: ``sym(L) <= rho I``; QIB: ``L' L <= beta I + gamma sym(L)``; Lipschitz: ``||L||_2 <= alpha``.
+    OSL: ``sym(L) <= rho I``; QIB: ``L' L <= beta I + gamma sym(L)``; Lipschitz: ``||L||_2 <= alpha``; each
+    within ``tol = 1e-12 max(1, max |L_ij|)``, checked in the order of ``scalars`` up to the first one unmet. A
+    largest eigenvalue is taken as :func:`bench.lmi.max_eig` takes it (NaN, so unmet, for a non-finite matrix);
+    ``||L||_2`` is the largest singular value. :func:`admitted` applies the same rule to a stack of matrices.
+
+    Parameters
+    ----------
+    L : ndarray
+        The linear member, shape (n, n).
+    scalars : tuple of str
+        Constants to meet, of ``"osl"``, ``"qib"``, ``"lip"``.
+    constants : Constants
+        Their values (``rho``, ``beta``, ``gamma``, ``alpha``; None reads as 0).
+
+    Returns
+    -------
+    bool
+        Whether ``f(x) = L x`` meets every constant of ``scalars``.
     """
     c, S = constants, (L + L.T) / 2
     tol = 1e-12 * max(1.0, float(np.abs(L).max(initial=0.0)))
-    ok = {"osl": lambda: lmi.max_eig(S - (c.rho or 0.0) * np.eye(len(L))) <= tol,
-          "qib": lambda: lmi.max_eig(L.T @ L - (c.beta or 0.0) * np.eye(len(L)) - (c.gamma or 0.0) * S) <= tol,
-          "lip": lambda: float(np.linalg.norm(L, 2)) <= (c.alpha or 0.0) + tol}
-    return all(ok[k]() for k in scalars)
+    for k in scalars:
+        if k == "lip":
+            if not float(np.linalg.svd(L, compute_uv=False).max()) <= (c.alpha or 0.0) + tol:
+                return False
+            continue
+        if k == "osl":
+            M = S - (c.rho or 0.0) * _eye(len(L))
+        elif k == "qib":
+            M = L.T @ L - (c.beta or 0.0) * _eye(len(L)) - (c.gamma or 0.0) * S
+        else:
+            raise KeyError(k)
+        if not (np.isfinite(M).all() and float(np.linalg.eigvalsh((M + M.T) / 2)[-1]) <= tol):
+            return False
+    return True
+
+
+@functools.lru_cache(maxsize=32)
+def _eye(n: int) -> np.ndarray:
+    """``np.eye(n)``, made once (read-only)."""
+    eye = np.eye(n)
+    eye.flags.writeable = False
+    return eye
+
+
+def _max_eigs(M: np.ndarray) -> np.ndarray:
+    """:func:`bench.lmi.max_eig` of each matrix of the stack ``M`` (N, n, n): one batched ``eigvalsh``."""
+    out = np.full(len(M), np.nan)
+    fin = np.isfinite(M).all(axis=(1, 2))
+    if fin.any():
+        Mf = M[fin]
+        out[fin] = np.linalg.eigvalsh((Mf + Mf.transpose(0, 2, 1)) / 2)[:, -1]
+    return out
+
+
+def admitted(Ls: np.ndarray, scalars: tuple[str, ...], constants) -> np.ndarray:
+    """:func:`admits` for each matrix of the stack ``Ls`` (N, n, n), as a boolean array (N,).
+
+    The same rule with the same tolerance ``1e-12 max(1, max |L_ij|)`` per matrix, by batched LAPACK calls
+    (``eigvalsh``, ``svd``: the same routine on each matrix, the same numbers as one call per matrix); a constant
+    is checked only on the matrices that met the ones before it, in the order of ``scalars``. A stack with a
+    non-finite entry takes :func:`admits` matrix by matrix.
+
+    Parameters
+    ----------
+    Ls : ndarray
+        The linear members, shape (N, n, n).
+    scalars : tuple of str
+        Constants to meet, of ``"osl"``, ``"qib"``, ``"lip"``.
+    constants : Constants
+        Their values (``rho``, ``beta``, ``gamma``, ``alpha``; None reads as 0).
+
+    Returns
+    -------
+    ndarray of bool
+        Whether each ``f(x) = L x`` meets every constant of ``scalars``.
+    """
+    Ls = np.asarray(Ls, dtype=float)
+    ok = np.ones(len(Ls), dtype=bool)
+    if not scalars or not len(Ls):
+        return ok
+    if not np.all(np.isfinite(Ls)):
+        return np.array([admits(L, scalars, constants) for L in Ls], dtype=bool)
+    c, eye = constants, _eye(Ls.shape[1])
+    S = (Ls + Ls.transpose(0, 2, 1)) / 2
+    tol = 1e-12 * np.maximum(1.0, np.abs(Ls).max(axis=(1, 2), initial=0.0))
+    for k in scalars:
+        i = np.flatnonzero(ok)
+        if not i.size:
+            break
+        if k not in ("osl", "qib", "lip"):
+            raise KeyError(k)
+        if k == "osl":
+            ok[i] = _max_eigs(S[i] - (c.rho or 0.0) * eye) <= tol[i]
+        elif k == "qib":
+            L = Ls[i]
+            ok[i] = _max_eigs(L.transpose(0, 2, 1) @ L - (c.beta or 0.0) * eye - (c.gamma or 0.0) * S[i]) <= tol[i]
+        else:
+            ok[i] = np.linalg.svd(Ls[i], compute_uv=False).max(axis=1) <= (c.alpha or 0.0) + tol[i]
+    return ok
 
 
 def _slope_points(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, str]:
@@ -144,13 +236,26 @@ def _subspaces(plant, K: np.ndarray, F: np.ndarray) -> list[np.ndarray]:
                 out += [v.real[:, None], v.imag[:, None], np.column_stack([v.real, v.imag])]
         out += [v[:, None] for v in np.linalg.eigh((M + M.T) / 2)[1].T]
     out += [v[:, None] for v in np.random.default_rng([0, 31]).standard_normal((DIRECTIONS, n))]
-    bases, seen = [], []
-    for V in out:
+    # each V's orthonormal basis Q (the columns of V's QR kept where R's diagonal is not negligible) and projector
+    # Q Q', by batched calls over the V of each width (the same numbers as one call per V); kept in their order
+    # unless their projector (to 9 decimals) came before
+    Qs, keys = [None] * len(out), [None] * len(out)
+    for w in (1, 2):
+        i = [k for k, V in enumerate(out) if V.shape[1] == w]
+        if not i:
+            continue
+        V = np.stack([out[k] for k in i])
         Q, R = np.linalg.qr(V)
-        Q = Q[:, np.abs(np.diag(R)) > 1e-9 * max(1.0, float(np.abs(V).max()))]
-        key = np.round(Q @ Q.T, 9).tobytes()
+        Q = np.ascontiguousarray(Q)
+        keep = np.abs(np.diagonal(R, axis1=1, axis2=2)) > 1e-9 * np.fmax(1.0, np.abs(V).max(axis=(1, 2)))[:, None]
+        P = np.round(Q @ Q.transpose(0, 2, 1), 9)
+        for j, k in enumerate(i):
+            Qs[k] = Q[j][:, keep[j]]
+            keys[k] = P[j].tobytes() if keep[j].all() else np.round(Qs[k] @ Qs[k].T, 9).tobytes()
+    bases, seen = [], set()
+    for Q, key in zip(Qs, keys):
         if Q.shape[1] and key not in seen:
-            seen.append(key)
+            seen.add(key)
             bases.append(Q)
     return bases
 
@@ -166,7 +271,10 @@ def _symmetric_members(plant, K, F, interval: tuple[float, float]) -> tuple[list
         return Ls, how
     ends = np.unique([lo, (lo + hi) / 2, hi])
     bases = _subspaces(plant, K, F)
-    Ls += [s * np.eye(plant.n) + (u - s) * (Q @ Q.T) for Q in bases for s in ends for u in ends if s != u]
+    if bases:  # every (Q, s, u) at once, in the order Q, then s, then u != s
+        i, j = np.nonzero(ends[:, None] != ends[None, :])
+        n, P = plant.n, np.stack([Q @ Q.T for Q in bases])[:, None]
+        Ls += list((ends[i, None, None] * np.eye(n) + (ends[j] - ends[i])[:, None, None] * P).reshape(-1, n, n))
     return Ls, how + f", and s I + (u - s) Q Q' on {len(bases)} rank-one and rank-two subspaces Q"
 
 
@@ -187,7 +295,7 @@ def members(plant, know, *, channels: bool, scalars: tuple[str, ...], box: tuple
     if ch is not None and (channels or scalars):
         lo, hi = box if box is not None else (ch.lo, ch.hi)
         pts, what = _slope_points(np.asarray(lo, float), np.asarray(hi, float))
-        out = [(c, ch.G @ (c[:, None] * ch.H)) for c in pts]
+        out = list(zip(pts, ch.G @ (pts[:, :, None] * ch.H)))  # L = G diag(c) H for every c at once
         how.append(what if channels else f"channel members meeting the scalar constants, among {what}")
     if not channels:
         interval = eigen_interval(know.constants, scalars)
@@ -195,8 +303,9 @@ def members(plant, know, *, channels: bool, scalars: tuple[str, ...], box: tuple
             Ls, what = _symmetric_members(plant, K, F, interval)
             out += [(None, L) for L in Ls]
             how.append(f"{what} meeting the constants")
-    if scalars:
-        out = [(c, L) for c, L in out if admits(L, scalars, know.constants)]
+    if scalars and out:
+        keep = admitted(np.stack([L for _, L in out]), scalars, know.constants)
+        out = [m for m, k in zip(out, keep) if k]
     return out, "; ".join(how)
 
 
@@ -207,19 +316,44 @@ def _dt(plant) -> float:
 def slowest_loop(plant, K: np.ndarray, F: np.ndarray, Ls: list[np.ndarray]) -> tuple[int, float, complex] | None:
     """The slowest of the linear loops with ``f = L x``: its index in ``Ls``, its decay rate ``-max Re eig``
     (discrete time: ``-ln(max |eig|) / dt`` per second) and that eigenvalue (None without any L)."""
-    if not Ls:
+    if not len(Ls):
         return None
-    AL = plant.A[None] + np.stack(Ls)
-    eig = np.concatenate([np.linalg.eigvals(AL + plant.B @ F), np.linalg.eigvals(AL - K @ plant.C)], axis=1)
-    dt = _dt(plant)
+    return _slowest(_loop_parts(plant, K, F), np.stack(Ls))
+
+
+def _loop_parts(plant, K: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """``(A, B F, K C, dt)``: what :func:`_slowest` needs of a loop, computed once for many members."""
+    return plant.A, plant.B @ F, K @ plant.C, _dt(plant)
+
+
+def _slowest(parts: tuple, Ls: np.ndarray) -> tuple[int, float, complex]:
+    """:func:`slowest_loop` of the stack ``Ls`` (N, n, n), N >= 1, with the loop's ``parts`` (:func:`_loop_parts`):
+    the eigenvalues of every ``A + L + B F`` and ``A + L - K C`` in one batched call."""
+    A, BF, KC, dt = parts
+    AL, N = A[None] + Ls, len(Ls)
+    w = np.linalg.eigvals(np.concatenate([AL + BF, AL - KC]))
+    eig = np.concatenate([w[:N], w[N:]], axis=1)
     key = np.abs(eig) if dt > 0 else eig.real
-    worst = eig[np.arange(len(Ls)), np.argmax(key, axis=1)]
+    worst = eig[np.arange(N), np.argmax(key, axis=1)]
     wkey = np.abs(worst) if dt > 0 else worst.real
     i = int(np.argmax(wkey))
     if dt > 0:
         with np.errstate(divide="ignore"):
             return i, float(-np.log(abs(worst[i])) / dt), complex(worst[i])
     return i, float(-worst[i].real), complex(worst[i])
+
+
+def _rate1(parts: tuple, L: np.ndarray) -> float:
+    """The decay rate of :func:`_slowest` for the one member ``L`` (n, n): the same eigenvalues (one batched call
+    on ``A + L + B F`` and ``A + L - K C``), the same one of them picked."""
+    A, BF, KC, dt = parts
+    AL = A + L
+    eig = np.linalg.eigvals(np.stack((AL + BF, AL - KC))).reshape(-1)
+    if dt > 0:
+        worst = eig[np.argmax(np.abs(eig))]
+        with np.errstate(divide="ignore"):
+            return float(-np.log(abs(worst)) / dt)
+    return float(-eig.real.max())
 
 
 def unstable(plant, K: np.ndarray, F: np.ndarray, eig: complex) -> bool:
@@ -270,7 +404,6 @@ _CEILINGS: dict = {}
 
 def _memo_ceiling(fn):
     """:func:`rate_ceiling` remembered for the same plant and knowledge objects, gains, class and box."""
-    import functools
 
     @functools.wraps(fn)
     def memo(plant, K, F, know, *, channels, scalars, box=None):
@@ -327,15 +460,17 @@ def _refine_slopes(plant, K, F, know, scalars, c0: np.ndarray, box, best: float)
     if not np.any(free):
         return best
 
+    parts, lo_free, hi_free = _loop_parts(plant, K, F), lo[free], hi[free]
+
     def rate(v):
         c = c0.copy()
-        c[free] = np.clip(v, lo[free], hi[free])
+        c[free] = np.clip(v, lo_free, hi_free)
         L = ch.G @ (c[:, None] * ch.H)
         if scalars and not admits(L, scalars, know.constants):
             return best
-        return slowest_loop(plant, K, F, [L])[1]
+        return _rate1(parts, L)
 
-    res = minimize(rate, c0[free], method="Powell", bounds=list(zip(lo[free], hi[free])),
+    res = minimize(rate, c0[free], method="Powell", bounds=list(zip(lo_free, hi_free)),
                    options={"maxfev": 60 * int(free.sum()), "xtol": 1e-6, "ftol": 1e-9})
     return float(res.fun) if np.isfinite(res.fun) else best
 
@@ -353,37 +488,47 @@ def _refine_symmetric(plant, K, F, know, scalars, L0: np.ndarray, best: float) -
     odd = 0 if w[-1] - w[1] <= 1e-12 * max(1.0, abs(w[-1])) else n - 1  # the eigenvalue of L0's rank-one part
     x0 = np.concatenate([np.clip([w[n - 1 - odd], w[odd]], *interval), V[:, odd]])
 
+    parts, eye = _loop_parts(plant, K, F), np.eye(n)
+
     def rate(p):
         s, u, v = np.clip(p[0], *interval), np.clip(p[1], *interval), p[2:]
         if not np.linalg.norm(v) > 1e-9:
             return best
-        L = s * np.eye(n) + (u - s) * np.outer(v, v) / (v @ v)
+        L = s * eye + (u - s) * (v[:, None] * v) / (v @ v)
         if not admits(L, scalars, know.constants):
             return best
-        return slowest_loop(plant, K, F, [L])[1]
+        return _rate1(parts, L)
 
     res = minimize(rate, x0, method="Powell", bounds=[interval, interval] + [(-1.0, 1.0)] * n,
                    options={"maxfev": 60 * (n + 2), "xtol": 1e-6, "ftol": 1e-9})
     return min(float(res.fun), best) if np.isfinite(res.fun) else best
 
 
-def _rhs(plant, K, F, z: np.ndarray) -> np.ndarray:
-    """The true closed loop (9) in ``z = (x, e)``: ``x' = (A + B F) x - B F e + f(x)``,
-    ``e' = (A - K C) e + f(x) - f(x - e)``; in discrete time the map's ``z_{k+1} - z_k`` (zero at a fixed point)."""
-    x, e = np.split(z, 2)
-    BF = plant.B @ F
-    fx = np.asarray(plant.f(x), float)
-    out = np.concatenate([(plant.A + BF) @ x - BF @ e + fx, (plant.A - K @ plant.C) @ e + fx
-                          - np.asarray(plant.f(x - e), float)])
-    return out - z if _dt(plant) > 0 else out
+def _loop_fns(plant, K: np.ndarray, F: np.ndarray):
+    """``(rhs, jac)`` of the true closed loop (9) in ``z = (x, e)``, with ``B F``, ``A + B F`` and ``A - K C``
+    computed once for the whole root search (``jac`` None when the plant has no Jacobian).
 
-
-def _jac(plant, K, F, z: np.ndarray) -> np.ndarray:
-    x, e = np.split(z, 2)
+    ``rhs``: ``x' = (A + B F) x - B F e + f(x)``, ``e' = (A - K C) e + f(x) - f(x - e)``; in discrete time the
+    map's ``z_{k+1} - z_k`` (zero at a fixed point). ``jac``: its Jacobian from the plant's.
+    """
+    n, f, jacobian, disc = plant.n, plant.f, plant.jacobian, _dt(plant) > 0
     BF = plant.B @ F
-    Jx, Jh = np.asarray(plant.jacobian(x), float), np.asarray(plant.jacobian(x - e), float)
-    J = np.block([[plant.A + BF + Jx, -BF], [Jx - Jh, plant.A - K @ plant.C + Jh]])
-    return J - np.eye(len(z)) if _dt(plant) > 0 else J
+    ABF, AK, mBF = plant.A + BF, plant.A - K @ plant.C, -BF
+
+    def rhs(z: np.ndarray) -> np.ndarray:
+        x, e = z[:n], z[n:]
+        fx = np.asarray(f(x), float)
+        out = np.concatenate([ABF @ x - BF @ e + fx, AK @ e + fx - np.asarray(f(x - e), float)])
+        return out - z if disc else out
+
+    def jac(z: np.ndarray) -> np.ndarray:
+        x, e = z[:n], z[n:]
+        Jx, Jh = np.asarray(jacobian(x), float), np.asarray(jacobian(x - e), float)
+        J = np.empty((2 * n, 2 * n))
+        J[:n, :n], J[:n, n:], J[n:, :n], J[n:, n:] = ABF + Jx, mBF, Jx - Jh, AK + Jh
+        return J - np.eye(2 * n) if disc else J
+
+    return rhs, (jac if jacobian is not None else None)
 
 
 def _starts(plant, K, F, know) -> list[np.ndarray]:
@@ -415,6 +560,9 @@ def _starts(plant, K, F, know) -> list[np.ndarray]:
 #: Most channels for which :func:`no_equilibrium` checks the ``4 ** q`` vertices.
 VERTEX_MAX_Q = 6
 
+#: Vertices :func:`no_equilibrium` takes per batched call.
+VERTEX_BATCH = 256
+
 
 def no_equilibrium(plant, K: np.ndarray, F: np.ndarray, know) -> bool:
     """True when the channel class proves the closed loop has no equilibrium besides the origin.
@@ -439,15 +587,27 @@ def no_equilibrium(plant, K: np.ndarray, F: np.ndarray, know) -> bool:
     if q > VERTEX_MAX_Q:
         return False
     BF, AK = plant.B @ F, plant.A - K @ plant.C
-    scale, signs = _scale(plant, K, F) + float(np.abs(ch.G).max() * np.abs(ch.H).max() * np.abs([lo, hi]).max()), set()
-    for d in itertools.product(*[(a, b) for a, b in zip(lo, hi)] * 2):
-        D1, D2 = np.diag(d[:q]), np.diag(d[q:])
-        M = np.block([[plant.A + BF + ch.G @ D1 @ ch.H, -BF], [ch.G @ (D1 - D2) @ ch.H, AK + ch.G @ D2 @ ch.H]])
+    scale = _scale(plant, K, F) + float(np.abs(ch.G).max() * np.abs(ch.H).max() * np.abs([lo, hi]).max())
+    vertices, signs = np.array(list(itertools.product(*[(a, b) for a, b in zip(lo, hi)] * 2)), dtype=float), set()
+    for d in np.array_split(vertices, -(-len(vertices) // VERTEX_BATCH)):  # batched, in order
+        D1, D2, j = np.zeros((len(d), q, q)), np.zeros((len(d), q, q)), np.arange(q)
+        D1[:, j, j], D2[:, j, j] = d[:, :q], d[:, q:]
+        M = np.empty((len(d), 2 * n, 2 * n))  # each vertex's matrix, block by block
+        M[:, :n, :n] = plant.A + BF + ch.G @ D1 @ ch.H
+        M[:, :n, n:] = -BF
+        M[:, n:, :n] = ch.G @ (D1 - D2) @ ch.H
+        M[:, n:, n:] = AK + ch.G @ D2 @ ch.H
         if _dt(plant) > 0:
             M = M - np.eye(2 * n)
-        if np.linalg.svd(M, compute_uv=False)[-1] <= 1e-8 * scale:
+        finite = np.isfinite(M).all(axis=(1, 2))
+        smin = np.full(len(M), np.nan)
+        smin[finite] = np.linalg.svd(M[finite], compute_uv=False)[:, -1]  # the same numbers as one call per vertex
+        low = smin <= 1e-8 * scale
+        if not finite.all() and not low[:int(np.argmin(finite))].any():
+            np.linalg.svd(M[int(np.argmin(finite))], compute_uv=False)  # raises LinAlgError, as vertex by vertex
+        if low.any():
             return False
-        signs.add(np.linalg.slogdet(M)[0])
+        signs.update(np.linalg.slogdet(M)[0].tolist())
     return len(signs) == 1
 
 
@@ -467,18 +627,18 @@ def equilibrium_witness(plant, K: np.ndarray, F: np.ndarray, know, *, tol: float
     from scipy.optimize import root
 
     scale = _scale(plant, K, F)
-    jac = (lambda z: _jac(plant, K, F, z)) if plant.jacobian is not None else None
+    rhs, jac = _loop_fns(plant, K, F)
     best = None
     with np.errstate(all="ignore"):
         for z0 in _starts(plant, K, F, know):
             try:
-                sol = root(lambda z: _rhs(plant, K, F, z), z0, jac=jac, method="hybr")
+                sol = root(rhs, z0, jac=jac, method="hybr")
             except (ValueError, ArithmeticError, np.linalg.LinAlgError):
                 continue
             z = sol.x
             if not np.all(np.isfinite(z)) or np.linalg.norm(z) <= 1e-6:
                 continue
-            res = float(np.linalg.norm(_rhs(plant, K, F, z)))
+            res = float(np.linalg.norm(rhs(z)))
             if res <= tol * scale * max(1.0, float(np.linalg.norm(z))) and (
                     best is None or np.linalg.norm(z) < np.linalg.norm(best[0])):
                 best = (z, res)
