@@ -144,6 +144,10 @@ class _FactoredLoop:
         self.A, self.B, self.C = (sp.csr_matrix(M) for M in (plant.A, plant.B, plant.C))
         self.K, self.F, self.n = K, F, plant.n
 
+    def dot(self, z: np.ndarray) -> np.ndarray:
+        """``L z`` (as ``ndarray.dot``, which the right-hand sides call)."""
+        return self @ z
+
     def __matmul__(self, z: np.ndarray) -> np.ndarray:
         n = self.n
         x, xh = z[:n], z[n:]
@@ -181,13 +185,16 @@ class _LoopRHS(Budget):
     def __init__(self, L, f, n: int, options: SimOptions):
         super().__init__(options)
         self.L, self.f, self.n = L, f, n
+        # L.dot(z) is L @ z (the same BLAS call) without the dispatch of the matmul operator: the right-hand side
+        # is called ~10^5 times a run, every microsecond of it counts
+        self._Lz, self._pair = L.dot, (2, n)
 
     def __call__(self, t, z):
         self.spend(t)
         if not _all_finite(z):
             raise _Stop("diverged", f"non-finite state at t = {t:.4g}")
-        nl = np.asarray(self.f(z.reshape(2, self.n).T), dtype=float).T.ravel()
-        return self.L @ z + nl
+        nl = np.asarray(self.f(z.reshape(self._pair).T), dtype=float).T.ravel()
+        return self._Lz(z) + nl
 
 
 def disturbance_input(plant, K: np.ndarray | None) -> np.ndarray:
@@ -219,7 +226,7 @@ class _DisturbedRHS(_LoopRHS):
         self.Bd, self.w = Bd, w
 
     def __call__(self, t, z):
-        return super().__call__(t, z) + self.Bd @ np.asarray(self.w(t), dtype=float)
+        return super().__call__(t, z) + self.Bd.dot(np.asarray(self.w(t), dtype=float))
 
 
 def simulate(
@@ -396,6 +403,10 @@ def discrete_steps(dt: float, t_final: float) -> int:
 class _SampledLoop:
     """The sampled paths of :func:`simulate_controller`: ``N = t_final / dt`` intervals, noise drawn once."""
 
+    #: Restart the previous interval's solver in place (:meth:`_start`) rather than build one per interval (False:
+    #: the reference the tests compare with).
+    reuse_solver = True
+
     def __init__(self, plant: Plant, F, K, estimator, dt: float, t_final: float, noise: float, seed: int,
                  options: SimOptions, x0=None, x_hat0=None, disturbance=None):
         import scipy.integrate
@@ -422,6 +433,10 @@ class _SampledLoop:
         # "auto": RK45 for the smooth plant and model flow of an estimator, DOP853 with an observer gain
         method = options.method if options.method != "auto" else ("RK45" if estimator is not None else "DOP853")
         self.method = getattr(scipy.integrate, method) if isinstance(method, str) else method
+        # scipy's explicit Runge-Kutta solvers are restarted in place at each interval (_start), others built anew
+        self._restartable = self.method in (scipy.integrate.RK23, scipy.integrate.RK45, scipy.integrate.DOP853)
+        self._solver = self._solver_fun = None
+        self._nx2, self._pair = (self.n, 2), (2, self.n)
         self.held = None  # B u_k ((n, 1) beside the model, (n,) alone), or (0, K v_k) for the observer
         self.first = None  # the first step of the next interval (see _solve)
         self.nfev = 0
@@ -430,28 +445,54 @@ class _SampledLoop:
         """The disturbance at ``t`` within the current interval."""
         return np.asarray(self.w(self.tk + t), dtype=float)
 
+    # The right-hand sides: M.dot(v) is M @ v (the same BLAS call) without the matmul operator's dispatch.
+
     def _model_rhs(self, t, s):
         """Plant and the estimator's model flow, ``s`` the (n, 2) array ``[x, x_hat]`` raveled."""
-        S = s.reshape(self.n, 2)
-        d = self.A @ S + self.held + np.asarray(self.f(S), dtype=float)
+        S = s.reshape(self._nx2)
+        d = self.A.dot(S) + self.held + np.asarray(self.f(S), dtype=float)
         if self.w is not None:  # on the plant only: the model does not know w
-            d[:, 0] += self.Bw @ self._w(t)
+            d[:, 0] += self.Bw.dot(self._w(t))
         return _finite(d, t).ravel()
 
     def _plant_rhs(self, t, s):
         """The plant alone, ``B u_k`` held."""
-        d = self.A @ s + self.held + self.f(s)
-        return _finite(d if self.w is None else d + self.Bw @ self._w(t), t)
+        d = self.A.dot(s) + self.held + self.f(s)
+        return _finite(d if self.w is None else d + self.Bw.dot(self._w(t)), t)
 
     def _observer_rhs(self, t, s):
         """Plant and continuous observer (6) in ``z = (x, x_hat)``, the noise injection held."""
-        d = self.L @ s + self.held + np.asarray(self.f(s.reshape(2, self.n).T), dtype=float).T.ravel()
-        return _finite(d if self.w is None else d + self.Bd @ self._w(t), t)
+        d = self.L.dot(s) + self.held + np.asarray(self.f(s.reshape(self._pair).T), dtype=float).T.ravel()
+        return _finite(d if self.w is None else d + self.Bd.dot(self._w(t)), t)
+
+    def _start(self, fun, y0: np.ndarray):
+        """The solver at the start of an interval: ``method(fun, 0, y0, dt, rtol=, atol=, first_step=first)``.
+
+        scipy's Runge-Kutta solvers (RK23, RK45, DOP853) are built once per run (for the first interval, and
+        whenever ``fun`` changes) and then put back in the state their constructor leaves with these arguments:
+        building one per interval (checking the same arguments each time) took a fifth of an EKF run. The state
+        the steps read is ``t``, ``y``, ``f = fun(t, y)``, ``h_abs`` (the first step) and ``status``, and the
+        constants ``t_bound``, ``direction``, ``rtol``, ``atol``, ``max_step`` (the same every interval); ``K`` is
+        scratch every stage writes before it is read; ``t_old``, ``y_old``, ``h_previous`` start None and
+        ``nfev`` 0. ``y0`` is a finite float vector (:meth:`run` checks ``||z||`` before each interval), as the
+        constructor requires. Other solvers are built per interval. The tests step both ways (``reuse_solver``)
+        and compare bit for bit, so a scipy whose solvers keep other state fails them.
+        """
+        o, solver = self.options, self._solver
+        if solver is None or self.first is None or fun != self._solver_fun or not self.reuse_solver:
+            solver = self.method(fun, 0.0, y0, self.dt, rtol=o.rtol, atol=o.atol, first_step=self.first)
+            if self._restartable and self.reuse_solver:
+                self._solver, self._solver_fun = solver, fun
+            return solver
+        solver.t_old = solver.y_old = solver.h_previous = None
+        solver.t, solver.y, solver.status, solver.nfev = 0.0, y0, "running", 0
+        solver.f = solver.fun(0.0, y0)
+        solver.h_abs = self.first  # in (0, dt]: validate_first_step's conditions
+        return solver
 
     def _solve(self, fun, y0) -> tuple[np.ndarray, int]:
         """One interval with scipy's solver stepped directly: the end state and the right-hand sides used."""
-        o = self.options
-        solver = self.method(fun, 0.0, y0, self.dt, rtol=o.rtol, atol=o.atol, first_step=self.first)
+        solver = self._start(fun, y0)
         largest = 0.0
         while solver.status == "running":
             t_prev = solver.t
@@ -466,16 +507,18 @@ class _SampledLoop:
         """Advance over one interval (measurement noise ``v``); count its right-hand sides."""
         est = self.estimator
         if est is None:
-            self.held = np.concatenate([np.zeros(self.n), self.K @ v])
+            self.held = np.concatenate([np.zeros(self.n), self.K.dot(v)])
             y, nfev = self._solve(self._observer_rhs, z)
             x, xh = y[:self.n], y[self.n:]
         else:
             _finite(np.asarray(self.f(xh), dtype=float), 0.0, "f at the estimate")
-            bu = self.B @ u
+            bu = self.B.dot(u)
             if getattr(est, "predicts_with_model", False):  # plant and prediction: one ODE
                 self.held = bu[:, None]
-                y, nfev = self._solve(self._model_rhs, np.stack([x, xh], axis=1).ravel())
-                S = y.reshape(self.n, 2)
+                s0 = np.empty(2 * self.n)  # [x, x_hat] (n, 2) raveled
+                s0[0::2], s0[1::2] = x, xh
+                y, nfev = self._solve(self._model_rhs, s0)
+                S = y.reshape(self._nx2)
                 est.predict(u, x_next=S[:, 1])  # the filter keeps a copy
                 x = S[:, 0].copy()
             else:
@@ -497,15 +540,16 @@ class _SampledLoop:
         for k in range(N + 1):
             tk = self.tk = k * dt
             if est is not None:
-                est.update(C @ x + V[k] + (0.0 if self.w is None else self.Dw @ self._w(0.0)))
+                est.update(C.dot(x) + V[k] + (0.0 if self.w is None else self.Dw.dot(self._w(0.0))))
                 xh = est.x
-            u = F @ xh
+            u = F.dot(xh)
             ts.append(tk)
             xs.append(x.copy())
             xhs.append(xh.copy())
             us.append(u)
             z = np.concatenate([x, xh])
-            if not np.linalg.norm(z) <= limit:  # above the limit, or not finite (a NaN norm)
+            # ||z|| as np.linalg.norm computes it (sqrt(z . z)), without its overhead
+            if not math.sqrt(z.dot(z)) <= limit:  # above the limit, or not finite (a NaN norm)
                 status, message = "diverged", f"||z|| exceeded {limit:.3g} (or became non-finite) at t = {tk:.4g}"
                 break
             if k == N:
