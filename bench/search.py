@@ -134,6 +134,8 @@ def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTO
     for _ in range(max_moves if kl is None else 0):
         last = kh
         k = aimed(kh - moves)
+        if _point(k, rtol) < down_until:  # an aim below the range is not a reason to stop
+            k = kh - moves
         if _point(k, rtol) < down_until or probe(k):
             break
         if stop is not None and stop():

@@ -92,3 +92,10 @@ def test_an_aim_only_chooses_the_probes(threshold):
     (plain, n_plain), (aimed, n_aimed), (wrong, _) = run(None), run("secant"), run("wrong")
     assert plain == aimed == wrong and plain <= threshold < plain * 1.01
     assert n_aimed < n_plain
+
+
+def test_an_aim_below_the_range_does_not_end_the_search():
+    """Bracketing down stops below ``down_until``; an aim pointing there must not stop it early."""
+    passes, calls = _count(0.5)
+    out = largest_passing(passes, rtol=0.01, hi=100.0, factor=4.0, down_until=1e-3, aim=lambda: 1e-9)
+    assert out["lo"] <= 0.5 < out["lo"] * 1.01 and min(calls) >= 1e-3
