@@ -99,6 +99,13 @@ class SeededDisturbance:
 
     def __call__(self, t):
         scalar = np.ndim(t) == 0
+        if scalar:  # an integrator's call, ~10^5 a run: the numbers of the array path on [t], bit for bit
+            t = float(t)
+            if not 0.0 <= t <= self.t_window:
+                return np.zeros(self.q)
+            # a one-element array, not a scalar: numpy's sine of a 0-d value can differ in the last bit
+            hann = np.sin(np.array([math.pi * t / self.t_window])) ** 2
+            return self.scale * (hann * np.sin(self.omega * t + self.phase).sum(axis=1))
         T = np.atleast_1d(np.asarray(t, dtype=float))
         out = self.scale[:, None] * self._shape(T)
         return out[:, 0] if scalar else out

@@ -91,6 +91,20 @@ def test_the_seeded_disturbance_has_its_documented_shape():
     assert window(20.0) == 10.0 and window(20.0, 8.0) == 4.0
 
 
+def test_a_scalar_time_gives_the_array_path_s_numbers_bit_for_bit():
+    # the integrators call w(t) at one time; its fast path must agree exactly with w on the array [t], inside
+    # the window (where a 0-d sine may differ from an array's in the last bit), at its ends and outside
+    rng = np.random.default_rng(7)
+    for q, seed, dt in ((1, 0, 0.0), (2, 3, 0.0), (3, 1, 0.05)):
+        w = SeededDisturbance(0.4, q, 6.0, seed=seed, dt=dt)
+        t = np.concatenate([rng.uniform(-2.0, 9.0, 3000), [0.0, 6.0, -1e-12, 6.0 + 1e-12]])
+        one = np.stack([w(float(tk)) for tk in t], axis=1)
+        np.testing.assert_array_equal(one, np.stack([w(np.array([tk]))[:, 0] for tk in t], axis=1))
+        np.testing.assert_allclose(one, w(t), rtol=0, atol=1e-15)  # an array of times: the same w
+        assert not np.any(one[:, (t < 0) | (t > 6.0)])  # zero outside [0, T_w]
+        assert np.count_nonzero(one[:, (t > 0) & (t < 6.0)]) > 0
+
+
 def test_l2_norms_on_a_grid():
     t = np.linspace(0, 2 * np.pi, 20001)
     assert l2_norm(t, np.sin(t)[None, :]) == pytest.approx(math.sqrt(math.pi), rel=1e-7)
