@@ -153,6 +153,25 @@ def test_workers_forked_after_a_solve_in_the_parent_finish():
     assert _in_fresh_process(_DEADLOCK, timeout=20, drop_env=("RAYON_NUM_THREADS",)) == (True, True)
 
 
+def _frozen() -> int:
+    import gc
+
+    return gc.get_freeze_count()
+
+
+@pytest.mark.skipif(sys.platform in ("win32", "darwin"), reason="fork is the default start method elsewhere")
+def test_forked_workers_inherit_frozen_objects_and_the_parent_unfreezes_after():
+    # gc.freeze before forking: a worker's full collections skip what it inherits. The parent's objects must
+    # not stay frozen once the pool is gone (cycles created before the run would never be collected)
+    import gc
+
+    before = gc.get_freeze_count()
+    with executor(2, start_method="fork") as ex:
+        in_worker = ex.submit(_frozen).result()
+    assert in_worker > 1000  # the imports of every module a worker needs, at least
+    assert gc.get_freeze_count() == before
+
+
 def test_dask_local_cluster_gives_identical_results():
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
