@@ -497,7 +497,8 @@ def _rate_from_zero(lv: lyapunov.Level, hi: float, *, top_first: bool = False) -
     def passes(x: float):
         return lv.solve(x, probe=True)[0] == "verified" and (True, lv.reach_grid(x, hi))
 
-    res = largest_passing(passes, rtol=lv.rtol, hi=hi, factor=4.0, down_until=1e-6 * max(1.0, hi), aim=lv.secant)
+    res = largest_passing(passes, rtol=lv.rtol, hi=hi, factor=4.0, down_until=1e-6 * max(1.0, hi), aim=lv.secant,
+                          aim_next=True)
     return res["lo"] if math.isfinite(res["lo"]) else 0.0
 
 

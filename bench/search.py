@@ -56,7 +56,8 @@ def grid_floor(x: float, rtol: float = RATE_RTOL) -> float:
 def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTOL, start: float | None = None,
                     lo: float | None = None, hi: float | None = None, factor: float = 2.0, max_moves: int = 12,
                     down_until: float = 0.0, stop: Callable[[], bool] | None = None,
-                    first_above: bool = False, aim: Callable[[], float | None] | None = None) -> dict:
+                    first_above: bool = False, aim: Callable[[], float | None] | None = None,
+                    aim_next: bool = False) -> dict:
     """The largest grid point at which ``passes`` holds, for a test that holds below a threshold.
 
     Parameters
@@ -91,6 +92,10 @@ def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTO
         probes so far (e.g. a secant through their margins). A grid point below the estimate inside the bracket is
         probed instead of the next bracketing move or the midpoint (the midpoint after two failures in a row). The
         answer does not depend on it, only which grid points are probed.
+    aim_next : bool
+        When the estimate lies within a grid step of the passing end, probe the grid point just above it (a
+        failure there ends the search), once per search. For estimates that mark the threshold itself (a
+        margin's secant); not for ones that trail it.
 
     Returns
     -------
@@ -105,11 +110,18 @@ def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTO
     kl = None if lo is None else _index(lo, rtol, up=False)  # grid indices known to pass / fail
     kh = None if hi is None else _index(hi, rtol, up=True)
 
+    next_once = [aim_next]  # one probe of the passing end's next grid point where the aim points (below)
+
     def aimed(default: int) -> int:
         est = aim() if aim is not None else None
         if est is None or not est > 0 or not math.isfinite(est):
             return default
         k = _index(est, rtol, up=False)
+        if kl is not None and kh is not None and k <= kl + 1 < kh and next_once[0]:
+            # the threshold within a grid step of the passing end: its next grid point ends the search when it
+            # fails; once only (an aim that keeps pointing there, bent away from the threshold, would creep up)
+            next_once[0] = False
+            return kl + 1
         return k if (kl is None or k > kl + 1) and (kh is None or k < kh) else default
 
     def probe(k: int) -> bool:

@@ -94,6 +94,34 @@ def test_an_aim_only_chooses_the_probes(threshold):
     assert n_aimed < n_plain
 
 
+@pytest.mark.parametrize("threshold", [math.pi, 0.0123])
+def test_aim_next_probes_the_passing_end_s_next_point_once(threshold):
+    """``aim_next``: an aim at the passing end (the threshold within a grid step of it) probes its next grid point
+    once. A bent margin whose secant trails the threshold (here a margin flat below it, steep above) ends in fewer
+    probes than bisection; an aim stuck below the passing end costs at most that one probe; the answer is the same."""
+    from bench.search import secant_estimate
+
+    def run(aim_kind, aim_next):
+        curve, calls = {}, []
+
+        def passes(x):
+            calls.append(x)
+            m = (x - threshold) * (1.0 if x <= threshold else 100.0)
+            curve[x] = (m <= 0, m, 0.0)
+            return m <= 0
+
+        aim = {"secant": lambda: secant_estimate(curve), "stuck": lambda: 1e-9, None: None}[aim_kind]
+        out = largest_passing(passes, rtol=0.01, hi=1e3, factor=4.0, aim=aim, aim_next=aim_next)
+        return out["lo"], len(calls)
+
+    plain, n_plain = run(None, False)
+    (sec, n_sec), (sec_next, n_next) = run("secant", False), run("secant", True)
+    (stuck, n_stuck), (stuck_next, n_stuck_next) = run("stuck", False), run("stuck", True)
+    assert plain == sec == sec_next == stuck == stuck_next and plain <= threshold < plain * 1.01
+    assert n_next < n_sec
+    assert n_stuck_next <= n_stuck + 1
+
+
 def test_an_aim_below_the_range_does_not_end_the_search():
     """Bracketing down stops below ``down_until``; an aim pointing there must not stop it early."""
     passes, calls = _count(0.5)
