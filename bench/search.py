@@ -110,17 +110,18 @@ def largest_passing(passes: Callable[[float], object], *, rtol: float = RATE_RTO
     kl = None if lo is None else _index(lo, rtol, up=False)  # grid indices known to pass / fail
     kh = None if hi is None else _index(hi, rtol, up=True)
 
-    next_once = [aim_next]  # one probe of the passing end's next grid point where the aim points (below)
+    next_once = aim_next  # one probe of the passing end's next grid point where the aim points (below)
 
     def aimed(default: int) -> int:
+        nonlocal next_once
         est = aim() if aim is not None else None
         if est is None or not est > 0 or not math.isfinite(est):
             return default
         k = _index(est, rtol, up=False)
-        if kl is not None and kh is not None and k <= kl + 1 < kh and next_once[0]:
+        if kl is not None and kh is not None and k <= kl + 1 < kh and next_once:
             # the threshold within a grid step of the passing end: its next grid point ends the search when it
             # fails; once only (an aim that keeps pointing there, bent away from the threshold, would creep up)
-            next_once[0] = False
+            next_once = False
             return kl + 1
         return k if (kl is None or k > kl + 1) and (kh is None or k < kh) else default
 
